@@ -1,0 +1,5 @@
+import sys
+
+from mixcount.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""The asset catalog: SQLAlchemy 2 models, alembic-migrated engine, ingest, curation, splits."""

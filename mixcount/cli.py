@@ -1,0 +1,85 @@
+"""The `mixcount` command line. The only place that turns errors into messages and exit codes."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from mixcount.commands.common import AppState, console
+from mixcount.errors import MixcountError
+
+app = typer.Typer(
+    name="mixcount",
+    help="Photorealistic mixed-object counting datasets from a catalog of real 3D object captures.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+catalog_app = typer.Typer(
+    help="Ingest, curate, caption and split the asset catalog.", no_args_is_help=True
+)
+app.add_typer(catalog_app, name="catalog")
+
+
+@app.callback()
+def _root(
+    ctx: typer.Context,
+    db: Optional[str] = typer.Option(
+        None, "--db", envvar="MIXCOUNT_DB", help="Catalog database: a path or SQLAlchemy URL [default: catalog/catalog.db]."
+    ),
+    config: list[Path] = typer.Option(
+        [], "--config", "-c", help="Config file(s) layered over configs/default.toml (e.g. configs/quick.toml)."
+    ),
+    set_: list[str] = typer.Option(
+        [], "--set", help="Override one config key: --set scene.n_objects_max=50 (unknown keys are errors)."
+    ),
+) -> None:
+    ctx.obj = AppState(db=db, config_files=list(config), overrides=list(set_))
+
+
+def _register_commands() -> None:
+    import importlib
+
+    for name in ("ingest", "curate", "captions", "compose", "evaluate", "demo"):
+        try:
+            module = importlib.import_module(f"mixcount.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"mixcount.commands.{name}":
+                continue
+            raise
+        module.register(app, catalog_app)
+
+
+_register_commands()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console-script entry point."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except MixcountError as exc:
+        console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        return 2
+    except KeyboardInterrupt:
+        console.print("[yellow]interrupted[/]")
+        return 130
+    except SystemExit as exc:  # typer's own exits (--help, usage errors)
+        return int(exc.code or 0)
+    except Exception as exc:  # click usage errors come through here with standalone_mode=False
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            return exc.exit_code
+        if isinstance(exc, click.exceptions.Abort):
+            console.print("[yellow]aborted[/]")
+            return 130
+        raise
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
