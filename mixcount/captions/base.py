@@ -1,0 +1,148 @@
+"""The Captioner protocol and what it is given.
+
+A captioner turns one :class:`CaptionInput` (the facts the catalog knows about an object, plus the path
+of its canonical render when there is one) into a :class:`CaptionResult` with three tiers of text:
+``short`` (2-5 words), ``concise`` (5-10 words) and ``detailed`` (1-2 sentences), and the raw answer it
+was built from (hashed into the caption set, never stored whole).
+
+``name`` is the captioner kind stored in ``caption_sets.captioner`` (``stub`` | ``http``); together with
+``provider``, ``model`` and ``prompt_version`` it is the resume key of ``catalog caption``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render
+
+TIERS = ("short", "concise", "detailed")
+
+# Word bounds every captioner's answer is checked against (inclusive). The stub aims inside the
+# issue's bounds (2-5, 5-10, 1-2 sentences); answers from an LLM get a little slack before they count as
+# schema violations.
+STUB_WORD_BOUNDS = {"short": (2, 5), "concise": (5, 10), "detailed": (8, 60)}
+LLM_WORD_BOUNDS = {"short": (1, 8), "concise": (3, 16), "detailed": (5, 80)}
+
+_ID_TOKEN = re.compile(r"^(?=.*\d)[a-z0-9]{4,}$|^\d+$|^v\d+$")
+
+
+def words(text: str) -> list[str]:
+    return text.split()
+
+
+def name_tokens(name: str) -> list[str]:
+    """Lower-case words of an object name: splits snake/kebab/camel case, drops ids like ``B07XYZ1``."""
+    spaced = re.sub(r"(?<=[a-z])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", " ", name)
+    raw = re.split(r"[^A-Za-z0-9]+", spaced)
+    return [t for t in (r.lower() for r in raw) if len(t) > 1 and not _ID_TOKEN.match(t)]
+
+
+@dataclass(frozen=True)
+class CaptionInput:
+    """Everything a captioner may use about one object (metres, Z-up)."""
+
+    object_id: int
+    name: str
+    category: str
+    dims: tuple[float, float, float]
+    vertex_count: int | None = None
+    face_count: int | None = None
+    watertight: bool | None = None
+    volume: float | None = None
+    area: float | None = None
+    textured: bool | None = None
+    model_path: str | None = None
+    render_path: Path | None = None
+    colours: ColourSummary = field(default=EMPTY)
+
+    @classmethod
+    def from_object(cls, obj: Any, *, render_path: Path | None = None, with_colours: bool = True) -> "CaptionInput":
+        """Build from a ``CatalogObject``; colours from the render when present, else from the model."""
+        colours = EMPTY
+        if with_colours:
+            if render_path is not None and Path(render_path).is_file():
+                colours = colours_from_render(Path(render_path))
+            if not colours.names and obj.model_path and Path(obj.model_path).is_file():
+                colours = colours_from_model(Path(obj.model_path), seed=int(obj.id or 0))
+        return cls(
+            object_id=int(obj.id),
+            name=obj.name or "",
+            category=(obj.category or "object").strip().lower(),
+            dims=(float(obj.dim_x or 0.0), float(obj.dim_y or 0.0), float(obj.dim_z or 0.0)),
+            vertex_count=obj.vertex_count,
+            face_count=obj.face_count,
+            watertight=obj.watertight,
+            volume=obj.volume,
+            area=obj.area,
+            textured=obj.textured,
+            model_path=obj.model_path,
+            render_path=Path(render_path) if render_path is not None and Path(render_path).is_file() else None,
+            colours=colours,
+        )
+
+    def facts(self) -> dict[str, Any]:
+        """JSON-able facts (no paths): what an LLM prompt is told besides the image."""
+        return {
+            "category": self.category,
+            "name": " ".join(name_tokens(self.name)) or self.name,
+            "dimensions_cm": [round(d * 100.0, 1) for d in self.dims],
+            "watertight": self.watertight,
+            "textured": self.textured,
+            "dominant_colours": list(self.colours.names),
+        }
+
+
+@dataclass(frozen=True)
+class CaptionResult:
+    """Three tiers of text plus the raw answer they came from and the number of requests it took."""
+
+    short: str
+    concise: str
+    detailed: str
+    raw: str
+    attempts: int = 1
+
+    def tiers(self) -> dict[str, str]:
+        return {"short": self.short, "concise": self.concise, "detailed": self.detailed}
+
+
+@runtime_checkable
+class Captioner(Protocol):
+    name: str
+    provider: str
+    model: str
+    prompt_version: str
+
+    def caption(self, item: CaptionInput) -> CaptionResult:
+        """Caption one object or raise :class:`mixcount.errors.CaptionError` (with ``attempts``)."""
+        ...
+
+
+def check_tiers(data: Any, bounds: dict[str, tuple[int, int]]) -> dict[str, str]:
+    """Validate a parsed answer: exactly the three tiers, non-empty strings within word bounds.
+
+    Returns the cleaned tiers (whitespace collapsed); raises ValueError saying what is wrong.
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f"answer is a {type(data).__name__}, expected an object with {list(TIERS)}")
+    missing = [t for t in TIERS if t not in data]
+    if missing:
+        raise ValueError(f"answer lacks {missing}")
+    extra = sorted(set(data) - set(TIERS))
+    if extra:
+        raise ValueError(f"answer has unexpected keys {extra}")
+    out: dict[str, str] = {}
+    for tier in TIERS:
+        value = data[tier]
+        if not isinstance(value, str):
+            raise ValueError(f"{tier!r} is a {type(value).__name__}, expected a string")
+        text = " ".join(value.split())
+        lo, hi = bounds[tier]
+        n = len(words(text))
+        if not lo <= n <= hi:
+            raise ValueError(f"{tier!r} has {n} words, expected {lo}-{hi}")
+        out[tier] = text
+    return out

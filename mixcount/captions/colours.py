@@ -1,0 +1,247 @@
+"""Dominant colours of an object, named from real pixels.
+
+Two sources, both deterministic:
+
+* the canonical render (PNG on pure white, RGB or RGBA): object pixels are the opaque ones (RGBA) or the
+  ones that are not near-pure white (RGB);
+* the model itself (trimesh): colours sampled on the surface, area-weighted, from the base-colour texture
+  through the UVs, from vertex/face colours, or from the material's base colour factor.
+
+Each pixel gets a name from a small HSV rule table (``name_rgb``); the names whose share of the object's
+pixels passes a threshold are the dominant colours. Naming each pixel and counting the names (instead of
+naming a k-means centre) keeps e.g. a red-and-white ball "red and white" rather than a pink average.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+# Hue bins (degrees, lower bound inclusive) for saturated colours; brightness variants are in _refine.
+_HUES: tuple[tuple[float, str], ...] = (
+    (0.0, "red"),
+    (15.0, "orange"),
+    (42.0, "yellow"),
+    (70.0, "lime"),
+    (90.0, "green"),
+    (160.0, "teal"),
+    (190.0, "blue"),
+    (255.0, "purple"),
+    (290.0, "magenta"),
+    (330.0, "pink"),
+    (348.0, "red"),
+)
+
+NAMES: tuple[str, ...] = (
+    "black", "dark grey", "grey", "light grey", "white", "red", "maroon", "orange", "brown", "tan",
+    "beige", "yellow", "gold", "olive", "lime", "green", "dark green", "teal", "blue", "navy",
+    "light blue", "purple", "magenta", "pink",
+)
+
+
+def name_hsv(h: float, s: float, v: float) -> str:
+    """Name one colour given HSV in [0, 1] (h in turns). Rules, not nearest-neighbour: easy to read."""
+    if v < 0.16:
+        return "black"
+    if s < 0.16 or (v < 0.3 and s < 0.3):
+        if v > 0.88:
+            return "white"
+        if v > 0.66:
+            return "light grey"
+        if v > 0.38:
+            return "grey"
+        return "dark grey"
+    deg = h * 360.0
+    base = "red"
+    for lower, name in _HUES:
+        if deg >= lower:
+            base = name
+    return _refine(base, s, v)
+
+
+def _refine(base: str, s: float, v: float) -> str:
+    if base in ("red", "pink"):
+        if v < 0.45:
+            return "maroon"
+        if base == "red" and s < 0.45 and v > 0.7:
+            return "pink"
+        return base
+    if base == "orange":
+        if v < 0.62:
+            return "brown"
+        if s < 0.45:
+            return "beige" if v > 0.8 else "tan"
+        return "orange"
+    if base == "yellow":
+        if v < 0.5:
+            return "olive"
+        if s < 0.4:
+            return "beige"
+        if v < 0.8:
+            return "gold"
+        return "yellow"
+    if base == "green":
+        return "dark green" if v < 0.4 else "green"
+    if base == "blue":
+        if v < 0.42:
+            return "navy"
+        if s < 0.45 and v > 0.7:
+            return "light blue"
+        return "blue"
+    return base
+
+
+def name_rgb(rgb: tuple[int, int, int] | np.ndarray) -> str:
+    """Name one 8-bit RGB colour."""
+    r, g, b = (float(c) / 255.0 for c in rgb[:3])
+    return name_hsv(*colorsys.rgb_to_hsv(r, g, b))
+
+
+@dataclass(frozen=True)
+class ColourSummary:
+    """Dominant colour names (most common first), their shares, and how varied the surface is."""
+
+    names: tuple[str, ...]
+    shares: tuple[float, ...]
+    variation: float  # std of luminance over object pixels, 0..1: high = patterned/textured
+    source: str  # "render" | "model" | "none"
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "names": list(self.names),
+            "shares": [round(s, 3) for s in self.shares],
+            "variation": round(self.variation, 3),
+            "source": self.source,
+        }
+
+
+EMPTY = ColourSummary((), (), 0.0, "none")
+
+
+def summarise(pixels: np.ndarray, *, source: str, min_share: float = 0.12, max_names: int = 3) -> ColourSummary:
+    """Name every pixel (N x 3 uint8), count names, keep those above ``min_share`` (at least one)."""
+    if pixels.size == 0:
+        return EMPTY
+    px = np.asarray(pixels, dtype=np.uint8).reshape(-1, 3)
+    # Quantise to 5 bits per channel: naming ~32k distinct colours instead of every pixel.
+    q = (px >> 3).astype(np.int32)
+    keys = (q[:, 0] << 10) | (q[:, 1] << 5) | q[:, 2]
+    uniq, counts = np.unique(keys, return_counts=True)
+    tally: dict[str, int] = {}
+    for key, count in zip(uniq.tolist(), counts.tolist()):
+        rgb = (((key >> 10) & 31) * 8 + 4, ((key >> 5) & 31) * 8 + 4, (key & 31) * 8 + 4)
+        name = name_rgb(rgb)
+        tally[name] = tally.get(name, 0) + count
+    total = float(len(px))
+    ranked = sorted(tally.items(), key=lambda kv: (-kv[1], NAMES.index(kv[0])))
+    kept = [(n, c / total) for n, c in ranked if c / total >= min_share][:max_names] or [
+        (ranked[0][0], ranked[0][1] / total)
+    ]
+    lum = (0.2126 * px[:, 0] + 0.7152 * px[:, 1] + 0.0722 * px[:, 2]) / 255.0
+    return ColourSummary(tuple(n for n, _ in kept), tuple(s for _, s in kept), float(lum.std()), source)
+
+
+def render_pixels(path: Path, *, max_side: int = 256) -> np.ndarray:
+    """Object pixels of a canonical render (N x 3 uint8): opaque ones, or the not-near-white ones."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        im.load()
+        if max(im.size) > max_side:
+            im = im.resize(
+                (max(1, im.width * max_side // max(im.size)), max(1, im.height * max_side // max(im.size))),
+                Image.Resampling.NEAREST,
+            )
+        if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
+            arr = np.asarray(im.convert("RGBA"))
+            mask = arr[..., 3] > 200
+            if mask.any() and not mask.all():
+                return arr[..., :3][mask]
+            arr = arr[..., :3]
+        else:
+            arr = np.asarray(im.convert("RGB"))
+    # RGB on white: drop the background (near-pure white, nearly grey).
+    spread = arr.max(axis=-1).astype(int) - arr.min(axis=-1).astype(int)
+    background = (arr.min(axis=-1) >= 247) & (spread <= 6)
+    return arr[~background]
+
+
+def colours_from_render(path: Path) -> ColourSummary:
+    return summarise(render_pixels(path), source="render")
+
+
+def _texture_image(visual) -> np.ndarray | None:  # type: ignore[no-untyped-def]
+    material = getattr(visual, "material", None)
+    image = getattr(material, "baseColorTexture", None)
+    if image is None:
+        image = getattr(material, "image", None)
+    if image is None:
+        return None
+    return np.asarray(image.convert("RGB"))
+
+
+def _base_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
+    material = getattr(visual, "material", None)
+    factor = getattr(material, "baseColorFactor", None)
+    if factor is None:
+        main = getattr(material, "main_color", None)
+        factor = main if main is not None else [255, 255, 255, 255]
+    f = np.asarray(factor, dtype=float)[:3]
+    return f / 255.0 if f.max() > 1.0 else f
+
+
+def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8)."""
+    import trimesh
+
+    if len(mesh.faces) == 0 or count <= 0:
+        return np.zeros((0, 3), dtype=np.uint8)
+    area = np.asarray(mesh.area_faces, dtype=float)
+    weights = area / area.sum() if area.sum() > 0 else None
+    faces = rng.choice(len(mesh.faces), size=count, p=weights)
+    visual = mesh.visual
+    if isinstance(visual, trimesh.visual.TextureVisuals):
+        factor = _base_factor(visual)
+        image = _texture_image(visual)
+        uv = getattr(visual, "uv", None)
+        if image is None or uv is None or len(uv) != len(mesh.vertices):
+            return np.tile(np.clip(factor * 255.0, 0, 255).astype(np.uint8), (count, 1))
+        bary = rng.dirichlet((1.0, 1.0, 1.0), size=count)
+        tri_uv = np.asarray(uv, dtype=float)[mesh.faces[faces]]  # count x 3 x 2
+        pts = np.einsum("nk,nkd->nd", bary, tri_uv)
+        h, w = image.shape[:2]
+        x = np.mod(pts[:, 0], 1.0) * (w - 1)
+        y = (1.0 - np.mod(pts[:, 1], 1.0)) * (h - 1)
+        px = image[y.round().astype(int), x.round().astype(int)].astype(float)
+        return np.clip(px * factor, 0, 255).astype(np.uint8)
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.defined:
+        if visual.kind == "face":
+            cols = np.asarray(visual.face_colors)[faces, :3]
+        else:
+            vc = np.asarray(visual.vertex_colors)[:, :3].astype(float)
+            cols = vc[mesh.faces[faces]].mean(axis=1)
+        return np.asarray(cols).astype(np.uint8)
+    return np.zeros((0, 3), dtype=np.uint8)
+
+
+def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> ColourSummary:
+    """Dominant colours sampled from a model file's surface (texture, vertex colours or material)."""
+    import trimesh
+
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception:  # noqa: BLE001 - unreadable model: no colours, caption from the other facts
+        return EMPTY
+    meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
+    meshes = [m for m in meshes if isinstance(m, trimesh.Trimesh) and len(m.faces)]
+    if not meshes:
+        return EMPTY
+    rng = np.random.default_rng(seed)
+    areas = np.array([max(m.area, 0.0) for m in meshes])
+    shares = areas / areas.sum() if areas.sum() > 0 else np.full(len(meshes), 1.0 / len(meshes))
+    parts = [mesh_colour_samples(m, rng, int(round(samples * s))) for m, s in zip(meshes, shares)]
+    pixels = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3), dtype=np.uint8)])
+    return summarise(pixels, source="model")

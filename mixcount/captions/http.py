@@ -1,0 +1,463 @@
+"""The HTTP captioner: a vision LLM behind an OpenAI-compatible or a Gemini endpoint (httpx).
+
+One request per object: the canonical render (PNG data, composited on white, downscaled) and the
+catalog's facts go out; a JSON object ``{short, concise, detailed}`` constrained by a JSON schema comes back.
+
+* ``openai``: ``POST {endpoint}/v1/chat/completions``, ``Authorization: Bearer``, image as a
+  ``data:image/png;base64,...`` URI in an ``image_url`` part, ``response_format`` = ``json_schema`` (strict).
+* ``gemini``: ``POST {endpoint}/v1beta/models/{model}:generateContent``, ``x-goog-api-key`` header (never
+  the ``?key=`` query, which would put the key in every logged URL), image as ``inline_data``,
+  ``generationConfig.responseMimeType = application/json`` + ``responseSchema``.
+
+Failure policy (every sleep goes through the injected ``sleep`` so tests stay fast):
+
+* 408, 409, 429, 5xx, timeouts and connection errors are retried up to ``max_retries`` times with capped
+  exponential backoff and "equal" jitter (half the step fixed, half random), unless the server says how long
+  to wait: ``retry-after-ms``, ``Retry-After`` (seconds or HTTP date), or Gemini's
+  ``google.rpc.RetryInfo.retryDelay``; a wait longer than ``max_retry_after_s`` fails at once;
+* 400, 401, 403, 404 (any other 4xx) and quota-exhausted answers (OpenAI ``insufficient_quota``, Gemini
+  ``QuotaFailure`` on a per-day quota) are not retried;
+* a 200 whose body or content is not valid JSON, or violates the schema / word bounds, gets one repair
+  request (the bad answer and the validation error are sent back), then counts as a failure.
+
+Failures raise :class:`CaptionRequestError` carrying the number of HTTP requests made; the batch records
+it and goes on. The API key is read from the environment variable named in config, sent only in a request
+header, and scrubbed from every error message and log line this module writes.
+"""
+
+from __future__ import annotations
+
+import base64
+import email.utils
+import io
+import json
+import logging
+import os
+import re
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import httpx
+import numpy as np
+
+from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
+from mixcount.errors import CaptionError, ConfigError
+
+log = logging.getLogger("mixcount.captions.http")
+
+PROVIDERS = ("openai", "gemini")
+DEFAULT_ENDPOINTS = {"openai": "https://api.openai.com", "gemini": "https://generativelanguage.googleapis.com"}
+RETRY_STATUSES = frozenset({408, 409, 429})
+
+SYSTEM_PROMPT = (
+    "You describe one physical object, photographed alone on a white background, for an object-counting "
+    "dataset. Answer with JSON holding three fields. short: 2 to 5 words naming colour or material and the "
+    "object (e.g. 'gold paneled volleyball'). concise: 5 to 10 words (e.g. 'Shiny golden volleyball with "
+    "dark seams'). detailed: one or two sentences on colours, materials, markings, text and shape (e.g. "
+    "'Shiny golden volleyball features segmented panels joined by dark seams, displaying a smooth and "
+    "reflective surface.'). Describe only what is visible and what tells this object apart from similar "
+    "ones; do not mention the background, the photograph, or sizes in units."
+)
+PROMPT_VERSION = "http-v1"
+
+JSON_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "properties": {t: {"type": "string"} for t in TIERS},
+    "required": list(TIERS),
+    "additionalProperties": False,
+}
+GEMINI_SCHEMA: dict[str, Any] = {
+    "type": "OBJECT",
+    "properties": {t: {"type": "STRING"} for t in TIERS},
+    "required": list(TIERS),
+    "propertyOrdering": list(TIERS),
+}
+
+
+class CaptionRequestError(CaptionError):
+    """Captioning one object failed; ``attempts`` = HTTP requests made, ``retryable`` = transient cause."""
+
+    def __init__(self, message: str, *, attempts: int, retryable: bool = False) -> None:
+        super().__init__(message)
+        self.attempts = attempts
+        self.retryable = retryable
+
+
+class _BadAnswer(Exception):
+    """A 200 answer that is not usable (malformed JSON, schema violation): worth one repair."""
+
+    def __init__(self, message: str, content: str | None) -> None:
+        super().__init__(message)
+        self.content = content
+
+
+@dataclass(frozen=True)
+class HttpCaptionerConfig:
+    provider: str = "openai"
+    endpoint: str = ""
+    model: str = ""
+    api_key_env: str = "MIXCOUNT_CAPTION_API_KEY"
+    timeout_s: float = 60.0
+    concurrency: int = 4
+    max_retries: int = 4
+    backoff_base_s: float = 1.0
+    backoff_cap_s: float = 30.0
+    max_retry_after_s: float = 120.0
+    prompt_version: str = PROMPT_VERSION
+    max_image_px: int = 512
+    temperature: float = 0.2
+
+    @classmethod
+    def from_config(cls, cfg: Any) -> "HttpCaptionerConfig":
+        """From the ``[captions]`` section of a :class:`mixcount.config.Config`."""
+        sec: Mapping[str, Any] = cfg["captions"]
+        conf = cls(
+            provider=str(sec["provider"]),
+            endpoint=str(sec["endpoint"]),
+            model=str(sec["model"]),
+            api_key_env=str(sec["api_key_env"]),
+            timeout_s=float(sec["timeout_s"]),
+            concurrency=int(sec["concurrency"]),
+            max_retries=int(sec["max_retries"]),
+            backoff_base_s=float(sec["backoff_base_s"]),
+            backoff_cap_s=float(sec["backoff_cap_s"]),
+            max_retry_after_s=float(sec["max_retry_after_s"]),
+            prompt_version=str(sec["http_prompt_version"]),
+            max_image_px=int(sec["max_image_px"]),
+            temperature=float(sec["temperature"]),
+        )
+        conf.check()
+        return conf
+
+    def check(self) -> None:
+        if self.provider not in PROVIDERS:
+            raise ConfigError(f"captions.provider must be one of {PROVIDERS}, got {self.provider!r}")
+        if not self.model:
+            raise ConfigError("captions.model must name the model for the http captioner")
+        if self.max_retries < 0 or self.concurrency < 1 or self.timeout_s <= 0:
+            raise ConfigError("captions: max_retries >= 0, concurrency >= 1 and timeout_s > 0 are required")
+
+    def url(self) -> str:
+        base = (self.endpoint or DEFAULT_ENDPOINTS[self.provider]).rstrip("/")
+        if self.provider == "openai":
+            if base.endswith("/chat/completions"):
+                return base
+            return base + ("/chat/completions" if base.endswith("/v1") else "/v1/chat/completions")
+        if base.endswith(":generateContent"):
+            return base
+        if re.search(r"/v1(beta\d*)?$", base):
+            return f"{base}/models/{self.model}:generateContent"
+        return f"{base}/v1beta/models/{self.model}:generateContent"
+
+
+def encode_image(path: Path, max_px: int) -> str:
+    """The render as base64 PNG: transparent pixels composited on white, longest side <= ``max_px``."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        im.load()
+        rgba = im.convert("RGBA")
+    canvas = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+    canvas.alpha_composite(rgba)
+    rgb = canvas.convert("RGB")
+    if max(rgb.size) > max_px:
+        rgb.thumbnail((max_px, max_px), Image.Resampling.LANCZOS)
+    buf = io.BytesIO()
+    rgb.save(buf, format="PNG", optimize=True)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def parse_retry_after(headers: Mapping[str, str], now: datetime | None = None) -> float | None:
+    """Seconds to wait from ``retry-after-ms`` or ``Retry-After`` (delta-seconds or HTTP date)."""
+    ms = headers.get("retry-after-ms")
+    if ms:
+        try:
+            return max(0.0, float(ms) / 1000.0)
+        except ValueError:
+            pass
+    value = headers.get("retry-after")
+    if not value:
+        return None
+    try:
+        return max(0.0, float(value))
+    except ValueError:
+        pass
+    try:
+        when = email.utils.parsedate_to_datetime(value)
+    except (TypeError, ValueError):
+        return None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=timezone.utc)
+    return max(0.0, (when - (now or datetime.now(timezone.utc))).total_seconds())
+
+
+def _error_details(body: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    err = body.get("error") if isinstance(body, dict) else None
+    if isinstance(err, list) and err and isinstance(err[0], dict):  # some Gemini proxies wrap in a list
+        err = err[0].get("error", err[0])
+    if not isinstance(err, dict):
+        return {}, []
+    details = err.get("details") if isinstance(err.get("details"), list) else []
+    return err, [d for d in details if isinstance(d, dict)]
+
+
+def gemini_retry_delay(body: Any) -> float | None:
+    """``RetryInfo.retryDelay`` ("12s", "1.5s") from a Gemini error body, in seconds."""
+    _, details = _error_details(body)
+    for d in details:
+        if str(d.get("@type", "")).endswith("google.rpc.RetryInfo"):
+            m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)s\s*", str(d.get("retryDelay", "")))
+            if m:
+                return float(m.group(1))
+    return None
+
+
+def quota_exhausted(provider: str, body: Any) -> bool:
+    """True for answers saying the account's quota is spent (retrying soon cannot help)."""
+    err, details = _error_details(body)
+    if provider == "openai":
+        return "insufficient_quota" in (str(err.get("code", "")), str(err.get("type", "")))
+    for d in details:
+        if str(d.get("@type", "")).endswith("google.rpc.QuotaFailure"):
+            for v in d.get("violations") or []:
+                if isinstance(v, dict) and "perday" in str(v.get("quotaId", "")).lower():
+                    return True
+    return False
+
+
+class HttpCaptioner:
+    """Captioner over HTTP. ``client`` is injected (tests pass one; the CLI makes one); thread-safe."""
+
+    name = "http"
+
+    def __init__(
+        self,
+        config: HttpCaptionerConfig,
+        client: httpx.Client | None = None,
+        *,
+        api_key: str | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        config.check()
+        self.config = config
+        self.provider = config.provider
+        self.model = config.model
+        self.prompt_version = config.prompt_version
+        self.concurrency = config.concurrency
+        if api_key is None:
+            if config.api_key_env:
+                api_key = os.environ.get(config.api_key_env, "")
+                if not api_key:
+                    raise ConfigError(
+                        f"the http captioner needs an API key in the environment variable {config.api_key_env} "
+                        "(captions.api_key_env)"
+                    )
+            else:
+                api_key = ""
+        self._key = api_key
+        self._own_client = client is None
+        self.client = client or httpx.Client(
+            timeout=config.timeout_s,
+            limits=httpx.Limits(max_connections=max(2, config.concurrency)),
+        )
+        self._sleep = sleep
+        self._rng = rng or np.random.default_rng()
+        self.url = config.url()
+
+    def close(self) -> None:
+        if self._own_client:
+            self.client.close()
+
+    # --- text hygiene -------------------------------------------------------------------------------------
+    def redact(self, text: str) -> str:
+        """Remove the API key (and a Bearer token) from any text before it is stored or logged."""
+        if self._key:
+            text = text.replace(self._key, "[redacted]")
+        return re.sub(r"(?i)(bearer\s+)[A-Za-z0-9._\-]+", r"\1[redacted]", text)
+
+    def _headers(self) -> dict[str, str]:
+        headers = {"content-type": "application/json", "accept": "application/json"}
+        if self._key:
+            if self.provider == "openai":
+                headers["authorization"] = f"Bearer {self._key}"
+            else:
+                headers["x-goog-api-key"] = self._key
+        return headers
+
+    # --- request bodies -----------------------------------------------------------------------------------
+    def _user_text(self, item: CaptionInput, has_image: bool) -> str:
+        facts = json.dumps(item.facts(), sort_keys=True)
+        if has_image:
+            return f"Describe the object in the image. Catalog facts (may help, the image wins): {facts}"
+        return f"No image is available; describe the object from these catalog facts only: {facts}"
+
+    def build_body(self, item: CaptionInput) -> dict[str, Any]:
+        image = encode_image(item.render_path, self.config.max_image_px) if item.render_path else None
+        text = self._user_text(item, image is not None)
+        if self.provider == "openai":
+            content: list[dict[str, Any]] = [{"type": "text", "text": text}]
+            if image:
+                content.append({"type": "image_url", "image_url": {"url": f"data:image/png;base64,{image}"}})
+            return {
+                "model": self.model,
+                "temperature": self.config.temperature,
+                "messages": [{"role": "system", "content": SYSTEM_PROMPT}, {"role": "user", "content": content}],
+                "response_format": {
+                    "type": "json_schema",
+                    "json_schema": {"name": "object_captions", "strict": True, "schema": JSON_SCHEMA},
+                },
+            }
+        parts: list[dict[str, Any]] = [{"text": text}]
+        if image:
+            parts.append({"inline_data": {"mime_type": "image/png", "data": image}})
+        return {
+            "systemInstruction": {"parts": [{"text": SYSTEM_PROMPT}]},
+            "contents": [{"role": "user", "parts": parts}],
+            "generationConfig": {
+                "temperature": self.config.temperature,
+                "responseMimeType": "application/json",
+                "responseSchema": GEMINI_SCHEMA,
+            },
+        }
+
+    def repair_body(self, body: dict[str, Any], bad: str | None, error: str) -> dict[str, Any]:
+        """The original request plus the bad answer and what was wrong with it."""
+        note = (
+            f"Your previous answer was invalid: {error}. Reply again with only a JSON object with the string "
+            f"fields short (2-5 words), concise (5-10 words) and detailed (1-2 sentences), nothing else."
+        )
+        fixed = json.loads(json.dumps(body))
+        if self.provider == "openai":
+            if bad is not None:
+                fixed["messages"].append({"role": "assistant", "content": bad})
+            fixed["messages"].append({"role": "user", "content": note})
+        else:
+            if bad is not None:
+                fixed["contents"].append({"role": "model", "parts": [{"text": bad}]})
+            fixed["contents"].append({"role": "user", "parts": [{"text": note}]})
+        return fixed
+
+    # --- answers ------------------------------------------------------------------------------------------
+    def _content(self, response: httpx.Response) -> str:
+        try:
+            data = response.json()
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            raise _BadAnswer("response body is not JSON", None) from None
+        try:
+            if self.provider == "openai":
+                choice = data["choices"][0]
+                message = choice["message"]
+                if message.get("refusal"):
+                    raise _BadAnswer(f"model refused: {message['refusal']}", None)
+                content = message["content"]
+                if isinstance(content, list):  # content parts
+                    content = "".join(p.get("text", "") for p in content if isinstance(p, dict))
+            else:
+                candidate = data["candidates"][0]
+                content = "".join(p.get("text", "") for p in candidate["content"]["parts"] if isinstance(p, dict))
+        except (KeyError, IndexError, TypeError, AttributeError):
+            raise _BadAnswer("response lacks the answer text (unexpected envelope)", None) from None
+        if not isinstance(content, str) or not content.strip():
+            raise _BadAnswer("empty answer", None)
+        return content
+
+    @staticmethod
+    def parse(content: str) -> dict[str, str]:
+        """Parse and validate the model's JSON answer (code fences tolerated); ValueError when invalid."""
+        text = content.strip()
+        fence = re.fullmatch(r"```(?:json)?\s*(.*?)\s*```", text, flags=re.S)
+        if fence:
+            text = fence.group(1)
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"answer is not valid JSON ({exc.msg} at char {exc.pos})") from None
+        return check_tiers(data, LLM_WORD_BOUNDS)
+
+    # --- transport with retries ---------------------------------------------------------------------------
+    def _backoff(self, retry_index: int) -> float:
+        step = min(self.config.backoff_cap_s, self.config.backoff_base_s * (2.0**retry_index))
+        return step / 2.0 + float(self._rng.uniform(0.0, step / 2.0))
+
+    def _send(self, body: dict[str, Any], object_id: int, attempts_before: int) -> tuple[str, int]:
+        """POST until a 200 arrives or the policy gives up. Returns (answer text, requests made)."""
+        made = 0
+        last = ""
+        for retry in range(self.config.max_retries + 1):
+            made += 1
+            wait: float | None = None
+            try:
+                response = self.client.post(self.url, json=body, headers=self._headers(), timeout=self.config.timeout_s)
+            except httpx.TimeoutException:
+                last = f"timed out after {self.config.timeout_s:g} s"
+            except httpx.TransportError as exc:
+                last = f"connection error: {type(exc).__name__}"
+            else:
+                status = response.status_code
+                if status == 200:
+                    try:
+                        return self._content(response), made
+                    except _BadAnswer as bad:
+                        bad.attempts = made  # type: ignore[attr-defined]
+                        raise
+                try:
+                    payload: Any = response.json()
+                except (json.JSONDecodeError, UnicodeDecodeError):
+                    payload = None
+                snippet = self.redact(response.text[:300].replace("\n", " "))
+                last = f"HTTP {status}: {snippet}"
+                if status not in RETRY_STATUSES and status < 500:
+                    log.warning("object %d: %s (not retried)", object_id, last)
+                    raise CaptionRequestError(last, attempts=attempts_before + made)
+                if quota_exhausted(self.provider, payload):
+                    log.warning("object %d: quota exhausted (not retried)", object_id)
+                    raise CaptionRequestError(f"quota exhausted: {last}", attempts=attempts_before + made)
+                hints = [h for h in (parse_retry_after(response.headers), gemini_retry_delay(payload)) if h is not None]
+                if hints:
+                    wait = max(hints)
+                    if wait > self.config.max_retry_after_s:
+                        raise CaptionRequestError(
+                            f"server asks to wait {wait:g} s (> captions.max_retry_after_s): {last}",
+                            attempts=attempts_before + made,
+                            retryable=True,
+                        )
+            if retry == self.config.max_retries:
+                break
+            delay = wait if wait is not None else self._backoff(retry)
+            log.info("object %d: %s; retry %d in %.2f s", object_id, last, retry + 1, delay)
+            self._sleep(delay)
+        raise CaptionRequestError(
+            f"gave up after {made} attempts: {last}", attempts=attempts_before + made, retryable=True
+        )
+
+    def caption(self, item: CaptionInput) -> CaptionResult:
+        body = self.build_body(item)
+        attempts = 0
+        try:
+            content, made = self._send(body, item.object_id, attempts)
+            attempts += made
+            try:
+                tiers = self.parse(content)
+                return CaptionResult(raw=content, attempts=attempts, **tiers)
+            except ValueError as exc:
+                error, bad = str(exc), content
+        except _BadAnswer as exc:
+            attempts += getattr(exc, "attempts", 1)
+            error, bad = str(exc), exc.content
+        log.info("object %d: invalid answer (%s); one repair attempt", item.object_id, self.redact(error))
+        try:
+            content, made = self._send(self.repair_body(body, bad, error), item.object_id, attempts)
+            attempts += made
+            tiers = self.parse(content)
+        except _BadAnswer as exc:
+            attempts += getattr(exc, "attempts", 1)
+            raise CaptionRequestError(
+                self.redact(f"invalid answer after repair: {exc}"), attempts=attempts
+            ) from None
+        except ValueError as exc:
+            raise CaptionRequestError(self.redact(f"invalid answer after repair: {exc}"), attempts=attempts) from None
+        return CaptionResult(raw=content, attempts=attempts, **tiers)
