@@ -12,7 +12,7 @@ was built from (hashed into the caption set, never stored whole).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -26,7 +26,7 @@ TIERS = ("short", "concise", "detailed")
 STUB_WORD_BOUNDS = {"short": (2, 5), "concise": (5, 10), "detailed": (8, 60)}
 LLM_WORD_BOUNDS = {"short": (1, 8), "concise": (3, 16), "detailed": (5, 80)}
 
-_ID_TOKEN = re.compile(r"^(?=.*\d)[a-z0-9]{4,}$|^\d+$|^v\d+$")
+_ID_TOKEN = re.compile(r"\d")  # any token with a digit is an id, variant or version number
 
 
 def words(text: str) -> list[str]:
@@ -37,7 +37,7 @@ def name_tokens(name: str) -> list[str]:
     """Lower-case words of an object name: splits snake/kebab/camel case, drops ids like ``B07XYZ1``."""
     spaced = re.sub(r"(?<=[a-z])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", " ", name)
     raw = re.split(r"[^A-Za-z0-9]+", spaced)
-    return [t for t in (r.lower() for r in raw) if len(t) > 1 and not _ID_TOKEN.match(t)]
+    return [t for t in (r.lower() for r in raw) if len(t) > 1 and not _ID_TOKEN.search(t)]
 
 
 @dataclass(frozen=True)
@@ -60,14 +60,11 @@ class CaptionInput:
 
     @classmethod
     def from_object(cls, obj: Any, *, render_path: Path | None = None, with_colours: bool = True) -> "CaptionInput":
-        """Build from a ``CatalogObject``; colours from the render when present, else from the model."""
-        colours = EMPTY
-        if with_colours:
-            if render_path is not None and Path(render_path).is_file():
-                colours = colours_from_render(Path(render_path))
-            if not colours.names and obj.model_path and Path(obj.model_path).is_file():
-                colours = colours_from_model(Path(obj.model_path), seed=int(obj.id or 0))
-        return cls(
+        """Build from a ``CatalogObject`` (a plain snapshot: safe to hand to worker threads).
+
+        With ``with_colours`` the dominant colours are measured now (see :meth:`with_measured_colours`).
+        """
+        item = cls(
             object_id=int(obj.id),
             name=obj.name or "",
             category=(obj.category or "object").strip().lower(),
@@ -80,8 +77,17 @@ class CaptionInput:
             textured=obj.textured,
             model_path=obj.model_path,
             render_path=Path(render_path) if render_path is not None and Path(render_path).is_file() else None,
-            colours=colours,
         )
+        return item.with_measured_colours() if with_colours else item
+
+    def with_measured_colours(self) -> "CaptionInput":
+        """A copy with colours named from the render's pixels, else from the model's surface colours."""
+        colours = EMPTY
+        if self.render_path is not None and self.render_path.is_file():
+            colours = colours_from_render(self.render_path)
+        if not colours.names and self.model_path and Path(self.model_path).is_file():
+            colours = colours_from_model(Path(self.model_path), seed=self.object_id)
+        return replace(self, colours=colours)
 
     def facts(self) -> dict[str, Any]:
         """JSON-able facts (no paths): what an LLM prompt is told besides the image."""

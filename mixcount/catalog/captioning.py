@@ -1,0 +1,316 @@
+"""`catalog caption`: caption every active object, record the sets, flag and optionally drop collisions.
+
+Resumable: an object that already has a caption set from the same captioner, provider, model and prompt
+version is skipped (that set is made the active one) unless ``force``. Each object's result is committed as
+soon as it arrives, so an interrupted run loses at most the requests in flight. Several caption sets may
+exist per object; exactly one is active (the newest one written or re-activated by a run).
+
+Uniqueness: after captioning, active objects whose active captions are identical at any tier (case- and
+whitespace-insensitive, trailing full stop ignored) get a ``caption_collision`` flag per pair, in both
+directions. ``dedupe`` keeps one object per collision group (one a person accepted, else the lowest id)
+and sets the others' status to ``excluded``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
+
+from mixcount.captions.base import TIERS, CaptionInput, Captioner, CaptionResult
+from mixcount.catalog.db import Catalog
+from mixcount.catalog.models import (
+    STATUS_ACTIVE,
+    STATUS_EXCLUDED,
+    CaptionFailure,
+    CaptionSet,
+    CatalogObject,
+    Flag,
+    Render,
+    ReviewDecision,
+)
+from mixcount.errors import CaptionError
+
+log = logging.getLogger("mixcount.catalog.captioning")
+
+COLLISION_KIND = "caption_collision"
+
+
+@dataclass
+class CaptionSummary:
+    captioner: str
+    provider: str
+    model: str
+    prompt_version: str
+    objects: int = 0
+    captioned: int = 0
+    skipped: int = 0
+    failed: int = 0
+    collision_pairs: int = 0
+    objects_in_collision: int = 0
+    excluded: int = 0
+    collisions_by_tier: dict[str, int] = field(default_factory=dict)
+    failures: list[dict[str, Any]] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def render_path_for(session: Session, object_id: int) -> Path | None:
+    """The canonical render of an object (area B's helper when present, else the renders table)."""
+    try:
+        from mixcount.catalog.renders import canonical_render_path  # type: ignore[import-not-found]
+    except ImportError:
+        canonical_render_path = None
+    if canonical_render_path is not None:
+        found = canonical_render_path(session, object_id)
+        return Path(found) if found else None
+    row = session.scalar(
+        select(Render).where(Render.object_id == object_id, Render.view == "canonical", Render.error.is_(None))
+    )
+    if row is None or not row.path or not Path(row.path).is_file():
+        return None
+    return Path(row.path)
+
+
+def response_hash(raw: str) -> str:
+    return hashlib.sha256(raw.encode("utf-8")).hexdigest()
+
+
+def _same_key(cs: CaptionSet, captioner: Captioner) -> bool:
+    return (
+        cs.captioner == captioner.name
+        and cs.provider == captioner.provider
+        and cs.model == captioner.model
+        and cs.prompt_version == captioner.prompt_version
+    )
+
+
+def _activate(obj: CatalogObject, chosen: CaptionSet) -> None:
+    for cs in obj.caption_sets:
+        cs.active = cs is chosen
+
+
+def caption_catalog(
+    catalog: Catalog,
+    captioner: Captioner,
+    *,
+    force: bool = False,
+    dedupe: bool = False,
+    object_ids: Iterable[int] | None = None,
+    concurrency: int | None = None,
+    progress: bool = False,
+    redact: Callable[[str], str] | None = None,
+) -> CaptionSummary:
+    """Caption active objects with ``captioner``; record sets and failures; flag (and dedupe) collisions."""
+    summary = CaptionSummary(captioner.name, captioner.provider, captioner.model, captioner.prompt_version)
+    scrub = redact or getattr(captioner, "redact", None) or (lambda s: s)
+    workers = max(1, int(concurrency or getattr(captioner, "concurrency", 1) or 1))
+
+    with catalog.session() as session:
+        query = select(CatalogObject).where(CatalogObject.status == STATUS_ACTIVE).order_by(CatalogObject.id)
+        if object_ids is not None:
+            query = query.where(CatalogObject.id.in_(list(object_ids)))
+        objects = list(session.scalars(query))
+        summary.objects = len(objects)
+        todo: list[CatalogObject] = []
+        for obj in objects:
+            existing = [cs for cs in obj.caption_sets if _same_key(cs, captioner)]
+            if existing and not force:
+                newest = max(existing, key=lambda cs: (cs.created_at, cs.id))
+                if not newest.active:
+                    _activate(obj, newest)
+                summary.skipped += 1
+            else:
+                todo.append(obj)
+        session.commit()
+
+        bar_ctx = _progress(progress, len(todo), f"captioning ({captioner.name})")
+        with bar_ctx as bar, ThreadPoolExecutor(max_workers=workers) as pool:
+            task = bar.add_task("caption", total=len(todo)) if bar is not None else None
+            # Inputs (colours read from the render / model) are built in the workers too: they cost
+            # more than a stub caption.
+            futures: dict[Future[CaptionResult], CatalogObject] = {}
+            for obj in todo:
+                item = CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id), with_colours=False)
+                futures[pool.submit(_measure_and_caption, captioner, item)] = obj
+            for fut in _as_completed_in_order(futures):
+                obj = futures[fut]
+                try:
+                    result = fut.result()
+                except CaptionError as exc:
+                    attempts = int(getattr(exc, "attempts", 1))
+                    message = scrub(str(exc))
+                    session.add(
+                        CaptionFailure(
+                            object_id=obj.id,
+                            captioner=captioner.name,
+                            provider=captioner.provider,
+                            model=captioner.model,
+                            prompt_version=captioner.prompt_version,
+                            attempts=attempts,
+                            error=message,
+                        )
+                    )
+                    summary.failed += 1
+                    summary.failures.append({"object_id": obj.id, "attempts": attempts, "error": message})
+                    log.warning("caption failed for object %d: %s", obj.id, message)
+                else:
+                    new = CaptionSet(
+                        object_id=obj.id,
+                        captioner=captioner.name,
+                        provider=captioner.provider,
+                        model=captioner.model,
+                        prompt_version=captioner.prompt_version,
+                        short=result.short,
+                        concise=result.concise,
+                        detailed=result.detailed,
+                        response_hash=response_hash(result.raw),
+                        active=True,
+                    )
+                    obj.caption_sets.append(new)
+                    _activate(obj, new)
+                    summary.captioned += 1
+                session.commit()
+                if bar is not None and task is not None:
+                    bar.advance(task)
+
+    flag_collisions(catalog, summary=summary)
+    if dedupe:
+        summary.excluded = dedupe_collisions(catalog)
+    return summary
+
+
+def _measure_and_caption(captioner: Captioner, item: CaptionInput) -> CaptionResult:
+    return captioner.caption(item.with_measured_colours())
+
+
+def _as_completed_in_order(futures: dict[Future[CaptionResult], CatalogObject]) -> Iterable[Future[CaptionResult]]:
+    """Completed futures in submission order: commits (and the DB) stay deterministic."""
+    return list(futures)
+
+
+class _NoBar:
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+def _progress(enabled: bool, total: int, label: str):  # type: ignore[no-untyped-def]
+    if not enabled or total == 0:
+        return _NoBar()
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from mixcount.commands.common import console
+
+    return Progress(
+        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console, transient=False
+    )
+
+
+def normalise_caption(text: str) -> str:
+    """Case- and whitespace-insensitive key of a caption (a trailing full stop does not count)."""
+    return " ".join(text.lower().split()).rstrip(". ")
+
+
+def active_captions(session: Session) -> dict[int, CaptionSet]:
+    """object id -> active caption set, for active objects."""
+    rows = session.execute(
+        select(CaptionSet)
+        .join(CatalogObject, CatalogObject.id == CaptionSet.object_id)
+        .where(CaptionSet.active.is_(True), CatalogObject.status == STATUS_ACTIVE)
+        .order_by(CaptionSet.object_id, CaptionSet.id)
+    ).scalars()
+    return {cs.object_id: cs for cs in rows}
+
+
+def find_collisions(captions: dict[int, CaptionSet]) -> dict[tuple[int, int], list[str]]:
+    """(a, b) with a < b -> tiers on which the two objects' captions are identical."""
+    pairs: dict[tuple[int, int], list[str]] = {}
+    for tier in TIERS:
+        groups: dict[str, list[int]] = {}
+        for oid, cs in captions.items():
+            groups.setdefault(normalise_caption(getattr(cs, tier)), []).append(oid)
+        for ids in groups.values():
+            ids.sort()
+            for i, a in enumerate(ids):
+                for b in ids[i + 1 :]:
+                    pairs.setdefault((a, b), []).append(tier)
+    return pairs
+
+
+def flag_collisions(catalog: Catalog, *, summary: CaptionSummary | None = None) -> dict[tuple[int, int], list[str]]:
+    """Replace all ``caption_collision`` flags with the current collisions (both directions per pair)."""
+    with catalog.session() as session:
+        captions = active_captions(session)
+        pairs = find_collisions(captions)
+        session.execute(delete(Flag).where(Flag.kind == COLLISION_KIND))
+        for (a, b), tiers in sorted(pairs.items()):
+            for oid, other in ((a, b), (b, a)):
+                text = getattr(captions[oid], tiers[0])
+                reason = f"identical {'/'.join(tiers)} caption with object {other}: {text!r}"
+                session.add(
+                    Flag(object_id=oid, kind=COLLISION_KIND, score=len(tiers) / len(TIERS), reason=reason,
+                         pair_object_id=other)
+                )
+        session.commit()
+    if summary is not None:
+        summary.collision_pairs = len(pairs)
+        summary.objects_in_collision = len({o for pair in pairs for o in pair})
+        summary.collisions_by_tier = {t: sum(1 for ts in pairs.values() if t in ts) for t in TIERS}
+    return pairs
+
+
+def collision_groups(pairs: Iterable[tuple[int, int]]) -> list[list[int]]:
+    """Connected components of the collision graph (sorted ids, groups sorted by first id)."""
+    parent: dict[int, int] = {}
+
+    def find(x: int) -> int:
+        parent.setdefault(x, x)
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a, b in pairs:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    groups: dict[int, list[int]] = {}
+    for x in list(parent):
+        groups.setdefault(find(x), []).append(x)
+    return sorted((sorted(g) for g in groups.values()), key=lambda g: g[0])
+
+
+def dedupe_collisions(catalog: Catalog) -> int:
+    """Keep one object per collision group (a person-accepted one first, else lowest id); exclude the rest."""
+    with catalog.session() as session:
+        flags = session.scalars(select(Flag).where(Flag.kind == COLLISION_KIND)).all()
+        pairs = {(min(f.object_id, f.pair_object_id), max(f.object_id, f.pair_object_id))
+                 for f in flags if f.pair_object_id is not None}
+        accepted = _accepted(session)
+        excluded = 0
+        for group in collision_groups(pairs):
+            keep = next((oid for oid in group if oid in accepted), group[0])
+            for oid in group:
+                obj = session.get(CatalogObject, oid)
+                if oid != keep and obj is not None and obj.status == STATUS_ACTIVE:
+                    obj.status = STATUS_EXCLUDED
+                    excluded += 1
+        session.commit()
+    return excluded
+
+
+def _accepted(session: Session) -> set[int]:
+    latest: dict[int, ReviewDecision] = {}
+    for rd in session.scalars(select(ReviewDecision).order_by(ReviewDecision.decided_at, ReviewDecision.id)):
+        latest[rd.object_id] = rd
+    return {oid for oid, rd in latest.items() if rd.decision == "accept"}

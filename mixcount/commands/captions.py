@@ -1,0 +1,122 @@
+"""CLI: `mixcount catalog caption` and `mixcount catalog split`."""
+
+from __future__ import annotations
+
+import json
+import logging
+from typing import Optional
+
+import typer
+
+from mixcount.commands.common import console, out, state
+from mixcount.errors import CatalogError, ConfigError
+
+
+def make_captioner(kind: str, cfg):  # type: ignore[no-untyped-def]
+    """Build the captioner named ``kind`` (stub | http) from the ``[captions]`` config."""
+    if kind == "stub":
+        from mixcount.captions.stub import StubCaptioner
+
+        return StubCaptioner(prompt_version=str(cfg["captions"]["stub_prompt_version"]))
+    if kind == "http":
+        from mixcount.captions.http import HttpCaptioner, HttpCaptionerConfig
+
+        return HttpCaptioner(HttpCaptionerConfig.from_config(cfg))
+    raise ConfigError(f"unknown captioner {kind!r} (stub | http)")
+
+
+def caption_cmd(
+    ctx: typer.Context,
+    captioner: Optional[str] = typer.Option(
+        None, "--captioner", help="stub (offline, default from captions.captioner) or http (LLM endpoint)."
+    ),
+    force: bool = typer.Option(False, "--force", help="Caption again even objects this captioner already did."),
+    dedupe: bool = typer.Option(
+        False, "--dedupe", help="Keep one object per group of identical captions; exclude the others."
+    ),
+    json_out: bool = typer.Option(True, "--json/--no-json", help="Print the summary as JSON on stdout."),
+) -> None:
+    """Caption every active object at three tiers (short / concise / detailed); resumable."""
+    from mixcount.catalog.captioning import caption_catalog
+
+    st = state(ctx)
+    cfg = st.config()
+    kind = captioner or str(cfg["captions"]["captioner"])
+    cap = make_captioner(kind, cfg)
+    logging.getLogger("httpx").setLevel(logging.WARNING)
+    catalog = st.catalog()
+    try:
+        summary = caption_catalog(catalog, cap, force=force, dedupe=dedupe, progress=True)
+    finally:
+        catalog.close()
+        close = getattr(cap, "close", None)
+        if close is not None:
+            close()
+    console.print(
+        f"captioned {summary.captioned}, skipped {summary.skipped}, failed {summary.failed} of "
+        f"{summary.objects} active objects ({summary.captioner}/{summary.provider}/{summary.model}/"
+        f"{summary.prompt_version}); caption collisions: {summary.collision_pairs} pairs over "
+        f"{summary.objects_in_collision} objects {summary.collisions_by_tier}"
+        + (f"; excluded {summary.excluded}" if dedupe else ""),
+        highlight=False,
+    )
+    if json_out:
+        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+
+
+def split_cmd(
+    ctx: typer.Context,
+    seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the random part [default: split.seed]."),
+    check: bool = typer.Option(False, "--check", help="Only check the stored splits for leaks."),
+) -> None:
+    """Assign train / val / test per object (FSC-147 matches first); exit non-zero on any leak."""
+    from rich.table import Table
+
+    from mixcount.catalog.splits import SPLITS, FscTable, SplitConfig, assign_splits, check_splits
+
+    st = state(ctx)
+    cfg = st.config()
+    conf = SplitConfig.from_config(cfg, seed=seed)
+    table = FscTable.load()
+    catalog = st.catalog()
+    try:
+        if check:
+            leaks = check_splits(catalog, table=table if conf.use_fsc147 else None)
+            payload: dict = {"leaks": leaks}
+        else:
+            summary = assign_splits(catalog, conf, table=table)
+            leaks = summary.leaks
+            payload = summary.as_dict()
+            grid = Table(title=f"object splits (seed {conf.seed})")
+            for col in ("split", "fsc147", "group", "random", "total", "share", "target"):
+                grid.add_column(col, justify="right" if col != "split" else "left")
+            totals = summary.totals()
+            n = max(1, sum(totals.values()))
+            for s in SPLITS:
+                c = summary.counts.get(s, {})
+                grid.add_row(
+                    s, str(c.get("fsc147", 0)), str(c.get("group", 0)), str(c.get("random", 0)), str(totals[s]),
+                    f"{totals[s] / n:.0%}", f"{summary.targets[s]:.0%}",
+                )
+            console.print(grid)
+            if summary.matched_classes:
+                console.print(
+                    "FSC-147 matches: "
+                    + ", ".join(f"{k} ({table.classes[k]}) x{v}" for k, v in sorted(summary.matched_classes.items())),
+                    highlight=False,
+                )
+            if summary.conflicts:
+                console.print(f"[yellow]{len(summary.conflicts)} duplicate group(s) matched classes of different splits; the most held-out split won[/]")
+    finally:
+        catalog.close()
+    out.print(json.dumps(payload, sort_keys=True))
+    if leaks:
+        for leak in leaks:
+            console.print(f"[bold red]leak:[/] {leak}", highlight=False)
+        raise CatalogError(f"{len(leaks)} split leak(s) found")
+    console.print("no leaks across splits", highlight=False)
+
+
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    catalog_app.command("caption")(caption_cmd)
+    catalog_app.command("split")(split_cmd)
