@@ -78,7 +78,7 @@ def singular(word: str) -> str:
     """A plural-insensitive key for one lower-case word (same rules on both sides is what matters)."""
     if word in IRREGULAR:
         return IRREGULAR[word]
-    if len(word) <= 3 or word.endswith(("ss", "us", "is", "ous")):
+    if len(word) <= 3 or word.endswith(("ss", "us", "ous", "sis", "xis")):
         return word
     if word.endswith("ies") and len(word) > 4:
         return word[:-3] + "y"
@@ -102,7 +102,9 @@ def normalise(text: str, *, synonyms: bool = True) -> list[str]:
         if any(ch.isdigit() for ch in raw):
             continue  # ids and version numbers
         word = singular(raw)
-        out.extend((SYNONYMS.get(word, SYNONYMS.get(raw, word)) if synonyms else word).split())
+        for w in (SYNONYMS.get(word, SYNONYMS.get(raw, word)) if synonyms else word).split():
+            if not out or out[-1] != w:  # "cashew nuts" -> "cashew nut nut" -> "cashew nut"
+                out.append(w)
     return out
 
 

@@ -1,0 +1,240 @@
+"""The offline stub captioner: colours named from real pixels / model surfaces, word bounds, determinism,
+resumable `catalog caption`, caption-collision flags and --dedupe, and the demo library's collision rate."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+from sqlalchemy import select
+
+from mixcount.captions.base import STUB_WORD_BOUNDS, CaptionInput, name_tokens
+from mixcount.captions.colours import colours_from_model, colours_from_render, name_rgb
+from mixcount.captions.stub import StubCaptioner, size_class
+from mixcount.catalog.captioning import caption_catalog, normalise_caption
+from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, Render
+from mixcount.cli import main
+
+
+def _sentences(text: str) -> int:
+    return sum(1 for part in text.split(". ") if part.strip())
+
+
+def assert_bounds(short: str, concise: str, detailed: str) -> None:
+    for tier, text in (("short", short), ("concise", concise), ("detailed", detailed)):
+        lo, hi = STUB_WORD_BOUNDS[tier]
+        assert lo <= len(text.split()) <= hi, (tier, text)
+    assert 1 <= _sentences(detailed) <= 2 and detailed.endswith("."), detailed
+
+
+def test_colour_names():
+    assert name_rgb((220, 20, 30)) == "red"
+    assert name_rgb((250, 250, 250)) == "white"
+    assert name_rgb((10, 10, 12)) == "black"
+    assert name_rgb((128, 128, 128)) == "grey"
+    assert name_rgb((20, 30, 90)) == "navy"
+    assert name_rgb((30, 90, 220)) == "blue"
+    assert name_rgb((40, 160, 60)) == "green"
+    assert name_rgb((240, 200, 20)) == "yellow"
+    assert name_rgb((120, 70, 30)) == "brown"
+    assert name_rgb((245, 140, 20)) == "orange"
+
+
+def test_colours_from_rgba_and_rgb_renders(tmp_path: Path):
+    rgba = Image.new("RGBA", (100, 100), (0, 0, 0, 0))
+    rgba.paste((200, 30, 30, 255), (10, 10, 66, 90))  # 70 % of the object red
+    rgba.paste((250, 250, 250, 255), (66, 10, 90, 90))  # 30 % white (opaque: part of the object)
+    rgba.save(tmp_path / "a.png")
+    c = colours_from_render(tmp_path / "a.png")
+    assert c.names == ("red", "white") and c.source == "render"
+    assert c.shares[0] == pytest.approx(0.7, abs=0.02)
+
+    rgb = Image.new("RGB", (100, 100), (255, 255, 255))  # white background is not the object
+    rgb.paste((30, 90, 220), (40, 40, 60, 60))
+    rgb.save(tmp_path / "b.png")
+    assert colours_from_render(tmp_path / "b.png").names == ("blue",)
+
+
+def _coloured_glb(path: Path, mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> Path:
+    mesh.visual.vertex_colors = np.tile([*rgb, 255], (len(mesh.vertices), 1))
+    mesh.export(path)
+    return path
+
+
+def test_colours_from_model_vertex_colours_and_texture(tmp_path: Path):
+    glb = _coloured_glb(tmp_path / "v.glb", trimesh.creation.box((0.1, 0.05, 0.02)), (30, 160, 50))
+    assert colours_from_model(glb).names == ("green",)
+
+    sphere = trimesh.creation.icosphere(2, 0.05)
+    tex = Image.new("RGB", (32, 32), (240, 200, 20))
+    tex.paste((20, 20, 20), (0, 0, 32, 12))  # a dark band
+    uv = np.random.default_rng(0).random((len(sphere.vertices), 2))
+    material = trimesh.visual.material.PBRMaterial(baseColorTexture=tex, baseColorFactor=[255, 255, 255, 255])
+    sphere.visual = trimesh.visual.TextureVisuals(uv=uv, material=material)
+    sphere.export(tmp_path / "t.glb")
+    names = colours_from_model(tmp_path / "t.glb").names
+    assert names[0] == "yellow" and "black" in names
+
+
+def test_name_tokens_drop_ids():
+    assert name_tokens("Ball_B07XYZ12_SoftVolleyball") == ["ball", "soft", "volleyball"]
+    assert name_tokens("Marker_B0C1234_v2") == ["marker"]
+
+
+def _item(**kw) -> CaptionInput:
+    base = dict(object_id=1, name="Ball_B01_Volleyball", category="ball", dims=(0.2, 0.2, 0.2),
+                watertight=True, volume=0.0042, face_count=5000)
+    base.update(kw)
+    return CaptionInput(**base)
+
+
+def test_stub_is_grounded_deterministic_and_within_bounds(tmp_path: Path):
+    stub = StubCaptioner()
+    glb = _coloured_glb(tmp_path / "b.glb", trimesh.creation.icosphere(2, 0.1), (240, 200, 20))
+    item = _item(model_path=str(glb)).with_measured_colours()
+    r = stub.caption(item)
+    assert r == stub.caption(item)
+    assert_bounds(r.short, r.concise, r.detailed)
+    assert "yellow" in r.short and r.short.endswith("volleyball")
+    assert "round" in r.concise.lower()
+    assert "20 by 20 cm" in r.detailed and "20 cm tall" in r.detailed
+    # every word of the short caption comes from a fact: colour, a shape cue or the name/category
+    allowed = {"yellow", "round", "compact", "volleyball", "patterned", "plain"}
+    assert set(r.short.split()) <= allowed
+
+    marker = stub.caption(_item(name="Marker_X1_Sharpie", category="marker", dims=(0.014, 0.014, 0.14),
+                                volume=0.014**2 * 0.785 * 0.14))
+    assert_bounds(marker.short, marker.concise, marker.detailed)
+    assert "slender" in marker.concise and "cylindrical" in marker.concise and "marker" in marker.short
+    assert size_class(0.02) == "tiny" and size_class(0.3) == "large"
+
+
+@pytest.mark.parametrize(
+    "name,category,dims,watertight",
+    [
+        ("X", "object", (0.0, 0.0, 0.0), None),
+        ("Toy_B0C_TyrannosaurusRexFigureWithMovingArms", "toy figure", (0.1, 0.03, 0.08), False),
+        ("Plate_1", "plate", (0.25, 0.25, 0.02), False),
+    ],
+)
+def test_stub_bounds_hold_for_odd_inputs(name, category, dims, watertight):
+    r = StubCaptioner().caption(_item(name=name, category=category, dims=dims, watertight=watertight, volume=None))
+    assert_bounds(r.short, r.concise, r.detailed)
+
+
+def _library(catalog, tmp_path: Path) -> dict[str, int]:
+    """Five real GLBs with renders: two exact copies (a, e), others distinct."""
+    specs = {
+        "a": ("ball", "Ball_B01_Volleyball", trimesh.creation.icosphere(2, 0.1), (240, 200, 20)),
+        "b": ("marker", "Marker_B02_Sharpie", trimesh.creation.cylinder(0.008, 0.14), (20, 40, 200)),
+        "c": ("plate", "Plate_B03_Dinner", trimesh.creation.cylinder(0.12, 0.02), (250, 250, 250)),
+        "d": ("toy", "Toy_B04_Dinosaur", trimesh.creation.box((0.1, 0.04, 0.06)), (120, 80, 40)),
+        "e": ("ball", "Ball_B05_Volleyball", trimesh.creation.icosphere(2, 0.1), (240, 200, 20)),
+    }
+    ids = {}
+    with catalog.session() as s:
+        for key, (cat, name, mesh, rgb) in specs.items():
+            glb = _coloured_glb(tmp_path / f"{name}.glb", mesh, rgb)
+            ext = mesh.extents
+            obj = CatalogObject(source="folder", source_id=name, name=name, category=cat, model_path=str(glb),
+                                dim_x=ext[0], dim_y=ext[1], dim_z=ext[2], watertight=mesh.is_watertight,
+                                volume=mesh.volume, face_count=len(mesh.faces))
+            s.add(obj)
+            s.flush()
+            if key == "b":  # a render wins over the model's colours
+                png = tmp_path / "render_b.png"
+                img = Image.new("RGBA", (64, 64), (0, 0, 0, 0))
+                img.paste((200, 30, 30, 255), (20, 4, 44, 60))
+                img.save(png)
+                s.add(Render(object_id=obj.id, view="canonical", path=str(png), width=64, height=64))
+            ids[key] = obj.id
+        s.commit()
+    return ids
+
+
+def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, tmp_path, capsys):
+    ids = _library(catalog, tmp_path)
+    db = db_url.removeprefix("sqlite:///")
+    assert main(["--db", db, "catalog", "caption"]) == 0
+    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (first["captioned"], first["skipped"], first["failed"]) == (5, 0, 0)
+    assert first["collision_pairs"] == 1 and first["objects_in_collision"] == 2
+
+    with catalog.session() as s:
+        sets = {cs.object_id: cs for cs in s.scalars(select(CaptionSet))}
+        flags = s.scalars(select(Flag).where(Flag.kind == "caption_collision")).all()
+    assert "red" in sets[ids["b"]].short  # from the render, not the blue model
+    assert {(f.object_id, f.pair_object_id) for f in flags} == {(ids["a"], ids["e"]), (ids["e"], ids["a"])}
+    assert all(cs.prompt_version == "stub-v1" and cs.active for cs in sets.values())
+    texts = [normalise_caption(cs.short) for k, cs in sets.items() if k not in (ids["e"],)]
+    assert len(texts) == len(set(texts))
+
+    assert main(["--db", db, "catalog", "caption"]) == 0  # resumable: nothing to do
+    again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (again["captioned"], again["skipped"]) == (0, 5)
+
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption", "--dedupe"]) == 0
+    third = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (third["captioned"], third["excluded"]) == (5, 1)
+    with catalog.session() as s:
+        statuses = {o.id: o.status for o in s.scalars(select(CatalogObject))}
+        active = s.scalars(select(CaptionSet).where(CaptionSet.active.is_(True))).all()
+        total = len(s.scalars(select(CaptionSet)).all())
+    assert statuses[ids["e"]] == "excluded" and statuses[ids["a"]] == "active"
+    assert total == 10 and len(active) == 5 and {cs.prompt_version for cs in active} == {"stub-v2"}
+
+    assert main(["--db", db, "catalog", "split", "--seed", "3"]) == 0
+    split = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert split["leaks"] == [] and sum(split["totals"].values()) == 4
+
+
+def test_demo_library_captions_are_distinct(tmp_path, catalog):
+    """All tiers within bounds and < 5 % of distinct objects sharing a caption (before dedupe)."""
+    demo = pytest.importorskip("mixcount.catalog.demo_library", reason="area A's demo library generator")
+    ingest = pytest.importorskip("mixcount.catalog.ingest")
+    from mixcount.config import load_config
+
+    root = tmp_path / "demo"
+    truth = demo.generate_demo_library(root, seed=0, n_objects=40)
+    ingest.ingest_paths(catalog, [root], config=load_config(["quick"]), workers=1)
+    summary = caption_catalog(catalog, StubCaptioner())
+    assert summary.failed == 0 and summary.captioned >= 20
+    with catalog.session() as s:
+        rows = s.execute(
+            select(CatalogObject, CaptionSet).join(CaptionSet, CaptionSet.object_id == CatalogObject.id)
+            .where(CaptionSet.active.is_(True))
+        ).all()
+    for _, cs in rows:
+        assert_bounds(cs.short, cs.concise, cs.detailed)
+    # exact copies planted by the generator are the same object: they may (and should) collide
+    copies = {frozenset(p) for p in _planted_pairs(truth, "exact")}
+    by_folder = {Path(o.model_path).parent.name: o.id for o, _ in rows}
+    same = {frozenset(by_folder.get(f) for f in pair) for pair in copies}
+    colliding: set[int] = set()
+    for tier in ("short", "concise", "detailed"):
+        seen: dict[str, list[int]] = {}
+        for o, cs in rows:
+            seen.setdefault(normalise_caption(getattr(cs, tier)), []).append(o.id)
+        for group in seen.values():
+            for a in group:
+                if any(frozenset((a, b)) not in same for b in group if b != a):
+                    colliding.add(a)
+    assert len(colliding) / len(rows) < 0.05, (len(colliding), len(rows))
+
+
+def _planted_pairs(truth: dict, kind: str) -> list[tuple[str, str]]:
+    pairs = []
+    for key, value in truth.items():
+        if kind in key and isinstance(value, list):
+            for entry in value:
+                if isinstance(entry, (list, tuple)) and len(entry) == 2:
+                    pairs.append((str(entry[0]), str(entry[1])))
+                elif isinstance(entry, dict):
+                    vals = [v for v in entry.values() if isinstance(v, str)]
+                    if len(vals) >= 2:
+                        pairs.append((vals[0], vals[1]))
+    return pairs
