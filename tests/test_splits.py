@@ -156,3 +156,15 @@ def test_excluded_and_broken_objects_get_no_split(catalog):
         s.commit()
     assign_splits(catalog, SplitConfig(seed=0), table=TABLE)
     assert set(_splits(catalog)) == {ids[0]}
+
+
+def test_split_object_ids(catalog):
+    from mixcount.catalog.splits import split_object_ids
+    from mixcount.errors import CatalogError
+
+    ids = _add(catalog, [("ball", "B", None), ("marker", "M", None)])
+    assign_splits(catalog, SplitConfig(seed=0), table=TABLE)
+    with catalog.session() as s:
+        assert split_object_ids(s, "train") == [ids[0]] and split_object_ids(s, "test") == [ids[1]]
+        with pytest.raises(CatalogError):
+            split_object_ids(s, "dev")

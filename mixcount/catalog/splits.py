@@ -318,3 +318,16 @@ def check_splits(catalog: Catalog, *, table: FscTable | None = None) -> list[str
                     if HELD_OUT_RANK.get(row.split, -1) < HELD_OUT_RANK[want]:
                         problems.append(f"object {oid} matches FSC-147 {want} class {fsc!r} but is in {row.split}")
     return problems
+
+
+def split_object_ids(session: Session, split: str) -> list[int]:
+    """Ids of the active objects in ``split`` (what the scene sampler draws from), sorted."""
+    if split not in SPLITS:
+        raise CatalogError(f"unknown split {split!r} (train | val | test)")
+    rows = session.scalars(
+        select(Split.object_id)
+        .join(CatalogObject, CatalogObject.id == Split.object_id)
+        .where(Split.split == split, CatalogObject.status == STATUS_ACTIVE)
+        .order_by(Split.object_id)
+    )
+    return list(rows)
