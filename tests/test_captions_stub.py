@@ -238,3 +238,12 @@ def _planted_pairs(truth: dict, kind: str) -> list[tuple[str, str]]:
                     if len(vals) >= 2:
                         pairs.append((vals[0], vals[1]))
     return pairs
+
+
+def test_corrupt_render_falls_back_to_model_colours(tmp_path: Path):
+    glb = _coloured_glb(tmp_path / "g.glb", trimesh.creation.box((0.05, 0.05, 0.05)), (30, 160, 50))
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n not really a png")
+    item = CaptionInput(object_id=3, name="Block_1", category="block", dims=(0.05, 0.05, 0.05),
+                        model_path=str(glb), render_path=bad).with_measured_colours()
+    assert item.colours.names == ("green",) and item.colours.source == "model"

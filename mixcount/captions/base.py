@@ -84,7 +84,10 @@ class CaptionInput:
         """A copy with colours named from the render's pixels, else from the model's surface colours."""
         colours = EMPTY
         if self.render_path is not None and self.render_path.is_file():
-            colours = colours_from_render(self.render_path)
+            try:
+                colours = colours_from_render(self.render_path)
+            except (OSError, ValueError):  # unreadable/corrupt PNG: fall back to the model's colours
+                colours = EMPTY
         if not colours.names and self.model_path and Path(self.model_path).is_file():
             colours = colours_from_model(Path(self.model_path), seed=self.object_id)
         return replace(self, colours=colours)

@@ -34,6 +34,7 @@ import json
 import logging
 import os
 import re
+import threading
 import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -266,6 +267,7 @@ class HttpCaptioner:
         )
         self._sleep = sleep
         self._rng = rng or np.random.default_rng()
+        self._rng_lock = threading.Lock()  # numpy Generators are not thread-safe
         self.url = config.url()
 
     def close(self) -> None:
@@ -381,7 +383,9 @@ class HttpCaptioner:
     # --- transport with retries ---------------------------------------------------------------------------
     def _backoff(self, retry_index: int) -> float:
         step = min(self.config.backoff_cap_s, self.config.backoff_base_s * (2.0**retry_index))
-        return step / 2.0 + float(self._rng.uniform(0.0, step / 2.0))
+        with self._rng_lock:
+            jitter = float(self._rng.uniform(0.0, step / 2.0))
+        return step / 2.0 + jitter
 
     def _send(self, body: dict[str, Any], object_id: int, attempts_before: int) -> tuple[str, int]:
         """POST until a 200 arrives or the policy gives up. Returns (answer text, requests made)."""

@@ -144,9 +144,9 @@ def caption_catalog(
                 obj = futures[fut]
                 try:
                     result = fut.result()
-                except CaptionError as exc:
+                except (CaptionError, OSError) as exc:  # OSError: unreadable render/model file
                     attempts = int(getattr(exc, "attempts", 1))
-                    message = scrub(str(exc))
+                    message = scrub(str(exc) if isinstance(exc, CaptionError) else f"{type(exc).__name__}: {exc}")
                     session.add(
                         CaptionFailure(
                             object_id=obj.id,
