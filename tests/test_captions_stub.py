@@ -187,6 +187,14 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
     assert statuses[ids["e"]] == "excluded" and statuses[ids["a"]] == "active"
     assert total == 10 and len(active) == 5 and {cs.prompt_version for cs in active} == {"stub-v2"}
 
+    # a later run keeps the excluded copy's flag (the reason it was dropped) but has nothing left to resolve
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption"]) == 0
+    fourth = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (fourth["skipped"], fourth["collision_pairs"]) == (4, 0)
+    with catalog.session() as s:
+        kept_flags = s.scalars(select(Flag).where(Flag.kind == "caption_collision")).all()
+    assert {(f.object_id, f.pair_object_id) for f in kept_flags} == {(ids["a"], ids["e"]), (ids["e"], ids["a"])}
+
     assert main(["--db", db, "catalog", "split", "--seed", "3"]) == 0
     split = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert split["leaks"] == [] and sum(split["totals"].values()) == 4

@@ -221,12 +221,13 @@ def normalise_caption(text: str) -> str:
     return " ".join(text.lower().split()).rstrip(". ")
 
 
-def active_captions(session: Session) -> dict[int, CaptionSet]:
-    """object id -> active caption set, for active objects."""
+def active_captions(session: Session, *, include_excluded: bool = False) -> dict[int, CaptionSet]:
+    """object id -> active caption set, for active objects (and excluded ones if asked)."""
+    statuses = (STATUS_ACTIVE, STATUS_EXCLUDED) if include_excluded else (STATUS_ACTIVE,)
     rows = session.execute(
         select(CaptionSet)
         .join(CatalogObject, CatalogObject.id == CaptionSet.object_id)
-        .where(CaptionSet.active.is_(True), CatalogObject.status == STATUS_ACTIVE)
+        .where(CaptionSet.active.is_(True), CatalogObject.status.in_(statuses))
         .order_by(CaptionSet.object_id, CaptionSet.id)
     ).scalars()
     return {cs.object_id: cs for cs in rows}
@@ -248,9 +249,14 @@ def find_collisions(captions: dict[int, CaptionSet]) -> dict[tuple[int, int], li
 
 
 def flag_collisions(catalog: Catalog, *, summary: CaptionSummary | None = None) -> dict[tuple[int, int], list[str]]:
-    """Replace all ``caption_collision`` flags with the current collisions (both directions per pair)."""
+    """Replace all ``caption_collision`` flags with the current collisions (both directions per pair).
+
+    Excluded objects take part, so an object excluded by ``--dedupe`` keeps the flag that says why; the
+    summary counts only pairs of two active objects (the ones still to resolve).
+    """
     with catalog.session() as session:
-        captions = active_captions(session)
+        captions = active_captions(session, include_excluded=True)
+        active = {oid for oid, in session.execute(select(CatalogObject.id).where(CatalogObject.status == STATUS_ACTIVE))}
         pairs = find_collisions(captions)
         session.execute(delete(Flag).where(Flag.kind == COLLISION_KIND))
         for (a, b), tiers in sorted(pairs.items()):
@@ -263,9 +269,10 @@ def flag_collisions(catalog: Catalog, *, summary: CaptionSummary | None = None) 
                 )
         session.commit()
     if summary is not None:
-        summary.collision_pairs = len(pairs)
-        summary.objects_in_collision = len({o for pair in pairs for o in pair})
-        summary.collisions_by_tier = {t: sum(1 for ts in pairs.values() if t in ts) for t in TIERS}
+        live = {pair: tiers for pair, tiers in pairs.items() if pair[0] in active and pair[1] in active}
+        summary.collision_pairs = len(live)
+        summary.objects_in_collision = len({o for pair in live for o in pair})
+        summary.collisions_by_tier = {t: sum(1 for ts in live.values() if t in ts) for t in TIERS}
     return pairs
 
 
@@ -291,7 +298,8 @@ def collision_groups(pairs: Iterable[tuple[int, int]]) -> list[list[int]]:
 
 
 def dedupe_collisions(catalog: Catalog) -> int:
-    """Keep one object per collision group (a person-accepted one first, else lowest id); exclude the rest."""
+    """Keep one active object per collision group (a person-accepted one first, else the lowest id) and
+    exclude the group's other active objects. Never re-activates anything."""
     with catalog.session() as session:
         flags = session.scalars(select(Flag).where(Flag.kind == COLLISION_KIND)).all()
         pairs = {(min(f.object_id, f.pair_object_id), max(f.object_id, f.pair_object_id))
@@ -299,10 +307,13 @@ def dedupe_collisions(catalog: Catalog) -> int:
         accepted = _accepted(session)
         excluded = 0
         for group in collision_groups(pairs):
-            keep = next((oid for oid in group if oid in accepted), group[0])
-            for oid in group:
-                obj = session.get(CatalogObject, oid)
-                if oid != keep and obj is not None and obj.status == STATUS_ACTIVE:
+            members = [session.get(CatalogObject, oid) for oid in group]
+            live = [o for o in members if o is not None and o.status == STATUS_ACTIVE]
+            if not live:
+                continue
+            keep = next((o for o in live if o.id in accepted), live[0])
+            for obj in live:
+                if obj is not keep:
                     obj.status = STATUS_EXCLUDED
                     excluded += 1
         session.commit()
