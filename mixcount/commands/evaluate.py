@@ -1,0 +1,116 @@
+"""CLI: `mixcount evaluate` (counting metrics) and `mixcount stats` (dataset statistics and plots)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+from mixcount.commands.common import console
+
+
+def _fmt(value: float | None, pct: bool = False) -> str:
+    if value is None:
+        return "-"
+    return f"{100 * value:.1f}%" if pct else f"{value:.3f}"
+
+
+def evaluate_cmd(
+    gt: Path = typer.Option(..., "--gt", help="COCO ground truth (OUT/annotations/instances_test.json) or a dataset folder."),
+    pred: Path = typer.Option(..., "--pred", help="Prediction JSON (rows of image_id, category_id, count|boxes|points)."),
+    split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder."),
+    by: Optional[str] = typer.Option(
+        None, "--by", help="Group by a field of the prediction rows (prompt, tier) or of GT categories/images."
+    ),
+    counted_only: bool = typer.Option(
+        False, "--counted-only", help="Drop pairs whose category is only present as a distractor in the image."
+    ),
+    score_absent: bool = typer.Option(
+        False, "--score-absent", help="Score rows for known categories absent from an image as y = 0 pairs."
+    ),
+    json_out: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of a table."),
+) -> None:
+    """Score predicted counts: MAE, RMSE, NAE and Acc10% per (image, category), the MixCount protocol."""
+    from mixcount.evaluate.metrics import evaluate, load_ground_truth, load_predictions
+
+    truth = load_ground_truth(gt, split=split)
+    rows = load_predictions(pred)
+    result = evaluate(truth, rows, by=by, counted_only=counted_only, score_absent=score_absent)
+    if json_out:
+        payload: dict[str, Any] = {"gt": truth.source, "pred": str(pred), **result.as_dict()}
+        typer.echo(json.dumps(payload, sort_keys=True))  # not rich: JSON could look like markup
+    else:
+        _print_table(result, truth.source, str(pred))
+    o = result.overall
+    if o.missing:
+        console.print(
+            f"[yellow]{o.missing} ground-truth pair(s) had no prediction and were scored as 0[/], e.g. "
+            + ", ".join(f"(image {i}, category {c})" for i, c in result.missing_examples),
+            highlight=False,
+        )
+    if o.extra:
+        console.print(
+            f"[yellow]{o.extra} prediction row(s) for pairs not in the ground truth were not scored[/], e.g. "
+            + ", ".join(f"(image {i}, category {c})" for i, c in result.extra_examples),
+            highlight=False,
+        )
+
+
+def _print_table(result: Any, gt: str, pred: str) -> None:
+    from rich.table import Table
+
+    table = Table(title=f"counting metrics: {Path(pred).name} vs {Path(gt).name}")
+    first = result.by or ""
+    for col in (first, "pairs", "MAE", "RMSE", "NAE", "Acc10%", "missing", "extra", "y=0"):
+        table.add_column(col, justify="left" if col == first else "right")
+
+    def add(name: str, s: Any, style: str | None = None) -> None:
+        table.add_row(
+            name, str(s.pairs), _fmt(s.mae), _fmt(s.rmse), _fmt(s.nae), _fmt(s.acc10, pct=True), str(s.missing),
+            str(s.extra), str(s.zero_pairs), style=style,
+        )
+
+    for name, s in result.groups.items():
+        add(name, s)
+    add("all", result.overall, style="bold")
+    console.print(table)
+
+
+def stats_cmd(
+    dataset: Path = typer.Argument(..., help="Dataset folder written by `mixcount compose` (OUT)."),
+    plots_dir: Optional[Path] = typer.Option(None, "--plots-dir", help="Where PNGs and stats.json go [default: OUT/stats]."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG plots."),
+    json_out: bool = typer.Option(False, "--json", help="Also print stats.json on stdout."),
+) -> None:
+    """Dataset statistics: objects and classes per scene, class imbalance, visibility, splits, captions."""
+    from rich.table import Table
+
+    from mixcount.evaluate.stats import compute_stats, per_split_table, summary_lines, write_stats
+
+    stats = compute_stats(dataset)
+    target = plots_dir if plots_dir is not None else Path(dataset) / "stats"
+    json_path = write_stats(stats, target / "stats.json")
+    table = Table(title=f"dataset {dataset}")
+    for col in ("split", "images", "scenes", "objects", "distractors", "classes"):
+        table.add_column(col, justify="left" if col == "split" else "right")
+    for row in per_split_table(stats):
+        table.add_row(*(str(x) for x in row))
+    console.print(table)
+    for line in summary_lines(stats):
+        console.print(line, highlight=False)
+    if plots:
+        from mixcount.evaluate.plots import write_plots
+
+        paths = write_plots(stats, target)
+        console.print(f"wrote {len(paths)} plots and {json_path.name} to {target}", highlight=False)
+    else:
+        console.print(f"wrote {json_path}", highlight=False)
+    if json_out:
+        typer.echo(json.dumps(stats, sort_keys=True))
+
+
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    app.command("evaluate")(evaluate_cmd)
+    app.command("stats")(stats_cmd)

@@ -1,0 +1,389 @@
+"""Counting metrics under the MixCount protocol: MAE, RMSE, NAE and Acc10%.
+
+Protocol (paper, supplementary "MixCount evaluation protocol"): the ground-truth count of a pair
+(image, object type) is the number of COCO annotations of that category in that image, distractor
+annotations included. A pair exists for every (image, category) with at least one annotation.
+
+Metrics over the scored pairs i = 1..n with ground truth y_i and prediction ŷ_i:
+  MAE   = mean |y_i - ŷ_i|
+  RMSE  = sqrt(mean (y_i - ŷ_i)^2)
+  NAE   = mean |y_i - ŷ_i| / y_i          over pairs with y_i > 0
+  Acc10 = share of pairs with |y_i - ŷ_i| / y_i <= 0.1, over pairs with y_i > 0 (a fraction in [0, 1])
+
+y = 0: NAE is undefined there, so pairs with y_i = 0 count in MAE and RMSE but are left out of the NAE
+and Acc10 averages; they are reported apart as ``zero_pairs`` and ``zero_exact`` (share of them predicted
+exactly 0). With y >= 1 everywhere (the paper's protocol, where pairs come from annotations) the numbers
+are exactly the paper's. y = 0 pairs only exist when asked for (``score_absent``): prediction rows for a
+known image and a known category that has no annotation in that image (e.g. a negative prompt).
+
+Missing pairs (in the ground truth, absent from the predictions) are scored as ŷ = 0 and reported;
+prediction rows for pairs not in the ground truth are reported as ``extra`` and not scored.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from mixcount.evaluate.errors import GroundTruthError, PredictionError
+
+ACC_THRESHOLD = 0.1
+NO_VALUE = "(none)"  # group name of rows / pairs that lack the grouping field
+PAIR_FIELDS = ("image_id", "category_id", "role")  # --by values that always partition the GT pairs
+
+Pair = tuple[int, int]
+
+
+# --------------------------------------------------------------------------------------------- ground truth
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """Counts per (image_id, category_id) from one COCO file, plus its images and categories by id."""
+
+    counts: Mapping[Pair, int]
+    counted: frozenset[Pair]  # pairs with at least one non-distractor annotation
+    images: Mapping[int, Mapping[str, Any]]
+    categories: Mapping[int, Mapping[str, Any]]
+    source: str = "<memory>"
+
+    def role(self, pair: Pair) -> str:
+        """``counted`` (a non-distractor annotation), ``distractor`` (only distractors) or ``absent``."""
+        if pair not in self.counts:
+            return "absent"
+        return "counted" if pair in self.counted else "distractor"
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def read_json(path: Path, error: type[Exception]) -> Any:
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: cannot read ({exc})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno} column {exc.colno})") from None
+
+
+def ground_truth_from_coco(doc: Any, source: str = "<memory>") -> GroundTruth:
+    """Count annotations per (image, category) in a COCO document (a dict) and check its structure."""
+    if not isinstance(doc, dict):
+        raise GroundTruthError(f"{source}: a COCO file must hold a JSON object, got {type(doc).__name__}")
+    for key in ("images", "annotations", "categories"):
+        if not isinstance(doc.get(key), list):
+            raise GroundTruthError(f"{source}: COCO key {key!r} is missing or not a list")
+    images: dict[int, Mapping[str, Any]] = {}
+    for i, img in enumerate(doc["images"]):
+        if not isinstance(img, dict) or not _is_int(img.get("id")):
+            raise GroundTruthError(f"{source}: images[{i}] has no integer 'id'")
+        images[img["id"]] = img
+    categories: dict[int, Mapping[str, Any]] = {}
+    for i, cat in enumerate(doc["categories"]):
+        if not isinstance(cat, dict) or not _is_int(cat.get("id")):
+            raise GroundTruthError(f"{source}: categories[{i}] has no integer 'id'")
+        categories[cat["id"]] = cat
+    counts: dict[Pair, int] = defaultdict(int)
+    counted: set[Pair] = set()
+    for i, ann in enumerate(doc["annotations"]):
+        if not isinstance(ann, dict):
+            raise GroundTruthError(f"{source}: annotations[{i}] is not an object")
+        img_id, cat_id = ann.get("image_id"), ann.get("category_id")
+        if not _is_int(img_id) or not _is_int(cat_id):
+            raise GroundTruthError(f"{source}: annotations[{i}] needs integer 'image_id' and 'category_id'")
+        if img_id not in images:
+            raise GroundTruthError(f"{source}: annotations[{i}] refers to unknown image_id {img_id}")
+        if cat_id not in categories:
+            raise GroundTruthError(f"{source}: annotations[{i}] refers to unknown category_id {cat_id}")
+        counts[(img_id, cat_id)] += 1
+        if not ann.get("is_distractor", False):
+            counted.add((img_id, cat_id))
+    return GroundTruth(dict(counts), frozenset(counted), images, categories, source)
+
+
+def load_ground_truth(path: str | Path, split: str = "test") -> GroundTruth:
+    """Read a COCO file, or ``<dataset>/annotations/instances_<split>.json`` when ``path`` is a folder."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "annotations" / f"instances_{split}.json"
+        if not path.is_file():
+            raise GroundTruthError(f"{path}: not found (is this a mixcount dataset folder with a {split!r} split?)")
+    return ground_truth_from_coco(read_json(path, GroundTruthError), str(path))
+
+
+# ---------------------------------------------------------------------------------------------- predictions
+
+
+@dataclass(frozen=True)
+class PredictionRow:
+    """One predicted count for (image_id, category_id); ``fields`` holds every other key of the row."""
+
+    image_id: int
+    category_id: int
+    count: float
+    fields: Mapping[str, Any] = field(default_factory=dict)
+
+
+def _row_count(row: Mapping[str, Any], where: str) -> float:
+    counts: list[tuple[str, float]] = []
+    if "count" in row:
+        c = row["count"]
+        if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c < 0:
+            raise PredictionError(f"{where}: 'count' must be a finite number >= 0, got {c!r}")
+        counts.append(("count", float(c)))
+    for key in ("boxes", "points"):
+        if key in row:
+            if not isinstance(row[key], list):
+                raise PredictionError(f"{where}: {key!r} must be a list, got {type(row[key]).__name__}")
+            counts.append((f"{len(row[key])} {key}", float(len(row[key]))))
+    if not counts:
+        raise PredictionError(f"{where}: needs 'count', 'boxes' or 'points'")
+    if len({c for _, c in counts}) > 1:
+        raise PredictionError(f"{where}: disagreeing counts: " + ", ".join(f"{k}={v:g}" for k, v in counts))
+    return counts[0][1]
+
+
+def parse_predictions(doc: Any, source: str = "<memory>") -> list[PredictionRow]:
+    """Check and parse a prediction document: a list of rows, or ``{"predictions": [rows]}``."""
+    if isinstance(doc, dict):
+        if "predictions" not in doc:
+            raise PredictionError(f"{source}: expected a list of rows or an object with a 'predictions' list")
+        doc = doc["predictions"]
+    if not isinstance(doc, list):
+        raise PredictionError(f"{source}: predictions must be a list of rows, got {type(doc).__name__}")
+    rows = []
+    for i, row in enumerate(doc):
+        where = f"{source}: row {i}"
+        if not isinstance(row, dict):
+            raise PredictionError(f"{where}: must be an object, got {type(row).__name__}")
+        img_id, cat_id = row.get("image_id"), row.get("category_id")
+        if not _is_int(img_id) or not _is_int(cat_id):
+            raise PredictionError(f"{where}: needs integer 'image_id' and 'category_id'")
+        extra = {k: v for k, v in row.items() if k not in ("image_id", "category_id", "count", "boxes", "points")}
+        rows.append(PredictionRow(img_id, cat_id, _row_count(row, where), extra))
+    return rows
+
+
+def load_predictions(path: str | Path) -> list[PredictionRow]:
+    """Read and check a prediction JSON file (format in docs/evaluate.md)."""
+    return parse_predictions(read_json(Path(path), PredictionError), str(path))
+
+
+# ------------------------------------------------------------------------------------------------- metrics
+
+
+@dataclass(frozen=True)
+class Scores:
+    """Metrics over one set of scored pairs, plus the bookkeeping numbers the report shows."""
+
+    mae: float | None
+    rmse: float | None
+    nae: float | None
+    acc10: float | None
+    pairs: int  # scored pairs (GT pairs, plus y = 0 pairs when score_absent)
+    missing: int = 0  # GT pairs without a prediction (scored as 0)
+    extra: int = 0  # prediction rows for pairs not in the GT (not scored)
+    zero_pairs: int = 0  # scored pairs with y = 0 (left out of NAE and Acc10)
+    zero_exact: float | None = None  # share of y = 0 pairs predicted exactly 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "mae": self.mae, "rmse": self.rmse, "nae": self.nae, "acc10": self.acc10, "pairs": self.pairs,
+            "missing": self.missing, "extra": self.extra, "zero_pairs": self.zero_pairs,
+            "zero_exact": self.zero_exact,
+        }
+
+
+def score_counts(y: Sequence[float] | np.ndarray, y_hat: Sequence[float] | np.ndarray) -> Scores:
+    """MAE, RMSE, NAE and Acc10 of predicted counts ``y_hat`` against true counts ``y`` (see module doc)."""
+    y_arr = np.asarray(y, dtype=np.float64)
+    p_arr = np.asarray(y_hat, dtype=np.float64)
+    if y_arr.shape != p_arr.shape or y_arr.ndim != 1:
+        raise ValueError("y and y_hat must be 1-D and of the same length")
+    n = int(y_arr.size)
+    if n == 0:
+        return Scores(None, None, None, None, 0)
+    err = np.abs(y_arr - p_arr)
+    pos = y_arr > 0
+    zero = int(n - pos.sum())
+    nae = acc = zero_exact = None
+    if pos.any():
+        rel = err[pos] / y_arr[pos]
+        nae = float(rel.mean())
+        acc = float(np.mean(rel <= ACC_THRESHOLD + 1e-12))
+    if zero:
+        zero_exact = float(np.mean(p_arr[~pos] == 0))
+    return Scores(
+        mae=float(err.mean()), rmse=float(np.sqrt(np.mean(err**2))), nae=nae, acc10=acc, pairs=n,
+        zero_pairs=zero, zero_exact=zero_exact,
+    )
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Overall scores, per-group scores (when grouped) and examples of missing / extra pairs."""
+
+    overall: Scores
+    by: str | None = None
+    groups: Mapping[str, Scores] = field(default_factory=dict)
+    missing_examples: tuple[Pair, ...] = ()
+    extra_examples: tuple[Pair, ...] = ()
+
+    def as_dict(self) -> dict[str, Any]:
+        d = self.overall.as_dict()
+        if self.by is not None:
+            d["by"] = self.by
+            d["groups"] = {k: v.as_dict() for k, v in self.groups.items()}
+        d["missing_examples"] = [list(p) for p in self.missing_examples]
+        d["extra_examples"] = [list(p) for p in self.extra_examples]
+        return d
+
+
+@dataclass
+class _Tally:
+    """(y, ŷ) lists and bookkeeping for one set of scored pairs."""
+
+    y: list[float] = field(default_factory=list)
+    p: list[float] = field(default_factory=list)
+    missing: list[Pair] = field(default_factory=list)
+    extra: list[Pair] = field(default_factory=list)
+
+    def scores(self) -> Scores:
+        s = score_counts(self.y, self.p)
+        return Scores(s.mae, s.rmse, s.nae, s.acc10, s.pairs, len(self.missing), len(self.extra), s.zero_pairs, s.zero_exact)
+
+    def merge(self, other: "_Tally") -> None:
+        self.y += other.y
+        self.p += other.p
+        self.missing += other.missing
+        self.extra += other.extra
+
+
+def _index(rows: Iterable[PredictionRow], what: str) -> dict[Pair, float]:
+    """Rows keyed by (image_id, category_id); a repeated pair is an error (it would be scored twice)."""
+    seen: dict[Pair, PredictionRow] = {}
+    for r in rows:
+        key = (r.image_id, r.category_id)
+        if key in seen:
+            differing = sorted(k for k in set(seen[key].fields) | set(r.fields) if seen[key].fields.get(k) != r.fields.get(k))
+            hint = f"; the rows differ in {', '.join(differing)}: group them with --by {differing[0]}" if differing else ""
+            raise PredictionError(f"{what}: more than one prediction for image_id {key[0]}, category_id {key[1]}{hint}")
+        seen[key] = r
+    return {k: r.count for k, r in seen.items()}
+
+
+def _tally(gt: GroundTruth, pairs: Sequence[Pair], pred: Mapping[Pair, float], score_absent: bool) -> _Tally:
+    t = _Tally()
+    for pair in pairs:
+        t.y.append(float(gt.counts[pair]))
+        if pair in pred:
+            t.p.append(pred[pair])
+        else:
+            t.p.append(0.0)
+            t.missing.append(pair)
+    pair_set = set(pairs)
+    for pair, value in sorted(pred.items()):
+        if pair in pair_set:
+            continue
+        if score_absent and pair not in gt.counts and pair[0] in gt.images and pair[1] in gt.categories:
+            t.y.append(0.0)
+            t.p.append(value)
+        else:
+            t.extra.append(pair)
+    return t
+
+
+def _pair_value(gt: GroundTruth, pair: Pair, by: str) -> str:
+    if by == "image_id":
+        return str(pair[0])
+    if by == "category_id":
+        return str(pair[1])
+    if by == "role":
+        return gt.role(pair)
+    for record in (gt.categories[pair[1]], gt.images[pair[0]]):
+        if by in record:
+            return _label(record[by])
+    return NO_VALUE
+
+
+def _label(value: Any) -> str:
+    if value is None:
+        return NO_VALUE
+    if isinstance(value, (dict, list)):
+        return json.dumps(value, sort_keys=True)
+    return str(value)
+
+
+def evaluate(
+    gt: GroundTruth,
+    rows: Sequence[PredictionRow],
+    *,
+    by: str | None = None,
+    counted_only: bool = False,
+    score_absent: bool = False,
+    n_examples: int = 5,
+) -> Evaluation:
+    """Score prediction rows against the ground truth, optionally grouped by a field.
+
+    ``by`` names a field of the prediction rows (prompt type, caption tier, ...): each group is then
+    scored against all ground-truth pairs (missing ones as 0), and the overall scores pool every group.
+    When no row carries the field, ``by`` may name a field of the GT categories or images (name,
+    size_qualifier, scene_id, ...) or ``image_id`` / ``category_id`` / ``role`` (counted or distractor):
+    the GT pairs are then partitioned by that value. ``counted_only`` drops pairs whose category is only
+    present as distractors in that image (the paper's protocol keeps them).
+    """
+    pairs = sorted(p for p in gt.counts if not counted_only or p in gt.counted)
+    groups: dict[str, Scores] = {}
+    total = _Tally()
+    row_mode = by is not None and by not in PAIR_FIELDS and any(by in r.fields for r in rows)
+    if by is None or not row_mode:
+        pred = _index(rows, gt.source if by is None else f"predictions (grouped by GT field {by!r})")
+        if by is not None and by not in PAIR_FIELDS:
+            known = any(by in c for c in gt.categories.values()) or any(by in i for i in gt.images.values())
+            if not known:
+                raise PredictionError(f"--by {by!r}: no prediction row, GT category or GT image has that field")
+        total = _tally(gt, pairs, pred, score_absent)
+        if by is not None:
+            parts: dict[str, list[Pair]] = defaultdict(list)
+            for pair in pairs:
+                parts[_pair_value(gt, pair, by)].append(pair)
+            absent: dict[str, dict[Pair, float]] = defaultdict(dict)  # y = 0 pairs, in their own value's group
+            if score_absent:
+                for p, v in pred.items():
+                    if p not in gt.counts and p[0] in gt.images and p[1] in gt.categories:
+                        absent[_pair_value(gt, p, by)][p] = v
+            for value in sorted(set(parts) | set(absent)):
+                sub = {p: pred[p] for p in parts[value] if p in pred}
+                sub.update(absent[value])
+                groups[value] = _tally(gt, parts[value], sub, score_absent).scores()
+    else:
+        by_value: dict[str, list[PredictionRow]] = defaultdict(list)
+        for r in rows:
+            by_value[_label(r.fields.get(by))].append(r)
+        for value in sorted(by_value):
+            t = _tally(gt, pairs, _index(by_value[value], f"predictions with {by}={value}"), score_absent)
+            groups[value] = t.scores()
+            total.merge(t)
+    return Evaluation(
+        overall=total.scores(), by=by, groups=groups,
+        missing_examples=tuple(dict.fromkeys(total.missing))[:n_examples],
+        extra_examples=tuple(dict.fromkeys(total.extra))[:n_examples],
+    )
+
+
+def perfect_predictions(gt: GroundTruth, **fields: Any) -> list[dict[str, Any]]:
+    """Prediction rows equal to the ground truth (one per pair); ``fields`` are added to each row."""
+    return [
+        {"image_id": i, "category_id": c, "count": n, **fields} for (i, c), n in sorted(gt.counts.items())
+    ]

@@ -1,0 +1,208 @@
+"""Dataset statistics of a mixcount dataset folder: the numbers behind the paper's histograms.
+
+Reads every ``OUT/annotations/instances_<split>.json`` (COCO, see docs/contracts) and computes, per image
+(one image per scene and camera; ``scenes`` counts distinct ``scene_id``):
+  objects_per_scene      counted (non-distractor) annotations per image; the paper's range is 1-200
+  distractors_per_scene  distractor annotations per image
+  classes_per_scene      distinct counted categories per image
+  class_imbalance        instances of the most common counted class / of the least common one, per image
+                         (the paper's definition; 1.0 for a single-class image)
+  visibility             visibility of every counted annotation (and of distractors, apart)
+  splits                 images, scenes, objects, distractors and categories per split
+  caption_length         words per caption tier (short / concise / detailed) over the distinct categories
+Engine-free; plotting lives in mixcount.evaluate.plots.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections import Counter
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from mixcount.evaluate.errors import GroundTruthError
+from mixcount.evaluate.metrics import read_json
+
+TIERS = ("short", "concise", "detailed")
+SPLIT_ORDER = ("train", "val", "test")
+_INSTANCES = re.compile(r"^instances_(.+)\.json$")
+
+
+def find_annotation_files(dataset: Path) -> dict[str, Path]:
+    """``{split: path}`` of the COCO files under ``dataset/annotations`` (train, val, test first)."""
+    ann_dir = Path(dataset) / "annotations"
+    if not Path(dataset).is_dir():
+        raise GroundTruthError(f"{dataset}: not a folder")
+    found = {}
+    for p in sorted(ann_dir.glob("instances_*.json")) if ann_dir.is_dir() else []:
+        m = _INSTANCES.match(p.name)
+        if m:
+            found[m.group(1)] = p
+    if not found:
+        raise GroundTruthError(f"{dataset}: no annotations/instances_<split>.json (is this a mixcount dataset folder?)")
+    order = {s: i for i, s in enumerate(SPLIT_ORDER)}
+    return dict(sorted(found.items(), key=lambda kv: (order.get(kv[0], len(order)), kv[0])))
+
+
+def summarise(values: Sequence[float] | np.ndarray) -> dict[str, float | int | None]:
+    """count, min, max, mean, median, p5 and p95 of ``values`` (None when empty)."""
+    a = np.asarray(values, dtype=np.float64)
+    if a.size == 0:
+        return {"count": 0, "min": None, "max": None, "mean": None, "median": None, "p5": None, "p95": None}
+    return {
+        "count": int(a.size), "min": float(a.min()), "max": float(a.max()), "mean": float(a.mean()),
+        "median": float(np.median(a)), "p5": float(np.percentile(a, 5)), "p95": float(np.percentile(a, 95)),
+    }
+
+
+def int_histogram(values: Sequence[int]) -> dict[str, list[int]]:
+    """Counts of each integer value from min to max: ``{"values": [...], "counts": [...]}``."""
+    if len(values) == 0:
+        return {"values": [], "counts": []}
+    c = Counter(int(v) for v in values)
+    xs = list(range(min(c), max(c) + 1))
+    return {"values": xs, "counts": [c.get(x, 0) for x in xs]}
+
+
+def bin_histogram(values: Sequence[float], edges: Sequence[float]) -> dict[str, list[float] | list[int]]:
+    """Counts of ``values`` in the bins of ``edges`` (the last bin closed): ``{"edges", "counts"}``."""
+    counts, _ = np.histogram(np.asarray(values, dtype=np.float64), bins=np.asarray(edges, dtype=np.float64))
+    return {"edges": [float(e) for e in edges], "counts": [int(c) for c in counts]}
+
+
+def _words(text: Any) -> int | None:
+    return len(str(text).split()) if isinstance(text, str) and text.strip() else None
+
+
+def _check_coco(doc: Any, path: Path) -> dict[str, list[dict[str, Any]]]:
+    if not isinstance(doc, dict):
+        raise GroundTruthError(f"{path}: a COCO file must hold a JSON object")
+    for key in ("images", "annotations", "categories"):
+        if not isinstance(doc.get(key), list) or not all(isinstance(x, dict) for x in doc[key]):
+            raise GroundTruthError(f"{path}: COCO key {key!r} is missing or not a list of objects")
+    for i, ann in enumerate(doc["annotations"]):
+        if "image_id" not in ann or "category_id" not in ann:
+            raise GroundTruthError(f"{path}: annotations[{i}] needs 'image_id' and 'category_id'")
+    return doc
+
+
+def compute_stats(dataset: str | Path) -> dict[str, Any]:
+    """All statistics of a dataset folder as one JSON-ready dict (module doc lists the keys)."""
+    dataset = Path(dataset)
+    files = find_annotation_files(dataset)
+    objects: list[int] = []
+    distractors: list[int] = []
+    classes: list[int] = []
+    imbalance: list[float] = []
+    vis_counted: list[float] = []
+    vis_distractor: list[float] = []
+    splits: dict[str, dict[str, int]] = {}
+    captions: dict[tuple, dict[str, Any]] = {}
+    for split, path in files.items():
+        doc = _check_coco(read_json(path, GroundTruthError), path)
+        per_image: dict[Any, Counter] = {img.get("id"): Counter() for img in doc["images"]}
+        n_dist: Counter = Counter()
+        for ann in doc["annotations"]:
+            if ann.get("is_distractor", False):
+                n_dist[ann["image_id"]] += 1
+                target = vis_distractor
+            else:
+                per_image.setdefault(ann["image_id"], Counter())[ann["category_id"]] += 1
+                target = vis_counted
+            if isinstance(ann.get("visibility"), (int, float)):
+                target.append(float(ann["visibility"]))
+        for img_id, per_class in per_image.items():
+            objects.append(sum(per_class.values()))
+            distractors.append(n_dist.get(img_id, 0))
+            classes.append(len(per_class))
+            if per_class:
+                imbalance.append(max(per_class.values()) / min(per_class.values()))
+        scene_ids = {img.get("scene_id", img.get("id")) for img in doc["images"]}
+        counted_cats = {a["category_id"] for a in doc["annotations"] if not a.get("is_distractor", False)}
+        splits[split] = {
+            "images": len(doc["images"]), "scenes": len(scene_ids),
+            "objects": sum(not a.get("is_distractor", False) for a in doc["annotations"]),
+            "distractors": sum(bool(a.get("is_distractor", False)) for a in doc["annotations"]),
+            "categories": len(counted_cats),
+        }
+        for cat in doc["categories"]:
+            key = (cat.get("object_id", cat.get("name")), cat.get("size_qualifier"), *(cat.get(t) for t in TIERS))
+            captions[key] = cat
+    caption_words = {t: [w for c in captions.values() if (w := _words(c.get(t))) is not None] for t in TIERS}
+    vis_edges = [round(0.05 * i, 2) for i in range(21)]
+    totals = {k: sum(s[k] for s in splits.values()) for k in ("images", "scenes", "objects", "distractors")}
+    return {
+        "dataset": str(dataset),
+        "files": {s: str(p) for s, p in files.items()},
+        "splits": splits,
+        "totals": totals,
+        "objects_per_scene": {**summarise(objects), "histogram": int_histogram(objects)},
+        "distractors_per_scene": {**summarise(distractors), "histogram": int_histogram(distractors)},
+        "classes_per_scene": {**summarise(classes), "histogram": int_histogram(classes)},
+        "class_imbalance": {**summarise(imbalance), "histogram": bin_histogram(imbalance, _ratio_edges(imbalance))},
+        "visibility": {
+            "counted": {**summarise(vis_counted), "histogram": bin_histogram(vis_counted, vis_edges)},
+            "distractor": {**summarise(vis_distractor), "histogram": bin_histogram(vis_distractor, vis_edges)},
+        },
+        "caption_length": {
+            t: {**summarise(caption_words[t]), "histogram": int_histogram(caption_words[t])} for t in TIERS
+        },
+        "distinct_categories": len(captions),
+    }
+
+
+def _ratio_edges(ratios: Sequence[float]) -> list[float]:
+    """Bins of width 0.5 from 1 up to past the largest imbalance ratio."""
+    top = max([1.0, *ratios])
+    n = int(np.ceil((top - 1.0) / 0.5)) + 1
+    return [1.0 + 0.5 * i for i in range(n + 1)]
+
+
+def write_stats(stats: dict[str, Any], path: str | Path) -> Path:
+    """Write ``stats`` as indented JSON to ``path`` (parents created)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(stats, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    return path
+
+
+def summary_lines(stats: dict[str, Any]) -> list[str]:
+    """A short human summary of ``stats``, one line per topic."""
+
+    def rng(d: dict[str, Any], fmt: str = "{:.1f}") -> str:
+        if not d.get("count"):
+            return "n/a"
+        return f"mean {fmt.format(d['mean'])}, median {fmt.format(d['median'])}, range {d['min']:g}-{d['max']:g}"
+
+    t = stats["totals"]
+    lines = [
+        f"{t['images']} images of {t['scenes']} scenes, {t['objects']} counted objects, "
+        f"{t['distractors']} distractors, {stats['distinct_categories']} categories",
+        "per split: " + "; ".join(
+            f"{s} {v['scenes']} scenes / {v['objects']} objects / {v['categories']} classes"
+            for s, v in stats["splits"].items()
+        ),
+        f"objects per scene: {rng(stats['objects_per_scene'])}",
+        f"classes per scene: {rng(stats['classes_per_scene'])}",
+        f"class imbalance (most/least common): {rng(stats['class_imbalance'], '{:.2f}')}",
+        f"visibility of counted objects: {rng(stats['visibility']['counted'], '{:.2f}')}",
+        "caption words: " + "; ".join(
+            f"{tier} {stats['caption_length'][tier]['mean']:.1f}" if stats["caption_length"][tier]["count"] else f"{tier} n/a"
+            for tier in TIERS
+        ),
+    ]
+    return lines
+
+
+def per_split_table(stats: dict[str, Any]) -> list[tuple[str, int, int, int, int, int]]:
+    """Rows (split, images, scenes, objects, distractors, categories) for a terminal table."""
+    return [(s, v["images"], v["scenes"], v["objects"], v["distractors"], v["categories"]) for s, v in stats["splits"].items()]
+
+
+__all__ = [
+    "compute_stats", "find_annotation_files", "per_split_table", "summarise", "summary_lines", "write_stats",
+    "int_histogram", "bin_histogram", "TIERS",
+]
