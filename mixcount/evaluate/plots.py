@@ -13,6 +13,7 @@ import matplotlib
 
 matplotlib.use("Agg")  # headless; must precede pyplot
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from mixcount.evaluate.stats import TIERS  # noqa: E402
 
@@ -26,6 +27,7 @@ PLOT_FILES = (
 def _int_bar(ax: Any, hist: dict[str, list[int]], color: str, label: str | None = None, width: float = 0.9) -> None:
     if hist["values"]:
         ax.bar(hist["values"], hist["counts"], width=width, color=color, label=label)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     else:
         ax.text(0.5, 0.5, "no data", ha="center", va="center", transform=ax.transAxes)
 
@@ -40,6 +42,8 @@ def _edge_bar(ax: Any, hist: dict[str, list], color: str, label: str | None = No
 
 
 def _save(fig: Any, path: Path) -> Path:
+    for ax in fig.axes:  # counts are integers: no 0.25 ticks on the count axes
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
@@ -71,7 +75,8 @@ def write_plots(stats: dict[str, Any], out_dir: str | Path) -> list[Path]:
     _edge_bar(ax, stats["visibility"]["counted"]["histogram"], "#3b75af", "counted", 0.8)
     if sum(stats["visibility"]["distractor"]["histogram"]["counts"]):
         _edge_bar(ax, stats["visibility"]["distractor"]["histogram"], "#c53a32", "distractor", 0.6)
-    ax.legend(loc="upper left")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left")
     ax.set(title="Visibility of annotated objects", xlabel="visible fraction", ylabel="annotations", xlim=(0, 1))
     paths.append(_save(fig, out_dir / "visibility.png"))
 

@@ -181,10 +181,6 @@ def summary_lines(stats: dict[str, Any]) -> list[str]:
     lines = [
         f"{t['images']} images of {t['scenes']} scenes, {t['objects']} counted objects, "
         f"{t['distractors']} distractors, {stats['distinct_categories']} categories",
-        "per split: " + "; ".join(
-            f"{s} {v['scenes']} scenes / {v['objects']} objects / {v['categories']} classes"
-            for s, v in stats["splits"].items()
-        ),
         f"objects per scene: {rng(stats['objects_per_scene'])}",
         f"classes per scene: {rng(stats['classes_per_scene'])}",
         f"class imbalance (most/least common): {rng(stats['class_imbalance'], '{:.2f}')}",
