@@ -215,3 +215,22 @@ def test_cli_json_table_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture
     assert main(["evaluate", "--gt", str(out), "--pred", str(pred), "--json"]) == 2
     cap = capsys.readouterr()
     assert "row 0: needs integer 'image_id'" in cap.err and cap.out == ""
+
+
+def test_baselines_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    gt = tmp_path / "gt.json"
+    gt.write_text(json.dumps(make_coco()))
+    ref = tmp_path / "train.json"  # one pair of 7 instances: the mean baseline predicts 7 everywhere
+    ref.write_text(json.dumps(make_coco({(1, 10): (7, 0)})))
+    mean, perfect = tmp_path / "mean.json", tmp_path / "perfect.json"
+    assert main(["baseline", "--gt", str(gt), "--out", str(mean), "--reference", str(ref)]) == 0
+    assert main(["baseline", "--gt", str(gt), "--out", str(perfect), "--kind", "perfect"]) == 0
+    assert {r.count for r in load_predictions(mean)} == {7.0}
+    capsys.readouterr()
+    assert main(["evaluate", "--gt", str(gt), "--pred", str(mean), "--json"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["mae"] == pytest.approx((3 + 5 + 6 + 3 + 2) / 5) and m["acc10"] == 0.0
+    assert main(["evaluate", "--gt", str(gt), "--pred", str(perfect), "--json"]) == 0
+    p = json.loads(capsys.readouterr().out)
+    assert (p["mae"], p["rmse"], p["nae"], p["acc10"], p["missing"]) == (0.0, 0.0, 0.0, 1.0, 0)
+    assert main(["baseline", "--gt", str(gt), "--out", str(mean), "--kind", "median"]) == 2

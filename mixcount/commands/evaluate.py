@@ -111,6 +111,33 @@ def stats_cmd(
         typer.echo(json.dumps(stats, sort_keys=True))
 
 
+def baseline_cmd(
+    gt: Path = typer.Option(..., "--gt", help="COCO ground truth to predict for, or a dataset folder."),
+    out_path: Path = typer.Option(..., "--out", help="Prediction JSON to write."),
+    kind: str = typer.Option("mean", "--kind", help="mean (mean count of --reference) or perfect (the GT itself)."),
+    split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder."),
+    reference: Optional[Path] = typer.Option(
+        None, "--reference", help="COCO file whose mean count the mean baseline predicts (e.g. the train split)."
+    ),
+) -> None:
+    """Write a baseline prediction file: the mean-count floor, or the perfect oracle (checks the pipeline)."""
+    from mixcount.evaluate.errors import EvaluationError
+    from mixcount.evaluate.metrics import load_ground_truth, mean_predictions, perfect_predictions
+
+    truth = load_ground_truth(gt, split=split)
+    if kind == "perfect":
+        rows = perfect_predictions(truth, prompt="oracle")
+    elif kind == "mean":
+        ref = load_ground_truth(reference) if reference is not None else None
+        rows = mean_predictions(truth, ref, prompt="mean")
+    else:
+        raise EvaluationError(f"unknown baseline {kind!r} (mean | perfect)")
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text(json.dumps({"baseline": kind, "predictions": rows}, indent=1) + "\n", encoding="utf-8")
+    console.print(f"wrote {len(rows)} {kind} predictions to {out_path}", highlight=False)
+
+
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
     app.command("evaluate")(evaluate_cmd)
     app.command("stats")(stats_cmd)
+    app.command("baseline")(baseline_cmd)

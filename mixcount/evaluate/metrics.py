@@ -387,3 +387,14 @@ def perfect_predictions(gt: GroundTruth, **fields: Any) -> list[dict[str, Any]]:
     return [
         {"image_id": i, "category_id": c, "count": n, **fields} for (i, c), n in sorted(gt.counts.items())
     ]
+
+
+def mean_predictions(gt: GroundTruth, reference: GroundTruth | None = None, **fields: Any) -> list[dict[str, Any]]:
+    """The mean-count baseline: every GT pair predicted as the mean count over ``reference``'s pairs.
+
+    Use the train split as ``reference`` for a fair baseline (the paper's tables report learned models;
+    this is the floor any counting model should beat). Without one, the GT's own mean is used.
+    """
+    ref = reference or gt
+    mean = float(np.mean(list(ref.counts.values()))) if ref.counts else 0.0
+    return [{"image_id": i, "category_id": c, "count": mean, **fields} for (i, c) in sorted(gt.counts)]
