@@ -1,0 +1,592 @@
+"""`catalog ingest`: discover objects, hash them, analyse changed ones in parallel, commit one by one.
+
+Flow (see docs/ingest.md):
+
+1. **Discover** every object under the given paths: Digital Twin Catalog folders
+   (``Category_ID_Variant/3d-asset.glb`` + ``metadata.json`` + licence + previews) and plain model files.
+   Problems found here (unreadable folder, odd name, DTC folder without a model) become broken objects.
+2. **Pre-check and hash** in this process, before any mesh work: file size limit, GLB header, missing
+   textures/buffers, then ``content_hash`` (model + resources) and ``ingest_hash`` (+ sidecars and the
+   settings that change facts). An object whose stored ``ingest_hash`` matches is *unchanged* and costs no
+   database write; one whose content hash matches but sidecars changed gets a metadata-only update.
+3. **Analyse** the rest in a process pool (:func:`mixcount.catalog.mesh.analyse_model`).
+4. **Commit each object on its own**, keyed by the unique (source, source_id): a killed run leaves whole
+   objects, and a rerun skips them by hash, so it finishes the job with no duplicates. An existing row is
+   updated in place, which keeps its id, flags, captions, split and review history.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import unicodedata
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from mixcount.catalog import hashing
+from mixcount.catalog.mesh import MESH_EXTENSIONS, model_resources
+from mixcount.catalog.models import (
+    STATUS_ACTIVE,
+    STATUS_BROKEN,
+    STATUS_EXCLUDED,
+    CatalogObject,
+    IngestRun,
+    utcnow,
+)
+from mixcount.config import Config
+from mixcount.errors import CatalogError, IngestError
+
+DTC_MODEL = "3d-asset"
+DTC_NAME = re.compile(r"^(?P<category>[A-Za-z][A-Za-z0-9-]*)_(?P<id>[A-Za-z0-9]{6,})_(?P<variant>.+)$")
+LICENCE_NAMES = re.compile(r"^(licen[cs]e|copying)(\.[a-z]+)?$", re.IGNORECASE)
+SOURCE_DTC = "dtc"
+SOURCE_FOLDER = "folder"
+
+# Fact columns copied from the analysis dict onto the row.
+FACT_FIELDS = (
+    "source_units", "source_up_axis", "dim_x", "dim_y", "dim_z", "vertex_count", "face_count",
+    "watertight", "volume", "area", "textured", "geometry_hash", "collision_path", "collision_face_count",
+)
+
+
+@dataclass
+class Candidate:
+    """One object found on disk, before hashing."""
+
+    source: str
+    source_id: str
+    name: str
+    category: str
+    model_path: Path | None = None
+    sidecars: dict[str, Path] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)
+    license: str | None = None
+    units: str | None = None
+    up_axis: str | None = None
+    error: str | None = None  # a problem found during discovery: the object is broken
+
+
+@dataclass
+class IngestSummary:
+    """Counts of one ingest run. Every object lands in exactly one of new/unchanged/updated/broken."""
+
+    run_id: int | None = None
+    new: int = 0
+    unchanged: int = 0
+    updated: int = 0
+    broken: int = 0
+    broken_objects: list[tuple[str, str]] = field(default_factory=list)  # (name, reason)
+
+    @property
+    def total(self) -> int:
+        return self.new + self.unchanged + self.updated + self.broken
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "run_id": self.run_id, "total": self.total, "new": self.new, "unchanged": self.unchanged,
+            "updated": self.updated, "broken": self.broken,
+            "broken_objects": [{"name": n, "reason": r} for n, r in self.broken_objects],
+        }
+
+
+# --------------------------------------------------------------------------- names
+
+
+def safe_text(text: str) -> str:
+    """A name that SQLite/JSON can store: undecodable bytes (surrogate escapes) become \\xNN."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def odd_name_reason(name: str) -> str | None:
+    """Why a file/folder name is unusable (control characters, undecodable bytes), or None."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return f"name is not valid UTF-8: {ascii(name)}"
+    bad = [c for c in name if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co", "Cn")]
+    if bad:
+        return f"name has control or invisible characters {ascii(''.join(sorted(set(bad))))}: {ascii(name)}"
+    if name.strip() != name or not name.strip():
+        return f"name has leading/trailing blanks: {ascii(name)}"
+    return None
+
+
+def singular(word: str) -> str:
+    """Lower-case singular category word: 'Markers' -> 'marker', 'Berries' -> 'berry'."""
+    w = word.strip().lower()
+    if len(w) > 4 and w.endswith("ies"):
+        return w[:-3] + "y"
+    if len(w) > 4 and re.search(r"(ches|shes|xes|sses|oes)$", w):
+        return w[:-2]
+    if len(w) > 3 and w.endswith("s") and not w.endswith(("ss", "us", "is")):
+        return w[:-1]
+    return w
+
+
+def _category_from_stem(stem: str, parent: str) -> str:
+    token = re.split(r"[_\-\s.]+", stem.strip())[0] if stem.strip() else ""
+    token = re.sub(r"\d+$", "", token)
+    if token.isalpha():
+        return singular(token)
+    parent_token = re.sub(r"[^A-Za-z]", "", parent)
+    return singular(parent_token) if parent_token else "unknown"
+
+
+# --------------------------------------------------------------------------- discovery
+
+
+def _find_dtc_model(folder: Path) -> Path | None:
+    preferred = folder / f"{DTC_MODEL}.glb"
+    if preferred.is_file():
+        return preferred
+    for ext in MESH_EXTENSIONS:
+        candidate = folder / f"{DTC_MODEL}{ext}"
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def is_dtc_folder(folder: Path) -> bool:
+    """A DTC object folder: holds ``3d-asset.*`` or ``metadata.json``, or is named Category_ID_Variant
+    and holds no sub-folders (a library root named like that is walked instead)."""
+    if _find_dtc_model(folder) is not None or (folder / "metadata.json").is_file():
+        return True
+    if DTC_NAME.match(folder.name):
+        try:
+            return not any(entry.is_dir() for entry in os.scandir(folder))
+        except OSError:
+            return True
+    return False
+
+
+def _dtc_candidate(folder: Path) -> Candidate:
+    name = folder.name
+    source_id = safe_text(name)
+    match = DTC_NAME.match(name)
+    category = singular(match.group("category")) if match else _category_from_stem(name, folder.parent.name)
+    cand = Candidate(SOURCE_DTC, source_id, source_id, category)
+    reason = odd_name_reason(name)
+    if reason:
+        cand.error = reason
+        return cand
+    try:
+        entries = sorted(os.listdir(folder))
+    except OSError as exc:
+        cand.error = f"unreadable folder: {exc.strerror or exc}"
+        return cand
+    cand.model_path = _find_dtc_model(folder)
+    if cand.model_path is None:
+        cand.error = f"DTC folder has no {DTC_MODEL}.glb"
+        return cand
+    meta_path = folder / "metadata.json"
+    if meta_path.is_file():
+        cand.sidecars["metadata.json"] = meta_path
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            cand.error = f"metadata.json does not parse: {exc}"
+            return cand
+        if not isinstance(meta, dict):
+            cand.error = "metadata.json is not a JSON object"
+            return cand
+        cand.metadata = meta
+        if isinstance(meta.get("category"), str) and meta["category"].strip():
+            cand.category = singular(meta["category"])
+        cand.units = meta.get("units") if isinstance(meta.get("units"), str) else None
+        cand.up_axis = meta.get("up_axis") if isinstance(meta.get("up_axis"), str) else None
+    for entry in entries:
+        if LICENCE_NAMES.match(entry) and (folder / entry).is_file():
+            cand.sidecars[entry] = folder / entry
+            try:
+                cand.license = (folder / entry).read_text(encoding="utf-8", errors="replace")[:4000].strip()
+            except OSError as exc:
+                cand.error = f"unreadable licence file {entry}: {exc.strerror}"
+            break
+    return cand
+
+
+def _file_candidate(path: Path) -> Candidate:
+    source_id = safe_text(str(path))
+    name = safe_text(path.stem)
+    cand = Candidate(SOURCE_FOLDER, source_id, name, _category_from_stem(path.stem, path.parent.name), path)
+    reason = odd_name_reason(path.name)
+    if reason:
+        cand.error = reason
+    elif path.suffix.lower() not in MESH_EXTENSIONS:
+        cand.error = f"unsupported file type {path.suffix or '(none)'}"
+    return cand
+
+
+def _broken_path_candidate(path: Path, exc: OSError) -> Candidate:
+    looks_dtc = bool(DTC_NAME.match(path.name))
+    source = SOURCE_DTC if looks_dtc else SOURCE_FOLDER
+    source_id = safe_text(path.name if looks_dtc else str(path))
+    category = singular(DTC_NAME.match(path.name).group("category")) if looks_dtc else "unknown"  # type: ignore[union-attr]
+    kind = "folder" if looks_dtc or not path.suffix else "path"
+    return Candidate(source, source_id, safe_text(path.name), category,
+                     error=f"unreadable {kind}: {exc.strerror or exc}")
+
+
+def _walk(folder: Path) -> Iterator[Candidate]:
+    try:
+        entries = sorted(os.scandir(folder), key=lambda e: e.name)
+    except OSError as exc:
+        yield _broken_path_candidate(folder, exc)
+        return
+    for entry in entries:
+        if entry.name.startswith("."):
+            continue
+        path = Path(entry.path)
+        try:
+            is_dir = entry.is_dir()
+            is_file = entry.is_file()
+            if not is_dir and not is_file and entry.is_symlink():
+                os.stat(path)  # raises for a dangling or looping link
+        except OSError as exc:
+            if DTC_NAME.match(entry.name) or path.suffix.lower() in MESH_EXTENSIONS:
+                yield _broken_path_candidate(path, exc)
+            continue
+        if is_dir:
+            if is_dtc_folder(path):
+                yield _dtc_candidate(path)
+            else:
+                yield from _walk(path)
+        elif is_file and path.suffix.lower() in MESH_EXTENSIONS:
+            yield _file_candidate(path)
+
+
+def discover(paths: Iterable[Path | str]) -> list[Candidate]:
+    """Every object under ``paths`` (sorted, duplicates removed); a missing path is a CatalogError."""
+    found: dict[tuple[str, str], Candidate] = {}
+    for raw in paths:
+        path = Path(raw).expanduser()
+        if not os.path.lexists(path):
+            raise CatalogError(f"path not found: {raw}")
+        path = path.resolve()
+        if path.is_dir():
+            items: Iterable[Candidate] = [_dtc_candidate(path)] if is_dtc_folder(path) else _walk(path)
+        elif path.is_file():
+            items = [_file_candidate(path)]
+        else:
+            try:
+                os.stat(path)
+                items = [Candidate(SOURCE_FOLDER, safe_text(str(path)), safe_text(path.name), "unknown",
+                                   error="not a regular file or folder")]
+            except OSError as exc:
+                items = [_broken_path_candidate(path, exc)]
+        for cand in items:
+            found.setdefault((cand.source, cand.source_id), cand)
+    return list(found.values())
+
+
+# --------------------------------------------------------------------------- hashing
+
+
+@dataclass
+class Prepared:
+    """A candidate after pre-checks and hashing."""
+
+    cand: Candidate
+    content_hash: str | None = None
+    ingest_hash: str | None = None
+    settings_hash: str | None = None  # settings + assumed units/up axis: facts depend on these
+    error: str | None = None
+
+
+def settings_of(config: Config) -> dict[str, Any]:
+    ing = config["ingest"]
+    return {
+        "collision_face_budget": int(ing["collision_face_budget"]),
+        "assume_units": ing["assume_units"],
+        "assume_up_axis": ing["assume_up_axis"],
+        "analysis_version": 1,  # bump when mesh.py measures differently
+    }
+
+
+def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> Prepared:
+    """Size limit, header checks and hashes: everything that happens before mesh work."""
+    prep = Prepared(cand)
+    if cand.error:
+        prep.error = cand.error
+        return prep
+    assert cand.model_path is not None
+    try:
+        size = cand.model_path.stat().st_size
+        if size > max_bytes:
+            prep.error = (f"file too large: {size / 2**20:.1f} MB is over the limit of "
+                          f"{max_bytes / 2**20:.1f} MB (ingest.max_file_mb)")
+            return prep
+        if size == 0:
+            prep.error = "empty file (0 bytes)"
+            return prep
+        resources = model_resources(cand.model_path)
+        files = {"model" + cand.model_path.suffix.lower(): cand.model_path}
+        files.update({f"res:{k}": v for k, v in resources.items()})
+        prep.content_hash = hashing.files_hash(files)
+        sidecar_hash = hashing.files_hash({f"side:{k}": v for k, v in cand.sidecars.items()})
+        prep.settings_hash = hashing.json_hash([settings, cand.units, cand.up_axis])
+        prep.ingest_hash = hashing.combine([
+            ("content", prep.content_hash), ("sidecars", sidecar_hash), ("settings", prep.settings_hash),
+        ])
+    except IngestError as exc:
+        prep.error = exc.reason
+    except OSError as exc:
+        prep.error = f"unreadable file: {exc.strerror or exc}"
+    return prep
+
+
+# --------------------------------------------------------------------------- storing
+
+
+def _ingest_info(obj: CatalogObject) -> dict[str, Any]:
+    try:
+        data = json.loads(obj.metadata_json or "{}")
+    except ValueError:
+        return {}
+    info = data.get("ingest") if isinstance(data, dict) else None
+    return info if isinstance(info, dict) else {}
+
+
+def _get(session: Session, cand: Candidate) -> CatalogObject | None:
+    return session.scalars(
+        select(CatalogObject).where(CatalogObject.source == cand.source, CatalogObject.source_id == cand.source_id)
+    ).one_or_none()
+
+
+def _apply_identity(obj: CatalogObject, prep: Prepared, run_id: int | None, ingest: dict[str, Any]) -> None:
+    cand = prep.cand
+    obj.name = cand.name
+    obj.category = cand.category
+    obj.model_path = str(cand.model_path.resolve()) if cand.model_path else ""
+    obj.license = cand.license
+    obj.metadata_json = json.dumps({"metadata": cand.metadata, "ingest": ingest}, sort_keys=True, default=str)
+    obj.ingest_run_id = run_id
+    obj.updated_at = utcnow()
+
+
+def _store(
+    session: Session, prep: Prepared, facts: dict[str, Any] | None, error: str | None, run_id: int | None
+) -> str:
+    """Insert or update one object and commit; returns new | updated | unchanged | broken."""
+    cand = prep.cand
+    for attempt in range(2):
+        obj = _get(session, cand)
+        is_new = obj is None
+        if obj is None:
+            obj = CatalogObject(source=cand.source, source_id=cand.source_id)
+            session.add(obj)
+        if error:
+            if not is_new and obj.status == STATUS_BROKEN and obj.error == error:
+                session.rollback()
+                return "broken"
+            ingest = {"ingest_hash": prep.ingest_hash}
+            _apply_identity(obj, prep, run_id, ingest)
+            obj.content_hash = prep.content_hash
+            obj.status = STATUS_BROKEN
+            obj.error = error
+            outcome = "broken"
+        else:
+            assert facts is not None
+            ingest = {
+                "ingest_hash": prep.ingest_hash,
+                "settings_hash": prep.settings_hash,
+                "appearance": facts.get("appearance"),
+                "n_parts": facts.get("n_parts"),
+                "sidecars": sorted(cand.sidecars),
+            }
+            _apply_identity(obj, prep, run_id, ingest)
+            obj.content_hash = prep.content_hash
+            for key in FACT_FIELDS:
+                setattr(obj, key, facts[key])
+            obj.status = STATUS_EXCLUDED if obj.status == STATUS_EXCLUDED else STATUS_ACTIVE
+            obj.error = None
+            outcome = "new" if is_new else "updated"
+        try:
+            session.commit()
+            return outcome
+        except IntegrityError:  # another ingest inserted the same (source, source_id) meanwhile
+            session.rollback()
+            if attempt:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _facts_of(obj: CatalogObject) -> dict[str, Any]:
+    facts = {key: getattr(obj, key) for key in FACT_FIELDS}
+    info = _ingest_info(obj)
+    facts["appearance"] = info.get("appearance")
+    facts["n_parts"] = info.get("n_parts")
+    return facts
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "model_path": str(cand.model_path),
+        "collision_dir": str(catalog_collision_dir),
+        "face_budget": settings["collision_face_budget"],
+        "units": (cand.units or settings["assume_units"]),
+        "up_axis": (cand.up_axis or settings["assume_up_axis"]),
+    }
+
+
+def _run_analysis(kwargs: dict[str, Any]) -> tuple[dict[str, Any] | None, str | None]:
+    """Process-pool task: (facts, None) or (None, reason). Never raises for a bad model."""
+    from mixcount.catalog.mesh import analyse_model
+
+    try:
+        return analyse_model(**kwargs), None
+    except IngestError as exc:
+        return None, exc.reason
+    except MemoryError:
+        return None, "out of memory while analysing the mesh"
+    except Exception as exc:  # a library bug on a weird file must not stop the batch
+        return None, f"mesh analysis failed: {type(exc).__name__}: {str(exc)[:200]}"
+
+
+def _make_progress(enabled: bool):  # type: ignore[no-untyped-def]
+    if not enabled:
+        return None
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    return Progress(
+        TextColumn("[bold]ingest[/]"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+        TextColumn("{task.description}"), console=Console(stderr=True), transient=False,
+    )
+
+
+def ingest_paths(
+    catalog: Any,
+    paths: Iterable[Path | str],
+    *,
+    config: Config,
+    workers: int | None = None,
+    progress: bool = False,
+    strict: bool = False,
+) -> IngestSummary:
+    """Ingest every object under ``paths`` into ``catalog``; see the module docstring.
+
+    ``strict`` does not change what is stored; the CLI uses it to exit non-zero when anything is broken.
+    """
+    paths = list(paths)
+    candidates = discover(paths)
+    settings = settings_of(config)
+    max_bytes = float(config["ingest"]["max_file_mb"]) * 2**20
+    n_workers = max(1, int(workers if workers is not None else config["ingest"]["workers"]))
+    summary = IngestSummary()
+    collision_dir = catalog.collision_dir
+
+    with catalog.session() as session:
+        run = IngestRun(paths=json.dumps([str(p) for p in paths]), status="running")
+        session.add(run)
+        session.commit()
+        summary.run_id = run.id
+
+    def count(outcome: str, prep: Prepared, error: str | None = None) -> None:
+        setattr(summary, outcome, getattr(summary, outcome) + 1)
+        if outcome == "broken":
+            summary.broken_objects.append((prep.cand.name, error or prep.error or ""))
+
+    bar = _make_progress(progress)
+    task = bar.add_task("", total=len(candidates)) if bar else None
+    pending: list[Prepared] = []
+    status = "interrupted"
+    try:
+        if bar:
+            bar.start()
+        with catalog.session() as session:
+            for cand in candidates:
+                prep = prepare(cand, settings=settings, max_bytes=max_bytes)
+                if prep.error:
+                    count(_store(session, prep, None, prep.error, summary.run_id), prep)
+                    bar and bar.advance(task)  # type: ignore[func-returns-value]
+                    continue
+                existing = _get(session, cand)
+                if existing is not None and existing.status != STATUS_BROKEN:
+                    info = _ingest_info(existing)
+                    same_path = existing.model_path == str(cand.model_path.resolve())  # type: ignore[union-attr]
+                    if info.get("ingest_hash") == prep.ingest_hash and same_path:
+                        session.rollback()
+                        count("unchanged", prep)
+                        bar and bar.advance(task)  # type: ignore[func-returns-value]
+                        continue
+                    if (
+                        existing.content_hash == prep.content_hash
+                        and info.get("settings_hash") == prep.settings_hash
+                        and existing.geometry_hash
+                        and Path(existing.collision_path or "").is_file()
+                    ):
+                        # only sidecars or the location changed: keep the measured facts
+                        count(_store(session, prep, _facts_of(existing), None, summary.run_id), prep)
+                        bar and bar.advance(task)  # type: ignore[func-returns-value]
+                        continue
+                session.rollback()
+                pending.append(prep)
+            if pending:
+                _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar, task)
+        status = "done"
+    finally:
+        if bar:
+            bar.stop()
+        with catalog.session() as session:
+            run = session.get(IngestRun, summary.run_id)
+            if run is not None:
+                run.status = status
+                run.finished_at = utcnow()
+                run.n_new, run.n_unchanged = summary.new, summary.unchanged
+                run.n_updated, run.n_broken = summary.updated, summary.broken
+                session.commit()
+    return summary
+
+
+def _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar, task):  # type: ignore[no-untyped-def]
+    """Run mesh analysis for ``pending`` (process pool when > 1 worker), storing each as it finishes."""
+
+    def finish(prep: Prepared, facts: dict[str, Any] | None, error: str | None) -> None:
+        outcome = _store(session, prep, facts, error, summary.run_id)
+        count(outcome, prep, error)
+        if bar:
+            bar.update(task, advance=1, description=prep.cand.name[:40])
+
+    if n_workers <= 1 or len(pending) == 1:
+        for prep in pending:
+            facts, error = _run_analysis(_analyse_kwargs(prep.cand, collision_dir, settings))
+            finish(prep, facts, error)
+        return
+
+    retry: list[Prepared] = []
+    pool = ProcessPoolExecutor(max_workers=min(n_workers, len(pending)))
+    try:
+        futures: dict[Future, Prepared] = {
+            pool.submit(_run_analysis, _analyse_kwargs(p.cand, collision_dir, settings)): p for p in pending
+        }
+        for fut in as_completed(futures):
+            prep = futures[fut]
+            try:
+                facts, error = fut.result()
+            except BrokenProcessPool:
+                retry.append(prep)
+                continue
+            finish(prep, facts, error)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    # A worker died (segfault, OOM kill): retry the affected objects one per fresh process so the
+    # one that crashes is identified and recorded as broken, and the others still get ingested.
+    for prep in retry:
+        with ProcessPoolExecutor(max_workers=1) as solo:
+            try:
+                facts, error = solo.submit(_run_analysis, _analyse_kwargs(prep.cand, collision_dir, settings)).result()
+            except BrokenProcessPool:
+                facts, error = None, "mesh analysis crashed its worker process"
+        finish(prep, facts, error)

@@ -1,0 +1,439 @@
+"""Mesh analysis for ingest: load, normalise to metres and Z-up, measure, hash, build a collision mesh.
+
+Everything here runs in ingest worker processes: :func:`analyse_model` takes plain arguments and returns
+a plain dict, and every failure is an :class:`~mixcount.errors.IngestError` whose ``reason`` becomes the
+object's ``error`` column.
+
+Conventions (see docs/ingest.md):
+
+* glTF/GLB is always metres and Y-up (glTF 2.0 spec); a GLB is a scene, and each geometry is placed by
+  its node's world transform before anything is measured.
+* USD/USDZ carry ``metersPerUnit`` and ``upAxis`` on the stage; mesh prims are placed by their
+  local-to-world transform.
+* OBJ/PLY/STL carry neither: the caller passes the assumed units and up axis (config ``ingest`` or the
+  object's metadata).
+* Y-up becomes Z-up the way Blender's glTF importer does it: (x, y, z) -> (x, -z, y).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import struct
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import unquote
+
+import numpy as np
+
+from mixcount.errors import IngestError
+
+MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".usd", ".usda", ".usdc", ".usdz")
+USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
+UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+UP_AXES = ("X", "Y", "Z")
+GLB_MAGIC = b"glTF"
+
+
+@dataclass(frozen=True)
+class MeshFacts:
+    """What ingest records about one model (lengths in metres, Z-up)."""
+
+    source_units: str
+    source_up_axis: str
+    dim_x: float
+    dim_y: float
+    dim_z: float
+    vertex_count: int
+    face_count: int
+    watertight: bool
+    volume: float | None  # only for watertight meshes; an open mesh has no meaningful volume
+    area: float
+    textured: bool
+    appearance: str  # image | vertex_color | material | none
+    geometry_hash: str
+    n_parts: int
+    collision_path: str
+    collision_face_count: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# --------------------------------------------------------------------------- resources / pre-checks
+
+
+def _is_external_uri(uri: str) -> bool:
+    return bool(uri) and not uri.startswith("data:") and "://" not in uri
+
+
+def _glb_json(path: Path) -> dict[str, Any]:
+    """Parse a GLB header and its JSON chunk; raise a specific IngestError for a bad or short file."""
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(20)
+        if len(head) < 12 or head[:4] != GLB_MAGIC:
+            raise IngestError("not a GLB file: the first bytes are not the 'glTF' magic")
+        version, declared = struct.unpack("<II", head[4:12])
+        if version != 2:
+            raise IngestError(f"unsupported GLB version {version} (only glTF 2.0)")
+        if declared > size:
+            raise IngestError(f"truncated GLB: header declares {declared} bytes, file has {size}")
+        if len(head) < 20:
+            raise IngestError("truncated GLB: no JSON chunk")
+        chunk_len, chunk_type = struct.unpack("<II", head[12:20])
+        if chunk_type != 0x4E4F534A:  # "JSON"
+            raise IngestError("corrupt GLB: first chunk is not JSON")
+        if 20 + chunk_len > size:
+            raise IngestError(f"truncated GLB: JSON chunk of {chunk_len} bytes runs past the end of the file")
+        try:
+            return json.loads(fh.read(chunk_len))
+        except ValueError as exc:
+            raise IngestError(f"corrupt GLB: JSON chunk does not parse ({exc})") from None
+
+
+def _gltf_resources(path: Path, doc: dict[str, Any]) -> dict[str, Path]:
+    out: dict[str, Path] = {}
+    for kind, key in (("buffer", "buffers"), ("texture", "images")):
+        for item in doc.get(key, []) or []:
+            uri = item.get("uri", "") if isinstance(item, dict) else ""
+            if not _is_external_uri(uri):
+                continue
+            ref = (path.parent / unquote(uri)).resolve()
+            if not ref.is_file():
+                raise IngestError(f"missing {kind} file: {uri}")
+            out[unquote(uri)] = ref
+    return out
+
+
+_MTL_MAP = re.compile(r"^\s*(map_\w+|bump|disp|decal|norm)\s+(.+?)\s*$", re.IGNORECASE)
+
+
+def _obj_resources(path: Path) -> dict[str, Path]:
+    out: dict[str, Path] = {}
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise IngestError(f"cannot read model file: {exc.strerror}") from None
+    for line in text.splitlines():
+        if not line.startswith("mtllib"):
+            continue
+        name = line[len("mtllib"):].strip()
+        if not name:
+            continue
+        mtl = path.parent / name
+        if not mtl.is_file():
+            raise IngestError(f"missing material file: {name}")
+        out[name] = mtl
+        for mline in mtl.read_text(errors="replace").splitlines():
+            match = _MTL_MAP.match(mline)
+            if not match:
+                continue
+            tex = match.group(2).split()[-1]  # options such as "-bm 1" come first; the file is last
+            ref = mtl.parent / tex
+            if not ref.is_file():
+                raise IngestError(f"missing texture file: {tex}")
+            out[tex] = ref
+    return out
+
+
+def model_resources(path: Path) -> dict[str, Path]:
+    """Files a model pulls in besides itself (buffers, textures, materials), by their reference name.
+
+    Also the cheap pre-checks that must happen before hashing: GLB header sanity and missing files.
+    """
+    suffix = path.suffix.lower()
+    if suffix == ".glb":
+        return _gltf_resources(path, _glb_json(path))
+    if suffix == ".gltf":
+        try:
+            doc = json.loads(path.read_text())
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise IngestError(f"not a glTF JSON file: {exc}") from None
+        if not isinstance(doc, dict) or "asset" not in doc:
+            raise IngestError("not a glTF JSON file: no 'asset' object")
+        return _gltf_resources(path, doc)
+    if suffix == ".obj":
+        return _obj_resources(path)
+    return {}
+
+
+# --------------------------------------------------------------------------- loading
+
+
+@dataclass
+class _Parts:
+    vertices: list[np.ndarray]
+    faces: list[np.ndarray]
+    appearance: set[str]
+
+
+def _appearance_of(geom: Any) -> str:
+    visual = getattr(geom, "visual", None)
+    if visual is None:
+        return "none"
+    kind = getattr(visual, "kind", None)
+    if kind == "texture":
+        material = getattr(visual, "material", None)
+        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+        if image is not None:
+            return "image"
+        # glTF COLOR_0 next to a material: trimesh keeps it in visual.vertex_attributes["color"]
+        attrs = getattr(visual, "vertex_attributes", None)
+        colours = attrs.get("color") if attrs is not None and "color" in attrs else None
+        if colours is not None and _varies(colours):
+            return "vertex_color"
+        return "material"
+    if kind in ("vertex", "face"):
+        colours = visual.vertex_colors if kind == "vertex" else visual.face_colors
+        return "vertex_color" if _varies(colours) else "material"
+    return "none"
+
+
+def _varies(colours: Any) -> bool:
+    arr = np.asarray(colours)
+    return bool(arr.ndim == 2 and len(arr) > 1 and np.ptp(arr[:, :3], axis=0).max() > 0)
+
+
+def _load_trimesh(path: Path) -> _Parts:
+    import trimesh
+
+    try:
+        scene = trimesh.load(str(path), force="scene", process=False)
+    except IngestError:
+        raise
+    except Exception as exc:  # trimesh raises many types for bad files
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise IngestError(f"cannot parse {path.suffix.lower().lstrip('.')} file: {msg[:200]}") from None
+    parts = _Parts([], [], set())
+    for node in scene.graph.nodes_geometry:
+        transform, geom_name = scene.graph[node]
+        geom = scene.geometry.get(geom_name)
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue
+        parts.vertices.append(trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform))
+        parts.faces.append(np.asarray(geom.faces, dtype=np.int64))
+        parts.appearance.add(_appearance_of(geom))
+    return parts
+
+
+def _usd_units_name(mpu: float) -> str:
+    for name, scale in UNIT_SCALE.items():
+        if abs(mpu - scale) <= 1e-9 * max(1.0, scale):
+            return name
+    return f"{mpu:g}m"
+
+
+def _load_usd(path: Path) -> tuple[_Parts, float, str]:
+    from pxr import Usd, UsdGeom, UsdShade
+
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Exception as exc:
+        raise IngestError(f"cannot open USD stage: {str(exc).strip().splitlines()[-1][:200]}") from None
+    if stage is None:
+        raise IngestError("cannot open USD stage")
+    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
+    up = str(UsdGeom.GetStageUpAxis(stage))
+    cache = UsdGeom.XformCache()
+    parts = _Parts([], [], set())
+    has_texture = any(
+        prim.IsA(UsdShade.Shader) and UsdShade.Shader(prim).GetIdAttr().Get() == "UsdUVTexture"
+        for prim in stage.Traverse()
+    )
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        points = mesh.GetPointsAttr().Get()
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        indices = mesh.GetFaceVertexIndicesAttr().Get()
+        if points is None or counts is None or indices is None or len(counts) == 0:
+            continue
+        pts = np.asarray(points, dtype=np.float64)
+        matrix = np.asarray(cache.GetLocalToWorldTransform(prim), dtype=np.float64)  # row-vector convention
+        world = np.hstack([pts, np.ones((len(pts), 1))]) @ matrix
+        idx = np.asarray(indices, dtype=np.int64)
+        tris: list[tuple[int, int, int]] = []
+        start = 0
+        for n in np.asarray(counts, dtype=np.int64):
+            poly = idx[start:start + n]
+            tris.extend((int(poly[0]), int(poly[k]), int(poly[k + 1])) for k in range(1, n - 1))
+            start += n
+        if not tris:
+            continue
+        parts.vertices.append(world[:, :3])
+        parts.faces.append(np.asarray(tris, dtype=np.int64))
+        colours = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+        values = colours.Get() if colours and colours.HasValue() else None
+        if has_texture:
+            parts.appearance.add("image")
+        elif values is not None and len(values) > 1 and np.ptp(np.asarray(values), axis=0).max() > 0:
+            parts.appearance.add("vertex_color")
+        else:
+            parts.appearance.add("material")
+    return parts, mpu, up
+
+
+def up_axis_rotation(up: str) -> np.ndarray:
+    """3x3 rotation taking a ``up``-up frame to Z-up (Y-up as Blender's glTF importer does it)."""
+    if up == "Z":
+        return np.eye(3)
+    if up == "Y":  # (x, y, z) -> (x, -z, y)
+        return np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    if up == "X":  # (x, y, z) -> (-z, y, x)
+        return np.array([[0, 0, -1.0], [0, 1.0, 0], [1.0, 0, 0]])
+    raise IngestError(f"unknown up axis {up!r} (expected X, Y or Z)")
+
+
+@dataclass
+class NormalisedMesh:
+    """A geometry-only mesh in metres, Z-up, duplicate vertices merged, plus what the source used."""
+
+    mesh: Any  # trimesh.Trimesh
+    source_units: str
+    source_up_axis: str
+    appearance: str
+    n_parts: int
+
+
+def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> NormalisedMesh:
+    """Load any supported model and return it in metres, Z-up. ``units``/``up_axis`` apply only to
+    formats that carry none (OBJ/PLY/STL)."""
+    import trimesh
+
+    suffix = path.suffix.lower()
+    if suffix in USD_EXTENSIONS:
+        parts, scale, up = _load_usd(path)
+        units = _usd_units_name(scale)
+    elif suffix in (".glb", ".gltf"):
+        parts = _load_trimesh(path)
+        scale, units, up = 1.0, "m", "Y"
+    elif suffix in (".obj", ".ply", ".stl"):
+        if units not in UNIT_SCALE:
+            raise IngestError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)})")
+        parts = _load_trimesh(path)
+        scale, up = UNIT_SCALE[units], up_axis.upper()
+    else:
+        raise IngestError(f"unsupported model format {suffix or '(no extension)'}")
+    if not parts.faces:
+        raise IngestError("mesh has no faces")
+    offsets = np.cumsum([0] + [len(v) for v in parts.vertices[:-1]])
+    vertices = np.vstack(parts.vertices) * scale
+    faces = np.vstack([f + o for f, o in zip(parts.faces, offsets)])
+    if not np.all(np.isfinite(vertices)):
+        raise IngestError("mesh has non-finite vertex coordinates")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise IngestError("mesh has face indices outside its vertex list")
+    vertices = vertices @ up_axis_rotation(up).T
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=True)  # merges duplicate vertices
+    if len(mesh.faces) == 0:
+        raise IngestError("mesh has no faces")
+    if not mesh.area > 0:
+        raise IngestError("mesh is degenerate: zero surface area")
+    rank = ("image", "vertex_color", "material", "none")
+    appearance = min(parts.appearance, key=rank.index) if parts.appearance else "none"
+    return NormalisedMesh(mesh, units, up, appearance, len(parts.faces))
+
+
+# --------------------------------------------------------------------------- facts
+
+
+def geometry_hash(mesh: Any) -> str:
+    """SHA-256 of the normalised geometry: vertices relative to the bbox minimum, rounded to 1 µm,
+    and the faces. Equal for the same shape however it was coloured, textured or placed."""
+    v = np.round(np.asarray(mesh.vertices) - mesh.bounds[0], 6) + 0.0  # + 0.0 folds -0.0 into 0.0
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(v, dtype="<f8").tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype="<i8").tobytes())
+    return h.hexdigest()
+
+
+def _ply_face_count(path: Path) -> int | None:
+    try:
+        with open(path, "rb") as fh:
+            for _ in range(64):
+                line = fh.readline()
+                if not line or line.strip() == b"end_header":
+                    break
+                if line.startswith(b"element face"):
+                    return int(line.split()[-1])
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+def build_collision_mesh(mesh: Any, out_path: Path, face_budget: int) -> int:
+    """Clean zero-area faces, quadric-edge-collapse to ``face_budget`` faces, write a binary PLY.
+
+    Written to a temporary name and renamed, so a killed worker never leaves half a file; an existing
+    file (same geometry hash and budget in its name) is reused.
+    """
+    import pymeshlab
+
+    if out_path.exists():
+        count = _ply_face_count(out_path)
+        if count is not None:
+            return count
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(
+        pymeshlab.Mesh(
+            vertex_matrix=np.asarray(mesh.vertices, dtype=np.float64),
+            face_matrix=np.asarray(mesh.faces, dtype=np.int32),
+        )
+    )
+    ms.meshing_remove_null_faces()
+    ms.meshing_remove_unreferenced_vertices()
+    if ms.current_mesh().face_number() == 0:
+        raise IngestError("mesh has only zero-area faces")
+    if ms.current_mesh().face_number() > face_budget:
+        ms.meshing_decimation_quadric_edge_collapse(
+            targetfacenum=int(face_budget), preservenormal=True, planarquadric=True, autoclean=True
+        )
+    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp.ply")
+    ms.save_current_mesh(str(tmp), binary=True, save_vertex_color=False, save_vertex_normal=False)
+    os.replace(tmp, out_path)
+    return int(ms.current_mesh().face_number())
+
+
+def analyse_model(
+    model_path: str,
+    *,
+    collision_dir: str,
+    face_budget: int,
+    units: str,
+    up_axis: str,
+) -> dict[str, Any]:
+    """Worker entry point: all facts of one model as a plain dict (raises IngestError)."""
+    path = Path(model_path)
+    norm = load_normalised(path, units=units, up_axis=up_axis)
+    mesh = norm.mesh
+    ghash = geometry_hash(mesh)
+    dims = mesh.extents
+    watertight = bool(mesh.is_watertight)
+    volume = float(abs(mesh.volume)) if watertight else None
+    collision = Path(collision_dir) / f"{ghash[:32]}_{int(face_budget)}.ply"
+    collision_faces = build_collision_mesh(mesh, collision, int(face_budget))
+    facts = MeshFacts(
+        source_units=norm.source_units,
+        source_up_axis=norm.source_up_axis,
+        dim_x=float(dims[0]),
+        dim_y=float(dims[1]),
+        dim_z=float(dims[2]),
+        vertex_count=int(len(mesh.vertices)),
+        face_count=int(len(mesh.faces)),
+        watertight=watertight,
+        volume=volume,
+        area=float(mesh.area),
+        textured=norm.appearance in ("image", "vertex_color"),
+        appearance=norm.appearance,
+        geometry_hash=ghash,
+        n_parts=norm.n_parts,
+        collision_path=str(collision.resolve()),
+        collision_face_count=collision_faces,
+    )
+    return facts.as_dict()

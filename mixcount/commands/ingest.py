@@ -1,0 +1,159 @@
+"""CLI: `mixcount catalog ingest`, `catalog list`, `catalog show`."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from mixcount.commands.common import console, out, state
+from mixcount.errors import CatalogError
+
+
+def ingest_cmd(
+    ctx: typer.Context,
+    paths: list[Path] = typer.Argument(..., help="DTC library folders, object folders or model files."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Mesh-analysis processes [default: ingest.workers]."),
+    strict: bool = typer.Option(False, "--strict", help="Exit non-zero when any object is broken."),
+    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+) -> None:
+    """Ingest 3D objects: mesh facts in metres/Z-up, hashes, collision meshes; idempotent and resumable."""
+    from mixcount.catalog.ingest import discover, ingest_paths
+
+    st = state(ctx)
+    cfg = st.config()
+    discover(paths)  # a missing PATH is an error before the database is touched
+    catalog = st.catalog()
+    try:
+        summary = ingest_paths(catalog, paths, config=cfg, workers=workers, progress=True, strict=strict)
+    finally:
+        catalog.close()
+    for name, reason in summary.broken_objects:
+        console.print(f"[yellow]broken[/] {name}: {reason}", highlight=False, markup=True)
+    console.print(
+        f"ingested {summary.total} objects: {summary.new} new, {summary.unchanged} unchanged, "
+        f"{summary.updated} updated, {summary.broken} broken",
+        highlight=False,
+    )
+    if json_out:
+        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+    if strict and summary.broken:
+        raise CatalogError(f"{summary.broken} broken object(s) (--strict)")
+
+
+def _query(session, status: Optional[str], category: Optional[str]):  # type: ignore[no-untyped-def]
+    from sqlalchemy import select
+
+    from mixcount.catalog.models import STATUSES, CatalogObject
+
+    stmt = select(CatalogObject).order_by(CatalogObject.id)
+    if status:
+        if status not in STATUSES:
+            raise CatalogError(f"unknown status {status!r} (expected one of {', '.join(STATUSES)})")
+        stmt = stmt.where(CatalogObject.status == status)
+    if category:
+        stmt = stmt.where(CatalogObject.category == category.lower())
+    return session.scalars(stmt).all()
+
+
+def summary_of(objects) -> dict:  # type: ignore[no-untyped-def]
+    """Counts by status and by category (category counts cover every status)."""
+    by_status = Counter(o.status for o in objects)
+    by_category: dict[str, dict[str, int]] = {}
+    for o in objects:
+        row = by_category.setdefault(o.category, {"total": 0, "active": 0, "excluded": 0, "broken": 0})
+        row["total"] += 1
+        row[o.status] = row.get(o.status, 0) + 1
+    return {
+        "total": len(objects),
+        "by_status": {s: by_status.get(s, 0) for s in ("active", "excluded", "broken")},
+        "by_category": dict(sorted(by_category.items())),
+    }
+
+
+def list_cmd(
+    ctx: typer.Context,
+    status: Optional[str] = typer.Option(None, "--status", help="Only objects with this status (active|excluded|broken)."),
+    category: Optional[str] = typer.Option(None, "--category", help="Only objects of this category."),
+    json_out: bool = typer.Option(False, "--json", help="Print a JSON array (see docs/catalog-json.md)."),
+    summary: bool = typer.Option(False, "--summary", help="Counts by status and category instead of rows."),
+) -> None:
+    """List catalog objects."""
+    from rich.table import Table
+
+    from mixcount.catalog.records import object_record
+
+    catalog = state(ctx).catalog()
+    try:
+        with catalog.session() as session:
+            objects = _query(session, status, category)
+            if summary:
+                data = summary_of(objects)
+                if json_out:
+                    out.print(json.dumps(data, sort_keys=True))
+                    return
+                s = data["by_status"]
+                out.print(
+                    f"{data['total']} objects: {s['active']} active, {s['excluded']} excluded, {s['broken']} broken; "
+                    f"{len(data['by_category'])} categories"
+                )
+                table = Table(title="catalog by category")
+                for col in ("category", "total", "active", "excluded", "broken"):
+                    table.add_column(col, justify="left" if col == "category" else "right")
+                for cat, row in data["by_category"].items():
+                    table.add_row(cat, *(str(row[k]) for k in ("total", "active", "excluded", "broken")))
+                out.print(table)
+                return
+            if json_out:
+                out.print(json.dumps([object_record(session, o) for o in objects], sort_keys=True))
+                return
+            table = Table(title=f"{len(objects)} objects")
+            for col in ("id", "name", "category", "status", "dims (cm)", "faces", "error"):
+                table.add_column(col)
+            for o in objects:
+                dims = "x".join(f"{d * 100:.1f}" for d in o.dims) if o.dim_x is not None else ""
+                table.add_row(str(o.id), o.name, o.category, o.status, dims, str(o.face_count or ""),
+                              (o.error or "")[:60])
+            out.print(table)
+    finally:
+        catalog.close()
+
+
+def show_cmd(
+    ctx: typer.Context,
+    object_id: str = typer.Argument(..., metavar="ID", help="Object id (or exact name)."),
+    json_out: bool = typer.Option(False, "--json", help="Print the object as JSON (see docs/catalog-json.md)."),
+) -> None:
+    """Show every fact, flag, caption and the split of one object."""
+    from sqlalchemy import select
+
+    from mixcount.catalog.models import CatalogObject
+    from mixcount.catalog.records import object_record
+
+    catalog = state(ctx).catalog()
+    try:
+        with catalog.session() as session:
+            obj = session.get(CatalogObject, int(object_id)) if object_id.isdigit() else None
+            if obj is None:
+                obj = session.scalars(select(CatalogObject).where(CatalogObject.name == object_id)).first()
+            if obj is None:
+                raise CatalogError(f"no catalog object with id or name {object_id!r}")
+            record = object_record(session, obj, detail=True)
+    finally:
+        catalog.close()
+    if json_out:
+        out.print(json.dumps(record, sort_keys=True))
+        return
+    width = max(len(k) for k in record)
+    for key, value in record.items():
+        text = json.dumps(value, sort_keys=True) if isinstance(value, (dict, list)) else str(value)
+        out.print(f"{key:<{width}}  {text}")
+
+
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    catalog_app.command("ingest")(ingest_cmd)
+    catalog_app.command("list")(list_cmd)
+    catalog_app.command("show")(show_cmd)
