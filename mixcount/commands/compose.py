@@ -1,0 +1,131 @@
+"""``mixcount compose`` (plan, USD stages; the Blender run is added by the rendering area) and
+``mixcount catalog ingest-env`` / ``ingest-materials``.
+
+``plan_scenes`` is the one place that turns (catalog, config, n, split, seed) into SceneSpecs; the
+dry run prints them, ``--stage-only`` writes ``OUT/scenes/<scene_id>/scene.usda`` for each.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+from mixcount.commands.common import console, out, state
+from mixcount.errors import CompositionError
+
+
+def plan_scenes(catalog: Any, config: Any, *, n: int, split: Optional[str] = None,
+                seed: Optional[int] = None) -> list[Any]:
+    """SceneSpecs for scenes ``seed .. seed+n-1`` of ``split`` (defaults from ``[compose]``)."""
+    from mixcount.scene.config import SceneConfig
+    from mixcount.scene.pool import load_environments, load_materials, load_pool
+    from mixcount.scene.sampler import sample_scene
+
+    sconf = SceneConfig.from_config(config)
+    split = split or str(config["compose"]["split"])
+    base = int(config["compose"]["seed"] if seed is None else seed)
+    with catalog.session() as session:
+        pool = load_pool(session)
+        envs = load_environments(session)
+        mats = load_materials(session)
+    if not any(o.split == split for o in pool):
+        raise CompositionError(
+            f"no active objects in split {split!r}: ingest, caption and split the catalog first "
+            "(mixcount catalog ingest / caption / split)"
+        )
+    return [sample_scene(base + k, split, sconf, pool, environments=envs, materials=mats) for k in range(n)]
+
+
+def summarise(spec: Any) -> dict[str, Any]:
+    """What a dry run prints for one scene."""
+    return {
+        "scene_id": spec.scene_id, "seed": spec.seed, "split": spec.split, "n_counted": spec.n_counted,
+        "classes": [
+            {"class_index": c.class_index, "object_id": c.object_id, "name": c.name, "category": c.category,
+             "count": c.count, "size_m": c.target_size_m, "size_real_m": round(c.target_size_m / spec.scale, 4),
+             "qualifier": c.size_qualifier, "construction": c.construction, "caption": c.captions.concise}
+            for c in spec.classes
+        ],
+        "container": None if spec.container is None else spec.asset(spec.container.object_id).name,
+        "distractors": [spec.asset(d.object_id).name for d in spec.distractors],
+        "floor": f"{spec.floor.shape} / {spec.floor.material.name}",
+        "environment": spec.environment.kind,
+    }
+
+
+def write_stages(specs: list[Any], out_dir: Path, catalog: Any, *, progress: bool = True) -> list[Path]:
+    from rich.progress import Progress
+
+    from mixcount.usd.stage import write_stage
+
+    paths: list[Path] = []
+    with Progress(console=console, transient=True, disable=not progress) as bar:
+        task = bar.add_task("writing USD stages", total=len(specs))
+        for spec in specs:
+            paths.append(write_stage(spec, out_dir, catalog))
+            bar.advance(task)
+    return paths
+
+
+def _print_dry_run(specs: list[Any]) -> None:
+    from rich.table import Table
+
+    table = Table(title=f"{len(specs)} planned scene(s)")
+    for col in ("scene", "n", "classes (count x size m, construction)", "container", "distr."):
+        table.add_column(col)
+    for spec in specs:
+        cls = "\n".join(
+            f"{c.captions.concise!s} : {c.count} x {c.target_size_m:.2f} ({c.construction})" for c in spec.classes
+        )
+        cont = "-" if spec.container is None else spec.asset(spec.container.object_id).name
+        table.add_row(spec.scene_id, str(spec.n_counted), cls, cont, str(len(spec.distractors)))
+    console.print(table)
+
+
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    @app.command("compose")
+    def compose(
+        ctx: typer.Context,
+        n: int = typer.Option(1, "--n", min=1, help="Number of scenes."),
+        out_dir: Path = typer.Option(Path("out"), "--out", help="Output folder (scenes/<scene_id>/...)."),
+        split: Optional[str] = typer.Option(None, "--split", help="Split to draw objects from (default: config compose.split)."),
+        seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the first scene (default: config compose.seed)."),
+        dry_run: bool = typer.Option(False, "--dry-run", help="Print classes, counts and sizes; write nothing."),
+        stage_only: bool = typer.Option(False, "--stage-only", help="Write scene.usda stages, no rendering."),
+    ) -> None:
+        """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
+        st = state(ctx)
+        catalog = st.catalog()
+        specs = plan_scenes(catalog, st.config(), n=n, split=split, seed=seed)
+        if dry_run:
+            _print_dry_run(specs)
+            out.print(json.dumps([summarise(s) for s in specs], indent=2))
+            return
+        if stage_only:
+            paths = write_stages(specs, out_dir, catalog)
+            console.print(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}")
+            out.print(json.dumps({"stages": [str(p) for p in paths]}, indent=2))
+            return
+        raise CompositionError("rendering is not available in this build: use --dry-run or --stage-only")
+
+    @catalog_app.command("ingest-env")
+    def ingest_env(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="HDR/EXR files or folders.")) -> None:
+        """Add HDR/EXR environment maps to the catalog (sampled uniformly per scene)."""
+        from mixcount.catalog.environments import ingest_environments
+
+        summary = ingest_environments(state(ctx).catalog(), paths)
+        console.print(f"environments: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped")
+        out.print(json.dumps(summary.to_dict(), indent=2))
+
+    @catalog_app.command("ingest-materials")
+    def ingest_materials_cmd(ctx: typer.Context,
+                             paths: list[Path] = typer.Argument(..., help="Folders of PBR texture sets.")) -> None:
+        """Add PBR texture sets (base colour, roughness, normal, ...) for floors."""
+        from mixcount.catalog.environments import ingest_materials
+
+        summary = ingest_materials(state(ctx).catalog(), paths)
+        console.print(f"materials: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped")
+        out.print(json.dumps(summary.to_dict(), indent=2))

@@ -1,0 +1,147 @@
+"""Scene-sampling parameters: the ``[scene]`` and ``[compose]`` config sections as one frozen dataclass.
+
+Geometric values marked "·s" in ``configs/default.toml`` are stored here unscaled; the sampler
+multiplies them by :attr:`SceneConfig.scale` when it uses them, so the spec holds metres of the scene.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+from mixcount.config import Config
+from mixcount.errors import ConfigError
+
+Range = tuple[float, float]
+IntRange = tuple[int, int]
+
+
+def _range(key: str, value: Any, *, integer: bool = False) -> Any:
+    try:
+        lo, hi = value
+    except (TypeError, ValueError):
+        raise ConfigError(f"config key scene.{key} must be [low, high], got {value!r}") from None
+    if integer:
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (lo, hi)):
+            raise ConfigError(f"config key scene.{key} must hold integers, got {value!r}")
+        lo, hi = int(lo), int(hi)
+    else:
+        lo, hi = float(lo), float(hi)
+    if lo > hi:
+        raise ConfigError(f"config key scene.{key}: low {lo} > high {hi}")
+    return (lo, hi)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Every parameter the sampler and the stage writer read (see configs/default.toml for meaning)."""
+
+    scale: float
+    floor_shapes: tuple[str, ...]
+    floor_half_extent: Range
+    floor_thickness: float
+    floor_uv_scale: Range
+    floor_patterns: tuple[str, ...]
+    floor_texture_px: int
+    procedural_floor_probability: float
+    container_categories: tuple[str, ...]
+    no_container_probability: float
+    container_scale_jitter: Range
+    container_other_split_fallback: bool
+    n_objects: IntRange
+    n_classes: IntRange
+    class_size: Range
+    instance_jitter: Range
+    random_orientation: bool
+    counted_exclude_categories: tuple[str, ...]
+    p_same_object_resized: float
+    p_same_category: float
+    p_other_category: float
+    resize_ratio: Range
+    spawn_margin: float
+    spawn_min_semi_axis: float
+    spawn_height: Range
+    spawn_xy_no_container: Range
+    spawn_max_tries: int
+    n_distractors: IntRange
+    distractor_base_size: float
+    distractor_size_multiplier: Range
+    distractor_margin: float
+    distractor_ring: Range
+    distractor_max_tries: int
+    physics_frames: int
+    physics_substeps: int
+    physics_solver_iterations: int
+    collision_shape: str
+    gravity: float
+    n_cameras: int
+    camera_elevation_deg: Range
+    camera_roll_deg: Range
+    camera_distance_factor: float
+    camera_distance_jitter: float
+    camera_lookat_jitter: float
+    focal_length_mm: float
+    sensor_width_mm: float
+    clip_range: Range
+    environment_strength: Range
+    sky_sun_elevation_deg: Range
+    sky_sun_strength: Range
+    sky_turbidity: Range
+    # [compose]
+    resolution: int = 1024
+    samples: int = 32
+    denoise: bool = True
+    visibility_threshold: float = 0.4
+    config_hash: str = ""
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> "SceneConfig":
+        """Build from a loaded :class:`~mixcount.config.Config`; checks ranges and probabilities."""
+        scene = dict(cfg["scene"])
+        compose = dict(cfg["compose"])
+        int_ranges = {"n_objects", "n_classes", "n_distractors"}
+        values: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name == "config_hash":
+                continue
+            if f.name in ("resolution", "samples", "denoise", "visibility_threshold"):
+                if f.name in compose:
+                    values[f.name] = compose[f.name]
+                continue
+            if f.name not in scene:
+                raise ConfigError(f"missing config key scene.{f.name}")
+            value = scene[f.name]
+            if f.type in ("Range", "IntRange"):
+                value = _range(f.name, value, integer=f.name in int_ranges)
+            elif isinstance(value, (list, tuple)):
+                value = tuple(value)
+            values[f.name] = value
+        conf = cls(**values, config_hash=cfg.hash)
+        conf.validate()
+        return conf
+
+    def validate(self) -> None:
+        """Reject values the sampler cannot honour (they would fail later, less clearly)."""
+        probs = (self.p_same_object_resized, self.p_same_category, self.p_other_category)
+        if any(p < 0 for p in probs) or sum(probs) <= 0:
+            raise ConfigError(f"scene class-construction probabilities must be >= 0 with a positive sum: {probs}")
+        if not 0.0 <= self.no_container_probability <= 1.0:
+            raise ConfigError("scene.no_container_probability must lie in [0, 1]")
+        if self.n_objects[0] < 1 or self.n_classes[0] < 1:
+            raise ConfigError("scene.n_objects and scene.n_classes must be >= 1")
+        if self.n_objects[1] < self.n_classes[1]:
+            raise ConfigError("scene.n_objects high must be >= scene.n_classes high (one instance per class)")
+        if self.n_cameras < 1:
+            raise ConfigError("scene.n_cameras must be >= 1")
+        if self.resize_ratio[0] <= 1.0:
+            raise ConfigError("scene.resize_ratio must be > 1 (a clearly different size)")
+        unknown = set(self.floor_shapes) - {"cube", "cylinder"}
+        if unknown or not self.floor_shapes:
+            raise ConfigError(f"scene.floor_shapes must be cube and/or cylinder, got {self.floor_shapes}")
+        from mixcount.scene.environments import PATTERNS
+
+        bad = set(self.floor_patterns) - set(PATTERNS)
+        if bad or not self.floor_patterns:
+            raise ConfigError(f"scene.floor_patterns: unknown {sorted(bad)}; known {list(PATTERNS)}")
+        if self.collision_shape not in ("convexHull", "convexDecomposition", "boundingCube", "boundingSphere", "none"):
+            raise ConfigError(f"scene.collision_shape {self.collision_shape!r} is not a UsdPhysics approximation")

@@ -1,0 +1,381 @@
+"""Catalog asset -> cached USD asset (pure pxr), converted once per content hash.
+
+Layout in ``catalog.usd_assets_dir``: ``<content_hash>.usdc`` (default prim ``/Asset``, kind
+component, metres, Z-up, origin at the bounding-box centre) and its textures in
+``<content_hash>_tex/`` referenced by relative paths, so the pair can be moved together.
+``<content_hash>_collision.usdc`` holds the decimated collision mesh in the same frame.
+
+Geometry comes from trimesh (GLB/GLTF/OBJ/PLY/STL): every node of the scene graph is placed by its
+world transform, scaled to metres and turned Z-up exactly as ingest does (glTF Y-up: (x, y, z) ->
+(x, -z, y)), so the asset's size equals the catalog's dims. Materials become UsdPreviewSurface with
+UsdUVTexture readers for base colour, metallic-roughness (glTF packing: G = roughness, B = metallic)
+and normal maps; vertex or face colours become ``displayColor``. USD/USDZ sources are wrapped: the
+asset references the source file under a transform to metres, Z-up and centred.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from mixcount.errors import CompositionError
+
+CONVERTER_VERSION = 1
+UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def up_rotation(up: str) -> np.ndarray:
+    """3x3 rotation from a ``up``-up frame to Z-up (matches ``mixcount.catalog.mesh``)."""
+    up = (up or "Z").upper()
+    if up == "Y":
+        return np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    if up == "X":
+        return np.array([[0, 0, -1.0], [0, 1.0, 0], [1.0, 0, 0]])
+    return np.eye(3)
+
+
+@dataclass(frozen=True)
+class AssetPaths:
+    visual: Path
+    collision: Optional[Path]
+    center: tuple[float, float, float]  # bbox centre of the normalised model, subtracted in the asset
+
+
+def asset_key(content_hash: str, model_path: str) -> str:
+    return content_hash or hashlib.sha256(str(model_path).encode()).hexdigest()
+
+
+def _source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str]) -> tuple[float, str]:
+    suffix = model_path.suffix.lower()
+    if suffix in (".glb", ".gltf"):
+        return 1.0, "Y"
+    return UNIT_SCALE.get((units or "m").lower(), 1.0), (up_axis or "Y").upper()
+
+
+# ------------------------------------------------------------------------------------ trimesh side
+
+
+@dataclass
+class _Part:
+    points: np.ndarray
+    faces: np.ndarray
+    normals: Optional[np.ndarray]
+    uv: Optional[np.ndarray]
+    material: Optional[dict[str, Any]]  # base_color_factor, images, metallic, roughness
+    display_color: Optional[np.ndarray]
+    color_interp: str = "vertex"
+
+
+def _image(obj: Any) -> Any:
+    try:
+        from PIL import Image
+
+        return obj if isinstance(obj, Image.Image) else None
+    except Exception:  # pragma: no cover
+        return None
+
+
+def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarray], str]:
+    visual = getattr(geom, "visual", None)
+    kind = getattr(visual, "kind", None)
+    if kind == "texture" or (visual is not None and hasattr(visual, "material") and kind is None):
+        mat = visual.material
+        info: dict[str, Any] = {"base_color_factor": [0.8, 0.8, 0.8, 1.0], "metallic": 0.0, "roughness": 0.5}
+        factor = getattr(mat, "baseColorFactor", None)
+        if factor is not None:
+            f = np.asarray(factor, dtype=float).ravel()
+            info["base_color_factor"] = list((f / 255.0 if f.max() > 1.0 else f).tolist()) + [1.0] * (4 - len(f))
+        elif getattr(mat, "diffuse", None) is not None:
+            d = np.asarray(mat.diffuse, dtype=float).ravel()
+            info["base_color_factor"] = list((d / 255.0).tolist())
+        if getattr(mat, "metallicFactor", None) is not None:
+            info["metallic"] = float(mat.metallicFactor)
+        if getattr(mat, "roughnessFactor", None) is not None:
+            info["roughness"] = float(mat.roughnessFactor)
+        info["base_color_tex"] = _image(getattr(mat, "baseColorTexture", None)) or _image(getattr(mat, "image", None))
+        info["mr_tex"] = _image(getattr(mat, "metallicRoughnessTexture", None))
+        info["normal_tex"] = _image(getattr(mat, "normalTexture", None))
+        return info, None, "vertex"
+    if kind == "vertex":
+        return None, np.asarray(visual.vertex_colors, dtype=float)[:, :3] / 255.0, "vertex"
+    if kind == "face":
+        return None, np.asarray(visual.face_colors, dtype=float)[:, :3] / 255.0, "uniform"
+    return None, None, "vertex"
+
+
+def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
+    import trimesh
+
+    try:
+        scene = trimesh.load(str(model_path), force="scene", process=False)
+    except Exception as exc:
+        raise CompositionError(f"cannot load model {model_path} for USD conversion: {exc}") from None
+    rot = up_rotation(up)
+    parts: list[_Part] = []
+    for node in sorted(scene.graph.nodes_geometry):
+        transform, geom_name = scene.graph[node]
+        geom = scene.geometry.get(geom_name)
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue
+        pts = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform) * scale
+        pts = pts @ rot.T
+        lin = np.asarray(transform)[:3, :3]
+        normals = None
+        try:
+            vn = np.asarray(geom.vertex_normals, dtype=np.float64)
+            if len(vn) == len(pts):
+                normals = vn @ np.linalg.inv(lin).T @ rot.T  # normals transform by the inverse transpose
+                normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        except Exception:
+            normals = None
+        mat, colors, interp = _material_of(geom)
+        uv = getattr(geom.visual, "uv", None) if mat is not None else None
+        if uv is not None and len(uv) != len(pts):
+            uv = None
+        parts.append(_Part(pts, np.asarray(geom.faces, dtype=np.int64), normals,
+                           None if uv is None else np.asarray(uv, dtype=np.float64), mat, colors, interp))
+    if not parts:
+        raise CompositionError(f"model {model_path} has no triangle geometry to convert")
+    return parts
+
+
+# ------------------------------------------------------------------------------------ pxr side
+
+
+def _texture_shader(stage: Any, mat_path: str, name: str, rel: str, st_out: Any, color_space: str) -> Any:
+    from pxr import Sdf, UsdShade
+
+    tex = UsdShade.Shader.Define(stage, f"{mat_path}/{name}")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(rel))
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(color_space)
+    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
+    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st_out)
+    return tex
+
+
+def _define_material(stage: Any, mat_path: str, info: dict[str, Any], tex_dir: Path, rel_dir: str,
+                     index: int, textured: bool) -> Any:
+    from pxr import Gf, Sdf, UsdShade
+
+    material = UsdShade.Material.Define(stage, mat_path)
+    surf = UsdShade.Shader.Define(stage, f"{mat_path}/PreviewSurface")
+    surf.CreateIdAttr("UsdPreviewSurface")
+    surf.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(0)
+    factor = info["base_color_factor"]
+    has_base = textured and info.get("base_color_tex") is not None
+    has_mr = textured and info.get("mr_tex") is not None
+    has_normal = textured and info.get("normal_tex") is not None
+    st_out = None
+    if has_base or has_mr or has_normal:
+        reader = UsdShade.Shader.Define(stage, f"{mat_path}/StReader")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        st_out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+    if has_base:
+        name = f"basecolor_{index}.png"
+        info["base_color_tex"].convert("RGBA" if info["base_color_tex"].mode in ("RGBA", "LA", "P") else "RGB").save(
+            tex_dir / name, format="PNG")
+        tex = _texture_shader(stage, mat_path, "BaseColorTex", f"./{rel_dir}/{name}", st_out, "sRGB")
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*[float(v) for v in factor[:4]]))
+        rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
+    else:
+        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*[float(v) for v in factor[:3]]))
+    if has_mr:
+        name = f"metallic_roughness_{index}.png"
+        info["mr_tex"].convert("RGB").save(tex_dir / name, format="PNG")
+        tex = _texture_shader(stage, mat_path, "MetallicRoughnessTex", f"./{rel_dir}/{name}", st_out, "raw")
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(
+            Gf.Vec4f(1.0, float(info["roughness"]), float(info["metallic"]), 1.0))
+        g = tex.CreateOutput("g", Sdf.ValueTypeNames.Float)
+        b = tex.CreateOutput("b", Sdf.ValueTypeNames.Float)
+        surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).ConnectToSource(g)
+        surf.CreateInput("metallic", Sdf.ValueTypeNames.Float).ConnectToSource(b)
+    else:
+        surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(info["roughness"]))
+        surf.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(float(info["metallic"]))
+    if has_normal:
+        name = f"normal_{index}.png"
+        info["normal_tex"].convert("RGB").save(tex_dir / name, format="PNG")
+        tex = _texture_shader(stage, mat_path, "NormalTex", f"./{rel_dir}/{name}", st_out, "raw")
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(2.0, 2.0, 2.0, 1.0))
+        tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(-1.0, -1.0, -1.0, 0.0))
+        n = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        surf.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(n)
+    material.CreateSurfaceOutput().ConnectToSource(surf.CreateOutput("surface", Sdf.ValueTypeNames.Token))
+    return material
+
+
+def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray) -> Any:
+    from pxr import UsdGeom, Vt
+
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    pts = part.points - center
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(part.faces), 3, dtype=np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(part.faces.astype(np.int32).ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([pts.min(0), pts.max(0)]).astype(np.float32)))
+    if part.normals is not None:
+        mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(part.normals.astype(np.float32)))
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    pv = UsdGeom.PrimvarsAPI(mesh)
+    if part.uv is not None:
+        from pxr import Sdf
+
+        st = pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+        st.Set(Vt.Vec2fArray.FromNumpy(part.uv[:, :2].astype(np.float32)))
+    if part.display_color is not None:
+        interp = UsdGeom.Tokens.vertex if part.color_interp == "vertex" else UsdGeom.Tokens.uniform
+        dc = mesh.CreateDisplayColorPrimvar(interp)
+        dc.Set(Vt.Vec3fArray.FromNumpy(part.display_color.astype(np.float32)))
+    return mesh
+
+
+def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path]) -> None:
+    """Build into a temporary directory beside ``final`` and move into place (concurrent workers are
+    safe: the last rename wins and both results are identical)."""
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.stem}.", dir=final.parent))
+    try:
+        tmp_tex = tmp / tex_dir.name if tex_dir is not None else None
+        if tmp_tex is not None:
+            tmp_tex.mkdir()
+        tmp_layer = tmp / final.name
+        build(tmp_layer, tmp_tex)
+        if tmp_tex is not None and tex_dir is not None:
+            if tex_dir.exists():
+                shutil.rmtree(tex_dir, ignore_errors=True)
+            try:
+                os.replace(tmp_tex, tex_dir)
+            except OSError:
+                pass  # a concurrent writer put identical textures there first
+        os.replace(tmp_layer, final)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _is_current(path: Path) -> bool:
+    if not path.exists():
+        return False
+    from pxr import Sdf
+
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    return bool(layer) and layer.customLayerData.get("mixcount", {}).get("converter_version") == CONVERTER_VERSION
+
+
+def _start_stage(path: Path, key: str, source: str, center: np.ndarray) -> tuple[Any, Any]:
+    from pxr import Gf, Kind, Usd, UsdGeom
+
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    root = UsdGeom.Xform.Define(stage, "/Asset")
+    stage.SetDefaultPrim(root.GetPrim())
+    Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
+    stage.GetRootLayer().customLayerData = {"mixcount": {
+        "converter_version": CONVERTER_VERSION, "content_hash": key,
+        "source": source, "center_m": Gf.Vec3d(*[float(c) for c in center]),
+    }}
+    return stage, root
+
+
+def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = "", units: Optional[str] = None,
+                  up_axis: Optional[str] = None, collision_path: Optional[str] = None,
+                  textured: bool = True, force: bool = False) -> AssetPaths:
+    """Convert one model to ``out_dir/<hash>.usdc`` (+ textures, + collision) unless already cached."""
+    model = Path(model_path)
+    key = asset_key(content_hash, str(model))
+    visual = out_dir / f"{key}.usdc"
+    tex_dir = out_dir / f"{key}_tex"
+    coll = out_dir / f"{key}_collision.usdc" if collision_path else None
+    if not force and _is_current(visual) and (coll is None or _is_current(coll)):
+        from pxr import Sdf
+
+        c = Sdf.Layer.FindOrOpen(str(visual)).customLayerData.get("mixcount", {}).get("center_m", (0.0, 0.0, 0.0))
+        return AssetPaths(visual, coll, tuple(float(v) for v in c))  # type: ignore[arg-type]
+    if not model.is_file():
+        raise CompositionError(f"model file {model} of asset {key[:12]} does not exist")
+    scale, up = _source_frame(model, units, up_axis)
+    if model.suffix.lower() in USD_EXTENSIONS:
+        center = _usd_center(model)
+        _write_layer_atomically(lambda p, _t: _wrap_usd(p, key, model, center), visual, None)
+    else:
+        parts = _load_parts(model, scale, up)
+        allpts = np.vstack([p.points for p in parts])
+        center = (allpts.min(0) + allpts.max(0)) / 2
+
+        def build(path: Path, tdir: Optional[Path]) -> None:
+            from pxr import UsdGeom, UsdShade
+
+            stage, _root = _start_stage(path, key, str(model), center)
+            UsdGeom.Scope.Define(stage, "/Asset/Looks")
+            UsdGeom.Scope.Define(stage, "/Asset/Geom")
+            for i, part in enumerate(parts):
+                mesh = _define_mesh(stage, f"/Asset/Geom/mesh_{i:03d}", part, center)
+                if part.material is not None:
+                    mat = _define_material(stage, f"/Asset/Looks/mat_{i:03d}", part.material, tdir,  # type: ignore[arg-type]
+                                           tex_dir.name, i, textured and part.uv is not None)
+                    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+            stage.GetRootLayer().Save()
+
+        _write_layer_atomically(build, visual, tex_dir)
+    if coll is not None and collision_path:
+        _write_layer_atomically(lambda p, _t: _write_collision(p, key, Path(collision_path), center), coll, None)
+    return AssetPaths(visual, coll, (float(center[0]), float(center[1]), float(center[2])))
+
+
+def _write_collision(path: Path, key: str, ply: Path, center: np.ndarray) -> None:
+    """The decimated collision mesh (already metres, Z-up, same frame as the model) -> Mesh prim."""
+    import trimesh
+
+    if not ply.is_file():
+        raise CompositionError(f"collision mesh {ply} does not exist")
+    mesh = trimesh.load(str(ply), force="mesh", process=False)
+    stage, _root = _start_stage(path, key, str(ply), center)
+    part = _Part(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64),
+                 None, None, None, None)
+    _define_mesh(stage, "/Asset/collision", part, center)
+    stage.GetRootLayer().Save()
+
+
+def _usd_center(model: Path) -> np.ndarray:
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(model))
+    if stage is None:
+        raise CompositionError(f"cannot open USD model {model}")
+    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
+    rot = up_rotation(str(UsdGeom.GetStageUpAxis(stage)))
+    cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render])
+    box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
+    lo, hi = np.asarray(box.GetMin()) * mpu, np.asarray(box.GetMax()) * mpu
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) @ rot.T
+    return (corners.min(0) + corners.max(0)) / 2
+
+
+def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray) -> None:
+    """A USD source stays as it is: reference it under a transform to metres, Z-up and centred."""
+    from pxr import Gf, Usd, UsdGeom
+
+    src = Usd.Stage.Open(str(model))
+    mpu = float(UsdGeom.GetStageMetersPerUnit(src))
+    rot = up_rotation(str(UsdGeom.GetStageUpAxis(src)))
+    stage, root = _start_stage(path, key, str(model), center)
+    src_xf = UsdGeom.Xform.Define(stage, "/Asset/Source")
+    m = np.eye(4)
+    m[:3, :3] = rot * mpu
+    m[:3, 3] = -center
+    src_xf.AddTransformOp().Set(Gf.Matrix4d(m.T.tolist()))  # USD matrices are row-vector (transposed)
+    src_xf.GetPrim().GetReferences().AddReference(str(model.resolve()))
+    stage.GetRootLayer().Save()
