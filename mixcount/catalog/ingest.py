@@ -131,10 +131,14 @@ def singular(word: str) -> str:
     return w
 
 
+GENERIC_STEMS = {"model", "mesh", "scene", "object", "asset", "untitled", "export", "3d", "textured", "scan"}
+
+
 def _category_from_stem(stem: str, parent: str) -> str:
+    """Plain files: the file name's first word ('mug_02.glb' -> mug), else the folder's name."""
     token = re.split(r"[_\-\s.]+", stem.strip())[0] if stem.strip() else ""
     token = re.sub(r"\d+$", "", token)
-    if token.isalpha():
+    if token.isalpha() and token.lower() not in GENERIC_STEMS:
         return singular(token)
     parent_token = re.sub(r"[^A-Za-z]", "", parent)
     return singular(parent_token) if parent_token else "unknown"

@@ -209,6 +209,8 @@ def _load_trimesh(path: Path) -> _Parts:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise IngestError(f"cannot parse {path.suffix.lower().lstrip('.')} file: {msg[:200]}") from None
     parts = _Parts([], [], set())
+    if not scene.geometry:
+        raise IngestError(f"no mesh data in file (not a valid {path.suffix.lower().lstrip('.').upper()} model)")
     for node in scene.graph.nodes_geometry:
         transform, geom_name = scene.graph[node]
         geom = scene.geometry.get(geom_name)

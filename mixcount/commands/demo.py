@@ -9,20 +9,24 @@ from typing import Optional
 
 import typer
 
-from mixcount.commands.common import console, out
+from mixcount.commands.common import console, out, state
 
 
 def demo_library_cmd(
+    ctx: typer.Context,
     path: Path = typer.Argument(Path("catalog/demo"), help="Folder to write the library into."),
-    seed: int = typer.Option(0, "--seed", help="Generator seed; the same seed gives the same bytes."),
-    n: Optional[int] = typer.Option(None, "--n", help="Number of ordinary objects [default: all 58]."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Generator seed [default: demo.seed]; same seed, same bytes."),
+    n: Optional[int] = typer.Option(None, "--n", help="Number of ordinary objects [default: demo.n_objects, 0 = all 58]."),
     json_out: bool = typer.Option(False, "--json", help="Print the ground truth's counts as JSON on stdout."),
 ) -> None:
     """Generate the demo library: everyday objects, containers and curation traps, plus ground_truth.json."""
     from mixcount.catalog.demo_library import generate_demo_library
 
+    cfg = state(ctx).config()
+    seed = int(cfg["demo"]["seed"]) if seed is None else seed
+    n = int(cfg["demo"]["n_objects"]) if n is None else n
     t0 = time.perf_counter()
-    truth = generate_demo_library(path, seed=seed, n_objects=n)
+    truth = generate_demo_library(path, seed=seed, n_objects=n or None)
     exp = truth["expected"]
     console.print(
         f"demo library in {path}: {exp['total']} folders ({exp['active']} good, {exp['broken']} broken) in "
