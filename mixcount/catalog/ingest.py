@@ -101,8 +101,12 @@ class IngestSummary:
 
 
 def safe_text(text: str) -> str:
-    """A name that SQLite/JSON can store: undecodable bytes (surrogate escapes) become \\xNN."""
-    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    """A name that SQLite/JSON/one-line messages can carry: undecodable bytes (surrogate escapes)
+    become \\xNN and control characters their escape (\\n, \\x07); a stable mapping, so reruns match."""
+    text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    if any(unicodedata.category(c) == "Cc" for c in text):
+        text = "".join(c.encode("unicode_escape").decode() if unicodedata.category(c) == "Cc" else c for c in text)
+    return text
 
 
 def odd_name_reason(name: str) -> str | None:
@@ -220,7 +224,8 @@ def _dtc_candidate(folder: Path) -> Candidate:
 def _file_candidate(path: Path) -> Candidate:
     source_id = safe_text(str(path))
     name = safe_text(path.stem)
-    cand = Candidate(SOURCE_FOLDER, source_id, name, _category_from_stem(path.stem, path.parent.name), path)
+    category = _category_from_stem(safe_text(path.stem), safe_text(path.parent.name))
+    cand = Candidate(SOURCE_FOLDER, source_id, name, category, path)
     reason = odd_name_reason(path.name)
     if reason:
         cand.error = reason
@@ -369,7 +374,7 @@ def _apply_identity(obj: CatalogObject, prep: Prepared, run_id: int | None, inge
     cand = prep.cand
     obj.name = cand.name
     obj.category = cand.category
-    obj.model_path = str(cand.model_path.resolve()) if cand.model_path else ""
+    obj.model_path = safe_text(str(cand.model_path.resolve())) if cand.model_path else ""
     obj.license = cand.license
     obj.metadata_json = json.dumps({"metadata": cand.metadata, "ingest": ingest}, sort_keys=True, default=str)
     obj.ingest_run_id = run_id

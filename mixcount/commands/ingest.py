@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.markup import escape
 
 from mixcount.commands.common import console, out, state
 from mixcount.errors import CatalogError
@@ -32,11 +33,12 @@ def ingest_cmd(
     finally:
         catalog.close()
     for name, reason in summary.broken_objects:
-        console.print(f"[yellow]broken[/] {name}: {reason}", highlight=False, markup=True)
+        console.print(f"[yellow]broken[/] {escape(name)}: {escape(reason)}", highlight=False, soft_wrap=True)
     console.print(
         f"ingested {summary.total} objects: {summary.new} new, {summary.unchanged} unchanged, "
         f"{summary.updated} updated, {summary.broken} broken",
         highlight=False,
+        soft_wrap=True,
     )
     if json_out:
         out.print(json.dumps(summary.as_dict(), sort_keys=True))
