@@ -1,0 +1,53 @@
+"""`mixcount compose --dry-run` and `--stage-only` on a real (demo) catalog."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from mixcount.cli import main
+from test_usd_stage import build_demo_catalog
+
+
+@pytest.fixture(scope="module")
+def demo_db(tmp_path_factory):
+    root = tmp_path_factory.mktemp("compose")
+    build_demo_catalog(root).close()
+    return root
+
+
+def test_dry_run_prints_plan_and_writes_nothing(demo_db, capsys, tmp_path):
+    db = str(demo_db / "catalog.db")
+    rc = main(["--db", db, "--config", "quick", "compose", "--dry-run", "--n", "3", "--seed", "10",
+               "--split", "train", "--out", str(tmp_path / "out")])
+    assert rc == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert [p["scene_id"] for p in plan] == ["scene_000010", "scene_000011", "scene_000012"]
+    for p in plan:
+        assert 6 <= p["n_counted"] <= 14 and 2 <= len(p["classes"]) <= 3
+        assert sum(c["count"] for c in p["classes"]) == p["n_counted"]
+        for c in p["classes"]:
+            assert 0.45 <= c["size_m"] <= 1.2 and c["size_real_m"] == pytest.approx(c["size_m"] / 10, abs=1e-4)
+    assert not (tmp_path / "out").exists()
+    # same seeds, same plan
+    main(["--db", db, "--config", "quick", "compose", "--dry-run", "--n", "3", "--seed", "10", "--split", "train"])
+    assert json.loads(capsys.readouterr().out) == plan
+
+
+def test_stage_only_writes_stages(demo_db, capsys, tmp_path):
+    db = str(demo_db / "catalog.db")
+    rc = main(["--db", db, "--config", "quick", "--set", "compose.split=train", "compose", "--stage-only",
+               "--n", "2", "--out", str(tmp_path / "out")])
+    assert rc == 0
+    stages = json.loads(capsys.readouterr().out)["stages"]
+    assert [p.split("/")[-2] for p in stages] == ["scene_000000", "scene_000001"]
+    for p in stages:
+        text = open(p).read()
+        assert text.startswith("#usda 1.0") and '"mixcount:role"' not in text  # nested customData only
+
+
+def test_empty_split_is_a_clear_error(demo_db, capsys):
+    rc = main(["--db", str(demo_db / "catalog.db"), "compose", "--dry-run", "--split", "test"])
+    assert rc == 2
+    assert "no active objects in split 'test'" in capsys.readouterr().err

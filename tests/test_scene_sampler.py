@@ -1,0 +1,168 @@
+"""Scene sampler rules on a plain pool (no database): determinism, placement, cameras, config checks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mixcount.config import load_config
+from mixcount.errors import CompositionError, ConfigError
+from mixcount.scene.config import SceneConfig
+from mixcount.scene.pool import ObjectRecord
+from mixcount.scene.sampler import qualify, sample_scene
+from mixcount.scene.spec import Captions, SceneSpec
+from test_scene_distributions import rich_pool
+
+
+def quat_rotate(q, v):
+    w, x, y, z = q
+    r = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+    return r @ np.asarray(v, dtype=float)
+
+
+@pytest.fixture(scope="module")
+def conf() -> SceneConfig:
+    return SceneConfig.from_config(load_config())
+
+
+def test_same_seed_same_spec_and_json_round_trip(conf):
+    pool = rich_pool()
+    a = sample_scene(11, "train", conf, pool)
+    b = sample_scene(11, "train", conf, list(reversed(pool)))  # pool order must not matter
+    c = sample_scene(12, "train", conf, pool)
+    assert a.to_json() == b.to_json()
+    assert a.to_json() != c.to_json()
+    back = SceneSpec.from_json(a.to_json())
+    assert back == a
+    assert a.scene_id == "scene_000011" and a.seed == 11 and a.config_hash == conf.config_hash
+
+
+def test_scale_is_applied_consistently(conf):
+    pool = rich_pool()
+    by_id = {o.object_id: o for o in pool}
+    for seed in range(30):
+        s = sample_scene(seed, "train", conf, pool)
+        for o in s.objects + s.distractors:
+            # asset (real metres) x scale = size in the scene
+            assert max(by_id[o.object_id].dims) * o.scale[0] == pytest.approx(o.size_m, rel=1e-4)
+        if s.container is not None:
+            real = np.asarray(by_id[s.container.object_id].dims)
+            ratio = np.asarray(s.container.extent_m) / real / conf.scale
+            assert np.all(ratio >= conf.container_scale_jitter[0] - 1e-4)
+            assert np.all(ratio <= conf.container_scale_jitter[1] + 1e-4)
+        assert s.floor.uv_scale_m / conf.scale == pytest.approx(
+            np.clip(s.floor.uv_scale_m / conf.scale, *conf.floor_uv_scale), rel=1e-6)
+
+
+def test_spawn_positions_inside_ellipse_and_height_range(conf):
+    pool = rich_pool()
+    s_ = conf.scale
+    checked = 0
+    for seed in range(60):
+        s = sample_scene(seed, "train", conf, pool)
+        if s.container is None:
+            lo, hi = conf.spawn_xy_no_container[0] * s_, conf.spawn_xy_no_container[1] * s_
+            for o in s.objects:
+                assert lo - 1e-6 <= o.position[0] <= hi + 1e-6 and lo - 1e-6 <= o.position[1] <= hi + 1e-6
+                assert conf.spawn_height[0] * s_ - 1e-6 <= o.position[2] <= conf.spawn_height[1] * s_ + 1e-6
+            continue
+        c = s.container
+        yaw = 2 * math.atan2(c.orientation[3], c.orientation[0])
+        a = max(c.extent_m[0] / 2 - conf.spawn_margin * s_, conf.spawn_min_semi_axis * s_)
+        b = max(c.extent_m[1] / 2 - conf.spawn_margin * s_, conf.spawn_min_semi_axis * s_)
+        top = c.extent_m[2]
+        for o in s.objects:
+            x, y = o.position[0], o.position[1]
+            lx = math.cos(yaw) * x + math.sin(yaw) * y  # into the container's frame
+            ly = -math.sin(yaw) * x + math.cos(yaw) * y
+            assert (lx / a) ** 2 + (ly / b) ** 2 <= 1 + 1e-4
+            assert top + conf.spawn_height[0] * s_ - 1e-5 <= o.position[2] <= top + conf.spawn_height[1] * s_ + 1e-5
+            checked += 1
+        # distractors stand outside the container's box and apart from each other
+        for i, d in enumerate(s.distractors):
+            lx = math.cos(yaw) * d.position[0] + math.sin(yaw) * d.position[1]
+            ly = -math.sin(yaw) * d.position[0] + math.cos(yaw) * d.position[1]
+            assert (lx / (c.extent_m[0] / 2)) ** 2 + (ly / (c.extent_m[1] / 2)) ** 2 > 1
+            for e in s.distractors[i + 1:]:
+                assert math.dist(d.position[:2], e.position[:2]) > 0.5 * (d.size_m + e.size_m) * 0.5
+    assert checked > 0
+
+
+def test_instance_ids_unique_and_ordered(conf):
+    s = sample_scene(5, "train", conf, rich_pool())
+    ids = [o.instance_id for o in s.objects] + [d.instance_id for d in s.distractors]
+    if s.container is not None:
+        ids.append(s.container.instance_id)
+    assert ids == list(range(1, len(ids) + 1))
+    assert all(o.role == "counted" and o.class_index >= 0 for o in s.objects)
+    for o in s.objects:
+        assert np.linalg.norm(o.orientation) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_camera_looks_at_target_with_roll_and_distance(conf):
+    for seed in range(40):
+        s = sample_scene(seed, "train", conf, rich_pool())
+        for cam in s.cameras:
+            pos, target = np.asarray(cam.position), np.asarray(cam.look_at)
+            forward = quat_rotate(cam.orientation, [0, 0, -1])
+            want = (target - pos) / np.linalg.norm(target - pos)
+            assert np.dot(forward, want) == pytest.approx(1.0, abs=1e-5)
+            assert np.linalg.norm(target - pos) == pytest.approx(cam.distance, rel=1e-5)
+            elev = math.degrees(math.asin(want[2] * -1))
+            assert elev == pytest.approx(cam.elevation_deg, abs=1e-3)
+            # roll: angle between the camera's up and the world-up projection on the image plane
+            up = quat_rotate(cam.orientation, [0, 1, 0])
+            right = quat_rotate(cam.orientation, [1, 0, 0])
+            assert abs(right[2]) == pytest.approx(abs(math.sin(math.radians(cam.roll_deg))) * math.cos(
+                math.asin(-want[2])), abs=1e-4)
+            assert up[2] > 0  # never upside down
+            assert cam.resolution == (conf.resolution, conf.resolution)
+
+
+def test_split_and_status_are_respected(conf):
+    pool = rich_pool()
+    for seed in range(40):
+        s = sample_scene(seed, "val", conf, pool)
+        ids = {c.object_id for c in s.classes} | {d.object_id for d in s.distractors}
+        assert all(o.split == "val" for o in pool if o.object_id in ids)
+    with pytest.raises(CompositionError):
+        sample_scene(0, "test", conf, pool)  # nothing in test
+
+
+def test_tiny_pool_degrades_gracefully(conf):
+    pool = [ObjectRecord(1, "lonely cube", "cube", (0.05, 0.05, 0.05), Captions("cube", "a cube", "a cube"),
+                         "train", "/x.glb", "h1")]
+    s = sample_scene(3, "train", conf, pool)
+    # one object can still give two classes (two sizes) but never a distractor or a container
+    assert 1 <= len(s.classes) <= 2 and not s.distractors and s.container is None
+    assert sum(c.count for c in s.classes) == s.n_counted
+
+
+def test_qualifier_keeps_proper_nouns():
+    assert qualify("golden yellow apple", "smaller") == "Smaller golden yellow apple"
+    assert qualify("Fancy tomato ketchup toy", "larger") == "Larger fancy tomato ketchup toy"
+    assert qualify("LEGO brick", "larger") == "Larger LEGO brick"
+    assert qualify("apple", None) == "apple"
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ConfigError):
+        load_config([], ["scene.no_such_key=1"])
+    with pytest.raises(ConfigError):
+        SceneConfig.from_config(load_config([], ["scene.p_same_category=-1.0"]))
+    with pytest.raises(ConfigError):
+        SceneConfig.from_config(load_config([], ["scene.n_classes=[3, 2]"]))
+    with pytest.raises(ConfigError):
+        SceneConfig.from_config(load_config([], ['scene.floor_patterns=["zigzag"]']))
+    quick = SceneConfig.from_config(load_config(["quick"]))
+    assert quick.n_objects == (6, 14) and quick.resolution == 128 and quick.samples == 4
+    assert quick.physics_frames == 60
+    full = SceneConfig.from_config(load_config())
+    assert full.scale == 10.0 and full.n_objects == (30, 200) and full.n_classes == (2, 4)
+    assert full.class_size == (0.045, 0.12) and full.visibility_threshold == 0.4 and full.resolution == 1024
