@@ -438,7 +438,7 @@ def build_die(k: int, rng: np.random.Generator) -> Spec:
     variants = [("White", (245, 245, 240), (20, 20, 20)), ("Red", (200, 20, 30), (250, 250, 250)),
                 ("Black", (25, 25, 25), (250, 250, 250)), ("Green", (30, 140, 70), (250, 250, 250))]
     variant, bg, fg = variants[k % len(variants)]
-    edge = float(rng.choice([0.016, 0.019, 0.022, 0.025]))
+    edge = float(rng.choice([0.02, 0.022, 0.025, 0.03]))
     img = tex_atlas([pips(n, fg) for n in (1, 6, 2, 5, 3, 4)], bg)
     return Spec("die", variant, [_img_part(box((edge, edge, edge), atlas=(3, 2)), img, rough=0.3)], f"a {variant.lower()} die")
 

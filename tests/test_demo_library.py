@@ -1,0 +1,123 @@
+"""The generated demo library: DTC layout, variety, real-world sizes, textures, traps, determinism."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from mixcount.catalog.demo_library import CONTAINER_CATEGORIES, generate_demo_library
+from mixcount.catalog.ingest import DTC_NAME
+
+
+def tree_digest(root: Path) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def glb_json(path: Path) -> dict:
+    data = path.read_bytes()
+    n = struct.unpack("<I", data[12:16])[0]
+    return json.loads(data[20:20 + n])
+
+
+def down_ray_hits(mesh: trimesh.Trimesh, x: float, y: float) -> list[float]:
+    """Heights where a vertical line through (x, y) crosses the mesh (barycentric test per triangle)."""
+    tri = mesh.triangles
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1 = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2]
+    p = np.array([x, y]) - a[:, :2]
+    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+    ok = np.abs(den) > 1e-15
+    den = np.where(ok, den, 1.0)
+    u = (p[:, 0] * v1[:, 1] - v1[:, 0] * p[:, 1]) / den
+    v = (v0[:, 0] * p[:, 1] - p[:, 0] * v0[:, 1]) / den
+    inside = ok & (u >= 0) & (v >= 0) & (u + v <= 1)
+    z = a[:, 2] + u * (b[:, 2] - a[:, 2]) + v * (c[:, 2] - a[:, 2])
+    return z[inside].tolist()
+
+
+def test_full_library_layout_variety_and_traps(tmp_path):
+    root = tmp_path / "demo"
+    truth = generate_demo_library(root, seed=0)
+    on_disk = json.loads((root / "ground_truth.json").read_text())
+    assert on_disk == json.loads(json.dumps(truth))
+    objects = truth["objects"]
+    folders = {p.name for p in root.iterdir() if p.is_dir()}
+    assert folders == {o["folder"] for o in objects}
+    ordinary = [o for o in objects if o["kind"] == "object"]
+    containers = [o for o in objects if o["container"]]
+    assert len(ordinary) >= 48
+    assert len({o["category"] for o in ordinary}) >= 10
+    assert {o["category"] for o in containers} == set(CONTAINER_CATEGORIES)
+    for o in objects:
+        assert DTC_NAME.match(o["folder"]), o["folder"]
+        folder = root / o["folder"]
+        assert {p.name for p in folder.iterdir()} == {"3d-asset.glb", "metadata.json", "LICENSE", "preview.png"}
+        meta = json.loads((folder / "metadata.json").read_text())
+        assert meta["category"] == o["category"]
+        if o["kind"] == "broken":
+            continue
+        size = max(o["dims_m"])
+        if o["container"]:
+            assert 0.20 <= max(o["dims_m"][:2]) <= 0.35 and o["dims_m"][2] < 0.1, o
+        elif o["kind"] != "rescale":
+            assert 0.02 <= size <= 0.25, o
+        doc = glb_json(folder / "3d-asset.glb")
+        assert doc["materials"], o["folder"]
+        for mat in doc["materials"]:
+            pbr = mat["pbrMetallicRoughness"]
+            assert "roughnessFactor" in pbr and "metallicFactor" in pbr
+        prims = [p for m in doc["meshes"] for p in m["primitives"]]
+        has_image = "images" in doc and any("baseColorTexture" in m["pbrMetallicRoughness"] for m in doc["materials"])
+        assert (o["appearance"] == "image") == has_image
+        if o["appearance"] == "vertex_color":
+            assert all("COLOR_0" in p["attributes"] for p in prims)
+    image = sum(o["appearance"] == "image" for o in objects if o["kind"] != "broken")
+    assert image >= len(objects) / 2
+    # real variety: sizes span an order of magnitude, and the shapes differ (face counts, extents)
+    sizes = [max(o["dims_m"]) for o in ordinary]
+    assert max(sizes) / min(sizes) > 5
+    assert len({tuple(np.round(o["dims_m"], 3)) for o in ordinary}) >= 40
+    # containers are open on top: a ray straight down at the centre hits the inner floor low down
+    for o in containers:
+        mesh = trimesh.load(root / o["folder"] / "3d-asset.glb", force="mesh")
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # Y-up -> Z-up
+        top = mesh.bounds[1][2]
+        centre = mesh.bounds.mean(axis=0)
+        hits = down_ray_hits(mesh, centre[0], centre[1])
+        assert len(hits) and max(hits) < top - 0.004, o["folder"]
+    # traps
+    assert len(truth["exact_copies"]) == len(truth["recolours"]) == len(truth["rescales"]) == 2
+    for a, b in truth["exact_copies"]:
+        assert (root / a / "3d-asset.glb").read_bytes() == (root / b / "3d-asset.glb").read_bytes()
+    for a, b in truth["recolours"]:
+        assert (root / a / "3d-asset.glb").read_bytes() != (root / b / "3d-asset.glb").read_bytes()
+    by = {o["folder"]: o for o in objects}
+    for a, b, factor in truth["rescales"]:
+        assert np.allclose(np.array(by[b]["dims_m"]), factor * np.array(by[a]["dims_m"]), atol=1e-5)
+    assert len(truth["broken"]) >= 2
+    kinds = {b["expected_error"] for b in truth["broken"]}
+    assert kinds == {"truncated GLB", "not a GLB file"}
+    assert truth["expected"]["total"] == len(objects)
+    assert truth["expected"]["broken"] == len(truth["broken"])
+
+
+def test_same_seed_same_bytes_and_small_libraries(tmp_path):
+    a = generate_demo_library(tmp_path / "a", seed=7, n_objects=8)
+    b = generate_demo_library(tmp_path / "b", seed=7, n_objects=8)
+    assert a == b
+    assert tree_digest(tmp_path / "a") == tree_digest(tmp_path / "b")
+    c = generate_demo_library(tmp_path / "c", seed=8, n_objects=8)
+    assert tree_digest(tmp_path / "c") != tree_digest(tmp_path / "a")
+    ordinary = [o for o in a["objects"] if o["kind"] == "object"]
+    assert len(ordinary) == 8 and len({o["category"] for o in ordinary}) == 8  # round-robin over categories
+    assert a["exact_copies"] and a["recolours"] and a["rescales"] and len(a["broken"]) == 2
+    assert a["containers"]
+    # regenerating into the same folder replaces the library instead of adding to it
+    generate_demo_library(tmp_path / "a", seed=9, n_objects=4)
+    assert len([p for p in (tmp_path / "a").iterdir() if p.is_dir()]) == json.loads(
+        (tmp_path / "a" / "ground_truth.json").read_text())["expected"]["total"]
