@@ -45,6 +45,8 @@ for prim in stage.Traverse():
         continue
     roles[role] = roles.get(role, 0) + 1
     ids.append(prim.GetCustomDataByKey("mixcount:instance_id"))
+    assert prim.GetAttribute("userProperties:mixcount:instance_id").Get() == ids[-1]  # for Blender
+    assert prim.GetAttribute("userProperties:mixcount:role").Get() == role
     if role == "counted":
         ci = prim.GetCustomDataByKey("mixcount:class_index")
         counts[str(ci)] = counts.get(str(ci), 0) + 1
@@ -132,7 +134,8 @@ def test_demo_stage_opens_clean_in_fresh_usd_process(demo):
     assert info["meta"] == {"scene_id": "scene_000007", "seed": 7, "config_hash": conf.config_hash, "split": "train"}
     assert json.loads(info["spec"]) == json.loads(spec.to_json())
     assert info["mpu"] == 1.0 and info["up"] == "Z" and info["default_prim"] == "/World"
-    assert info["camera"] == [conf.focal_length_mm, conf.sensor_width_mm]
+    # tenths of a scene unit (metres): 50 mm -> 0.5, 36 mm -> 0.36
+    assert info["camera"] == pytest.approx([conf.focal_length_mm / 100, conf.sensor_width_mm / 100])
     classes = json.loads(info["spec"])["classes"]
     for c in classes:
         assert set(c["captions"]) == {"short", "concise", "detailed"}

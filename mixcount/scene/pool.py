@@ -8,6 +8,7 @@ HDRIs and PBR sets. Broken and excluded objects never enter the pool.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional
 
@@ -52,10 +53,29 @@ class MaterialRecord:
     maps: Mapping[str, str] = field(default_factory=dict)
 
 
+_ID_TOKEN = re.compile(r"^(?=.*\d)[A-Za-z0-9]{6,}$")  # catalogue ids such as B0VL4BA90T
+
+
+def _words(name: str) -> list[str]:
+    words = []
+    for token in re.split(r"[_\-\s]+", name.strip()):
+        if not token or _ID_TOKEN.match(token):
+            continue
+        words.extend(w.lower() for w in re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+", token))
+    return words
+
+
 def fallback_captions(name: str, category: str) -> Captions:
-    """Captions for an object nobody captioned yet: readable, derived from its name and category."""
-    words = name.replace("_", " ").replace("-", " ").strip() or category
-    return Captions(short=category or words, concise=words.lower(), detailed=f"{words.lower()} ({category})")
+    """Captions for an object nobody captioned yet, from its name and category: DTC folder names
+    ``Donut_B0VL4BA90T_Pink`` give "pink donut" (the id dropped, the category moved last)."""
+    words = _words(name)
+    cat = category.lower().strip()
+    if words and cat and words[0] == cat:
+        words = words[1:] + [cat]
+    elif cat and cat not in words:
+        words.append(cat)
+    phrase = " ".join(words) or cat or name
+    return Captions(short=cat or phrase, concise=phrase, detailed=f"{phrase} ({cat})" if cat else phrase)
 
 
 def load_pool(session: Any, *, split: Optional[str] = None) -> list[ObjectRecord]:

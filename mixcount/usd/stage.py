@@ -32,6 +32,7 @@ TEMPLATES_DIR = PROJECT_ROOT / "usd_templates"
 TEMPLATE_LAYERS = ("scene_root.usda", "floor.usda", "camera_rig.usda", "lights.usda")
 STAGE_NAME = "scene.usda"
 CYLINDER_SEGMENTS = 64
+MM_TO_LENS_UNITS = 0.01  # mm -> tenths of a metre (metersPerUnit = 1)
 
 
 def scene_dir_for(out_dir: Path, scene_id: str) -> Path:
@@ -115,10 +116,17 @@ def floor_mesh(shape: str, hx: float, hy: float, t: float, uv_m: float, segments
 
 
 def _set_ids(prim: Any, role: str, object_id: int, class_index: int, instance_id: int) -> None:
-    prim.SetCustomDataByKey("mixcount:role", role)
-    prim.SetCustomDataByKey("mixcount:object_id", int(object_id))
-    prim.SetCustomDataByKey("mixcount:class_index", int(class_index))
-    prim.SetCustomDataByKey("mixcount:instance_id", int(instance_id))
+    """customData (the contract; USD tools) and the same values as ``userProperties:mixcount:*``
+    attributes, which Blender's USD importer turns into custom properties (it drops customData)."""
+    from pxr import Sdf
+
+    values = (("role", role, Sdf.ValueTypeNames.String), ("object_id", int(object_id), Sdf.ValueTypeNames.Int),
+              ("class_index", int(class_index), Sdf.ValueTypeNames.Int),
+              ("instance_id", int(instance_id), Sdf.ValueTypeNames.Int))
+    for key, value, vtype in values:
+        prim.SetCustomDataByKey(f"mixcount:{key}", value)
+    for key, value, vtype in values:
+        prim.CreateAttribute(f"userProperties:mixcount:{key}", vtype, custom=True).Set(value)
 
 
 def _set_pose(xf: Any, position: Any, orientation: Any, scale: Any) -> None:
@@ -260,15 +268,20 @@ def _write_cameras(stage: Any, spec: SceneSpec) -> None:
         path = Sdf.Path(f"/World/Cameras/{cam.name}")
         Sdf.CopySpec(layer, template, layer, path)
         ucam = UsdGeom.Camera(stage.GetPrimAtPath(path))
-        ucam.GetFocalLengthAttr().Set(float(cam.focal_length_mm))
-        ucam.GetHorizontalApertureAttr().Set(float(cam.sensor_width_mm))
-        ucam.GetVerticalApertureAttr().Set(float(cam.sensor_height_mm))
+        # USD lens and filmback values are in tenths of a scene unit: 50 mm with metersPerUnit = 1 is
+        # 0.5 (Blender's importer applies this rule; a plain 50 would become a 5000 mm lens)
+        ucam.GetFocalLengthAttr().Set(float(cam.focal_length_mm) * MM_TO_LENS_UNITS)
+        ucam.GetHorizontalApertureAttr().Set(float(cam.sensor_width_mm) * MM_TO_LENS_UNITS)
+        ucam.GetVerticalApertureAttr().Set(float(cam.sensor_height_mm) * MM_TO_LENS_UNITS)
         ucam.GetClippingRangeAttr().Set(Gf.Vec2f(*[float(v) for v in cam.clip_range]))
         xf = UsdGeom.Xformable(ucam)
         xf.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*cam.position))
         w, x, y, z = cam.orientation
         xf.AddOrientOp(UsdGeom.XformOp.PrecisionFloat).Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)))
         prim = ucam.GetPrim()
+        prim.SetCustomDataByKey("mixcount:focal_length_mm", float(cam.focal_length_mm))
+        prim.SetCustomDataByKey("mixcount:sensor_width_mm", float(cam.sensor_width_mm))
+        prim.SetCustomDataByKey("mixcount:sensor_height_mm", float(cam.sensor_height_mm))
         prim.SetCustomDataByKey("mixcount:resolution", Gf.Vec2i(*cam.resolution))
         prim.SetCustomDataByKey("mixcount:look_at", Gf.Vec3d(*cam.look_at))
         for key in ("elevation_deg", "azimuth_deg", "roll_deg", "distance"):
@@ -325,6 +338,7 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
     pprim.SetCustomDataByKey("mixcount:solver_iterations", int(spec.physics.solver_iterations))
 
     _write_floor(stage, spec, scene_dir)
+    _set_ids(stage.GetPrimAtPath("/World/Floor"), "floor", -1, -1, 0)
 
     if spec.container is not None:
         c = spec.container
