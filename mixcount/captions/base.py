@@ -11,6 +11,7 @@ was built from (hashed into the caption set, never stored whole).
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -40,6 +41,23 @@ def name_tokens(name: str) -> list[str]:
     return [t for t in (r.lower() for r in raw) if len(t) > 1 and not _ID_TOKEN.search(t)]
 
 
+def display_name(obj: Any) -> str:
+    """The object's own name from its metadata (DTC ``metadata.json`` "name") when ingest kept one, else
+    the catalog name (folder or file stem). Metadata names describe the object ("Rubber ball"); folder
+    names may carry ids and bookkeeping suffixes."""
+    raw = getattr(obj, "metadata_json", None)
+    if raw:
+        try:
+            meta = json.loads(raw)
+        except (TypeError, ValueError):
+            meta = None
+        if isinstance(meta, dict):
+            for node in (meta.get("metadata"), meta):
+                if isinstance(node, dict) and isinstance(node.get("name"), str) and node["name"].strip():
+                    return node["name"].strip()
+    return obj.name or ""
+
+
 @dataclass(frozen=True)
 class CaptionInput:
     """Everything a captioner may use about one object (metres, Z-up)."""
@@ -66,7 +84,7 @@ class CaptionInput:
         """
         item = cls(
             object_id=int(obj.id),
-            name=obj.name or "",
+            name=display_name(obj),
             category=(obj.category or "object").strip().lower(),
             dims=(float(obj.dim_x or 0.0), float(obj.dim_y or 0.0), float(obj.dim_z or 0.0)),
             vertex_count=obj.vertex_count,

@@ -193,6 +193,18 @@ def _base_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
     return f / 255.0 if f.max() > 1.0 else f
 
 
+def _vertex_colour_attribute(visual, n_vertices: int) -> np.ndarray | None:  # type: ignore[no-untyped-def]
+    """COLOR_0 as floats in [0, 1] (n x 3), or None."""
+    attrs = getattr(visual, "vertex_attributes", None)
+    if attrs is None or "color" not in attrs:
+        return None
+    col = np.asarray(attrs["color"])
+    if col.ndim != 2 or len(col) != n_vertices or col.shape[1] < 3:
+        return None
+    col = col[:, :3].astype(float)
+    return col / 255.0 if col.max() > 1.0 else col
+
+
 def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarray:  # type: ignore[no-untyped-def]
     """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8)."""
     import trimesh
@@ -204,19 +216,23 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     faces = rng.choice(len(mesh.faces), size=count, p=weights)
     visual = mesh.visual
     if isinstance(visual, trimesh.visual.TextureVisuals):
-        factor = _base_factor(visual)
+        # glTF base colour = baseColorFactor x texture(uv) x COLOR_0; trimesh keeps COLOR_0 of a
+        # primitive that also has a material in visual.vertex_attributes["color"].
+        colour = np.tile(_base_factor(visual) * 255.0, (count, 1))
+        vcol = _vertex_colour_attribute(visual, len(mesh.vertices))
+        if vcol is not None:
+            colour *= vcol[mesh.faces[faces]].mean(axis=1)
         image = _texture_image(visual)
         uv = getattr(visual, "uv", None)
-        if image is None or uv is None or len(uv) != len(mesh.vertices):
-            return np.tile(np.clip(factor * 255.0, 0, 255).astype(np.uint8), (count, 1))
-        bary = rng.dirichlet((1.0, 1.0, 1.0), size=count)
-        tri_uv = np.asarray(uv, dtype=float)[mesh.faces[faces]]  # count x 3 x 2
-        pts = np.einsum("nk,nkd->nd", bary, tri_uv)
-        h, w = image.shape[:2]
-        x = np.mod(pts[:, 0], 1.0) * (w - 1)
-        y = (1.0 - np.mod(pts[:, 1], 1.0)) * (h - 1)
-        px = image[y.round().astype(int), x.round().astype(int)].astype(float)
-        return np.clip(px * factor, 0, 255).astype(np.uint8)
+        if image is not None and uv is not None and len(uv) == len(mesh.vertices):
+            bary = rng.dirichlet((1.0, 1.0, 1.0), size=count)
+            tri_uv = np.asarray(uv, dtype=float)[mesh.faces[faces]]  # count x 3 x 2
+            pts = np.einsum("nk,nkd->nd", bary, tri_uv)
+            h, w = image.shape[:2]
+            x = np.mod(pts[:, 0], 1.0) * (w - 1)
+            y = (1.0 - np.mod(pts[:, 1], 1.0)) * (h - 1)  # trimesh flips glTF's V on load
+            colour *= image[y.round().astype(int), x.round().astype(int)].astype(float) / 255.0
+        return np.clip(colour, 0, 255).astype(np.uint8)
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.defined:
         if visual.kind == "face":
             cols = np.asarray(visual.face_colors)[faces, :3]

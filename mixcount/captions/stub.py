@@ -41,13 +41,14 @@ def size_class(max_dim_m: float) -> str:
     return "very large"
 
 
-def _cm(value_m: float) -> str:
+def _length(value_m: float) -> str:
+    """A measured length in words: "2 mm", "3.5 cm", "24 cm" (half-cm steps below 10 cm)."""
     cm = value_m * 100.0
+    if cm < 1.0:
+        return f"{max(1, round(cm * 10))} mm"
     if cm < 10:
-        text = f"{round(cm * 2) / 2:.1f}".rstrip("0").rstrip(".")
-    else:
-        text = f"{round(cm):d}"
-    return text or "0"
+        return f"{round(cm * 2) / 2:.1f}".rstrip("0").rstrip(".") + " cm"
+    return f"{round(cm):d} cm"
 
 
 def shape_cues(item: CaptionInput) -> tuple[str | None, str | None]:
@@ -98,12 +99,25 @@ def _noun(item: CaptionInput) -> tuple[list[str], str]:
     return seen[-2:], head
 
 
-def _colour_phrase(names: tuple[str, ...], shares: tuple[float, ...], style: str) -> str:
+def _distinct_colours(names: tuple[str, ...]) -> list[str]:
+    """Colour names without near-repeats ("light grey" after "grey" reads as one colour)."""
+    kept: list[str] = []
+    for n in names:
+        if not any(set(n.split()) & set(k.split()) for k in kept):
+            kept.append(n)
+    return kept
+
+
+def _words(*groups: list[str]) -> list[str]:
+    return [w for g in groups for item in g for w in item.split()]
+
+
+def _colour_phrase(names: tuple[str, ...], style: str) -> str:
     if not names:
         return ""
-    if style == "short":
-        two = [n for n, s in zip(names, shares) if s >= 0.22][:2] or [names[0]]
-        return " ".join(two)
+    names = tuple(_distinct_colours(names))
+    if style == "pair":
+        return " and ".join(names[:2])
     if len(names) == 1:
         return names[0]
     if len(names) == 2:
@@ -145,32 +159,44 @@ class StubCaptioner:
         noun_phrase = " ".join(modifiers + [head])
 
         # short: 2-5 words = colour(s) + one cue + noun phrase, dropping the least specific words first.
-        short_colour = _colour_phrase(colours.names, colours.shares, "short").split()
+        named = _distinct_colours(colours.names)
+        two = named[:2]
+        one = named[:1]
         cue = [finish] if finish == "patterned" else ([form] if form else ([proportion] if proportion else []))
         noun_words = noun_phrase.split()
         candidates = [
-            short_colour + cue + noun_words,
-            short_colour + noun_words,
-            short_colour[:1] + cue + noun_words[-2:],
-            short_colour[:1] + noun_words[-2:],
-            short_colour[:1] + noun_words[-1:],
+            _words(two, cue, noun_words),
+            _words(two, noun_words),
+            _words(two, noun_words[-1:]),
+            _words(one, cue, noun_words),
+            _words(one, noun_words[-2:]),
+            _words(one, noun_words[-1:]),
+            _words([size], noun_words[-1:]),
         ]
-        short_words = next((c for c in candidates if 2 <= len(c) <= 5), None)
-        if short_words is None:
-            short_words = ([size] if not short_colour else short_colour[:1]) + noun_words[-1:]
+        short_words = next(c for c in candidates if 2 <= len(c) <= 5 or c is candidates[-1])
         short = " ".join(short_words)
 
         # concise: 5-10 words = size + colours + noun + "with a <cue> <cue> shape/finish".
-        colour_text = _colour_phrase(colours.names, colours.shares, "concise")
+        colour_text = _colour_phrase(colours.names, "concise")
         features = [w for w in (proportion, form) if w]
         tail = (
             f"with {_article(features[0])} {' '.join(features)} shape"
             if features
             else (f"with {_article(finish)} {finish} finish" if finish else "")
         )
-        concise_words = " ".join(p for p in (size, colour_text, noun_phrase, tail) if p).split()
-        if len(concise_words) > 10:
-            concise_words = " ".join(p for p in (size, colour_text, noun_words[-1], tail) if p).split()[:10]
+        first_colour = one[0] if one else ""
+        options = [
+            (size, colour_text, noun_phrase, tail),
+            (size, colour_text, noun_words[-1], tail),
+            (size, _colour_phrase(colours.names, "pair"), noun_phrase, tail),
+            (size, _colour_phrase(colours.names, "pair"), noun_words[-1], tail),
+            (size, first_colour, noun_words[-1], tail),
+            (size, first_colour, noun_words[-1]),
+        ]
+        candidates_c = [" ".join(p for p in opt if p).split() for opt in options]
+        concise_words = next((c for c in candidates_c if 5 <= len(c) <= 10), None)
+        if concise_words is None:
+            concise_words = min(candidates_c, key=len)
         if len(concise_words) < 5:
             surface = "closed" if item.watertight else "open" if item.watertight is False else "solid"
             concise_words += f"with {_article(surface)} {surface} surface".split()
@@ -201,7 +227,7 @@ class StubCaptioner:
             else "an open, non-watertight surface" if item.watertight is False else "a scanned surface"
         )
         second = (
-            f"It measures about {_cm(length)} by {_cm(width)} cm across and {_cm(z)} cm tall, with {surface}."
+            f"It measures about {_length(length)} by {_length(width)} across and {_length(z)} tall, with {surface}."
         )
         detailed = f"{first}. {second}"
         raw = json.dumps(
