@@ -166,3 +166,12 @@ def test_config_rejects_bad_values():
     full = SceneConfig.from_config(load_config())
     assert full.scale == 10.0 and full.n_objects == (30, 200) and full.n_classes == (2, 4)
     assert full.class_size == (0.045, 0.12) and full.visibility_threshold == 0.4 and full.resolution == 1024
+
+
+def test_several_cameras_share_the_scene():
+    conf = SceneConfig.from_config(load_config([], ["scene.n_cameras=3"]))
+    s = sample_scene(4, "train", conf, rich_pool())
+    assert [c.name for c in s.cameras] == ["cam_0", "cam_1", "cam_2"]
+    assert len({c.position for c in s.cameras}) == 3
+    one = sample_scene(4, "train", SceneConfig.from_config(load_config()), rich_pool())
+    assert one.classes == s.classes and one.objects == s.objects  # cameras are drawn last

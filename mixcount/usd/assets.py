@@ -242,7 +242,7 @@ def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray) -> Any:
     return mesh
 
 
-def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path]) -> None:
+def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path], replace_textures: bool = False) -> None:
     """Build into a temporary directory beside ``final`` and move into place (concurrent workers are
     safe: the last rename wins and both results are identical)."""
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -254,12 +254,13 @@ def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path]) ->
         tmp_layer = tmp / final.name
         build(tmp_layer, tmp_tex)
         if tmp_tex is not None and tex_dir is not None:
-            if tex_dir.exists():
+            if tex_dir.exists() and replace_textures:
                 shutil.rmtree(tex_dir, ignore_errors=True)
-            try:
-                os.replace(tmp_tex, tex_dir)
-            except OSError:
-                pass  # a concurrent writer put identical textures there first
+            if not tex_dir.exists():  # same content hash -> same textures: keep what a reader may be using
+                try:
+                    os.replace(tmp_tex, tex_dir)
+                except OSError:
+                    pass  # a concurrent writer put identical textures there first
         os.replace(tmp_layer, final)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -329,7 +330,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
                     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
             stage.GetRootLayer().Save()
 
-        _write_layer_atomically(build, visual, tex_dir)
+        _write_layer_atomically(build, visual, tex_dir, replace_textures=force)
     if coll is not None and collision_path:
         _write_layer_atomically(lambda p, _t: _write_collision(p, key, Path(collision_path), center), coll, None)
     return AssetPaths(visual, coll, (float(center[0]), float(center[1]), float(center[2])))
