@@ -317,3 +317,26 @@ def test_urls_for_both_providers():
     assert HttpCaptionerConfig(provider="openai", model="m", endpoint="http://h/v1/").url() == "http://h/v1/chat/completions"
     assert HttpCaptionerConfig(provider="gemini", model="g-1", endpoint="").url() == (
         "https://generativelanguage.googleapis.com/v1beta/models/g-1:generateContent")
+
+
+def test_cli_http_captioner_uses_config_and_env_key(server, catalog, db_url, tmp_path, monkeypatch, capsys):
+    from mixcount.cli import main
+
+    monkeypatch.setenv(KEY_ENV, API_KEY)
+    ids = _add_objects(catalog, tmp_path, ["ok", "unauthorized"])
+    db = db_url.removeprefix("sqlite:///")
+    args = ["--db", db, "--set", f"captions.endpoint={server.base}", "--set", "captions.model=models/g-1",
+            "--set", "captions.provider=gemini", "--set", f"captions.api_key_env={KEY_ENV}",
+            "--set", "captions.max_retries=0", "catalog", "caption", "--captioner", "http"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out.strip().splitlines()[-1])
+    assert (summary["captioned"], summary["failed"], summary["provider"]) == (1, 1, "gemini")
+    assert summary["failures"][0]["object_id"] == ids["unauthorized"]
+    assert API_KEY not in captured.out + captured.err
+    assert server.attempts("gemini", "ok") == 1
+
+    monkeypatch.delenv(KEY_ENV)
+    assert main(args) == 2  # no key in the environment: a clear configuration error, nothing sent
+    assert KEY_ENV in capsys.readouterr().err
+    assert server.attempts("gemini", "ok") == 1

@@ -149,9 +149,10 @@ class HttpCaptionerConfig:
             return base + ("/chat/completions" if base.endswith("/v1") else "/v1/chat/completions")
         if base.endswith(":generateContent"):
             return base
+        model = self.model.removeprefix("models/")
         if re.search(r"/v1(beta\d*)?$", base):
-            return f"{base}/models/{self.model}:generateContent"
-        return f"{base}/v1beta/models/{self.model}:generateContent"
+            return f"{base}/models/{model}:generateContent"
+        return f"{base}/v1beta/models/{model}:generateContent"
 
 
 def encode_image(path: Path, max_px: int) -> str:
