@@ -370,6 +370,19 @@ def _get(session: Session, cand: Candidate) -> CatalogObject | None:
     ).one_or_none()
 
 
+def _existing_rows(session: Session, candidates: list[Candidate]) -> dict[tuple[str, str], CatalogObject]:
+    """The stored rows of these candidates, in a few queries (one per 500 ids) rather than one each."""
+    wanted = {(c.source, c.source_id) for c in candidates}
+    ids = sorted({c.source_id for c in candidates})
+    rows: dict[tuple[str, str], CatalogObject] = {}
+    for start in range(0, len(ids), 500):
+        chunk = ids[start:start + 500]
+        for obj in session.scalars(select(CatalogObject).where(CatalogObject.source_id.in_(chunk))):
+            if (obj.source, obj.source_id) in wanted:
+                rows[(obj.source, obj.source_id)] = obj
+    return rows
+
+
 def _apply_identity(obj: CatalogObject, prep: Prepared, run_id: int | None, ingest: dict[str, Any]) -> None:
     cand = prep.cand
     obj.name = cand.name
@@ -515,18 +528,21 @@ def ingest_paths(
         if bar:
             bar.start()
         with catalog.session() as session:
+            known = _existing_rows(session, candidates)
             for cand in candidates:
                 prep = prepare(cand, settings=settings, max_bytes=max_bytes)
+                existing = known.get((cand.source, cand.source_id))
                 if prep.error:
-                    count(_store(session, prep, None, prep.error, summary.run_id), prep)
+                    if existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error:
+                        count("broken", prep)  # still broken the same way: nothing to write
+                    else:
+                        count(_store(session, prep, None, prep.error, summary.run_id), prep)
                     bar and bar.advance(task)  # type: ignore[func-returns-value]
                     continue
-                existing = _get(session, cand)
                 if existing is not None and existing.status != STATUS_BROKEN:
                     info = _ingest_info(existing)
                     same_path = existing.model_path == str(cand.model_path.resolve())  # type: ignore[union-attr]
                     if info.get("ingest_hash") == prep.ingest_hash and same_path:
-                        session.rollback()
                         count("unchanged", prep)
                         bar and bar.advance(task)  # type: ignore[func-returns-value]
                         continue
@@ -540,7 +556,6 @@ def ingest_paths(
                         count(_store(session, prep, _facts_of(existing), None, summary.run_id), prep)
                         bar and bar.advance(task)  # type: ignore[func-returns-value]
                         continue
-                session.rollback()
                 pending.append(prep)
             if pending:
                 _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar, task)
