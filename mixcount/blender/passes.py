@@ -1,0 +1,149 @@
+"""Cycles render settings and render passes (bpy; runs only inside the worker process).
+
+Two kinds of render, both on the same pixel grid:
+
+* the *id pass* render: 1 sample, a 0.01 px box filter, no bounces, no denoising; Cycles then samples
+  every pixel at its centre, so the object-index pass holds exact integer ids and the depth / normal
+  passes are those of the surface seen through the pixel centre. It writes a multi-layer EXR
+  (``render.image_settings.media_type = 'MULTI_LAYER_IMAGE'``; Blender 5.0 dropped the
+  OPEN_EXR_MULTILAYER format enum from the usual path) read back with the ``OpenEXR`` package.
+* the *RGB* render: the configured samples and denoiser, the default 1.5 px Blackman-Harris filter,
+  written as an 8-bit PNG.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+# layer names in Blender 5.0's multi-layer EXR: "<ViewLayer>.<Pass>" with channels R/G/B/A/V/X/Y/Z
+PASS_INDEX = "Object Index"
+PASS_DEPTH = "Depth"
+PASS_NORMAL = "Normal"
+
+
+def configure_common(scene: Any, *, threads: int) -> None:
+    """Cycles on the CPU with a fixed seed and a capped number of render threads."""
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.seed = 0
+    scene.cycles.use_animated_seed = False
+    scene.cycles.use_adaptive_sampling = False
+    if threads > 0:
+        scene.render.threads_mode = "FIXED"
+        scene.render.threads = int(threads)
+    else:
+        scene.render.threads_mode = "AUTO"
+    scene.render.resolution_percentage = 100
+    scene.render.use_persistent_data = False
+    scene.render.film_transparent = False
+
+
+def configure_id_pass(scene: Any) -> None:
+    """Exact per-pixel ids, depth and normals: 1 sample at the pixel centre, direct hits only."""
+    c = scene.cycles
+    c.samples = 1
+    c.use_denoising = False
+    c.pixel_filter_type = "BOX"
+    c.filter_width = 0.01
+    c.max_bounces = 0
+    c.diffuse_bounces = 0
+    c.glossy_bounces = 0
+    c.transmission_bounces = 0
+    c.transparent_max_bounces = 0
+    vl = scene.view_layers[0]
+    vl.use_pass_object_index = True
+    vl.use_pass_z = True
+    vl.use_pass_normal = True
+    s = scene.render.image_settings
+    s.media_type = "MULTI_LAYER_IMAGE"
+    s.file_format = "OPEN_EXR_MULTILAYER"
+    s.color_depth = "32"
+    s.exr_codec = "ZIP"
+
+
+def configure_rgb(scene: Any, *, samples: int, denoise: bool) -> None:
+    """The final image: configured samples and denoiser, default filter, light bounces back on."""
+    c = scene.cycles
+    c.samples = int(samples)
+    c.use_denoising = bool(denoise)
+    if denoise:
+        c.denoiser = "OPENIMAGEDENOISE"
+    c.pixel_filter_type = "BLACKMAN_HARRIS"
+    c.filter_width = 1.5
+    c.max_bounces = 8
+    c.diffuse_bounces = 3
+    c.glossy_bounces = 3
+    c.transmission_bounces = 4
+    c.transparent_max_bounces = 8
+    vl = scene.view_layers[0]
+    vl.use_pass_object_index = False
+    vl.use_pass_z = False
+    vl.use_pass_normal = False
+    s = scene.render.image_settings
+    s.media_type = "IMAGE"
+    s.file_format = "PNG"
+    s.color_mode = "RGB"
+    s.color_depth = "8"
+
+
+def render_to(scene: Any, path: Path) -> None:
+    import bpy
+
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    if not Path(path).exists():
+        raise RuntimeError(f"Blender wrote no file at {path}")
+
+
+def read_exr_layers(path: Path) -> dict[str, np.ndarray]:
+    """Every layer of a multi-part / multi-layer EXR as float32 arrays: name -> (H, W) or (H, W, C).
+
+    Keys are the pass names without the view-layer prefix ("Object Index", "Depth", "Normal", ...).
+    """
+    import OpenEXR
+
+    layers: dict[str, dict[str, np.ndarray]] = {}
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        for part in f.parts:
+            for name, ch in part.channels.items():
+                layer, _, comp = name.rpartition(".")
+                # "ViewLayer.Object Index.X" -> layer "ViewLayer.Object Index", comp "X"
+                key = layer.split(".", 1)[1] if "." in layer else layer
+                layers.setdefault(key, {})[comp] = np.asarray(ch.pixels, dtype=np.float32)
+    out: dict[str, np.ndarray] = {}
+    for key, chans in layers.items():
+        order = [c for c in ("R", "G", "B", "A", "X", "Y", "Z", "V") if c in chans] or sorted(chans)
+        arrs = [chans[c] for c in order]
+        out[key] = arrs[0] if len(arrs) == 1 else np.stack(arrs, axis=-1)
+    return out
+
+
+def render_id_passes(scene: Any, path: Path) -> dict[str, np.ndarray]:
+    """Render the id pass and return ``index`` (int32), ``depth`` (float32, metres along the view ray
+    as Cycles reports it, background 1e10) and ``normal`` (world space) arrays, rows top-down."""
+    configure_id_pass(scene)
+    render_to(scene, path)
+    layers = read_exr_layers(path)
+    missing = [k for k in (PASS_INDEX, PASS_DEPTH, PASS_NORMAL) if k not in layers]
+    if missing:
+        raise RuntimeError(f"EXR {path} lacks passes {missing}; has {sorted(layers)}")
+    index = layers[PASS_INDEX]
+    if index.ndim == 3:
+        index = index[..., 0]
+    depth = layers[PASS_DEPTH]
+    if depth.ndim == 3:
+        depth = depth[..., 0]
+    normal = layers[PASS_NORMAL][..., :3]
+    return {"index": np.rint(index).astype(np.int32), "index_raw": index, "depth": depth.astype(np.float32),
+            "normal": normal.astype(np.float32)}
+
+
+def remove_quiet(path: Path) -> None:
+    try:
+        os.remove(path)
+    except OSError:
+        pass

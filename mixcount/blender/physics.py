@@ -1,0 +1,118 @@
+"""Rigid-body settling with Blender's Bullet world, and the checks that the result holds (bpy).
+
+Setup follows the stage's UsdPhysics schema: instances with RigidBodyAPI are active bodies with a
+convex-hull shape; the container (static, ``approximation = none``) is a passive triangle-mesh collider;
+the floor is a passive convex hull (it is a box or a cylinder, and a hull does not let thin floors tunnel
+like a triangle mesh can). Frames, substeps and solver iterations come from the PhysicsScene prim's
+customData. After stepping the frames the evaluated world matrices are read back, the rigid-body world is
+removed and the matrices are written onto the objects, so later renders see a static scene at frame 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+SHAPES = {"convexHull": "CONVEX_HULL", "none": "MESH", "boundingCube": "BOX", "boundingSphere": "SPHERE",
+          "convexDecomposition": "CONVEX_HULL"}
+
+
+@dataclass
+class Body:
+    obj: Any
+    kind: str  # "active" | "passive"
+    shape: str  # Blender collision shape
+
+
+def _add_body(obj: Any, body: Body) -> None:
+    import bpy
+
+    with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj],
+                                   selected_editable_objects=[obj]):
+        bpy.ops.rigidbody.object_add(type="ACTIVE" if body.kind == "active" else "PASSIVE")
+    rb = obj.rigid_body
+    rb.collision_shape = body.shape
+    rb.mesh_source = "BASE"
+    rb.friction = 0.6
+    rb.restitution = 0.0
+    rb.use_margin = True
+    rb.collision_margin = 0.0 if body.shape == "MESH" else 0.04
+    if body.kind == "active":
+        rb.mass = 1.0
+        rb.linear_damping = 0.1
+        rb.angular_damping = 0.2
+        rb.use_deactivation = True
+
+
+def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
+             gravity: float) -> dict[str, np.ndarray]:
+    """Run the simulation for ``frames`` frames; returns the settled 4x4 world matrix per active body."""
+    import bpy
+
+    if scene.rigidbody_world is None:
+        with bpy.context.temp_override(scene=scene):
+            bpy.ops.rigidbody.world_add()
+    world = scene.rigidbody_world
+    if world.collection is None:
+        world.collection = bpy.data.collections.new("RigidBodyWorld")
+    world.substeps_per_frame = max(1, int(substeps))
+    world.solver_iterations = max(1, int(iterations))
+    world.point_cache.frame_start = 1
+    world.point_cache.frame_end = int(frames) + 1
+    scene.gravity = (0.0, 0.0, -abs(float(gravity)))
+    scene.use_gravity = True
+    scene.frame_start = 1
+    scene.frame_end = int(frames) + 1
+    for body in bodies:
+        _add_body(body.obj, body)
+    scene.frame_set(1)
+    for f in range(2, int(frames) + 2):
+        scene.frame_set(f)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
+               for b in bodies if b.kind == "active"}
+    # freeze: drop the simulation and keep the settled poses as plain transforms
+    for body in bodies:
+        with bpy.context.temp_override(object=body.obj, active_object=body.obj, selected_objects=[body.obj]):
+            bpy.ops.rigidbody.object_remove()
+    with bpy.context.temp_override(scene=scene):
+        bpy.ops.rigidbody.world_remove()
+    scene.frame_set(1)
+    import mathutils
+
+    for body in bodies:
+        if body.obj.name in settled:
+            body.obj.matrix_world = mathutils.Matrix(settled[body.obj.name].tolist())
+    return settled
+
+
+# ------------------------------------------------------------------------------------ checks (numpy)
+
+
+def hull_equations(local_vertices: np.ndarray) -> np.ndarray:
+    """Half-space equations (n, d) of the convex hull: inside where n.x + d <= 0."""
+    from scipy.spatial import ConvexHull
+
+    pts = np.unique(np.round(np.asarray(local_vertices, dtype=np.float64), 9), axis=0)
+    try:
+        return ConvexHull(pts).equations
+    except Exception:  # degenerate (flat) meshes: an axis-aligned box instead
+        lo, hi = pts.min(0), pts.max(0)
+        eqs = []
+        for ax in range(3):
+            n = np.zeros(3)
+            n[ax] = 1.0
+            eqs.append(np.r_[n, -hi[ax]])
+            eqs.append(np.r_[-n, lo[ax]])
+        return np.array(eqs)
+
+
+def penetration_depth(point_world: np.ndarray, matrix_world: np.ndarray, equations: np.ndarray) -> float:
+    """How deep (world metres, > 0 inside) a point lies inside a body's hull (uniform scale assumed)."""
+    inv = np.linalg.inv(matrix_world)
+    p = inv[:3, :3] @ point_world + inv[:3, 3]
+    scale = float(np.cbrt(abs(np.linalg.det(matrix_world[:3, :3]))))
+    signed = equations[:, :3] @ p + equations[:, 3]
+    return float(-signed.max() * scale)

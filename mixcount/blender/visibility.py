@@ -1,0 +1,69 @@
+"""Visibility in the worker (bpy side): mesh triangles for the silhouette rasteriser, the exact camera
+model, and the one-render-per-object reference kept as a test oracle.
+
+The fast path never renders per object: ``unoccluded_mask`` rasterises the object's own full mesh with
+:mod:`mixcount.annotate.raster` (numpy). ``oracle_masks`` is the paper's method (every other object
+hidden, one id-pass render each) and only runs when a request asks for it (tests, benchmarks).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from mixcount.annotate.raster import PinholeCamera, silhouette
+
+
+def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Local vertices (V, 3) and triangles (T, 3) of a Blender mesh datablock."""
+    mesh.calc_loop_triangles()
+    verts = np.empty(len(mesh.vertices) * 3, dtype=np.float64)
+    mesh.vertices.foreach_get("co", verts)
+    tris = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int64)
+    mesh.loop_triangles.foreach_get("vertices", tris)
+    return verts.reshape(-1, 3), tris.reshape(-1, 3)
+
+
+def world_vertices(local: np.ndarray, matrix_world: np.ndarray) -> np.ndarray:
+    m = np.asarray(matrix_world, dtype=np.float64)
+    return local @ m[:3, :3].T + m[:3, 3]
+
+
+def camera_model(scene: Any, cam_obj: Any) -> PinholeCamera:
+    """The pinhole model Blender renders with (horizontal sensor fit, square pixels, no shift)."""
+    cam = cam_obj.data
+    w = scene.render.resolution_x
+    h = scene.render.resolution_y
+    return PinholeCamera.from_physical(cam.lens, cam.sensor_width, w, h,
+                                       np.array(cam_obj.matrix_world, dtype=np.float64),
+                                       near=float(cam.clip_start))
+
+
+def unoccluded_mask(camera: PinholeCamera, local_verts: np.ndarray, tris: np.ndarray,
+                    matrix_world: np.ndarray) -> np.ndarray:
+    return silhouette(camera, world_vertices(local_verts, matrix_world), tris)
+
+
+def oracle_masks(scene: Any, objects: Iterable[Any], work: Path) -> dict[int, np.ndarray]:
+    """The paper's reference: for each object, hide every other renderable object, render the id pass
+    and keep the pixels of that object's pass index. Slow by design (one render per object)."""
+    from mixcount.blender.passes import remove_quiet, render_id_passes
+
+    objects = list(objects)
+    renderable = [o for o in scene.objects if o.type == "MESH" and not o.hide_render]
+    saved = {o.name: o.hide_render for o in renderable}
+    out: dict[int, np.ndarray] = {}
+    try:
+        for target in objects:
+            for o in renderable:
+                o.hide_render = o is not target
+            path = Path(work) / f"_oracle_{target.pass_index}.exr"
+            passes = render_id_passes(scene, path)
+            remove_quiet(path)
+            out[int(target.pass_index)] = passes["index"] == int(target.pass_index)
+    finally:
+        for o in renderable:
+            o.hide_render = saved[o.name]
+    return out
