@@ -53,6 +53,10 @@ def test_colours_from_rgba_and_rgb_renders(tmp_path: Path):
     assert c.names == ("red", "white") and c.source == "render"
     assert c.shares[0] == pytest.approx(0.7, abs=0.02)
 
+    clear = Image.new("RGBA", (10, 10), (0, 0, 0, 0))  # nothing opaque: no colours, not "black"
+    clear.save(tmp_path / "clear.png")
+    assert colours_from_render(tmp_path / "clear.png").names == ()
+
     rgb = Image.new("RGB", (100, 100), (255, 255, 255))  # white background is not the object
     rgb.paste((30, 90, 220), (40, 40, 60, 60))
     rgb.save(tmp_path / "b.png")
@@ -159,7 +163,7 @@ def _library(catalog, tmp_path: Path) -> dict[str, int]:
 def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, tmp_path, capsys):
     ids = _library(catalog, tmp_path)
     db = db_url.removeprefix("sqlite:///")
-    assert main(["--db", db, "catalog", "caption"]) == 0
+    assert main(["--db", db, "--set", "captions.colour_source=render", "catalog", "caption"]) == 0
     first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (first["captioned"], first["skipped"], first["failed"]) == (5, 0, 0)
     assert first["collision_pairs"] == 1 and first["objects_in_collision"] == 2
@@ -167,7 +171,7 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
     with catalog.session() as s:
         sets = {cs.object_id: cs for cs in s.scalars(select(CaptionSet))}
         flags = s.scalars(select(Flag).where(Flag.kind == "caption_collision")).all()
-    assert "red" in sets[ids["b"]].short  # from the render, not the blue model
+    assert "red" in sets[ids["b"]].short  # colour_source=render: from the render, not the blue model
     assert {(f.object_id, f.pair_object_id) for f in flags} == {(ids["a"], ids["e"]), (ids["e"], ids["a"])}
     assert all(cs.prompt_version == "stub-v1" and cs.active for cs in sets.values())
     texts = [normalise_caption(cs.short) for k, cs in sets.items() if k not in (ids["e"],)]
@@ -248,5 +252,22 @@ def test_corrupt_render_falls_back_to_model_colours(tmp_path: Path):
     bad = tmp_path / "broken.png"
     bad.write_bytes(b"\x89PNG\r\n\x1a\n not really a png")
     item = CaptionInput(object_id=3, name="Block_1", category="block", dims=(0.05, 0.05, 0.05),
-                        model_path=str(glb), render_path=bad).with_measured_colours()
+                        model_path=str(glb), render_path=bad).with_measured_colours("render")
     assert item.colours.names == ("green",) and item.colours.source == "model"
+
+
+def test_colour_source_order(tmp_path: Path):
+    glb = _coloured_glb(tmp_path / "m.glb", trimesh.creation.box((0.05, 0.05, 0.05)), (30, 90, 220))
+    png = tmp_path / "r.png"
+    img = Image.new("RGBA", (20, 20), (0, 0, 0, 0))
+    img.paste((200, 30, 30, 255), (5, 5, 15, 15))
+    img.save(png)
+    item = CaptionInput(object_id=4, name="Box", category="box", dims=(0.05, 0.05, 0.05), model_path=str(glb),
+                        render_path=png)
+    assert item.with_measured_colours("model").colours.names == ("blue",)
+    assert item.with_measured_colours("render").colours.names == ("red",)
+    no_model = CaptionInput(object_id=5, name="Box", category="box", dims=(0.05, 0.05, 0.05),
+                            model_path=str(tmp_path / "missing.usdz"), render_path=png)
+    assert no_model.with_measured_colours("model").colours.source == "render"
+    with pytest.raises(ValueError):
+        item.with_measured_colours("guess")

@@ -20,6 +20,7 @@ from typing import Any, Protocol, runtime_checkable
 from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render
 
 TIERS = ("short", "concise", "detailed")
+COLOUR_SOURCES = ("model", "render")
 
 # Word bounds every captioner's answer is checked against (inclusive). The stub aims inside the
 # issue's bounds (2-5, 5-10, 1-2 sentences); answers from an LLM get a little slack before they count as
@@ -77,7 +78,9 @@ class CaptionInput:
     colours: ColourSummary = field(default=EMPTY)
 
     @classmethod
-    def from_object(cls, obj: Any, *, render_path: Path | None = None, with_colours: bool = True) -> "CaptionInput":
+    def from_object(
+        cls, obj: Any, *, render_path: Path | None = None, with_colours: bool = True, colour_source: str = "model"
+    ) -> "CaptionInput":
         """Build from a ``CatalogObject`` (a plain snapshot: safe to hand to worker threads).
 
         With ``with_colours`` the dominant colours are measured now (see :meth:`with_measured_colours`).
@@ -96,18 +99,29 @@ class CaptionInput:
             model_path=obj.model_path,
             render_path=Path(render_path) if render_path is not None and Path(render_path).is_file() else None,
         )
-        return item.with_measured_colours() if with_colours else item
+        return item.with_measured_colours(colour_source) if with_colours else item
 
-    def with_measured_colours(self) -> "CaptionInput":
-        """A copy with colours named from the render's pixels, else from the model's surface colours."""
+    def with_measured_colours(self, source: str = "model") -> "CaptionInput":
+        """A copy with dominant colours measured from ``source`` first ("model": the surface albedo
+        sampled from the model file; "render": the canonical render's pixels), the other one as fallback.
+
+        The model's albedo is the default: it does not depend on the render's lighting, which in a
+        white-world render washes saturated colours out to "light grey"/"beige" (see docs/captions.md).
+        """
+        if source not in COLOUR_SOURCES:
+            raise ValueError(f"colour source must be one of {COLOUR_SOURCES}, got {source!r}")
+        order = ("model", "render") if source == "model" else ("render", "model")
         colours = EMPTY
-        if self.render_path is not None and self.render_path.is_file():
-            try:
-                colours = colours_from_render(self.render_path)
-            except (OSError, ValueError):  # unreadable/corrupt PNG: fall back to the model's colours
-                colours = EMPTY
-        if not colours.names and self.model_path and Path(self.model_path).is_file():
-            colours = colours_from_model(Path(self.model_path), seed=self.object_id)
+        for kind in order:
+            if kind == "render" and self.render_path is not None and self.render_path.is_file():
+                try:
+                    colours = colours_from_render(self.render_path)
+                except (OSError, ValueError):  # unreadable/corrupt PNG: use the other source
+                    colours = EMPTY
+            elif kind == "model" and self.model_path and Path(self.model_path).is_file():
+                colours = colours_from_model(Path(self.model_path), seed=self.object_id)
+            if colours.names:
+                break
         return replace(self, colours=colours)
 
     def facts(self) -> dict[str, Any]:

@@ -157,10 +157,13 @@ def render_pixels(path: Path, *, max_side: int = 256) -> np.ndarray:
             )
         if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
             arr = np.asarray(im.convert("RGBA"))
-            mask = arr[..., 3] > 200
-            if mask.any() and not mask.all():
+            alpha = arr[..., 3]
+            if not (alpha == 255).all():  # a real alpha channel: the object is what is (mostly) opaque
+                mask = alpha > 200
+                if not mask.any():
+                    mask = alpha > 0
                 return arr[..., :3][mask]
-            arr = arr[..., :3]
+            arr = arr[..., :3]  # fully opaque RGBA: a render on white, like RGB
         else:
             arr = np.asarray(im.convert("RGB"))
     # RGB on white: drop the background (near-pure white, nearly grey).

@@ -107,6 +107,7 @@ def caption_catalog(
     concurrency: int | None = None,
     progress: bool = False,
     redact: Callable[[str], str] | None = None,
+    colour_source: str = "model",
 ) -> CaptionSummary:
     """Caption active objects with ``captioner``; record sets and failures; flag (and dedupe) collisions."""
     summary = CaptionSummary(captioner.name, captioner.provider, captioner.model, captioner.prompt_version)
@@ -139,7 +140,7 @@ def caption_catalog(
             futures: dict[Future[CaptionResult], CatalogObject] = {}
             for obj in todo:
                 item = CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id), with_colours=False)
-                futures[pool.submit(_measure_and_caption, captioner, item)] = obj
+                futures[pool.submit(_measure_and_caption, captioner, item, colour_source)] = obj
             for fut in _as_completed_in_order(futures):
                 obj = futures[fut]
                 try:
@@ -187,8 +188,8 @@ def caption_catalog(
     return summary
 
 
-def _measure_and_caption(captioner: Captioner, item: CaptionInput) -> CaptionResult:
-    return captioner.caption(item.with_measured_colours())
+def _measure_and_caption(captioner: Captioner, item: CaptionInput, colour_source: str) -> CaptionResult:
+    return captioner.caption(item.with_measured_colours(colour_source))
 
 
 def _as_completed_in_order(futures: dict[Future[CaptionResult], CatalogObject]) -> Iterable[Future[CaptionResult]]:

@@ -42,11 +42,18 @@ def caption_cmd(
     st = state(ctx)
     cfg = st.config()
     kind = captioner or str(cfg["captions"]["captioner"])
+    from mixcount.captions.base import COLOUR_SOURCES
+
+    if cfg["captions"]["colour_source"] not in COLOUR_SOURCES:
+        raise ConfigError(f"captions.colour_source must be one of {COLOUR_SOURCES}")
     cap = make_captioner(kind, cfg)
     logging.getLogger("httpx").setLevel(logging.WARNING)
     catalog = st.catalog()
     try:
-        summary = caption_catalog(catalog, cap, force=force, dedupe=dedupe, progress=True)
+        summary = caption_catalog(
+            catalog, cap, force=force, dedupe=dedupe, progress=True,
+            colour_source=str(cfg["captions"]["colour_source"]),
+        )
     finally:
         catalog.close()
         close = getattr(cap, "close", None)
