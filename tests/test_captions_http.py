@@ -59,6 +59,8 @@ class Behaviour:
         if category == "ratelimitms":
             return (503, {"retry-after-ms": "1500"}, {"error": {"message": "busy"}}, 0.0) if n == 0 else (
                 200, {}, _good(category), 0.0)
+        if category == "toolong":  # asks for longer than max_retry_after_s: fail now, do not sleep an hour
+            return 429, {"Retry-After": "3600"}, {"error": {"message": "come back later"}}, 0.0
         if category == "flaky":
             return (500, {}, {"error": {"message": "internal"}}, 0.0) if n == 0 else (200, {}, _good(category), 0.0)
         if category == "down":
@@ -196,12 +198,12 @@ def _add_objects(catalog, tmp_path: Path, categories: list[str]) -> dict[str, in
 
 
 CATEGORIES = ["ok", "ratelimit", "ratelimitms", "flaky", "slow", "malformed", "schema", "unauthorized",
-              "retryinfo", "quota", "down"]
+              "retryinfo", "quota", "down", "toolong"]
 # expected (requests made, success) per category; max_retries = 2 -> at most 3 requests per send
 EXPECTED = {
     "ok": (1, True), "ratelimit": (2, True), "ratelimitms": (2, True), "flaky": (2, True), "slow": (2, True),
     "malformed": (2, False), "schema": (2, True), "unauthorized": (1, False), "retryinfo": (2, True),
-    "quota": (1, False), "down": (3, False),
+    "quota": (1, False), "down": (3, False), "toolong": (1, False),
 }
 
 
@@ -246,6 +248,7 @@ def test_http_captioner_against_loopback_server(provider, server, catalog, tmp_p
     assert "HTTP 401" in failures[ids["unauthorized"]].error
     assert "quota" in failures[ids["quota"]].error
     assert "after repair" in failures[ids["malformed"]].error
+    assert "asks to wait 3600" in failures[ids["toolong"]].error
 
     # requests carried the image and the schema in the provider's own format
     first = next(r["body"] for r in server.requests if r["provider"] == provider and r["category"] == "ok")
