@@ -34,6 +34,7 @@ def demo_library_cmd(
         f"{len(truth['recolours'])} recolours, {len(truth['rescales'])} rescales "
         f"[{time.perf_counter() - t0:.1f} s]",
         highlight=False,
+        soft_wrap=True,
     )
     if json_out:
         out.print(json.dumps({"path": str(path), **exp, "categories": truth["categories"]}, sort_keys=True))

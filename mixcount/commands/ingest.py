@@ -30,6 +30,10 @@ def ingest_cmd(
     catalog = st.catalog()
     try:
         summary = ingest_paths(catalog, paths, config=cfg, workers=workers, progress=True, strict=strict)
+    except KeyboardInterrupt:
+        console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
+                      "run the same command again to finish", soft_wrap=True)
+        raise
     finally:
         catalog.close()
     for name, reason in summary.broken_objects:
