@@ -53,6 +53,7 @@ def caption_cmd(
         summary = caption_catalog(
             catalog, cap, force=force, dedupe=dedupe, progress=True,
             colour_source=str(cfg["captions"]["colour_source"]),
+            concurrency=int(cfg["captions"]["concurrency"]),
         )
     finally:
         catalog.close()
