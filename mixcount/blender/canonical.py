@@ -1,0 +1,261 @@
+"""Canonical white-background renders of one catalog object (bpy; runs only inside the worker process).
+
+One render = factory-empty scene -> ``import_scene.gltf`` (or another importer by file type) -> the
+object's world bounding box centred on the origin -> an orthographic camera at a fixed elevation and
+azimuth, framed on the projected vertices with a margin -> Cycles on the CPU, a white world of moderate
+strength as even fill light plus one soft sun -> RGBA PNG with a transparent film, composited onto pure
+white in numpy, so background pixels are exactly (255, 255, 255) whatever the view transform does.
+
+Orthographic framing on the projected vertices makes the render scale-free: the same shape at twice the
+size gives the same picture, which is what the appearance check and a rescaled duplicate rely on.
+
+Outputs per view: ``<stem>.png`` (RGB on white) and ``<stem>_mask.png`` (8-bit coverage, the film alpha).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+IMPORTERS = {
+    ".glb": "gltf", ".gltf": "gltf", ".obj": "obj", ".ply": "ply", ".stl": "stl",
+    ".usd": "usd", ".usda": "usda", ".usdc": "usd", ".usdz": "usd",
+}
+
+
+def reset_scene() -> Any:
+    """A factory-empty file: no objects, materials or images left from the previous object."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy.context.scene
+
+
+def import_model(path: Path) -> list[Any]:
+    """Import one model file; returns its mesh objects (raises RuntimeError when there are none)."""
+    import bpy
+
+    kind = IMPORTERS.get(path.suffix.lower())
+    if kind is None:
+        raise RuntimeError(f"unsupported model format {path.suffix or '(none)'}")
+    before = set(bpy.data.objects)
+    if kind == "gltf":
+        res = bpy.ops.import_scene.gltf(filepath=str(path))
+    elif kind == "obj":
+        res = bpy.ops.wm.obj_import(filepath=str(path))
+    elif kind == "ply":
+        res = bpy.ops.wm.ply_import(filepath=str(path))
+    elif kind == "stl":
+        res = bpy.ops.wm.stl_import(filepath=str(path))
+    else:
+        res = bpy.ops.wm.usd_import(filepath=str(path), import_lights=False, import_cameras=False)
+    if "FINISHED" not in res:
+        raise RuntimeError(f"import of {path.name} failed: {sorted(res)}")
+    meshes = [o for o in bpy.data.objects if o not in before and o.type == "MESH"]
+    if not meshes:
+        raise RuntimeError(f"{path.name} holds no mesh")
+    return meshes
+
+
+def world_vertices(objects: list[Any]) -> np.ndarray:
+    """All evaluated vertices of ``objects`` in world space, (n, 3)."""
+    import bpy
+
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    chunks = []
+    for obj in objects:
+        ev = obj.evaluated_get(depsgraph)
+        mesh = ev.to_mesh()
+        try:
+            n = len(mesh.vertices)
+            if n:
+                co = np.empty(n * 3, dtype=np.float64)
+                mesh.vertices.foreach_get("co", co)
+                co = co.reshape(n, 3)
+                m = np.array(ev.matrix_world, dtype=np.float64)
+                chunks.append(co @ m[:3, :3].T + m[:3, 3])
+        finally:
+            ev.to_mesh_clear()
+    if not chunks:
+        raise RuntimeError("model has no vertices")
+    pts = np.vstack(chunks)
+    if not np.all(np.isfinite(pts)):
+        raise RuntimeError("model has non-finite vertices")
+    return pts
+
+
+def centre_objects(objects: list[Any]) -> np.ndarray:
+    """Parent every top-level imported object under an empty that moves the bbox centre to the origin;
+    returns the centred world vertices."""
+    import bpy
+
+    pts = world_vertices(objects)
+    centre = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+    pivot = bpy.data.objects.new("canonical_pivot", None)
+    bpy.context.scene.collection.objects.link(pivot)
+    roots = {o for o in bpy.data.objects if o.parent is None and o is not pivot and o.type not in ("CAMERA", "LIGHT")}
+    for obj in roots:
+        mw = obj.matrix_world.copy()
+        obj.parent = pivot
+        obj.matrix_world = mw
+    pivot.location = (-centre[0], -centre[1], -centre[2])
+    bpy.context.view_layer.update()
+    return pts - centre
+
+
+def view_direction(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
+    """Unit vector from the origin towards the camera (Z-up; azimuth 0 = -Y, the front, towards +X)."""
+    el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
+    return np.array([math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el)])
+
+
+def camera_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera right and up vectors for a camera looking along ``-direction`` with world Z up."""
+    fwd = -direction / np.linalg.norm(direction)
+    right = np.cross(fwd, np.array([0.0, 0.0, 1.0]))
+    if np.linalg.norm(right) < 1e-6:  # looking straight down/up
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    return right, up
+
+
+def add_camera(pts: np.ndarray, *, elevation_deg: float, azimuth_deg: float, margin: float) -> Any:
+    """Orthographic camera framing the projected points with ``margin`` (fraction of the frame) around."""
+    import bpy
+    import mathutils
+
+    direction = view_direction(elevation_deg, azimuth_deg)
+    right, up = camera_basis(direction)
+    u, v = pts @ right, pts @ up
+    cu, cv = (u.min() + u.max()) / 2, (v.min() + v.max()) / 2
+    span = max(float(np.ptp(u)), float(np.ptp(v)), 1e-6)
+    radius = float(np.linalg.norm(pts, axis=1).max())
+    cam_data = bpy.data.cameras.new("canonical_camera")
+    cam_data.type = "ORTHO"
+    cam_data.ortho_scale = span / max(1e-3, 1.0 - 2.0 * margin)
+    cam_data.clip_start = radius * 0.01
+    cam_data.clip_end = radius * 10.0
+    cam = bpy.data.objects.new("canonical_camera", cam_data)
+    bpy.context.scene.collection.objects.link(cam)
+    target = right * cu + up * cv
+    loc = target + direction * radius * 3.0
+    cam.location = mathutils.Vector(loc.tolist())
+    basis = mathutils.Matrix((right.tolist(), up.tolist(), direction.tolist())).transposed()  # columns x, y, z
+    cam.rotation_euler = basis.to_euler()
+    bpy.context.scene.camera = cam
+    return cam
+
+
+def add_lighting(scene: Any, *, world_strength: float, sun_strength: float, azimuth_deg: float) -> None:
+    """White world (even fill from every side) plus a soft sun from above, left of the camera."""
+    import bpy
+
+    world = bpy.data.worlds.new("canonical_world")
+    world.use_nodes = True
+    bg = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+    bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    bg.inputs["Strength"].default_value = float(world_strength)
+    scene.world = world
+    if sun_strength > 0:
+        sun_data = bpy.data.lights.new("canonical_sun", type="SUN")
+        sun_data.energy = float(sun_strength)
+        sun_data.angle = math.radians(30.0)  # wide sun disc: soft shadow edges
+        sun = bpy.data.objects.new("canonical_sun", sun_data)
+        sun.rotation_euler = (math.radians(35.0), 0.0, math.radians(azimuth_deg - 45.0))
+        scene.collection.objects.link(sun)
+
+
+def configure_render(scene: Any, *, resolution: int, samples: int, denoise: bool, threads: int) -> None:
+    """Cycles on the CPU, fixed seed, transparent film, Standard view transform (colours as authored)."""
+    scene.render.engine = "CYCLES"
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = max(1, int(samples))
+    c.seed = 0
+    c.use_animated_seed = False
+    c.use_adaptive_sampling = False
+    c.use_denoising = bool(denoise)
+    if denoise:
+        c.denoiser = "OPENIMAGEDENOISE"
+    c.max_bounces = 6
+    c.transparent_max_bounces = 8
+    scene.render.film_transparent = True
+    scene.render.resolution_x = int(resolution)
+    scene.render.resolution_y = int(resolution)
+    scene.render.resolution_percentage = 100
+    if threads > 0:
+        scene.render.threads_mode = "FIXED"
+        scene.render.threads = int(threads)
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    s = scene.render.image_settings
+    s.file_format = "PNG"
+    s.color_mode = "RGBA"
+    s.color_depth = "8"
+
+
+def composite_on_white(rgba_path: Path, out_path: Path, mask_path: Path) -> dict[str, Any]:
+    """Alpha-composite the transparent render onto pure white (numpy), write RGB and the coverage mask."""
+    from PIL import Image
+
+    with Image.open(rgba_path) as im:
+        arr = np.asarray(im.convert("RGBA"), dtype=np.float64)
+    alpha = arr[..., 3:4] / 255.0
+    rgb = arr[..., :3] * alpha + 255.0 * (1.0 - alpha)  # straight (unassociated) alpha in Blender's PNG
+    rgb = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    rgb[arr[..., 3] == 0] = 255
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_path.with_name(out_path.stem + ".tmp.png")
+    Image.fromarray(rgb, "RGB").save(tmp)
+    tmp.replace(out_path)
+    tmp_mask = mask_path.with_name(mask_path.stem + ".tmp.png")
+    Image.fromarray(arr[..., 3].astype(np.uint8), "L").save(tmp_mask)
+    tmp_mask.replace(mask_path)
+    coverage = float((arr[..., 3] > 127).mean())
+    return {"coverage": round(coverage, 6), "width": int(rgb.shape[1]), "height": int(rgb.shape[0])}
+
+
+def render_object(job: dict[str, Any]) -> dict[str, Any]:
+    """Render every view of one job; returns {"views": [{view, path, mask_path, coverage, width, height}]}.
+
+    ``job``: model_path, out_dir, stem, and the settings resolution, samples, denoise, threads,
+    elevation_deg, azimuth_deg, extra_views, margin, world_strength, sun_strength.
+    """
+    import bpy
+
+    model = Path(job["model_path"])
+    out_dir = Path(job["out_dir"])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scene = reset_scene()
+    objects = import_model(model)
+    pts = centre_objects(objects)
+    configure_render(scene, resolution=int(job["resolution"]), samples=int(job["samples"]),
+                     denoise=bool(job.get("denoise", True)), threads=int(job.get("threads", 0)))
+    base_az = float(job["azimuth_deg"])
+    add_lighting(scene, world_strength=float(job.get("world_strength", 1.0)),
+                 sun_strength=float(job.get("sun_strength", 2.0)), azimuth_deg=base_az)
+    n_extra = int(job.get("extra_views", 0))
+    views = [("canonical", base_az)] + [
+        (f"view_{k}", base_az + 360.0 * k / (n_extra + 1)) for k in range(1, n_extra + 1)
+    ]
+    results = []
+    for view, az in views:
+        cam = add_camera(pts, elevation_deg=float(job["elevation_deg"]), azimuth_deg=az,
+                         margin=float(job.get("margin", 0.06)))
+        stem = job["stem"] if view == "canonical" else f"{job['stem']}_{view}"
+        raw = out_dir / f".{stem}.raw.png"
+        scene.render.filepath = str(raw)
+        bpy.ops.render.render(write_still=True)
+        if not raw.exists():
+            raise RuntimeError("Cycles wrote no image")
+        out = out_dir / f"{stem}.png"
+        mask = out_dir / f"{stem}_mask.png"
+        info = composite_on_white(raw, out, mask)
+        raw.unlink()
+        results.append({"view": view, "path": str(out), "mask_path": str(mask), **info})
+        bpy.data.objects.remove(cam, do_unlink=True)
+    return {"views": results}

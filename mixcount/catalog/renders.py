@@ -1,0 +1,175 @@
+"""`catalog render`: canonical white-background renders of catalog objects (the external exemplars).
+
+Each active object gets a ``canonical`` view (and ``view_<k>`` extra views when ``render.extra_views`` > 0)
+rendered by bpy in worker processes (:mod:`mixcount.blender.canonical_runner`). Files live under
+``catalog.renders_dir`` as ``obj_<id>.png`` (RGB on pure white) plus ``obj_<id>_mask.png`` (coverage);
+rows in table ``renders`` record path, size, the model's content hash and a hash of the render settings.
+
+Resumable: an object is skipped when every view's row matches its current content hash and the current
+settings hash and the files exist. A failed object gets a row with ``error`` (reason) and is retried on
+the next run; the batch always goes on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from mixcount.catalog.db import Catalog
+from mixcount.catalog.hashing import json_hash
+from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
+from mixcount.config import Config
+
+RENDER_VERSION = "canonical-v1"  # bump when the renderer changes what a render looks like
+CANONICAL = "canonical"
+SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
+                "world_strength", "sun_strength")
+
+
+@dataclass
+class RenderSummary:
+    objects: int = 0
+    rendered: int = 0
+    skipped: int = 0
+    failed: int = 0
+    settings_hash: str = ""
+    failures: list[dict[str, Any]] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def render_settings(config: Config) -> dict[str, Any]:
+    """The ``[render]`` keys that change the picture, plus the renderer version."""
+    section = config["render"]
+    settings = {key: section[key] for key in SETTING_KEYS}
+    settings["version"] = RENDER_VERSION
+    return settings
+
+
+def settings_hash(settings: dict[str, Any]) -> str:
+    return json_hash(settings)[:32]
+
+
+def view_names(extra_views: int) -> list[str]:
+    return [CANONICAL] + [f"view_{k}" for k in range(1, int(extra_views) + 1)]
+
+
+def mask_path_for(render_path: Path | str) -> Path:
+    """The coverage mask written next to a render (``x.png`` -> ``x_mask.png``)."""
+    p = Path(render_path)
+    return p.with_name(f"{p.stem}_mask.png")
+
+
+def canonical_render_path(session: Session, object_id: int) -> Path | None:
+    """Absolute path of an object's canonical render, or None when it has none (or it failed/vanished)."""
+    row = session.scalar(
+        select(Render).where(Render.object_id == object_id, Render.view == CANONICAL, Render.error.is_(None))
+    )
+    if row is None or not row.path or not Path(row.path).is_file():
+        return None
+    return Path(row.path)
+
+
+def _up_to_date(rows: dict[str, Render], obj: CatalogObject, views: list[str], shash: str) -> bool:
+    for view in views:
+        row = rows.get(view)
+        if row is None or row.error or not row.path or not Path(row.path).is_file():
+            return False
+        if row.model_hash != obj.content_hash or row.settings_hash != shash:
+            return False
+    return True
+
+
+def _upsert(session: Session, object_id: int, view: str) -> Render:
+    row = session.scalar(select(Render).where(Render.object_id == object_id, Render.view == view))
+    if row is None:
+        row = Render(object_id=object_id, view=view)
+        session.add(row)
+    return row
+
+
+def render_catalog(
+    catalog: Catalog,
+    config: Config,
+    *,
+    object_ids: Iterable[int] | None = None,
+    include_excluded: bool = False,
+    force: bool = False,
+    progress: bool = False,
+) -> RenderSummary:
+    """Render every active (and optionally excluded) object whose render is missing or stale."""
+    from mixcount.blender.canonical_runner import run_jobs
+
+    settings = render_settings(config)
+    shash = settings_hash(settings)
+    views = view_names(int(settings["extra_views"]))
+    summary = RenderSummary(settings_hash=shash)
+    out_dir = catalog.renders_dir
+    statuses = [STATUS_ACTIVE, STATUS_EXCLUDED] if include_excluded else [STATUS_ACTIVE]
+    jobs: list[dict[str, Any]] = []
+    names: dict[str, str] = {}
+    with catalog.session() as session:
+        query = select(CatalogObject).where(CatalogObject.status.in_(statuses)).order_by(CatalogObject.id)
+        if object_ids is not None:
+            query = query.where(CatalogObject.id.in_(list(object_ids)))
+        for obj in session.scalars(query):
+            summary.objects += 1
+            rows = {r.view: r for r in session.scalars(select(Render).where(Render.object_id == obj.id))}
+            if not force and _up_to_date(rows, obj, views, shash):
+                summary.skipped += 1
+                continue
+            key = str(obj.id)
+            names[key] = obj.name
+            jobs.append({"key": key, "model_path": obj.model_path, "out_dir": str(out_dir),
+                         "stem": f"obj_{obj.id:06d}", "model_hash": obj.content_hash, **settings})
+    if not jobs:
+        return summary
+
+    section = config["render"]
+    bar = None
+    if progress:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        from mixcount.commands.common import console
+
+        bar = Progress(TextColumn("[bold]render[/]"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                       console=console, transient=False)
+        task = bar.add_task("render", total=len(jobs))
+        bar.start()
+    hashes = {j["key"]: j["model_hash"] for j in jobs}
+
+    def on_result(key: str, rec: dict[str, Any]) -> None:
+        oid = int(key)
+        with catalog.session() as session:
+            if rec["event"] == "done":
+                for v in rec["views"]:
+                    row = _upsert(session, oid, v["view"])
+                    row.path = str(Path(v["path"]).resolve())
+                    row.width, row.height = int(v["width"]), int(v["height"])
+                    row.model_hash, row.settings_hash, row.error = hashes[key], shash, None
+                    row.created_at = utcnow()
+                summary.rendered += 1
+            else:
+                row = _upsert(session, oid, CANONICAL)
+                row.path, row.width, row.height = None, None, None
+                row.model_hash, row.settings_hash = hashes[key], shash
+                row.error = str(rec.get("error") or "unknown render failure")
+                row.created_at = utcnow()
+                summary.failed += 1
+                summary.failures.append({"id": oid, "name": names[key], "error": row.error})
+            session.commit()
+        if bar is not None:
+            bar.advance(task)
+
+    try:
+        run_jobs(jobs, on_result=on_result, workers=int(section["workers"]), timeout_s=float(section["timeout_s"]),
+                 threads_per_worker=int(section["threads"]))
+    finally:
+        if bar is not None:
+            bar.stop()
+    return summary
