@@ -1,0 +1,132 @@
+"""`catalog review import FILE`: apply a person's accept/reject decisions exported from the HTML sheet.
+
+File format (``mixcount-review-v1``, written by the sheet's export button)::
+
+    {"format": "mixcount-review-v1", "reviewer": "ana", "exported_at": "2026-11-23T14:00:00.000Z",
+     "decisions": [{"id": 12, "name": "Mug_B0CR7ZL940_Mint", "decision": "reject",
+                    "note": "same mug", "decided_at": "2026-11-23T13:59:41.120Z"}]}
+
+The whole file is checked before anything is written (unknown ids, a name that does not match the id,
+unknown decisions are errors: a file from another catalog is refused). Each decision becomes a
+``review_decisions`` row (reviewer, time, note) and sets the status at once: accept -> active, reject ->
+excluded (a broken object stays broken). The latest decision per object outranks automatic flags and is
+re-applied by every ``catalog filter``. Importing the same file again adds nothing.
+"""
+
+from __future__ import annotations
+
+import getpass
+import json
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import select
+
+from mixcount.catalog.db import Catalog
+from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
+from mixcount.errors import CatalogError
+
+FORMAT = "mixcount-review-v1"
+DECISIONS = ("accept", "reject")
+
+
+@dataclass
+class ReviewSummary:
+    file: str
+    reviewer: str
+    decisions: int = 0
+    recorded: int = 0
+    already_recorded: int = 0
+    status_changes: list[dict[str, Any]] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _parse_time(value: Any) -> datetime | None:
+    if not value:
+        return None
+    if not isinstance(value, str):
+        raise CatalogError(f"decision time {value!r} is not an ISO-8601 string")
+    try:
+        dt = datetime.fromisoformat(value.replace("Z", "+00:00"))
+    except ValueError:
+        raise CatalogError(f"decision time {value!r} is not an ISO-8601 time") from None
+    if dt.tzinfo is not None:
+        dt = dt.astimezone(timezone.utc).replace(tzinfo=None)
+    return dt.replace(microsecond=(dt.microsecond // 1000) * 1000)
+
+
+def load_decisions(path: Path) -> dict[str, Any]:
+    """Read and shape-check a decisions file (raises CatalogError)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise CatalogError(f"decisions file not found: {path}") from None
+    except (OSError, ValueError) as exc:
+        raise CatalogError(f"cannot read decisions file {path}: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("decisions"), list):
+        raise CatalogError(f"{path} is not a {FORMAT} decisions file")
+    return data
+
+
+def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = None) -> ReviewSummary:
+    """Validate every decision in ``path``, then record them all and apply the statuses (atomic)."""
+    data = load_decisions(path)
+    who = (reviewer or str(data.get("reviewer") or "").strip() or getpass.getuser())[:128]
+    default_time = _parse_time(data.get("exported_at")) or utcnow()
+    summary = ReviewSummary(file=str(path), reviewer=who, decisions=len(data["decisions"]))
+    with catalog.session() as session:
+        planned: list[tuple[CatalogObject, str, str, datetime]] = []
+        problems: list[str] = []
+        for k, entry in enumerate(data["decisions"]):
+            if not isinstance(entry, dict):
+                problems.append(f"entry {k} is not an object")
+                continue
+            oid, decision = entry.get("id"), entry.get("decision")
+            if not isinstance(oid, int) or isinstance(oid, bool):
+                problems.append(f"entry {k}: id {oid!r} is not an integer")
+                continue
+            if decision not in DECISIONS:
+                problems.append(f"entry {k}: decision {decision!r} is not accept or reject")
+                continue
+            obj = session.get(CatalogObject, oid)
+            if obj is None:
+                problems.append(f"entry {k}: no catalog object with id {oid}")
+                continue
+            name = entry.get("name")
+            if name is not None and name != obj.name:
+                problems.append(f"entry {k}: id {oid} is {obj.name!r} here, the file says {name!r}")
+                continue
+            note = entry.get("note") or ""
+            if not isinstance(note, str):
+                problems.append(f"entry {k}: note is not a string")
+                continue
+            planned.append((obj, decision, note[:4000], _parse_time(entry.get("decided_at")) or default_time))
+        if problems:
+            shown = "; ".join(problems[:5]) + (f"; ... ({len(problems)} problems)" if len(problems) > 5 else "")
+            raise CatalogError(f"decisions file {path} rejected, nothing applied: {shown}")
+        for obj, decision, note, when in planned:
+            same = session.scalar(select(ReviewDecision).where(
+                ReviewDecision.object_id == obj.id, ReviewDecision.decision == decision,
+                ReviewDecision.reviewer == who, ReviewDecision.decided_at == when))
+            if same is not None:
+                summary.already_recorded += 1
+            else:
+                session.add(ReviewDecision(object_id=obj.id, decision=decision, reviewer=who, note=note, decided_at=when))
+                summary.recorded += 1
+        session.flush()
+        # the latest decision per object sets its status (a file may hold older decisions than the DB)
+        for obj in {o.id: o for o, *_ in planned}.values():
+            latest = session.scalars(select(ReviewDecision).where(ReviewDecision.object_id == obj.id)
+                                     .order_by(ReviewDecision.decided_at.desc(), ReviewDecision.id.desc())).first()
+            if latest is None or obj.status == STATUS_BROKEN:
+                continue
+            want = STATUS_ACTIVE if latest.decision == "accept" else STATUS_EXCLUDED
+            if obj.status != want:
+                summary.status_changes.append({"id": obj.id, "name": obj.name, "from": obj.status, "to": want})
+                obj.status = want
+        session.commit()
+    return summary

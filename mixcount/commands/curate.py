@@ -1,0 +1,131 @@
+"""CLI: `catalog render`, `catalog filter`, `catalog sheet`, `catalog review import` (issue 3)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.markup import escape
+
+from mixcount.commands.common import console, out, state
+
+review_app = typer.Typer(help="Apply a person's accept/reject decisions from the HTML review page.",
+                         no_args_is_help=True)
+
+
+def render_cmd(
+    ctx: typer.Context,
+    force: bool = typer.Option(False, "--force", help="Render again even when the stored render is current."),
+    include_excluded: bool = typer.Option(False, "--include-excluded", help="Also render excluded objects."),
+    ids: list[int] = typer.Option([], "--id", help="Only these object ids (repeatable)."),
+    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+) -> None:
+    """Canonical white-background renders of active objects (bpy worker processes; resumable)."""
+    from mixcount.catalog.renders import render_catalog
+
+    st = state(ctx)
+    catalog = st.catalog()
+    try:
+        summary = render_catalog(catalog, st.config(), object_ids=ids or None, include_excluded=include_excluded,
+                                 force=force, progress=True)
+    finally:
+        catalog.close()
+    for f in summary.failures:
+        console.print(f"[yellow]render failed[/] #{f['id']} {escape(f['name'])}: {escape(f['error'][:300])}",
+                      highlight=False, soft_wrap=True)
+    console.print(f"render: {summary.objects} objects, {summary.rendered} rendered, {summary.skipped} up to date, "
+                  f"{summary.failed} failed", highlight=False)
+    if json_out:
+        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+
+
+def filter_cmd(
+    ctx: typer.Context,
+    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+) -> None:
+    """Flag duplicates and degenerate/outlier objects, exclude all but one per duplicate group (idempotent)."""
+    from mixcount.catalog.curate import run_filter
+
+    st = state(ctx)
+    catalog = st.catalog()
+    try:
+        summary = run_filter(catalog, st.config())
+    finally:
+        catalog.close()
+    flags = ", ".join(f"{n} {k}" for k, n in summary.flags.items())
+    console.print(f"filter: {summary.objects} objects; flags: {flags}; {summary.groups} duplicate groups, "
+                  f"{summary.excluded} excluded, {summary.review_applied} review decisions applied", highlight=False,
+                  soft_wrap=True)
+    if summary.missing_renders:
+        console.print(f"[yellow]{summary.missing_renders} objects have no canonical render: appearance checks "
+                      "skipped for them (run `mixcount catalog render`)[/]", highlight=False)
+    for f in summary.descriptor_failures:
+        console.print(f"[yellow]descriptor failed[/] #{f['id']} {escape(f['name'])}: {escape(f['error'])}",
+                      highlight=False, soft_wrap=True)
+    gt = summary.ground_truth
+    if gt is not None:
+        kinds = ", ".join(f"{k} {v['found']}/{v['planted']}" for k, v in gt["by_trap"].items())
+        console.print(
+            f"ground truth ({escape(gt['ground_truth'])}): duplicate pairs precision {gt['precision']:.3f}, "
+            f"recall {gt['recall']:.3f} ({gt['pairs_correct']}/{gt['pairs_planted']} planted, "
+            f"{gt['pairs_predicted']} predicted; {kinds}); broken flagged {gt['broken_flagged']}/{gt['broken_planted']}; "
+            f"clean objects with a duplicate flag {gt['clean_with_duplicate_flag']}/{gt['clean_objects']} "
+            f"({100 * gt['clean_flag_rate']:.1f} %)", highlight=False, soft_wrap=True)
+    if json_out:
+        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+
+
+def sheet_cmd(
+    ctx: typer.Context,
+    out_dir: Path = typer.Option(..., "--out", help="Directory for sheet_NNN.png and review.html."),
+    only: str = typer.Option("all", "--only", help="Which objects: all | flagged | excluded."),
+    category: Optional[str] = typer.Option(None, "--category", help="Only objects of this category."),
+    cols: int = typer.Option(6, "--cols", min=1, help="Columns per PNG page."),
+    rows: int = typer.Option(5, "--rows", min=1, help="Rows per PNG page."),
+    json_out: bool = typer.Option(False, "--json", help="Print what was written as JSON on stdout."),
+) -> None:
+    """Write PNG contact sheets and one self-contained HTML review page."""
+    from mixcount.catalog.sheets import write_sheets
+
+    catalog = state(ctx).catalog()
+    try:
+        result = write_sheets(catalog, out_dir, only=only, category=category, cols=cols, rows=rows)
+    finally:
+        catalog.close()
+    console.print(f"sheet: {result['objects']} objects, {len(result['pngs'])} PNG page(s) and "
+                  f"{escape(result['html'])}", highlight=False, soft_wrap=True)
+    if json_out:
+        out.print(json.dumps(result, sort_keys=True))
+
+
+@review_app.command("import")
+def review_import_cmd(
+    ctx: typer.Context,
+    file: Path = typer.Argument(..., help="Decisions JSON exported from review.html."),
+    reviewer: Optional[str] = typer.Option(None, "--reviewer", help="Reviewer name [default: the file's, else $USER]."),
+    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+) -> None:
+    """Record accept/reject decisions (with reviewer and time) and apply them to object statuses."""
+    from mixcount.catalog.review import import_decisions
+
+    catalog = state(ctx).catalog()
+    try:
+        summary = import_decisions(catalog, file, reviewer=reviewer)
+    finally:
+        catalog.close()
+    for c in summary.status_changes:
+        console.print(f"#{c['id']} {escape(c['name'])}: {c['from']} -> {c['to']}", highlight=False, soft_wrap=True)
+    console.print(f"review: {summary.decisions} decisions by {escape(summary.reviewer)}: {summary.recorded} recorded, "
+                  f"{summary.already_recorded} already recorded, {len(summary.status_changes)} status changes",
+                  highlight=False, soft_wrap=True)
+    if json_out:
+        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+
+
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    catalog_app.command("render")(render_cmd)
+    catalog_app.command("filter")(filter_cmd)
+    catalog_app.command("sheet")(sheet_cmd)
+    catalog_app.add_typer(review_app, name="review")
