@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 import traceback
 from pathlib import Path
 from typing import Any, TextIO
@@ -37,6 +38,10 @@ def main(argv: list[str] | None = None) -> int:
             key = job["key"]
             _emit(fh, {"key": key, "event": "start", "pid": os.getpid()})
             try:
+                if job.get("_test_hang_s"):  # test hook: simulate a hung render (tests/test_renders.py)
+                    time.sleep(float(job["_test_hang_s"]))
+                if job.get("_test_crash"):  # test hook: simulate a worker dying mid-object
+                    os._exit(int(job["_test_crash"]))
                 result = render_object(job)
             except Exception as exc:  # one object's failure is recorded; the batch goes on
                 msg = f"{type(exc).__name__}: {exc}".strip()

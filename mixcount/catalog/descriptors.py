@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-DESCRIPTOR_VERSION = "shape-v2"
+DESCRIPTOR_VERSION = "shape-v3"
 D2_QUANTILES = 64
 SEED = 20240531
 
@@ -85,13 +85,14 @@ def nonmanifold_fraction(faces: np.ndarray) -> float:
     """Fraction of unique edges shared by more than two faces."""
     if len(faces) == 0:
         return 0.0
-    edges = np.sort(np.vstack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    edges = np.sort(np.vstack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1).astype(np.int64)
+    keys = edges[:, 0] * (int(edges.max()) + 1) + edges[:, 1]  # one integer per undirected edge
+    _, counts = np.unique(keys, return_counts=True)
     return float((counts > 2).sum() / len(counts))
 
 
 def shape_descriptor(vertices: np.ndarray, faces: np.ndarray, *, watertight: bool, volume: float | None,
-                     n_points: int = 2000) -> ShapeDescriptor:
+                     n_points: int = 1500) -> ShapeDescriptor:
     """D2 quantiles, principal-extent ratios, real extents and mesh-health facts of one mesh."""
     from scipy.spatial.distance import pdist
 
