@@ -1,0 +1,123 @@
+"""`catalog filter` on a real SQLite catalog of real GLB files (renders drawn with PIL, no bpy): each
+flag kind with its pair, one kept object per duplicate group by the quality order, idempotent reruns,
+a person's decision outranking flags, other areas' flags and exclusions left alone; and the
+descriptors on meshes with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from sqlalchemy import select
+
+from mixcount.catalog import descriptors as D
+from mixcount.catalog.curate import EXCLUDED_MARK, FILTER_KINDS, run_filter
+from mixcount.catalog.models import CatalogObject, Flag, ReviewDecision
+from test_curate_support import library_catalog, quick_config
+
+
+def state(catalog):
+    with catalog.session() as s:
+        flags = {(f.object_id, f.kind, f.pair_object_id) for f in s.scalars(select(Flag))}
+        statuses = {o.id: o.status for o in s.scalars(select(CatalogObject))}
+    return flags, statuses
+
+
+def flags_of(catalog, oid):
+    with catalog.session() as s:
+        return {(f.kind, f.pair_object_id) for f in s.scalars(select(Flag).where(Flag.object_id == oid))}
+
+
+def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
+    objs = library_catalog(catalog, tmp_path)
+    ids = {k: o.id for k, o in objs.items()}
+    summary = run_filter(catalog, quick_config())
+    assert summary.ground_truth is None  # not a demo library
+    assert summary.missing_renders == 0 and not summary.descriptor_failures
+
+    assert ("exact_duplicate", ids["box_copy"]) in flags_of(catalog, ids["box"])
+    assert ("exact_duplicate", ids["box"]) in flags_of(catalog, ids["box_copy"])
+    assert ("near_duplicate_geometry", ids["cyl_recolour"]) in flags_of(catalog, ids["cyl"])
+    assert ("near_duplicate_appearance", ids["ball"]) in flags_of(catalog, ids["ball_big"])
+    assert ("near_duplicate_geometry", ids["ball"]) not in flags_of(catalog, ids["ball_big"])  # different size
+    assert ("degenerate", None) in flags_of(catalog, ids["flat"])
+    assert ("size_outlier", None) in flags_of(catalog, ids["giant"])
+    for clean in ("cone", "capsule", "ring"):
+        assert flags_of(catalog, ids[clean]) == set(), clean
+
+    _, status = state(catalog)
+    # lower id wins a tie; an image-textured object beats a vertex-coloured one whatever the ids
+    keep_box = min(ids["box"], ids["box_copy"])
+    assert status[keep_box] == "active" and status[ids["box"] + ids["box_copy"] - keep_box] == "excluded"
+    assert status[ids["cyl_recolour"]] == "active" and status[ids["cyl"]] == "excluded"
+    assert status[ids["flat"]] == "excluded"  # degenerate, filter.exclude_degenerate
+    assert status[ids["giant"]] == "active"  # size outliers are flagged, not excluded
+    with catalog.session() as s:
+        reason = s.scalar(select(Flag.reason).where(Flag.object_id == ids["cyl"]))
+    assert EXCLUDED_MARK in reason and f"#{ids['cyl_recolour']}" in reason and "D2" in reason
+
+
+def test_filter_idempotent_review_outranks_and_foreign_state_kept(catalog, tmp_path):
+    objs = library_catalog(catalog, tmp_path)
+    ids = {k: o.id for k, o in objs.items()}
+    cfg = quick_config()
+    first = run_filter(catalog, cfg)
+    before = state(catalog)
+    second = run_filter(catalog, cfg)
+    assert state(catalog) == before
+    assert second.reactivated == first.excluded and second.excluded == first.excluded
+
+    # another area's flag and exclusion (captioning) survive; a person's decisions win over the flags
+    with catalog.session() as s:
+        s.add(Flag(object_id=ids["cone"], kind="caption_collision", score=1.0, reason="same caption", pair_object_id=ids["ring"]))
+        s.get(CatalogObject, ids["capsule"]).status = "excluded"  # excluded by someone else, no filter mark
+        s.add(ReviewDecision(object_id=ids["cyl"], decision="accept", reviewer="ana"))  # the filter excluded it
+        s.add(ReviewDecision(object_id=ids["ring"], decision="reject", reviewer="ana"))  # clean but rejected
+        s.commit()
+    run_filter(catalog, cfg)
+    flags, status = state(catalog)
+    assert (ids["cone"], "caption_collision", ids["ring"]) in flags
+    assert status[ids["capsule"]] == "excluded"
+    assert status[ids["cyl"]] == "active" and status[ids["cyl_recolour"]] == "excluded"  # accepted one is the keeper
+    assert status[ids["ring"]] == "excluded"
+    assert {f for f in flags if f[1] in FILTER_KINDS} == {f for f in before[0] if f[1] in FILTER_KINDS}
+
+    # a later decision replaces an earlier one
+    with catalog.session() as s:
+        s.add(ReviewDecision(object_id=ids["cyl"], decision="reject", reviewer="ben"))
+        s.commit()
+    run_filter(catalog, cfg)
+    assert state(catalog)[1][ids["cyl"]] == "excluded"
+    assert state(catalog)[1][ids["cyl_recolour"]] == "active"
+
+
+def test_shape_descriptor_known_answers():
+    def desc(mesh):
+        return D.shape_descriptor(mesh.vertices, mesh.faces, watertight=mesh.is_watertight, volume=None)
+
+    cyl = desc(trimesh.creation.cylinder(radius=0.3, height=2.0, sections=48))
+    cyl_coarse = desc(trimesh.creation.cylinder(radius=0.3, height=2.0, sections=24))
+    cyl_scaled = desc(trimesh.creation.cylinder(radius=0.9, height=6.0, sections=48))
+    cyl_fat = desc(trimesh.creation.cylinder(radius=0.36, height=2.0, sections=48))
+    box = desc(trimesh.creation.box((1, 1, 1)))
+    box_tall = desc(trimesh.creation.box((1, 1, 1.05)))
+    ico, uv = desc(trimesh.creation.icosphere(4)), desc(trimesh.creation.uv_sphere(1, (40, 40)))
+    th = quick_config()["filter"]
+    assert D.d2_distance(cyl, cyl_scaled) < 1e-9 and D.ratio_distance(cyl, cyl_scaled) < 1e-9  # scale-free
+    assert D.size_ratio(cyl_scaled, cyl) == pytest.approx(3.0)
+    assert D.d2_distance(ico, uv) < th["geometry_d2"] and D.ratio_distance(ico, uv) < th["geometry_proportions"]
+    assert D.d2_distance(cyl, cyl_coarse) < th["geometry_d2"]
+    assert D.d2_distance(cyl, cyl_fat) > th["geometry_d2"] or D.ratio_distance(cyl, cyl_fat) > th["geometry_proportions"]
+    assert D.ratio_distance(box, box_tall) > th["geometry_proportions"]  # D2 hardly sees 5 %; proportions do
+    assert D.d2_distance(box, ico) > 2 * th["geometry_d2"]
+
+
+def test_nonmanifold_fraction_and_phash():
+    faces = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]])  # edge (0, 1) shared by three faces
+    assert D.nonmanifold_fraction(faces) == pytest.approx(1 / 7)
+    assert D.nonmanifold_fraction(trimesh.creation.icosphere(2).faces) == 0.0
+    from scipy.ndimage import gaussian_filter
+
+    img = gaussian_filter(np.random.default_rng(0).uniform(0, 255, (32, 32)), 3)
+    assert D.phash_bits(img) == D.phash_bits(img * 0.5 + 20)  # brightness/contrast changes keep the hash
+    assert bin(D.phash_bits(img) ^ D.phash_bits(img.T[::-1])).count("1") > 16
