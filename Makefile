@@ -7,6 +7,7 @@ STAMP := $(VENV)/.installed
 DEMO_DB := catalog/catalog.db
 DEMO_OUT := out/demo
 MIX := $(VENV)/bin/mixcount --db $(DEMO_DB)
+DEMO_SCENES ?= 4
 
 .PHONY: setup test demo browser clean-demo bench
 
@@ -28,7 +29,15 @@ test: $(STAMP) browser
 demo: $(STAMP)
 	$(MIX) demo-library catalog/demo
 	$(MIX) catalog ingest catalog/demo
+	$(MIX) --set render.resolution=256 --set render.samples=8 catalog render
+	$(MIX) catalog filter
+	$(MIX) catalog caption --captioner stub --dedupe
+	$(MIX) catalog split
+	$(MIX) catalog sheet --out $(DEMO_OUT)/sheets --only all
 	$(MIX) catalog list --summary
+	$(MIX) --config configs/quick.toml compose --n $(DEMO_SCENES) --out $(DEMO_OUT)/dataset --split train --resolution 256 --samples 8
+	$(VENV)/bin/mixcount stats $(DEMO_OUT)/dataset
+	@echo "demo done: contact sheets in $(DEMO_OUT)/sheets, dataset in $(DEMO_OUT)/dataset (preview.png, annotations/)"
 
 clean-demo:
 	rm -rf catalog/demo catalog/catalog.db* catalog/collision catalog/renders catalog/usd_assets $(DEMO_OUT)
