@@ -13,7 +13,7 @@ from PIL import Image, ImageDraw
 from sqlalchemy import select
 
 from mixcount.catalog.ingest import ingest_paths
-from mixcount.catalog.models import CatalogObject, Render
+from mixcount.catalog.models import CaptionSet, CatalogObject, Render
 from mixcount.config import load_config
 
 
@@ -112,3 +112,11 @@ def library_catalog(catalog, tmp_path: Path) -> dict[str, CatalogObject]:
         put_render(catalog, objs[stem].id, drawing(shape, colour, stripe))
     put_render(catalog, objs["flat"].id, Image.new("RGB", (64, 64), (255, 255, 255)))  # blank render
     return objs
+
+
+def add_captions(catalog, object_id: int, short: str) -> None:
+    with catalog.session() as s:
+        s.add(CaptionSet(object_id=object_id, captioner="stub", provider="stub", model="stub", prompt_version="t",
+                         short=short, concise=f"concise {short}", detailed=f"detailed {short}", response_hash="0",
+                         active=True))
+        s.commit()

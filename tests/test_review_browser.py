@@ -1,0 +1,98 @@
+"""The HTML review page in real headless Chromium (Debian's `chromium`, driven by Playwright without any
+browser download): the right number of cards, a caption holding `<script>` shown as text and never run,
+reject + export giving the expected decisions file, and importing that file changing the catalog."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from mixcount.catalog.curate import run_filter
+from mixcount.catalog.models import CatalogObject, ReviewDecision
+from mixcount.catalog.review import FORMAT
+from mixcount.catalog.sheets import write_sheets
+from mixcount.cli import main
+from test_curate_support import add_captions, library_catalog, quick_config
+
+pytestmark = [pytest.mark.browser]
+
+IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
+        "--disable-component-update", "--no-first-run", "--disable-extensions"]
+CAPTION = '<script>window.pwned = 1</script> a yellow cone & "friends"'
+
+
+@pytest.fixture
+def browser():
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        if IN_CI:
+            raise
+        pytest.skip("playwright is not installed (pip install -e '.[dev]')")
+    if not Path(CHROMIUM).exists():
+        if IN_CI:
+            pytest.fail("chromium is missing (make browser)")
+        pytest.skip("chromium is not installed (make browser)")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+def test_review_page_round_trip(browser, catalog, tmp_path):
+    objs = library_catalog(catalog, tmp_path)
+    run_filter(catalog, quick_config())
+    cone, cyl = objs["cone"], objs["cyl"]
+    add_captions(catalog, cone.id, CAPTION)
+    page_path = Path(write_sheets(catalog, tmp_path / "sheet")["html"])
+
+    context = browser.new_context(accept_downloads=True)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.goto(page_path.as_uri())
+
+    assert page.locator("article.card").count() == 11
+    assert page.locator(f"#obj-{cone.id} .cap-short").text_content() == CAPTION
+    assert page.evaluate("typeof window.pwned") == "undefined"
+    assert page.locator("#cards script").count() == 0
+    # every card's thumbnail decoded (inline data, nothing fetched)
+    assert page.evaluate("[...document.querySelectorAll('img.thumb')].every(i => i.complete && i.naturalWidth > 0)")
+
+    page.fill("#reviewer", "tester")
+    page.click(f"#obj-{cone.id} button.reject")
+    page.fill(f"#obj-{cone.id} input.note", "odd <b>cone</b>")
+    page.click(f"#obj-{cyl.id} button.accept")
+    page.click(f"#obj-{cyl.id} button.accept")  # a second click withdraws the decision
+    assert page.text_content("#pending") == "1 decision"
+    assert "pending-reject" in (page.get_attribute(f"#obj-{cone.id}", "class") or "")
+    with page.expect_download() as info:
+        page.click("#export")
+    download = info.value
+    out = tmp_path / "decisions.json"
+    download.save_as(out)
+    assert download.suggested_filename == "mixcount-decisions.json"
+    assert not errors
+    context.close()
+
+    data = json.loads(out.read_text())
+    assert data["format"] == FORMAT and data["reviewer"] == "tester"
+    assert len(data["decisions"]) == 1
+    decision = data["decisions"][0]
+    assert {k: decision[k] for k in ("id", "name", "decision", "note")} == {
+        "id": cone.id, "name": cone.name, "decision": "reject", "note": "odd <b>cone</b>"}
+    assert decision["decided_at"].endswith("Z")
+
+    assert main(["--db", str(tmp_path / "catalog.db"), "catalog", "review", "import", str(out)]) == 0
+    with catalog.session() as s:
+        assert s.get(CatalogObject, cone.id).status == "excluded"
+        row = s.query(ReviewDecision).filter_by(object_id=cone.id).one()
+        assert (row.decision, row.reviewer, row.note) == ("reject", "tester", "odd <b>cone</b>")
