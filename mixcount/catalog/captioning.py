@@ -23,6 +23,7 @@ from typing import Any, Callable, Iterable
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from mixcount.catalog.grouping import connected_groups
 from mixcount.captions.base import TIERS, CaptionInput, Captioner, CaptionResult
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import (
@@ -279,23 +280,7 @@ def flag_collisions(catalog: Catalog, *, summary: CaptionSummary | None = None) 
 
 def collision_groups(pairs: Iterable[tuple[int, int]]) -> list[list[int]]:
     """Connected components of the collision graph (sorted ids, groups sorted by first id)."""
-    parent: dict[int, int] = {}
-
-    def find(x: int) -> int:
-        parent.setdefault(x, x)
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
-    for a, b in pairs:
-        ra, rb = find(a), find(b)
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-    groups: dict[int, list[int]] = {}
-    for x in list(parent):
-        groups.setdefault(find(x), []).append(x)
-    return sorted((sorted(g) for g in groups.values()), key=lambda g: g[0])
+    return connected_groups(pairs)
 
 
 def dedupe_collisions(catalog: Catalog) -> int:

@@ -39,6 +39,7 @@ import numpy as np
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog import descriptors as D
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import (
@@ -236,23 +237,7 @@ def quality_key(obj: CatalogObject, *, accepted: set[int], quality_flags: dict[i
 
 
 def _groups(pairs: Iterable[tuple[int, int]]) -> list[list[int]]:
-    parent: dict[int, int] = {}
-
-    def find(x: int) -> int:
-        parent.setdefault(x, x)
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
-    for a, b in pairs:
-        ra, rb = find(a), find(b)
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-    out: dict[int, list[int]] = defaultdict(list)
-    for x in list(parent):
-        out[find(x)].append(x)
-    return sorted((sorted(g) for g in out.values()), key=lambda g: g[0])
+    return connected_groups(pairs)
 
 
 def thresholds(config: Config) -> dict[str, Any]:

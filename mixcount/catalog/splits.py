@@ -31,6 +31,7 @@ import numpy as np
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Flag, Split
 from mixcount.errors import CatalogError, ConfigError
@@ -198,26 +199,12 @@ class SplitSummary:
 def duplicate_groups(session: Session, object_ids: Iterable[int]) -> list[list[int]]:
     """Connected components over duplicate and caption-collision flags, restricted to ``object_ids``."""
     ids = set(object_ids)
-    parent = {i: i for i in ids}
-
-    def find(x: int) -> int:
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
-    for flag in session.scalars(select(Flag).where(Flag.pair_object_id.is_not(None))):
-        if not is_group_flag(flag.kind):
-            continue
-        a, b = flag.object_id, int(flag.pair_object_id)  # type: ignore[arg-type]
-        if a in ids and b in ids:
-            ra, rb = find(a), find(b)
-            if ra != rb:
-                parent[max(ra, rb)] = min(ra, rb)
-    groups: dict[int, list[int]] = {}
-    for i in sorted(ids):
-        groups.setdefault(find(i), []).append(i)
-    return sorted(groups.values(), key=lambda g: g[0])
+    pairs = [
+        (flag.object_id, int(flag.pair_object_id))  # type: ignore[arg-type]
+        for flag in session.scalars(select(Flag).where(Flag.pair_object_id.is_not(None)))
+        if is_group_flag(flag.kind) and flag.object_id in ids and flag.pair_object_id in ids
+    ]
+    return connected_groups(pairs, members=ids)
 
 
 def is_group_flag(kind: str) -> bool:
