@@ -57,9 +57,13 @@ class Part:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # placement, written as the node transform
 
 
-def revolve(profile: list[tuple[float, float]], sections: int = 32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def revolve(
+    profile: list[tuple[float, float]], sections: int = 32, squircle: tuple[float, float, float] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Surface of revolution about Z of a (radius, z) polyline, with a UV seam; pole rings (r = 0)
-    get triangles only, so there are no zero-area faces. The polyline goes from the bottom outwards."""
+    get triangles only, so there are no zero-area faces. The polyline goes from the bottom outwards.
+    ``squircle=(ax, ay, n)`` sweeps it around a superellipse instead of a circle (n = 2: ellipse; n = 8:
+    rounded rectangle), which makes closed trays and boxy bottles."""
     prof = np.asarray(profile, dtype=np.float64)
     m = len(prof)
     seg = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(prof, axis=0), axis=1))]
@@ -67,6 +71,10 @@ def revolve(profile: list[tuple[float, float]], sections: int = 32) -> tuple[np.
     theta = np.linspace(0.0, 2 * np.pi, sections + 1)
     cos, sin = np.cos(theta), np.sin(theta)
     cos[-1], sin[-1] = 1.0, 0.0  # exact seam, so the duplicated column merges on ingest
+    if squircle is not None:
+        ax, ay, n = squircle
+        cos = ax * np.sign(cos) * np.abs(cos) ** (2.0 / n)
+        sin = ay * np.sign(sin) * np.abs(sin) ** (2.0 / n)
     verts = np.empty(((sections + 1) * m, 3))
     uvs = np.empty(((sections + 1) * m, 2))
     for j in range(sections + 1):
@@ -293,14 +301,12 @@ def _col_part(geom: tuple[np.ndarray, np.ndarray, np.ndarray], colors: np.ndarra
     return Part(v, f, uv, colors=colors, roughness=rough, metallic=metal, offset=offset)
 
 
-def sphere_profile(r: float, n: int = 16, squash: float = 1.0, dimple: float = 0.0) -> list[tuple[float, float]]:
+def sphere_profile(r: float, n: int = 16, squash: float = 1.0) -> list[tuple[float, float]]:
     phi = np.linspace(0, np.pi, n + 1)
     pts = []
     for p in phi:
         rr = r * np.sin(p)
         z = -r * np.cos(p) * squash
-        if dimple:  # pull the poles in (apple, pear)
-            z -= dimple * r * np.cos(p) * np.exp(-((np.sin(p) / 0.35) ** 2))
         pts.append((rr, z + r * squash))
     pts[0] = (0.0, pts[0][1])
     pts[-1] = (0.0, pts[-1][1])
@@ -362,14 +368,16 @@ FRUIT = [("Apple", (200, 30, 35), (120, 170, 40)), ("Orange", (245, 140, 20), No
 
 def build_fruit(k: int, rng: np.random.Generator) -> Spec:
     variant, col, col2 = FRUIT[k % len(FRUIT)]
-    if variant in ("Apple", "GreenApple"):
-        r = float(rng.uniform(0.036, 0.042))
-        prof = sphere_profile(r, 20, squash=0.9, dimple=0.25)
-    elif variant == "Pear":
-        r = 0.032
-        phi = np.linspace(0, np.pi, 22)
-        prof = [(r * np.sin(p) * (1 - 0.45 * (1 - np.cos(p)) / 2 * (p > np.pi / 2)), r * 1.6 * (1 - np.cos(p)) / 2 * 1.9) for p in phi]
-        prof[0], prof[-1] = (0.0, prof[0][1]), (0.0, prof[-1][1])
+    if variant in ("Apple", "GreenApple"):  # dimpled at both poles, widest above the middle
+        sc = float(rng.uniform(0.9, 1.1))
+        prof = [(0, 0.005), (0.01, 0.002), (0.024, 0.005), (0.035, 0.016), (0.04, 0.03), (0.039, 0.042),
+                (0.032, 0.053), (0.02, 0.058), (0.009, 0.055), (0, 0.05)]
+        prof = [(x * sc, z * sc) for x, z in prof]
+    elif variant == "Pear":  # wide bottom, narrow neck
+        sc = float(rng.uniform(0.9, 1.1))
+        prof = [(0, 0), (0.018, 0.002), (0.029, 0.014), (0.031, 0.029), (0.025, 0.044), (0.017, 0.056),
+                (0.014, 0.068), (0.01, 0.078), (0, 0.082)]
+        prof = [(x * sc, z * sc) for x, z in prof]
     elif variant in ("Lemon", "Lime"):
         r = float(rng.uniform(0.027, 0.032))
         prof = [(x * 0.75, z * 1.3) for x, z in sphere_profile(r, 18)]
@@ -564,14 +572,14 @@ def build_bowl(k: int, rng: np.random.Generator) -> Spec:
 
 def build_tray(k: int, rng: np.random.Generator) -> Spec:
     w, d = float(rng.uniform(0.28, 0.35)), float(rng.uniform(0.2, 0.25))
-    wall, h, t = 0.008, 0.03, 0.006
+    h, t = 0.03, 0.006
+    # one closed thin-walled shell swept around a rounded rectangle (walls about t thick)
+    prof = [(0, 0), (1.0, 0), (1.0, h), (1.0 - 2 * t / d, h), (1.0 - 2 * t / d, t), (0, t)]
+    geom = revolve(prof, 96, squircle=(w / 2, d / 2, 10.0))
     col = [(160, 110, 60), (60, 60, 65)][k % 2]
-    img = tex_stripes([col, tuple(int(c * 0.9) for c in col)], 12, vertical=True)
-    parts = [_img_part(box((w, d, t)), img, rough=0.6, offset=(0, 0, t / 2))]
-    for ext, off in (((w, wall, h), (0, d / 2 - wall / 2, h / 2)), ((w, wall, h), (0, -d / 2 + wall / 2, h / 2)),
-                     ((wall, d - 2 * wall, h), (w / 2 - wall / 2, 0, h / 2)), ((wall, d - 2 * wall, h), (-w / 2 + wall / 2, 0, h / 2))):
-        parts.append(_img_part(box(ext), img, rough=0.6, offset=off))
-    return Spec("tray", ["Wooden", "Slate"][k % 2], parts, "a rectangular tray with a low rim", container=True)
+    img = tex_stripes([col, tuple(int(c * 0.9) for c in col)], 24, vertical=True)
+    return Spec("tray", ["Wooden", "Slate"][k % 2], [_img_part(geom, img, rough=0.6)],
+                "a rectangular tray with a low rim", container=True)
 
 
 CONTAINER_BUILDERS = [build_plate, build_tray, build_bowl]
