@@ -59,7 +59,7 @@ _register_commands()
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point."""
     try:
-        app(args=argv, standalone_mode=False)
+        result = app(args=argv, standalone_mode=False)
     except MixcountError as exc:
         console.print(f"[bold red]error:[/] {exc}", highlight=False)
         return 2
@@ -78,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
             console.print("[yellow]aborted[/]")
             return 130
         raise
+    # In non-standalone mode typer returns the code of typer.Exit(n) and 130 for Ctrl-C.
+    if isinstance(result, int) and not isinstance(result, bool) and result:
+        return result
     return 0
 
 

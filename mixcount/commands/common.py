@@ -10,7 +10,7 @@ from rich.console import Console
 
 from mixcount.config import Config, load_config
 
-console = Console(stderr=True)  # progress and summaries; JSON goes to stdout only
+console = Console(stderr=True, soft_wrap=True)  # progress and summaries; JSON goes to stdout only
 out = Console(highlight=False, soft_wrap=True)
 
 
