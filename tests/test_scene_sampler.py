@@ -63,14 +63,14 @@ def test_scale_is_applied_consistently(conf):
 def test_spawn_positions_inside_ellipse_and_height_range(conf):
     pool = rich_pool()
     s_ = conf.scale
-    checked = 0
+    checked = stacked = 0
     for seed in range(60):
         s = sample_scene(seed, "train", conf, pool)
         if s.container is None:
             lo, hi = conf.spawn_xy_no_container[0] * s_, conf.spawn_xy_no_container[1] * s_
             for o in s.objects:
                 assert lo - 1e-6 <= o.position[0] <= hi + 1e-6 and lo - 1e-6 <= o.position[1] <= hi + 1e-6
-                assert conf.spawn_height[0] * s_ - 1e-6 <= o.position[2] <= conf.spawn_height[1] * s_ + 1e-6
+                assert conf.spawn_height[0] * s_ - 1e-6 <= o.position[2]
             continue
         c = s.container
         yaw = 2 * math.atan2(c.orientation[3], c.orientation[0])
@@ -82,7 +82,9 @@ def test_spawn_positions_inside_ellipse_and_height_range(conf):
             lx = math.cos(yaw) * x + math.sin(yaw) * y  # into the container's frame
             ly = -math.sin(yaw) * x + math.cos(yaw) * y
             assert (lx / a) ** 2 + (ly / b) ** 2 <= 1 + 1e-4
-            assert top + conf.spawn_height[0] * s_ - 1e-5 <= o.position[2] <= top + conf.spawn_height[1] * s_ + 1e-5
+            assert top + conf.spawn_height[0] * s_ - 1e-5 <= o.position[2]
+            if o.position[2] > top + conf.spawn_height[1] * s_ + 1e-5:
+                stacked += 1  # no free spot in the range: lifted above its column (spawn_stack)
             checked += 1
         # distractors stand outside the container's box and apart from each other
         for i, d in enumerate(s.distractors):
@@ -91,7 +93,20 @@ def test_spawn_positions_inside_ellipse_and_height_range(conf):
             assert (lx / (c.extent_m[0] / 2)) ** 2 + (ly / (c.extent_m[1] / 2)) ** 2 > 1
             for e in s.distractors[i + 1:]:
                 assert math.dist(d.position[:2], e.position[:2]) > 0.5 * (d.size_m + e.size_m) * 0.5
-    assert checked > 0
+    assert checked > 0 and stacked > 0  # dense default scenes do need the stacking
+
+
+def test_spawn_spheres_do_not_overlap(conf):
+    for seed in range(15):
+        s = sample_scene(seed, "train", conf, rich_pool())
+        pos = np.array([o.position for o in s.objects])
+        r = np.array([o.size_m / 2 for o in s.objects])
+        gap = np.linalg.norm(pos[:, None] - pos[None], axis=2) - (r[:, None] + r[None])
+        np.fill_diagonal(gap, 1.0)
+        assert gap.min() >= -1e-5, (seed, len(pos))
+    loose = SceneConfig.from_config(load_config([], ["scene.spawn_stack=false", "scene.n_objects=[200, 200]"]))
+    s = sample_scene(0, "train", loose, rich_pool())
+    assert max(o.position[2] for o in s.objects) <= (s.container.extent_m[2] if s.container else 0) + 15.0 + 1e-5
 
 
 def test_instance_ids_unique_and_ordered(conf):

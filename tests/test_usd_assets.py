@@ -109,7 +109,42 @@ def test_vertex_colours_units_and_collision(tmp_path):
     mesh_prim = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
     colours = np.asarray(UsdGeom.Mesh(mesh_prim).GetDisplayColorPrimvar().Get())
     assert colours.shape[1] == 3 and np.ptp(colours, axis=0).max() > 0.5
+    # the bound material reads the colours (renderers ignore displayColor under a material otherwise)
+    from pxr import UsdShade
+
+    material = UsdShade.MaterialBindingAPI(mesh_prim).ComputeBoundMaterial()[0]
+    surface = material.ComputeSurfaceSource()[0]
+    reader = UsdShade.Shader(surface.GetInput("diffuseColor").GetConnectedSources()[0][0].source.GetPrim())
+    assert reader.GetIdAttr().Get() == "UsdPrimvarReader_float3"
+    assert reader.GetInput("varname").Get() == "displayColor"
     cstage = Usd.Stage.Open(str(paths.collision))
     clo, chi = _bbox(cstage)
     np.testing.assert_allclose(chi - clo, hi - lo, rtol=1e-4)
     np.testing.assert_allclose((chi + clo) / 2, (hi + lo) / 2, atol=1e-6)  # same frame as the visual
+
+
+def test_node_transforms_move_normals_with_the_geometry(tmp_path):
+    """A GLB whose node is rotated (how Z-up content is stored in Y-up glTF): normals must still
+    point out of a convex shape after conversion, or renderers shade it black."""
+    from pxr import Usd, UsdGeom
+
+    sphere = trimesh.creation.uv_sphere(radius=0.03)
+    sphere.apply_scale([1.0, 1.5, 0.8])  # anisotropic, so only the right inverse-transpose passes
+    scene = trimesh.Scene()
+    rot = trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0])
+    rot[:3, 3] = [0.1, 0.2, 0.3]
+    scene.add_geometry(sphere, transform=rot)
+    glb = tmp_path / "rotated.glb"
+    scene.export(str(glb))
+    paths = convert_asset(glb, tmp_path / "assets", content_hash="rot")
+    stage = Usd.Stage.Open(str(paths.visual))
+    mesh = UsdGeom.Mesh(next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)))
+    pts = np.asarray(mesh.GetPointsAttr().Get())
+    normals = np.asarray(mesh.GetNormalsAttr().Get())
+    outward = np.einsum("ij,ij->i", normals, pts - pts.mean(axis=0)) > 0
+    assert outward.mean() > 0.99
+    # the analytic ellipsoid normal at each point: gradient of (x/a)^2 + (y/b)^2 + (z/c)^2
+    ext = np.ptp(pts, axis=0) / 2
+    analytic = pts / ext**2
+    analytic /= np.linalg.norm(analytic, axis=1, keepdims=True)
+    assert np.median(np.einsum("ij,ij->i", normals, analytic)) > 0.99

@@ -63,6 +63,7 @@ class SceneConfig:
     spawn_height: Range
     spawn_xy_no_container: Range
     spawn_max_tries: int
+    spawn_stack: bool
     n_distractors: IntRange
     distractor_base_size: float
     distractor_size_multiplier: Range

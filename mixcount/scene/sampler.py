@@ -205,10 +205,11 @@ def _split_counts(rng: np.random.Generator, n: int, k: int) -> list[int]:
 
 
 def _spawn_positions(rng: np.random.Generator, radii: np.ndarray, centre: np.ndarray, semi: tuple[float, float],
-                     yaw: float, z_range: tuple[float, float], tries: int, ellipse: bool) -> np.ndarray:
+                     yaw: float, z_range: tuple[float, float], tries: int, ellipse: bool,
+                     stack: bool = True) -> np.ndarray:
     """Uniform points in the (rotated) ellipse or square, heights in z_range; each instance takes the
     first of ``tries`` candidates whose bounding sphere misses the ones placed so far, else the
-    candidate with the most clearance (physics resolves what is left)."""
+    candidate with the most clearance, lifted (``stack``) above the spheres already in its column."""
     n = len(radii)
     out = np.zeros((n, 3))
     if n == 0:
@@ -232,7 +233,18 @@ def _spawn_positions(rng: np.random.Generator, radii: np.ndarray, centre: np.nda
         diff = cand[i][:, None, :] - out[None, :i, :]
         clearance = (np.sqrt(np.einsum("tij,tij->ti", diff, diff)) - radii[:i]).min(axis=1) - radii[i]
         ok = np.flatnonzero(clearance >= 0)
-        out[i] = cand[i, ok[0]] if len(ok) else cand[i, int(np.argmax(clearance))]
+        if len(ok):
+            out[i] = cand[i, ok[0]]
+            continue
+        best = cand[i, int(np.argmax(clearance))].copy()
+        if stack:
+            # no free spot in the height range: stack above whatever this column already holds, so
+            # dense scenes do not start interpenetrated (the physics engine would explode them)
+            dxy = np.hypot(out[:i, 0] - best[0], out[:i, 1] - best[1])
+            column = dxy < radii[:i] + radii[i]
+            if column.any():
+                best[2] = max(best[2], float((out[:i, 2][column] + radii[:i][column]).max() + radii[i]) * 1.0001)
+        out[i] = best
     return out
 
 
@@ -328,7 +340,8 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         pile_semi = semi
         pile_yaw = 0.0
     z_range = (base_z + config.spawn_height[0] * s, base_z + config.spawn_height[1] * s)
-    positions = _spawn_positions(rng, sizes / 2, centre, semi, pile_yaw, z_range, config.spawn_max_tries, ellipse)
+    positions = _spawn_positions(rng, sizes / 2, centre, semi, pile_yaw, z_range, config.spawn_max_tries, ellipse,
+                                 config.spawn_stack)
     if config.random_orientation:
         orients = _random_quats(rng, n).tolist()
     else:
@@ -373,7 +386,7 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         dyaw = _u(rng, (0.0, 2 * math.pi))
         distractors.append(PlacedObject(
             instance_id=n + len(distractors) + 1, role=ROLE_DISTRACTOR, object_id=obj.object_id, class_index=-1,
-            position=_vec((x, y, ext[2] / 2 + 0.001 * s)), orientation=_yaw_quat(dyaw), scale=_vec((f, f, f)),
+            position=_vec((x, y, ext[2] / 2 + 0.01 * s)), orientation=_yaw_quat(dyaw), scale=_vec((f, f, f)),
             size_m=round(size, _R),
         ))
 

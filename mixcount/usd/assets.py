@@ -27,7 +27,7 @@ import numpy as np
 
 from mixcount.errors import CompositionError
 
-CONVERTER_VERSION = 1
+CONVERTER_VERSION = 2  # bump when the converter output changes: cached assets are rebuilt
 UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -111,6 +111,19 @@ def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarr
     return None, None, "vertex"
 
 
+def _material_vertex_colors(geom: Any, n: int) -> Optional[np.ndarray]:
+    """Per-vertex colours stored beside a material (trimesh keeps glTF COLOR_0 there), 0..1 RGB."""
+    attrs = getattr(geom.visual, "vertex_attributes", None)
+    if attrs is None or "color" not in attrs:
+        return None
+    col = np.asarray(attrs["color"], dtype=np.float64)
+    if col.ndim != 2 or len(col) != n or col.shape[1] < 3:
+        return None
+    if col.max() > 1.0:
+        col = col / 255.0
+    return col[:, :3]
+
+
 def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
     import trimesh
 
@@ -132,14 +145,23 @@ def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
         try:
             vn = np.asarray(geom.vertex_normals, dtype=np.float64)
             if len(vn) == len(pts):
-                normals = vn @ np.linalg.inv(lin).T @ rot.T  # normals transform by the inverse transpose
+                normals = vn @ np.linalg.inv(lin) @ rot.T  # row vectors: n (inverse-transpose of L)
                 normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
         except Exception:
             normals = None
         mat, colors, interp = _material_of(geom)
+        if mat is not None and colors is None:
+            colors = _material_vertex_colors(geom, len(pts))
+            if colors is not None:
+                mat["vertex_color"] = True  # glTF COLOR_0 under a material: base = factor x colour
+        if mat is None and colors is not None:  # plain vertex/face colours: a material that reads them
+            mat = {"base_color_factor": [1.0, 1.0, 1.0, 1.0], "metallic": 0.0, "roughness": 0.5,
+                   "vertex_color": True}
         uv = getattr(geom.visual, "uv", None) if mat is not None else None
         if uv is not None and len(uv) != len(pts):
             uv = None
+        if mat is not None and mat.get("vertex_color") and colors is not None:
+            colors = colors * np.asarray(mat["base_color_factor"][:3], dtype=np.float64)
         parts.append(_Part(pts, np.asarray(geom.faces, dtype=np.int64), normals,
                            None if uv is None else np.asarray(uv, dtype=np.float64), mat, colors, interp))
     if not parts:
@@ -189,6 +211,14 @@ def _define_material(stage: Any, mat_path: str, info: dict[str, Any], tex_dir: P
         tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*[float(v) for v in factor[:4]]))
         rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
         surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
+    elif info.get("vertex_color"):
+        # diffuse = displayColor primvar (the mesh's vertex colours); glTF's factor multiplies it, so
+        # the converter bakes the factor into the primvar values (see _define_mesh)
+        reader = UsdShade.Shader.Define(stage, f"{mat_path}/ColorReader")
+        reader.CreateIdAttr("UsdPrimvarReader_float3")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("displayColor")
+        out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float3)
+        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(out)
     else:
         surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*[float(v) for v in factor[:3]]))
     if has_mr:

@@ -330,6 +330,8 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
         "spec": spec.to_json(),
         "split": spec.split,
     }}
+    # the physics run as the stage's time range (Blender's importer sets its frame range from it)
+    layer.endTimeCode = float(spec.physics.frames)
     phys = UsdPhysics.Scene(stage.GetPrimAtPath("/World/PhysicsScene"))
     phys.GetGravityMagnitudeAttr().Set(float(spec.physics.gravity))
     pprim = phys.GetPrim()
