@@ -134,8 +134,7 @@ def test_demo_stage_opens_clean_in_fresh_usd_process(demo):
     assert info["meta"] == {"scene_id": "scene_000007", "seed": 7, "config_hash": conf.config_hash, "split": "train"}
     assert json.loads(info["spec"]) == json.loads(spec.to_json())
     assert info["mpu"] == 1.0 and info["up"] == "Z" and info["default_prim"] == "/World"
-    # tenths of a scene unit (metres): 50 mm -> 0.5, 36 mm -> 0.36
-    assert info["camera"] == pytest.approx([conf.focal_length_mm / 100, conf.sensor_width_mm / 100])
+    assert info["camera"] == pytest.approx([conf.focal_length_mm, conf.sensor_width_mm])  # millimetres
     classes = json.loads(info["spec"])["classes"]
     for c in classes:
         assert set(c["captions"]) == {"short", "concise", "detailed"}

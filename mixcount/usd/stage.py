@@ -32,7 +32,7 @@ TEMPLATES_DIR = PROJECT_ROOT / "usd_templates"
 TEMPLATE_LAYERS = ("scene_root.usda", "floor.usda", "camera_rig.usda", "lights.usda")
 STAGE_NAME = "scene.usda"
 CYLINDER_SEGMENTS = 64
-MM_TO_LENS_UNITS = 0.01  # mm -> tenths of a metre (metersPerUnit = 1)
+MM_TO_LENS_UNITS = 1.0  # written in mm; strict USD units would be 0.01 (tenths of a metre)
 
 
 def scene_dir_for(out_dir: Path, scene_id: str) -> Path:
@@ -268,8 +268,9 @@ def _write_cameras(stage: Any, spec: SceneSpec) -> None:
         path = Sdf.Path(f"/World/Cameras/{cam.name}")
         Sdf.CopySpec(layer, template, layer, path)
         ucam = UsdGeom.Camera(stage.GetPrimAtPath(path))
-        # USD lens and filmback values are in tenths of a scene unit: 50 mm with metersPerUnit = 1 is
-        # 0.5 (Blender's importer applies this rule; a plain 50 would become a 5000 mm lens)
+        # Values in millimetres (what the Blender worker reads). Strict USD says "tenths of a scene
+        # unit" (0.5 for 50 mm at metersPerUnit 1); the field of view depends only on the ratio, which
+        # is the same either way. MM_TO_LENS_UNITS = 0.01 would give the strict values.
         ucam.GetFocalLengthAttr().Set(float(cam.focal_length_mm) * MM_TO_LENS_UNITS)
         ucam.GetHorizontalApertureAttr().Set(float(cam.sensor_width_mm) * MM_TO_LENS_UNITS)
         ucam.GetVerticalApertureAttr().Set(float(cam.sensor_height_mm) * MM_TO_LENS_UNITS)
