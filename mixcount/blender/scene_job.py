@@ -293,7 +293,8 @@ def run_scene(req: dict[str, Any]) -> dict[str, Any]:
         v_t = float(req.get("visibility_threshold", spec["render"]["visibility_threshold"]))
         phys_prim = stage.GetPrimAtPath("/World/PhysicsScene")
         frames = int(req.get("physics_frames") or phys_prim.GetCustomDataByKey("mixcount:frames") or spec["physics"]["frames"])
-        substeps = int(phys_prim.GetCustomDataByKey("mixcount:substeps") or spec["physics"]["substeps"])
+        substeps = max(int(phys_prim.GetCustomDataByKey("mixcount:substeps") or spec["physics"]["substeps"]),
+                       int(req.get("min_substeps", 1)))  # objects dropped from 15 m tunnel at 2 substeps
         iterations = int(phys_prim.GetCustomDataByKey("mixcount:solver_iterations")
                          or spec["physics"]["solver_iterations"])
         from pxr import UsdPhysics

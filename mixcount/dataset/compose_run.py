@@ -1,0 +1,196 @@
+"""``mixcount compose`` rendering run: seeds -> SceneTasks -> executor -> finished scenes -> dataset.
+
+Seeds are drawn in order from the base seed (scene_id ``scene_<seed:06d>``). A complete scene folder
+counts as written and is skipped; a seed whose scene came out empty (no counted object visible enough)
+or failed the final visibility re-check is recorded under ``OUT/scenes/.rejected/`` and the next seed is
+drawn (the paper's "regenerate"); errors and timeouts are reported and retried by a rerun. ``n`` counts
+written scenes. At the end the COCO files are merged and dataset.json / preview.png rewritten from every
+complete scene in OUT.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+from mixcount.dataset.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.errors import CompositionError
+
+
+@dataclass
+class ComposeSummary:
+    requested: int
+    written: int = 0
+    skipped: int = 0
+    empty: int = 0
+    rejected: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+    failures: list[dict[str, Any]] = field(default_factory=list)
+    outcomes: list[dict[str, Any]] = field(default_factory=list)
+    outputs: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def worker_options(config: Any, *, oracle: bool = False, workers: int = 1) -> dict[str, Any]:
+    comp = config["compose"]
+    threads = int(comp.get("render_threads", 0)) or max(1, (os.cpu_count() or 1) // max(1, workers))
+    return {
+        "samples": int(comp["samples"]), "denoise": bool(comp["denoise"]),
+        "visibility_threshold": float(comp["visibility_threshold"]), "threads": threads,
+        "settle": {"below_floor_fraction": float(comp.get("settle_below_floor_fraction", 0.1)),
+                   "penetration_fraction": float(comp.get("settle_penetration_fraction", 0.15))},
+        "min_substeps": int(comp.get("physics_min_substeps", 1)),
+        "oracle": bool(oracle),
+    }
+
+
+def compose_scenes(
+    *, pool: list[Any], config: Any, out_dir: Path, assets_dir: Path, n: int, split: Optional[str] = None,
+    seed: Optional[int] = None, workers: Optional[int] = None, executor: Any = None,
+    environments: tuple = (), materials: tuple = (), progress: bool = True, oracle: bool = False,
+    on_outcome: Optional[Callable[[SceneOutcome], None]] = None,
+) -> ComposeSummary:
+    """Render until ``n`` scenes of ``split`` are complete in ``out_dir`` (see module docstring)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from mixcount.commands.common import console
+    from mixcount.dataset.merge import finalize_dataset
+    from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp, is_complete
+    from mixcount.scene.config import SceneConfig
+    from mixcount.scene.sampler import sample_scene, scene_id_for
+
+    comp = config["compose"]
+    split = split or str(comp["split"])
+    base = int(comp["seed"] if seed is None else seed)
+    workers = int(workers or comp.get("workers", 1))
+    sconf = SceneConfig.from_config(config)
+    out_dir = Path(out_dir)
+    (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
+    clean_stale_tmp(out_dir)
+    if not any(getattr(o, "split", None) == split for o in pool):
+        raise CompositionError(f"no active objects in split {split!r}: ingest, caption and split the catalog first")
+    captions = {int(o.object_id): o.captions.to_dict() for o in pool}
+    opts = worker_options(config, oracle=oracle, workers=workers)
+    timeout = float(comp.get("scene_timeout_s", 900.0))
+    max_attempts = int(math.ceil(n * float(comp.get("max_attempts_factor", 3.0)))) + 4
+
+    summary = ComposeSummary(requested=n)
+    t0 = time.perf_counter()
+    own_executor = executor is None
+    if own_executor:
+        from mixcount.run.local import LocalExecutor
+
+        executor = LocalExecutor(workers, log_dir=out_dir / "logs")
+    next_seed = base
+    attempts = 0
+    in_flight = 0
+
+    def next_task() -> Optional[SceneTask]:
+        nonlocal next_seed, attempts
+        while attempts < max_attempts:
+            s = next_seed
+            next_seed += 1
+            sid = scene_id_for(s)
+            if is_complete(out_dir / "scenes" / sid):
+                meta_split = _scene_split(out_dir / "scenes" / sid)
+                if meta_split == split:
+                    summary.skipped += 1
+                    summary.written += 1
+                    if summary.written >= n:
+                        return None
+                continue
+            if (out_dir / "scenes" / REJECTED_DIR / f"{sid}.json").exists():
+                continue
+            attempts += 1
+            try:
+                spec = sample_scene(s, split, sconf, pool, environments=environments, materials=materials)
+            except Exception as exc:  # noqa: BLE001 - a seed that cannot be sampled is a failed scene
+                summary.failed += 1
+                summary.failures.append({"scene_id": sid, "seed": s, "error": f"sampling: {exc}"})
+                continue
+            return SceneTask(spec=spec, out_dir=str(out_dir), assets_dir=str(assets_dir), timeout_s=timeout,
+                             worker_options=opts, captions={k: v for k, v in captions.items()
+                                                            if k in {d.object_id for d in spec.distractors}})
+        return None
+
+    columns = [TextColumn("[bold]compose[/]"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("failed {task.fields[failed]}  regenerated {task.fields[regen]}"),
+               TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn()]
+    try:
+        with Progress(*columns, console=console, disable=not progress, transient=False) as bar:
+            task_id = bar.add_task("scenes", total=n, failed=0, regen=0)
+            while summary.written < n:
+                while in_flight < executor.slots and summary.written + in_flight < n:
+                    task = next_task()
+                    if task is None:
+                        break
+                    executor.submit(task)
+                    in_flight += 1
+                bar.update(task_id, completed=summary.written)
+                if in_flight == 0:
+                    break
+                outcome = executor.next_outcome()
+                in_flight -= 1
+                summary.outcomes.append(outcome.to_dict())
+                if outcome.status == WRITTEN:
+                    summary.written += 1
+                elif outcome.status == SKIPPED:
+                    summary.written += 1
+                    summary.skipped += 1
+                elif outcome.status in (EMPTY, REJECTED):
+                    if outcome.status == EMPTY:
+                        summary.empty += 1
+                    else:
+                        summary.rejected += 1
+                else:
+                    summary.failed += 1
+                    summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed,
+                                             "error": outcome.error})
+                    console.print(f"[red]scene {outcome.scene_id} failed:[/] {(outcome.error or '').splitlines()[0][:300]}")
+                if on_outcome is not None:
+                    on_outcome(outcome)
+                bar.update(task_id, completed=summary.written, failed=summary.failed,
+                           regen=summary.empty + summary.rejected)
+    finally:
+        if own_executor:
+            executor.close()
+    summary.seconds = round(time.perf_counter() - t0, 3)
+    if summary.written < n:
+        console.print(f"[yellow]only {summary.written} of {n} scenes written after {attempts} attempts[/]")
+    summary.outputs = finalize_dataset(
+        out_dir, config=config.to_dict(), config_hash=config.hash,
+        run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
+        preview_scenes=int(comp.get("preview_scenes", 16)),
+    )
+    return summary
+
+
+def _scene_split(scene_dir: Path) -> Optional[str]:
+    import json
+
+    try:
+        return json.loads((scene_dir / "metadata.json").read_text()).get("split")
+    except (OSError, ValueError):
+        return None
+
+
+def compose_from_catalog(catalog: Any, config: Any, *, n: int, out_dir: Path, split: Optional[str] = None,
+                         seed: Optional[int] = None, workers: Optional[int] = None,
+                         progress: bool = True) -> ComposeSummary:
+    """The CLI entry: load the sampler pool from the catalog and run :func:`compose_scenes`."""
+    from mixcount.scene.pool import load_environments, load_materials, load_pool
+
+    with catalog.session() as session:
+        pool = load_pool(session)
+        envs = load_environments(session)
+        mats = load_materials(session)
+    return compose_scenes(pool=pool, config=config, out_dir=out_dir, assets_dir=Path(catalog.usd_assets_dir), n=n,
+                          split=split, seed=seed, workers=workers, environments=tuple(envs),
+                          materials=tuple(mats), progress=progress)

@@ -1,0 +1,99 @@
+"""One unit of compose work, runnable by any executor: spec -> scene.usda -> worker -> finished folder.
+
+:class:`SceneTask` is plain picklable data (a Ray executor ships it to another machine);
+:func:`run_scene_task` needs only a :class:`~mixcount.blender.worker.BlenderWorker` and never raises:
+every failure becomes a :class:`SceneOutcome` with status "failed", so the batch goes on.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+from mixcount.scene.spec import SceneSpec
+
+WRITTEN = "written"
+SKIPPED = "skipped"  # already complete
+EMPTY = "empty"  # no counted object survived: regenerate from the next seed
+REJECTED = "rejected"  # the final visibility re-check failed
+FAILED = "failed"  # error or timeout
+
+
+@dataclass(frozen=True)
+class SceneTask:
+    spec: SceneSpec
+    out_dir: str
+    assets_dir: str
+    timeout_s: float
+    worker_options: dict[str, Any] = field(default_factory=dict)  # samples, denoise, threads, settle, oracle
+    captions: dict[int, dict[str, str]] = field(default_factory=dict)  # distractor captions by object id
+    keep_failed: bool = False
+
+
+@dataclass
+class SceneOutcome:
+    scene_id: str
+    seed: int
+    status: str
+    seconds: float
+    error: Optional[str] = None
+    n_counted: int = 0
+    path: Optional[str] = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
+    """Write the stage into a temporary folder, render it with ``worker``, finalise, rename into place."""
+    from mixcount.dataset.scene_writer import REJECTED_DIR, finalize_scene, is_complete, move_into_place, tmp_dir_for
+    from mixcount.usd.stage import write_stage
+
+    spec = task.spec
+    t0 = time.perf_counter()
+    out = Path(task.out_dir)
+    final = out / "scenes" / spec.scene_id
+    if is_complete(final):
+        return SceneOutcome(spec.scene_id, spec.seed, SKIPPED, 0.0, path=str(final))
+    tmp = tmp_dir_for(out, spec.scene_id, uuid.uuid4().hex[:8])
+    timings: dict[str, float] = {}
+    try:
+        tmp.mkdir(parents=True)
+        t = time.perf_counter()
+        write_stage(spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
+        timings["stage"] = round(time.perf_counter() - t, 4)
+        t = time.perf_counter()
+        result = worker.render_scene({"stage": str(tmp / "scene.usda"), "out_dir": str(tmp), **task.worker_options},
+                                     timeout=task.timeout_s)
+        timings["worker"] = round(time.perf_counter() - t, 4)
+        status = result["status"]
+        if status != "ok":
+            rej = out / "scenes" / REJECTED_DIR
+            rej.mkdir(parents=True, exist_ok=True)
+            (rej / f"{spec.scene_id}.json").write_text(json.dumps(
+                {"scene_id": spec.scene_id, "seed": spec.seed, "status": status,
+                 "diagnostics": result.get("diagnostics", [])}, indent=1))
+            return SceneOutcome(spec.scene_id, spec.seed, EMPTY if status == "empty" else REJECTED,
+                                time.perf_counter() - t0, error=f"scene {status}", timings=timings)
+        t = time.perf_counter()
+        timings["total"] = 0.0
+        meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings)
+        timings["annotate"] = round(time.perf_counter() - t, 4)
+        timings["total"] = round(time.perf_counter() - t0, 4)
+        meta["timings"].update(annotate=timings["annotate"], total=timings["total"])
+        (tmp / "metadata.json").write_text(json.dumps(meta, indent=1))
+        move_into_place(tmp, final)
+        return SceneOutcome(spec.scene_id, spec.seed, WRITTEN, time.perf_counter() - t0,
+                            n_counted=int(meta["n_counted"]), path=str(final), timings=timings)
+    except Exception as exc:  # noqa: BLE001 - the batch goes on; the error is reported
+        return SceneOutcome(spec.scene_id, spec.seed, FAILED, time.perf_counter() - t0,
+                            error=f"{type(exc).__name__}: {exc}"[:4000], timings=timings)
+    finally:
+        if tmp.exists() and not task.keep_failed:
+            shutil.rmtree(tmp, ignore_errors=True)

@@ -1,0 +1,238 @@
+"""Per-scene folder writer: worker outputs -> the files of ``OUT/scenes/<scene_id>/`` (no bpy).
+
+A scene is built in a temporary sibling folder ``OUT/scenes/.tmp-<scene_id>-<pid>-<n>`` and renamed into
+place only when every file is written; ``metadata.json`` (written last, ``"complete": true``) marks a
+finished scene, so a folder holding only ``scene.usda`` (``compose --stage-only``) is redone by a rerun.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+import numpy as np
+
+from mixcount.annotate.coco import build_scene_coco, category_id, class_map
+from mixcount.scene.spec import SceneSpec
+
+TMP_PREFIX = ".tmp-"
+REJECTED_DIR = ".rejected"
+
+
+def is_complete(scene_dir: Path) -> bool:
+    meta = Path(scene_dir) / "metadata.json"
+    if not meta.is_file():
+        return False
+    try:
+        return bool(json.loads(meta.read_text()).get("complete"))
+    except (OSError, ValueError):
+        return False
+
+
+def tmp_dir_for(out_dir: Path, scene_id: str, token: str) -> Path:
+    return Path(out_dir) / "scenes" / f"{TMP_PREFIX}{scene_id}-{os.getpid()}-{token}"
+
+
+def clean_stale_tmp(out_dir: Path) -> list[Path]:
+    """Remove temporary scene folders left by dead processes (a killed run)."""
+    removed = []
+    scenes = Path(out_dir) / "scenes"
+    if not scenes.is_dir():
+        return removed
+    for d in scenes.glob(f"{TMP_PREFIX}*"):
+        parts = d.name[len(TMP_PREFIX):].split("-")
+        try:
+            pid = int(parts[-2])
+        except (IndexError, ValueError):
+            pid = -1
+        alive = False
+        if pid > 0 and pid != os.getpid():
+            try:
+                os.kill(pid, 0)
+                alive = True
+            except OSError:
+                alive = False
+        if not alive or pid == os.getpid():
+            shutil.rmtree(d, ignore_errors=True)
+            removed.append(d)
+    return removed
+
+
+def move_into_place(tmp: Path, final: Path) -> None:
+    """Atomic rename of a finished temporary folder (an incomplete folder in the way is replaced)."""
+    if final.exists():
+        if is_complete(final):
+            shutil.rmtree(tmp, ignore_errors=True)
+            return
+        shutil.rmtree(final)
+    os.rename(tmp, final)
+
+
+def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]]) -> tuple[list[dict[str, Any]], dict[int, int]]:
+    """COCO categories of a scene (counted classes, then distractor objects) and class_index -> category id."""
+    cats: dict[int, dict[str, Any]] = {}
+    class_cat: dict[int, int] = {}
+    for c in spec.classes:
+        cid = category_id(c.object_id, c.size_qualifier)
+        class_cat[c.class_index] = cid
+        name = c.name if c.size_qualifier is None else f"{c.name} ({c.size_qualifier})"
+        cats[cid] = {"id": cid, "name": name, "object_id": c.object_id, "category": c.category,
+                     "short": c.captions.short, "concise": c.captions.concise, "detailed": c.captions.detailed,
+                     "size_qualifier": c.size_qualifier, "supercategory": c.category}
+    for d in spec.distractors:
+        cid = category_id(d.object_id, None)
+        if cid in cats:
+            continue
+        a = spec.asset(d.object_id)
+        cap = captions.get(d.object_id) or {}
+        cats[cid] = {"id": cid, "name": a.name, "object_id": a.object_id, "category": a.category,
+                     "short": cap.get("short", a.category), "concise": cap.get("concise", a.name),
+                     "detailed": cap.get("detailed", a.name), "size_qualifier": None, "supercategory": a.category}
+    return [cats[k] for k in sorted(cats)], class_cat
+
+
+def _quat_from_rotation(r: np.ndarray) -> list[float]:
+    """(w, x, y, z) of a rotation matrix."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(r).as_quat()
+    q = np.array([w, x, y, z])
+    if q[0] < 0:
+        q = -q
+    return [float(v) for v in q]
+
+
+def decompose(matrix: Any) -> dict[str, list[float]]:
+    """translate / orient (w, x, y, z) / scale of a 4x4 column-vector matrix (no shear)."""
+    m = np.asarray(matrix, dtype=np.float64)
+    scale = np.linalg.norm(m[:3, :3], axis=0)
+    rot = m[:3, :3] / np.where(scale == 0, 1.0, scale)
+    return {"translate": m[:3, 3].tolist(), "orient": _quat_from_rotation(rot), "scale": scale.tolist()}
+
+
+def write_settled_stage(scene_usda: Path, out: Path, objects: list[dict[str, Any]]) -> None:
+    """scene.usda -> settled.usda: dropped prims removed, kept ones at their settled pose (same names and
+    customData, plus mixcount:visibility and mixcount:status on each kept instance)."""
+    from pxr import Gf, Sdf, Usd, UsdGeom
+
+    src = Sdf.Layer.FindOrOpen(str(scene_usda))
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.TransferContent(src)
+    stage = Usd.Stage.Open(layer)
+    for rec in objects:
+        if rec["status"] != "kept":
+            stage.RemovePrim(rec["path"])
+            continue
+        prim = stage.GetPrimAtPath(rec["path"])
+        pose = decompose(rec["matrix_world"])
+        xf = UsdGeom.Xformable(prim)
+        for op in xf.GetOrderedXformOps():
+            kind = op.GetOpType()
+            if kind == UsdGeom.XformOp.TypeTranslate:
+                op.Set(Gf.Vec3d(*pose["translate"]))
+            elif kind == UsdGeom.XformOp.TypeOrient:
+                w, x, y, z = pose["orient"]
+                op.Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)) if op.GetPrecision() == UsdGeom.XformOp.PrecisionFloat
+                       else Gf.Quatd(w, Gf.Vec3d(x, y, z)))
+            elif kind == UsdGeom.XformOp.TypeScale:
+                op.Set(Gf.Vec3f(*pose["scale"]))
+        if "visibility" in rec:
+            prim.SetCustomDataByKey("mixcount:visibility", float(rec["visibility"]))
+    data = dict(layer.customLayerData)
+    mc = dict(data.get("mixcount", {}))
+    mc["settled"] = True
+    data["mixcount"] = mc
+    layer.customLayerData = data
+    if not layer.Export(str(out)):
+        raise OSError(f"could not write {out}")
+
+
+def _png16(arr: np.ndarray, path: Path) -> None:
+    from PIL import Image
+
+    Image.fromarray(arr.astype(np.uint16)).save(path)
+
+
+def write_exemplar_crops(rgb_path: Path, coco: Mapping[str, Any], out: Path, margin: float = 0.1) -> list[dict[str, Any]]:
+    """Crops of the internal exemplars (``exemplars/<category_id>_<rank>.png``)."""
+    from PIL import Image
+
+    out.mkdir(exist_ok=True)
+    im = Image.open(rgb_path).convert("RGB")
+    anns = {a["id"]: a for a in coco["annotations"]}
+    written = []
+    for ex in coco["images"][0]["exemplars"]:
+        for rank, aid in enumerate(ex["annotation_ids"]):
+            x, y, w, h = anns[aid]["bbox"]
+            mx, my = margin * w, margin * h
+            box = (max(0, int(x - mx)), max(0, int(y - my)), min(im.width, int(np.ceil(x + w + mx))),
+                   min(im.height, int(np.ceil(y + h + my))))
+            name = f"{ex['category_id']}_{rank}.png"
+            im.crop(box).save(out / name)
+            written.append({"category_id": ex["category_id"], "annotation_id": aid, "rank": rank,
+                            "file": f"exemplars/{name}", "exemplar_score": anns[aid]["exemplar_score"]})
+    return written
+
+
+def finalize_scene(tmp: Path, spec: SceneSpec, worker: dict[str, Any], *, captions: Mapping[int, Mapping[str, str]],
+                   timings: dict[str, float], extra: Optional[dict[str, Any]] = None) -> dict[str, Any]:
+    """Turn the worker's raw outputs in ``tmp`` into the scene's files; returns metadata.json's dict."""
+    ids = np.load(tmp / "ids.npy")
+    cats, class_cat = scene_categories(spec, captions)
+    objects = []
+    for rec in worker["objects"]:
+        cid = class_cat[rec["class_index"]] if rec["role"] == "counted" else category_id(rec["object_id"], None)
+        rec = dict(rec)
+        rec["category_id"] = cid
+        objects.append(rec)
+    kept = [r for r in objects if r["status"] == "kept"]
+    inst_cat = {int(r["instance_id"]): int(r["category_id"]) for r in kept}
+    _png16(ids.astype(np.uint16), tmp / "instance.png")
+    _png16(class_map(ids, inst_cat), tmp / "class.png")
+    coco = build_scene_coco(ids, kept, cats, image_id=1, file_name=f"scenes/{spec.scene_id}/rgb.png",
+                            scene_id=spec.scene_id)
+    by_inst = {a["id"]: a for a in coco["annotations"]}
+    for r in objects:
+        a = by_inst.get(int(r["instance_id"]))
+        if a is not None:
+            r.update(bbox=a["bbox"], area=a["area"], exemplar_score=a["exemplar_score"], annotation_id=a["id"])
+        if r["status"] == "kept":
+            r["pose"] = decompose(r["matrix_world"])
+    (tmp / "coco.json").write_text(json.dumps(coco))
+    exemplars = write_exemplar_crops(tmp / "rgb.png", coco, tmp / "exemplars")
+    write_settled_stage(tmp / "scene.usda", tmp / "settled.usda", objects)
+    os.remove(tmp / "ids.npy")
+    if (tmp / "worker.json").exists():
+        os.remove(tmp / "worker.json")  # everything in it is in metadata.json
+    counts: dict[str, int] = {}
+    for r in kept:
+        if r["role"] == "counted":
+            counts[str(r["category_id"])] = counts.get(str(r["category_id"]), 0) + 1
+    meta = {
+        "scene_id": spec.scene_id, "seed": spec.seed, "split": spec.split, "config_hash": spec.config_hash,
+        "image": {"file_name": f"scenes/{spec.scene_id}/rgb.png", "width": int(ids.shape[1]), "height": int(ids.shape[0])},
+        "camera": worker["camera"], "lights": worker.get("lights"), "physics": worker.get("physics"),
+        "visibility_threshold": worker["visibility_threshold"],
+        "counts": counts, "n_counted": sum(counts.values()),
+        "n_distractors": sum(1 for r in kept if r["role"] == "distractor"),
+        "n_dropped": sum(1 for r in objects if r["status"] != "kept"),
+        "categories": cats, "objects": objects, "exemplars": exemplars,
+        "diagnostics": worker.get("diagnostics", []),
+        "timings": {**timings, **{f"worker.{k}": v for k, v in worker.get("timings", {}).items()}},
+        "spec": spec.to_dict(),
+        "files": {"rgb": "rgb.png", "instance": "instance.png", "class": "class.png", "depth": "depth.npy",
+                  "normal": "normal.npy", "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json"},
+        "conventions": {
+            "instance.png": "uint16 instance id of counted objects and distractors; 0 = floor, container, background",
+            "class.png": "uint16 COCO category id (4 * object_id + q; q 0 none, 1 larger, 2 smaller); 0 = none",
+            "depth.npy": "float32 planar depth along the optical axis, metres; 0 = no surface",
+            "normal.npy": "float32 unit normals in camera space (x right, y up, z toward the camera); 0 = none",
+        },
+        **(extra or {}),
+        "complete": True,
+    }
+    (tmp / "metadata.json").write_text(json.dumps(meta, indent=1))
+    return meta
