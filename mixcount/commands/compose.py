@@ -95,9 +95,17 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the first scene (default: config compose.seed)."),
         dry_run: bool = typer.Option(False, "--dry-run", help="Print classes, counts and sizes; write nothing."),
         stage_only: bool = typer.Option(False, "--stage-only", help="Write scene.usda stages, no rendering."),
+        workers: Optional[int] = typer.Option(None, "--workers", min=1, help="bpy worker processes (default: config compose.workers)."),
+        resolution: Optional[int] = typer.Option(None, "--resolution", min=16, help="Image side in pixels (compose.resolution)."),
+        samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Cycles samples of the RGB render (compose.samples)."),
+        config_file: Optional[Path] = typer.Option(None, "--config", help="Extra config file (after the global --config files)."),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
         st = state(ctx)
+        if config_file is not None:  # rendering options are config overrides (area E: mixcount.dataset.compose_run)
+            st.config_files.append(config_file)
+        st.overrides += [f"compose.{k}={v}" for k, v in (("resolution", resolution), ("samples", samples)) if v is not None]
+        st._config = None
         catalog = st.catalog()
         specs = plan_scenes(catalog, st.config(), n=n, split=split, seed=seed)
         if dry_run:
@@ -109,7 +117,21 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             console.print(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}")
             out.print(json.dumps({"stages": [str(p) for p in paths]}, indent=2))
             return
-        raise CompositionError("rendering is not available in this build: use --dry-run or --stage-only")
+        from mixcount.dataset.compose_run import compose_scenes
+
+        with catalog.session() as session:
+            from mixcount.scene.pool import load_environments, load_materials, load_pool
+
+            pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
+        summary = compose_scenes(pool=pool, config=st.config(), out_dir=out_dir, assets_dir=Path(catalog.usd_assets_dir),
+                                 n=n, split=split, seed=seed, workers=workers, environments=tuple(envs),
+                                 materials=tuple(mats))
+        console.print(f"wrote {summary.written} scene(s) ({summary.skipped} already there, {summary.failed} failed, "
+                      f"{summary.empty + summary.rejected} regenerated) in {summary.seconds:.0f} s; "
+                      f"preview {summary.outputs.get('preview')}; annotations {summary.outputs.get('annotations')}")
+        out.print(json.dumps({k: v for k, v in summary.to_dict().items() if k != "outcomes"}, indent=2))
+        if summary.written < n:
+            raise CompositionError(f"only {summary.written} of {n} scenes could be written (see failures above)")
 
     @catalog_app.command("ingest-env")
     def ingest_env(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="HDR/EXR files or folders.")) -> None:
