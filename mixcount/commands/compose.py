@@ -99,6 +99,8 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         resolution: Optional[int] = typer.Option(None, "--resolution", min=16, help="Image side in pixels (compose.resolution)."),
         samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Cycles samples of the RGB render (compose.samples)."),
         config_file: Optional[Path] = typer.Option(None, "--config", help="Extra config file (after the global --config files)."),
+        executor_kind: str = typer.Option("local", "--executor", help="local (bpy worker processes here) or ray (one task per scene on a Ray cluster)."),
+        address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor ray (default: start a local cluster)."),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
         st = state(ctx)
@@ -123,9 +125,18 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             from mixcount.scene.pool import load_environments, load_materials, load_pool
 
             pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
-        summary = compose_scenes(pool=pool, config=st.config(), out_dir=out_dir, assets_dir=Path(catalog.usd_assets_dir),
-                                 n=n, split=split, seed=seed, workers=workers, environments=tuple(envs),
-                                 materials=tuple(mats))
+        executor = None  # local: compose_scenes starts its own pool; ray (area G): mixcount.run.factory
+        if executor_kind != "local" or address:
+            from mixcount.run.factory import make_executor
+
+            executor = make_executor(executor_kind, workers, address, config=st.config(), log_dir=out_dir.resolve() / "logs")
+        try:
+            summary = compose_scenes(pool=pool, config=st.config(), out_dir=out_dir.resolve(),
+                                     assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n, split=split, seed=seed,
+                                     workers=workers, environments=tuple(envs), materials=tuple(mats), executor=executor)
+        finally:
+            if executor is not None:
+                executor.close()
         console.print(f"wrote {summary.written} scene(s) ({summary.skipped} already there, {summary.failed} failed, "
                       f"{summary.empty + summary.rejected} regenerated) in {summary.seconds:.0f} s; "
                       f"preview {summary.outputs.get('preview')}; annotations {summary.outputs.get('annotations')}")

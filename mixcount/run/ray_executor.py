@@ -1,0 +1,275 @@
+"""Ray executor: the same interface as :class:`~mixcount.run.local.LocalExecutor`, on a Ray cluster.
+
+``RayExecutor(address=None, slots=K)`` connects to an existing cluster (``ray.init(address=...)``) or,
+without an address, starts a small local one on 127.0.0.1. It keeps ``slots`` *actors*; each actor owns
+one long-lived :class:`~mixcount.blender.worker.BlenderWorker` subprocess (bpy starts once per actor, not
+once per scene, and still never runs inside a Ray worker process itself). One actor call = one scene:
+
+* at most ``slots`` scenes are in flight (one per actor); further ``submit`` s wait in a local queue;
+* ``next_outcome`` returns outcomes in completion order (``ray.wait``);
+* a failed call fails one scene: a Ray error (task error, actor or node death, lost object, a call that
+  overran the scene timeout) becomes a :class:`~mixcount.dataset.scene_task.SceneOutcome` with status
+  "failed"; the actor is restarted by Ray (``max_restarts=-1``) and takes the next scene. Calls are never
+  retried by Ray (``max_task_retries=0``): a rerun of ``compose`` redoes missing scenes, and the writer's
+  temporary-folder-then-rename keeps a half-done scene out of OUT;
+* each actor recycles its BlenderWorker after ``recycle_after`` scenes (``[compose].recycle_after``) so
+  the bpy process's memory stays flat over long runs.
+
+Files, not objects, carry the data: a :class:`~mixcount.dataset.scene_task.SceneTask` holds absolute paths
+(the output folder and the converted USD assets), and the actor writes the finished scene folder there.
+Every node must therefore see the same paths (a shared filesystem: NFS, a cloud bucket mounted with the
+same path, ...) and have the same Python environment (see docs/ray.md). An actor checks that the task's
+output folder exists on its node and fails the scene with a clear message otherwise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import queue
+import socket
+import tempfile
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+from mixcount.dataset.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
+from mixcount.errors import MixcountError
+
+#: seconds a call may run beyond its task's ``timeout_s`` before the driver gives up on the actor
+CALL_GRACE_S = 120.0
+
+
+class RayExecutorError(MixcountError):
+    """The Ray cluster could not be reached or set up."""
+
+
+def default_worker_factory(name: str, log_dir: Optional[str]) -> Any:
+    """A :class:`BlenderWorker` logging under ``log_dir`` when this node can write there, else the temp dir."""
+    from mixcount.blender.worker import BlenderWorker
+
+    path: Optional[Path] = None
+    if log_dir:
+        try:
+            Path(log_dir).mkdir(parents=True, exist_ok=True)
+            path = Path(log_dir)
+        except OSError:
+            path = None
+    return BlenderWorker(name=name, log_dir=path or Path(tempfile.gettempdir()))
+
+
+def failed_outcome(task: SceneTask, error: str, seconds: float = 0.0) -> SceneOutcome:
+    return SceneOutcome(task.spec.scene_id, task.spec.seed, FAILED, seconds, error=error[:4000])
+
+
+class SceneActor:
+    """Body of the Ray actor (wrapped with ``ray.remote`` lazily, so importing this module needs no Ray)."""
+
+    def __init__(self, name: str, *, recycle_after: int = 0, log_dir: Optional[str] = None,
+                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task,
+                 worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory) -> None:
+        self.name = name
+        self.recycle_after = max(0, int(recycle_after))
+        self.log_dir = log_dir
+        self.runner = runner
+        self.worker_factory = worker_factory
+        self.worker: Any = None
+        self.scenes = 0  # scenes handled by the current worker
+        self.total = 0
+        self.recycled = 0
+
+    def _worker(self) -> Any:
+        if self.worker is None:
+            self.worker = self.worker_factory(f"{self.name}-{os.getpid()}", self.log_dir)
+            self.scenes = 0
+        return self.worker
+
+    def run(self, task: SceneTask) -> SceneOutcome:
+        t0 = time.perf_counter()
+        # the asset folder may not exist yet (assets are converted on first use), the output folder must
+        if not Path(task.out_dir).is_dir():
+            return failed_outcome(task, f"{self.name} on {socket.gethostname()}: output folder {task.out_dir} is "
+                                        "not visible on this node; every node needs the output, asset and model "
+                                        "folders at the same paths (shared filesystem, see docs/ray.md)")
+        try:
+            outcome = self.runner(task, self._worker())
+        except Exception as exc:  # noqa: BLE001 - a runner that raises fails one scene
+            outcome = failed_outcome(task, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+        self.scenes += 1
+        self.total += 1
+        if self.recycle_after and self.scenes >= self.recycle_after:
+            self._close_worker()
+            self.recycled += 1
+        return outcome
+
+    def _close_worker(self) -> None:
+        if self.worker is not None:
+            try:
+                self.worker.close()
+            finally:
+                self.worker = None
+
+    def info(self) -> dict[str, Any]:
+        w = self.worker
+        pid = getattr(w, "pid", None) if w is not None else None
+        return {"name": self.name, "host": socket.gethostname(), "pid": os.getpid(), "worker_pid": pid,
+                "worker_rss_kb": _rss_kb(pid), "scenes": self.total, "recycled": self.recycled}
+
+    def close(self) -> bool:
+        self._close_worker()
+        return True
+
+
+def _rss_kb(pid: Optional[int]) -> Optional[int]:
+    """Resident memory of ``pid`` in KiB from /proc (None where unknown)."""
+    if not pid:
+        return None
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+class RayExecutor:
+    """``slots`` scene actors on a Ray cluster (see the module docstring)."""
+
+    def __init__(self, address: Optional[str] = None, slots: Optional[int] = None, *, cpus_per_slot: float = 1.0,
+                 threads: Optional[int] = None, recycle_after: int = 0, log_dir: Optional[Path] = None,
+                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task,
+                 worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory,
+                 object_store_mb: int = 200, connect_timeout_s: float = 120.0) -> None:
+        try:
+            import ray
+        except ImportError as exc:  # pragma: no cover - ray is a pinned dependency
+            raise RayExecutorError("the ray executor needs the 'ray' package") from exc
+        import logging
+
+        self._ray = ray
+        self.address = address
+        self.threads = threads
+        self._own_init = False
+        if not ray.is_initialized():
+            kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
+                                          configure_logging=True)
+            try:
+                if address:
+                    ray.init(address=address, **kwargs)
+                else:
+                    n = max(1, int(slots or 1))
+                    ray.init(num_cpus=max(1, int(round(n * cpus_per_slot))), _node_ip_address="127.0.0.1",
+                             object_store_memory=int(object_store_mb) * 1024 * 1024, **kwargs)
+            except Exception as exc:  # noqa: BLE001 - ConnectionError, RuntimeError, ...: one clear message
+                raise RayExecutorError(f"cannot {'reach the Ray cluster at ' + address if address else 'start a local Ray cluster'}: "
+                                       f"{type(exc).__name__}: {exc}") from exc
+            self._own_init = True
+        if slots is None:
+            cpus = float(ray.cluster_resources().get("CPU", 1.0))
+            slots = max(1, int(cpus // cpus_per_slot))
+        self.slots = max(1, int(slots))
+        remote_cls = ray.remote(num_cpus=cpus_per_slot, max_restarts=-1, max_task_retries=0)(SceneActor)
+        self._actors = [remote_cls.remote(f"ray{k}", recycle_after=recycle_after,
+                                          log_dir=str(log_dir) if log_dir else None, runner=runner,
+                                          worker_factory=worker_factory)
+                        for k in range(self.slots)]
+        self._idle: deque[int] = deque(range(self.slots))
+        self._pending: deque[SceneTask] = deque()
+        self._inflight: dict[Any, tuple[SceneTask, int, float]] = {}  # ref -> (task, actor index, start)
+        self._ready: deque[SceneOutcome] = deque()
+        self.connect_timeout_s = connect_timeout_s
+
+    # -------------------------------------------------------------------------------- interface
+
+    def submit(self, task: SceneTask) -> None:
+        if self.threads:
+            task = dataclasses.replace(task, worker_options={**task.worker_options, "threads": int(self.threads)})
+        self._pending.append(task)
+        self._dispatch()
+
+    def _dispatch(self) -> None:
+        while self._idle and self._pending:
+            k = self._idle.popleft()
+            task = self._pending.popleft()
+            ref = self._actors[k].run.remote(task)
+            self._inflight[ref] = (task, k, time.monotonic())
+
+    def next_outcome(self, timeout: Optional[float] = None) -> SceneOutcome:
+        """The next finished scene (completion order). Raises ``queue.Empty`` after ``timeout`` seconds."""
+        ray = self._ray
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self._ready:
+            if not self._inflight:
+                raise queue.Empty
+            wait_s = 5.0 if deadline is None else max(0.0, min(5.0, deadline - time.monotonic()))
+            done, _ = ray.wait(list(self._inflight), num_returns=1, timeout=wait_s)
+            for ref in done:
+                task, k, started = self._inflight.pop(ref)
+                self._ready.append(self._collect(ref, task, time.monotonic() - started))
+                self._idle.append(k)
+            self._expire_overdue()
+            self._dispatch()
+            if not self._ready and deadline is not None and time.monotonic() >= deadline:
+                raise queue.Empty
+        return self._ready.popleft()
+
+    def _collect(self, ref: Any, task: SceneTask, seconds: float) -> SceneOutcome:
+        try:
+            outcome = self._ray.get(ref)
+        except Exception as exc:  # noqa: BLE001 - RayTaskError, ActorDiedError, WorkerCrashedError, ObjectLostError...
+            return failed_outcome(task, f"ray: {type(exc).__name__}: {str(exc).strip()}", seconds)
+        if not isinstance(outcome, SceneOutcome):
+            return failed_outcome(task, f"ray: unexpected result {type(outcome).__name__}", seconds)
+        return outcome
+
+    def _expire_overdue(self) -> None:
+        """Fail (and restart the actor of) calls that ran far past their scene timeout: a hung actor."""
+        now = time.monotonic()
+        for ref, (task, k, started) in list(self._inflight.items()):
+            if now - started > float(task.timeout_s) + CALL_GRACE_S:
+                del self._inflight[ref]
+                try:
+                    self._ray.kill(self._actors[k], no_restart=False)
+                except Exception:  # noqa: BLE001
+                    pass
+                self._ready.append(failed_outcome(task, f"ray: call overran {task.timeout_s:.0f} s + "
+                                                        f"{CALL_GRACE_S:.0f} s grace; actor restarted", now - started))
+                self._idle.append(k)
+
+    def info(self, timeout: float = 30.0) -> list[dict[str, Any]]:
+        """Per-actor host, pids, scenes done, recycles and worker memory (for benchmarks and logs)."""
+        refs = [a.info.remote() for a in self._actors]
+        out: list[dict[str, Any]] = []
+        for ref in refs:
+            try:
+                out.append(self._ray.get(ref, timeout=timeout))
+            except Exception as exc:  # noqa: BLE001
+                out.append({"error": f"{type(exc).__name__}: {exc}"})
+        return out
+
+    def close(self) -> None:
+        """Stop the bpy workers and the actors; disconnect (and stop a cluster this executor started)."""
+        ray = self._ray
+        if not ray.is_initialized():
+            return
+        try:
+            refs = [a.close.remote() for a in self._actors]
+            ray.wait(refs, num_returns=len(refs), timeout=30)
+        except Exception:  # noqa: BLE001 - a dead cluster: nothing left to close
+            pass
+        for a in self._actors:
+            try:
+                ray.kill(a, no_restart=True)
+            except Exception:  # noqa: BLE001
+                pass
+        self._actors = []
+        if self._own_init:
+            ray.shutdown()
+
+    def __enter__(self) -> "RayExecutor":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -1,0 +1,278 @@
+"""The Ray executor on a REAL Ray cluster on 127.0.0.1 (``ray start --head`` in a subprocess, 2 CPUs).
+
+* failure path with a trivial runner: a raising runner and a killed actor each fail exactly one scene,
+  the restarted actor takes the next one, workers are recycled, the thread override reaches the task;
+* quick scenes composed through ``mixcount compose --executor ray --address`` have the same COCO
+  annotations as the local executor for the same seeds;
+* a cluster killed (SIGKILL of every Ray process) mid-run leaves no partial scene, and a rerun against
+  a fresh cluster completes the set with no duplicate.
+
+Every Ray process a test starts is a descendant of its ``ray start --block`` process and is killed in a
+``finally`` (not ``ray stop --force``, which would stop any other Ray on the machine); the test then
+checks none is left.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import pytest
+
+from mixcount.dataset.scene_task import FAILED, WRITTEN, SceneOutcome, SceneTask
+
+pytestmark = [pytest.mark.ray]
+
+PROJECT = Path(__file__).resolve().parent.parent
+RAY = Path(sys.executable).parent / "ray"
+MIX = Path(sys.executable).parent / "mixcount"
+ENV = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+
+
+# ------------------------------------------------------------------------------------------ cluster
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _children() -> dict[int, list[int]]:
+    kids: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        kids.setdefault(ppid, []).append(int(d.name))
+    return kids
+
+
+def _descendants(pid: int) -> set[int]:
+    kids, out, todo = _children(), set(), [pid]
+    while todo:
+        p = todo.pop()
+        for c in kids.get(p, []):
+            if c not in out:
+                out.add(c)
+                todo.append(c)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+class Cluster:
+    """One ``ray start --head --block`` on 127.0.0.1; ``kill()`` SIGKILLs it and every descendant."""
+
+    def __init__(self, cpus: int = 2) -> None:
+        self.port = _free_port()
+        self.address = f"127.0.0.1:{self.port}"
+        self.tmp = tempfile.mkdtemp(prefix="mcray", dir="/tmp")  # short: Ray's unix socket paths
+        self.log = open(Path(self.tmp) / "head.log", "wb")
+        self.proc = subprocess.Popen(
+            [str(RAY), "start", "--head", "--block", "--node-ip-address", "127.0.0.1", "--port", str(self.port),
+             "--num-cpus", str(cpus), "--include-dashboard=false", "--disable-usage-stats",
+             "--object-store-memory", str(100 * 1024 * 1024), "--temp-dir", self.tmp],
+            stdout=self.log, stderr=subprocess.STDOUT, env=ENV, start_new_session=True)
+        self.seen: set[int] = set()
+        self._wait_ready()
+
+    def _wait_ready(self, timeout: float = 90.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"ray start exited: {(Path(self.tmp) / 'head.log').read_text()[-2000:]}")
+            if b"Ray runtime started" in (Path(self.tmp) / "head.log").read_bytes():
+                return
+            time.sleep(0.5)
+        raise RuntimeError("ray head did not start in time")
+
+    def track(self) -> None:
+        """Remember the current descendants (workers die with the raylet, but kill them too)."""
+        self.seen |= _descendants(self.proc.pid)
+
+    def kill(self) -> None:
+        self.track()
+        pids = self.seen | {self.proc.pid}
+        for p in pids:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(p, signal.SIGKILL)
+        self.proc.wait(timeout=30)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(_alive(p) for p in pids):
+            time.sleep(0.2)
+        self.log.close()
+
+    def leftovers(self) -> list[int]:
+        return [p for p in self.seen | {self.proc.pid} if _alive(p)]
+
+
+@contextlib.contextmanager
+def cluster(cpus: int = 2) -> Iterator[Cluster]:
+    c = Cluster(cpus)
+    try:
+        yield c
+    finally:
+        c.kill()
+        assert not c.leftovers(), f"Ray processes left running: {c.leftovers()}"
+
+
+# ------------------------------------------------------------------------------------------ failure path
+
+
+@dataclass(frozen=True)
+class FakeSpec:
+    scene_id: str
+    seed: int
+
+
+class FakeWorker:
+    def __init__(self, name: str, log_dir: Any) -> None:
+        self.name = name
+        self.pid = os.getpid()
+
+    def close(self) -> None:
+        pass
+
+
+def fake_runner(task: SceneTask, worker: Any) -> SceneOutcome:
+    """seed 1 raises, seed 2 kills its actor process, others succeed and report what they saw."""
+    if task.spec.seed == 1:
+        raise ValueError("planted failure")
+    if task.spec.seed == 2:
+        os._exit(3)
+    return SceneOutcome(task.spec.scene_id, task.spec.seed, WRITTEN, 0.01, path=worker.name,
+                        timings={"threads": float(task.worker_options.get("threads", -1))})
+
+
+def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import ray
+    import ray.cloudpickle
+
+    from mixcount.run.ray_executor import RayExecutor
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # tests/ is not importable on workers
+    tasks = [SceneTask(spec=FakeSpec(f"scene_{s:06d}", s), out_dir=str(tmp_path), assets_dir=str(tmp_path),
+                       timeout_s=60, worker_options={"threads": 2}) for s in range(6)]
+    missing = SceneTask(spec=FakeSpec("scene_000099", 99), out_dir=str(tmp_path / "nowhere"),
+                        assets_dir=str(tmp_path), timeout_s=60)
+    with cluster() as c:
+        monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+        ex = RayExecutor(address=c.address, slots=2, threads=1, recycle_after=2, runner=fake_runner,
+                         worker_factory=FakeWorker)
+        try:
+            assert ex.slots == 2
+            for t in tasks + [missing]:
+                ex.submit(t)
+            outcomes = [ex.next_outcome(timeout=120) for _ in range(len(tasks) + 1)]
+            c.track()
+            info = ex.info()
+        finally:
+            ex.close()
+            ray.shutdown()
+    by_seed = {o.seed: o for o in outcomes}
+    assert sorted(by_seed) == [0, 1, 2, 3, 4, 5, 99]  # every task answered once
+    assert by_seed[1].status == FAILED and "planted failure" in (by_seed[1].error or "")
+    assert by_seed[2].status == FAILED and "ray:" in (by_seed[2].error or "")  # the actor died
+    assert by_seed[99].status == FAILED and "not visible on this node" in (by_seed[99].error or "")
+    for s in (0, 3, 4, 5):  # the restarted actor kept working; the executor's thread count reached the task
+        assert by_seed[s].status == WRITTEN and by_seed[s].timings["threads"] == 1.0
+    assert sum(i["scenes"] for i in info) >= 4 and sum(i["recycled"] for i in info) >= 1
+
+
+# ------------------------------------------------------------------------------------------ real scenes
+
+
+@pytest.fixture(scope="module")
+def demo_db(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_usd_stage import build_demo_catalog
+
+    root = tmp_path_factory.mktemp("ray_demo")
+    build_demo_catalog(root, n_objects=12).close()
+    return root / "catalog.db"
+
+
+def compose(db: Path, out: Path, n: int, *extra: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [str(MIX), "--db", str(db), "--config", "quick", "compose", "--n", str(n), "--out", str(out),
+         "--resolution", "64", "--samples", "1", *extra], capture_output=True, text=True, env=ENV, timeout=timeout,
+        cwd=PROJECT)
+
+
+def annotations(out: Path) -> list[tuple[Any, ...]]:
+    """Every COCO annotation as (scene_id, category, bbox, area, RLE counts, distractor, visibility)."""
+    doc = json.loads((out / "annotations" / "instances_train.json").read_text())
+    scene_of = {im["id"]: im["scene_id"] for im in doc["images"]}
+    assert len(scene_of) == len(set(scene_of.values())), "duplicate image"
+    return sorted((scene_of[a["image_id"]], a["category_id"], tuple(a["bbox"]), a["area"], a["segmentation"]["counts"],
+                   a["is_distractor"], round(a["visibility"], 6)) for a in doc["annotations"])
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_ray_cluster_matches_local_and_resumes_after_kill(demo_db: Path, tmp_path: Path) -> None:
+    n = 3
+    local = compose(demo_db, tmp_path / "local", n, "--workers", "1")
+    assert local.returncode == 0, local.stderr[-3000:]
+    expected = annotations(tmp_path / "local")
+    assert expected and len({a[0] for a in expected}) == n
+
+    # 1) a clean run of n scenes through the cluster: same annotations as the local executor
+    with cluster() as c:
+        run = compose(demo_db, tmp_path / "ray", n, "--executor", "ray", "--address", c.address, "--workers", "2")
+        c.track()
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert json.loads(run.stdout)["written"] == n
+    assert annotations(tmp_path / "ray") == expected
+
+    # 2) kill the cluster while the run is going: no partial scene; a rerun on a new cluster completes the set
+    out = tmp_path / "killed"
+    with cluster() as c:
+        driver = subprocess.Popen(
+            [str(MIX), "--db", str(demo_db), "--config", "quick", "compose", "--n", str(n), "--out", str(out),
+             "--resolution", "64", "--samples", "1", "--executor", "ray", "--address", c.address, "--workers", "2"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=ENV, cwd=PROJECT, start_new_session=True)
+        try:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and not list((out / "scenes").glob("scene_*/metadata.json")):
+                c.track()
+                time.sleep(0.2)
+            c.kill()  # mid-run: the other slot is rendering
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(driver.pid, signal.SIGKILL)
+            driver.wait(timeout=30)
+    done_before = sorted(p.parent.name for p in (out / "scenes").glob("scene_*/metadata.json"))
+    assert 1 <= len(done_before) < n
+    for d in (out / "scenes").glob("scene_*"):  # whatever is in place is complete
+        assert (d / "metadata.json").is_file() and (d / "coco.json").is_file() and (d / "rgb.png").is_file()
+
+    with cluster() as c:
+        rerun = compose(demo_db, out, n, "--executor", "ray", "--address", c.address, "--workers", "2")
+        c.track()
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    summary = json.loads(rerun.stdout)
+    assert summary["written"] == n and summary["skipped"] == len(done_before)
+    assert not list((out / "scenes").glob(".tmp-*")), "temporary scene folder left behind"
+    assert sorted(p.name for p in (out / "scenes").glob("scene_*")) == sorted({a[0] for a in expected})
+    assert annotations(out) == expected
