@@ -1,0 +1,100 @@
+"""Visibility-filter seconds for scenes of 30, 100 and 200 objects, next to the RGB render of the same scene.
+
+    .venv/bin/python bench/visibility.py                          # 1024 px, 32 spp, 30/100/200 objects
+    .venv/bin/python bench/visibility.py --samples 8 --sizes 30,100   # quicker
+
+The visibility filter is everything the worker does to decide which objects are visible enough:
+``frame_check`` (origins inside the frame), ``silhouettes`` (unoccluded masks from the numpy rasteriser),
+``id_pass`` (the 1-sample object-index renders, every round) and ``visibility`` (the ratios). Its share of
+the whole scene (stage writing + worker + annotation) is ``filter_over_scene``; target <= 0.10 at every
+size, growing far slower than the object count. Scenes come from a generated demo library; asset
+conversion and the bpy start-up happen before the clock starts (both are one-off in a real run).
+Prints one line per size on stderr and one JSON line at the end on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+VISIBILITY_STAGES = ("frame_check", "silhouettes", "id_pass", "visibility")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="30,100,200", help="objects per scene, comma-separated")
+    ap.add_argument("--resolution", type=int, default=1024)
+    ap.add_argument("--samples", type=int, default=32)
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=0, help="Cycles threads (0 = all cores)")
+    ap.add_argument("--work", type=Path, default=None)
+    args = ap.parse_args()
+
+    from mixcount.blender.worker import BlenderWorker
+    from mixcount.catalog.demo_library import generate_demo_library
+    from mixcount.config import load_config
+    from mixcount.dataset.compose_run import worker_options
+    from mixcount.dataset.demo_pool import pool_from_demo_library
+    from mixcount.dataset.scene_task import WRITTEN, SceneTask, run_scene_task
+    from mixcount.scene.config import SceneConfig
+    from mixcount.scene.sampler import sample_scene
+    from mixcount.usd.stage import convert_scene_assets
+
+    work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-vis-"))
+    lib = work / "demo"
+    if not (lib / "ground_truth.json").exists():
+        generate_demo_library(lib, seed=0)
+    pool = pool_from_demo_library(lib)
+    threads = args.threads or os.cpu_count() or 1
+    rows = []
+    with BlenderWorker(name="bench-vis", log_dir=work) as worker:
+        worker.request({"op": "ping"}, timeout=300)
+        for n in [int(s) for s in args.sizes.split(",") if s.strip()]:
+            cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
+                                   f"scene.n_objects=[{n},{n}]", f"scene.physics_frames={args.frames}",
+                                   f"compose.render_threads={threads}"])
+            spec = sample_scene(args.seed, "train", SceneConfig.from_config(cfg), pool)
+            assets = work / "assets"
+            convert_scene_assets(spec, assets)
+            task = SceneTask(spec=spec, out_dir=str(work / f"out_{n}"), assets_dir=str(assets), timeout_s=3600,
+                             worker_options=worker_options(cfg, workers=1))
+            outcome = run_scene_task(task, worker)
+            if outcome.status != WRITTEN:
+                rows.append({"objects": n, "status": outcome.status, "error": outcome.error})
+                print(json.dumps(rows[-1]), file=sys.stderr)
+                continue
+            meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
+            t = meta["timings"]
+            stages = {k.split(".", 1)[1]: v for k, v in t.items() if k.startswith("worker.")}
+            vis = sum(stages.get(k, 0.0) for k in VISIBILITY_STAGES)
+            whole = t["total"]
+            row = {"objects": n, "spawned_counted": spec.n_counted, "counted_kept": meta["n_counted"],
+                   "distractors_kept": meta["n_distractors"], "dropped": meta["n_dropped"],
+                   "filter_s": round(vis, 3), **{f"{k}_s": stages.get(k) for k in VISIBILITY_STAGES},
+                   "rgb_s": stages.get("rgb"), "physics_s": stages.get("physics"), "scene_s": round(whole, 3),
+                   "filter_over_scene": round(vis / whole, 4), "filter_over_rgb": round(vis / stages["rgb"], 4)}
+            rows.append(row)
+            print(json.dumps(row), file=sys.stderr)
+    ok = [r for r in rows if "filter_s" in r]
+    result = {"bench": "visibility", "resolution": args.resolution, "samples": args.samples, "threads": threads,
+              "cpu_count": os.cpu_count(), "scenes": rows,
+              "max_filter_over_scene": max((r["filter_over_scene"] for r in ok), default=None),
+              "target_met": bool(ok) and len(ok) == len(rows) and all(r["filter_over_scene"] <= 0.10 for r in ok)}
+    if len(ok) >= 2:
+        a, b = ok[0], ok[-1]
+        result["growth"] = {"objects_ratio": round(b["objects"] / a["objects"], 2),
+                            "filter_ratio": round(b["filter_s"] / max(a["filter_s"], 1e-9), 2)}
+    print(json.dumps(result))
+    return 0 if result["target_met"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
