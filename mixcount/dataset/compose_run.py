@@ -87,7 +87,7 @@ def compose_scenes(
     if own_executor:
         from mixcount.run.local import LocalExecutor
 
-        executor = LocalExecutor(workers, log_dir=out_dir / "logs")
+        executor = LocalExecutor(workers, log_dir=out_dir / "logs", recycle_after=int(comp.get("recycle_after", 0)))
     next_seed = base
     attempts = 0
     in_flight = 0

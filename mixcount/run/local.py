@@ -37,8 +37,10 @@ class LocalExecutor:
     """A pool of ``workers`` bpy worker processes on this machine."""
 
     def __init__(self, workers: int = 1, *, log_dir: Optional[Path] = None,
-                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task) -> None:
+                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int = 0) -> None:
         from mixcount.blender.worker import BlenderWorker
+
+        self.recycle_after = max(0, int(recycle_after))  # restart a worker after this many scenes (flat memory)
 
         self.slots = max(1, int(workers))
         self._tasks: "queue.Queue[Optional[SceneTask]]" = queue.Queue()
@@ -50,6 +52,7 @@ class LocalExecutor:
             t.start()
 
     def _loop(self, worker: Any) -> None:
+        done = 0
         while True:
             task = self._tasks.get()
             if task is None:
@@ -58,6 +61,9 @@ class LocalExecutor:
                 outcome = self._runner(task, worker)
             except Exception as exc:  # noqa: BLE001 - never lose a task's outcome
                 outcome = SceneOutcome(task.spec.scene_id, task.spec.seed, "failed", 0.0, error=repr(exc))
+            done += 1
+            if self.recycle_after and done % self.recycle_after == 0:
+                worker.close()  # the next task starts a fresh bpy process
             self._outcomes.put(outcome)
 
     def submit(self, task: SceneTask) -> None:
