@@ -1,0 +1,141 @@
+"""Scenes per hour and core-seconds per scene at quick settings: local executor vs Ray on a local cluster.
+
+    .venv/bin/python bench/throughput.py                       # 8 scenes, 2 workers, configs/quick.toml
+    .venv/bin/python bench/throughput.py --scenes 4 --resolution 96 --samples 2   # quicker
+
+Both executors compose the SAME seeds (scene_000000 ...) from a generated demo library into separate
+folders, with the same number of slots (``--workers``, one CPU each). Asset conversion is done before the
+clock starts (it is cached per asset in a real run); the bpy worker start-up is inside the clock for both
+(once per slot), the Ray cluster start-up is reported apart (``ray_startup_s``: a real cluster is already
+running). ``core_s_per_scene`` = slots x wall seconds / scenes (the cores the run held), and
+``cpu_s_per_scene`` = CPU seconds the bpy workers really used per scene (from /proc at the end of the
+run; the driver's and Ray's own CPU are not in it), ``worker_rss_mb`` their resident memory then. ``annotations_equal`` checks the two runs wrote the same COCO annotations. One JSON line at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _cpu_s(pid: Optional[int]) -> float:
+    """utime + stime of ``pid`` in seconds (0 when gone)."""
+    if not pid:
+        return 0.0
+    try:
+        f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(f[11]) + int(f[12])) / TICK
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
+def _rss_mb(pid: Optional[int]) -> Optional[float]:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return round(int(line.split()[1]) / 1024, 1)
+    except (OSError, ValueError, TypeError):
+        return None
+    return None
+
+
+def _annotations(out: Path, split: str) -> list[tuple[Any, ...]]:
+    doc = json.loads((out / "annotations" / f"instances_{split}.json").read_text())
+    scene_of = {im["id"]: im["scene_id"] for im in doc["images"]}
+    return sorted((scene_of[a["image_id"]], a["category_id"], tuple(a["bbox"]), a["area"], a["segmentation"]["counts"],
+                   a["is_distractor"]) for a in doc["annotations"])
+
+
+def _run(kind: str, executor: Any, *, pool: list[Any], cfg: Any, out: Path, assets: Path, n: int,
+         pids: Any) -> dict[str, Any]:
+    from mixcount.dataset.compose_run import compose_scenes
+
+    t0 = time.perf_counter()
+    summary = compose_scenes(pool=pool, config=cfg, out_dir=out, assets_dir=assets, n=n, executor=executor,
+                             progress=False)
+    wall = time.perf_counter() - t0
+    live = [p for p in pids() if p]  # the workers are still up (idle) until the executor closes
+    cpu = [_cpu_s(p) for p in live]
+    rss = [r for r in (_rss_mb(p) for p in live) if r]
+    slots = executor.slots
+    scenes = max(1, summary.written)
+    return {"executor": kind, "slots": slots, "written": summary.written, "failed": summary.failed,
+            "regenerated": summary.empty + summary.rejected, "wall_s": round(wall, 2),
+            "scenes_per_hour": round(3600 * summary.written / wall, 1),
+            "core_s_per_scene": round(slots * wall / scenes, 2),
+            "cpu_s_per_scene": round(sum(cpu) / scenes, 2) if cpu else None,
+            "worker_rss_mb": rss}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=8)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--resolution", type=int, default=128)
+    ap.add_argument("--samples", type=int, default=4)
+    ap.add_argument("--only", choices=("local", "ray"), default=None)
+    ap.add_argument("--work", type=Path, default=None)
+    args = ap.parse_args()
+    os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private 127.0.0.1 cluster
+
+    from mixcount.catalog.demo_library import generate_demo_library
+    from mixcount.config import load_config
+    from mixcount.dataset.demo_pool import pool_from_demo_library
+    from mixcount.run.factory import make_executor
+    from mixcount.scene.config import SceneConfig
+    from mixcount.scene.sampler import sample_scene
+    from mixcount.usd.stage import convert_scene_assets
+
+    work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-tp-"))
+    lib = work / "demo"
+    if not (lib / "ground_truth.json").exists():
+        generate_demo_library(lib, seed=0)
+    pool = pool_from_demo_library(lib)
+    cfg = load_config(["quick"], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
+                                  "compose.render_threads=1", "compose.ray_cpus_per_worker=1"])
+    assets = work / "assets"
+    sconf = SceneConfig.from_config(cfg)
+    for s in range(int(cfg["compose"]["seed"]), int(cfg["compose"]["seed"]) + 3 * args.scenes + 4):
+        convert_scene_assets(sample_scene(s, "train", sconf, pool), assets)  # warm the asset cache
+
+    runs = []
+    if args.only in (None, "local"):
+        ex = make_executor("local", args.workers, config=cfg, log_dir=work / "logs")
+        try:
+            runs.append(_run("local", ex, pool=pool, cfg=cfg, out=work / "local", assets=assets, n=args.scenes,
+                             pids=lambda: [w.pid for w in ex.workers]))
+        finally:
+            ex.close()
+    if args.only in (None, "ray"):
+        t = time.perf_counter()
+        ex = make_executor("ray", args.workers, config=cfg, log_dir=work / "logs")
+        startup = time.perf_counter() - t
+        try:
+            runs.append({**_run("ray", ex, pool=pool, cfg=cfg, out=work / "ray", assets=assets, n=args.scenes,
+                                pids=lambda: [i.get("worker_pid") for i in ex.info()]),
+                         "ray_startup_s": round(startup, 2)})
+        finally:
+            ex.close()
+    result: dict[str, Any] = {"bench": "throughput", "scenes": args.scenes, "workers": args.workers,
+                              "resolution": args.resolution, "samples": args.samples, "cpu_count": os.cpu_count(),
+                              "runs": runs}
+    if len(runs) == 2:
+        result["annotations_equal"] = _annotations(work / "local", "train") == _annotations(work / "ray", "train")
+        result["ray_over_local_wall"] = round(runs[1]["wall_s"] / runs[0]["wall_s"], 3)
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
