@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/throughput.py                       # 8 scenes, 2 workers, configs/quick.toml
     .venv/bin/python bench/throughput.py --scenes 4 --resolution 96 --samples 2   # quicker
+    .venv/bin/python bench/throughput.py --memory 40 --resolution 64 --samples 1  # worker RSS per scene
 
 Both executors compose the SAME seeds (scene_000000 ...) from a generated demo library into separate
 folders, with the same number of slots (``--workers``, one CPU each). Asset conversion is done before the
@@ -78,6 +79,31 @@ def _run(kind: str, executor: Any, *, pool: list[Any], cfg: Any, out: Path, asse
             "worker_rss_mb": rss}
 
 
+def _memory(args: Any, *, pool: list[Any], cfg: Any, assets: Path, work: Path) -> dict[str, Any]:
+    """RSS of one local bpy worker after each of ``args.memory`` scenes, recycling off and on."""
+    from mixcount.dataset.compose_run import compose_scenes
+    from mixcount.run.local import LocalExecutor
+
+    series: dict[str, Any] = {}
+    for label, k in (("no_recycle", 0), (f"recycle_after_{args.recycle_after}", args.recycle_after)):
+        ex = LocalExecutor(1, log_dir=work / "logs", recycle_after=k)
+        rss: list[Optional[float]] = []
+        try:
+            t0 = time.perf_counter()
+            summary = compose_scenes(pool=pool, config=cfg, out_dir=work / f"mem_{label}", assets_dir=assets,
+                                     n=args.memory, executor=ex, progress=False,
+                                     on_outcome=lambda _o: rss.append(_rss_mb(ex.workers[0].pid)))
+            wall = time.perf_counter() - t0
+        finally:
+            ex.close()
+        vals = [r for r in rss if r]
+        series[label] = {"written": summary.written, "wall_s": round(wall, 1), "rss_mb_after_each": rss,
+                         "first": vals[0] if vals else None, "max": max(vals) if vals else None,
+                         "last": vals[-1] if vals else None}
+    return {"bench": "throughput-memory", "scenes": args.memory, "resolution": args.resolution,
+            "samples": args.samples, **series}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=8)
@@ -85,6 +111,10 @@ def main() -> int:
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--samples", type=int, default=4)
     ap.add_argument("--only", choices=("local", "ray"), default=None)
+    ap.add_argument("--memory", type=int, default=0, metavar="N",
+                    help="instead: N scenes on ONE local worker, its RSS after every scene, without and with "
+                         "recycling (--recycle-after)")
+    ap.add_argument("--recycle-after", type=int, default=10)
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private 127.0.0.1 cluster
@@ -109,6 +139,9 @@ def main() -> int:
     for s in range(int(cfg["compose"]["seed"]), int(cfg["compose"]["seed"]) + 3 * args.scenes + 4):
         convert_scene_assets(sample_scene(s, "train", sconf, pool), assets)  # warm the asset cache
 
+    if args.memory:
+        print(json.dumps(_memory(args, pool=pool, cfg=cfg, assets=assets, work=work)))
+        return 0
     runs = []
     if args.only in (None, "local"):
         ex = make_executor("local", args.workers, config=cfg, log_dir=work / "logs")
