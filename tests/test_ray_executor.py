@@ -276,3 +276,11 @@ def test_ray_cluster_matches_local_and_resumes_after_kill(demo_db: Path, tmp_pat
     assert not list((out / "scenes").glob(".tmp-*")), "temporary scene folder left behind"
     assert sorted(p.name for p in (out / "scenes").glob("scene_*")) == sorted({a[0] for a in expected})
     assert annotations(out) == expected
+
+
+def test_unreachable_address_fails_fast_with_a_clear_error() -> None:
+    from mixcount.run.ray_executor import RayExecutor, RayExecutorError
+
+    port = _free_port()  # nobody listens there: refused at once instead of Ray's minutes of GCS retries
+    with pytest.raises(RayExecutorError, match=f"cannot reach the Ray cluster at 127.0.0.1:{port}"):
+        RayExecutor(address=f"127.0.0.1:{port}", slots=1)

@@ -121,6 +121,18 @@ class SceneActor:
         return True
 
 
+def _probe(address: str, timeout: float) -> None:
+    """Fail fast on a ``host:port`` nobody listens on (ray.init would retry for minutes)."""
+    host, sep, port = address.rpartition(":")
+    if not sep or "://" in address or not port.isdigit():
+        return  # "auto", "ray://..." (Ray Client): let Ray handle them
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=min(timeout, 10.0)).close()
+    except OSError as exc:
+        raise RayExecutorError(f"cannot reach the Ray cluster at {address}: {exc} (is `ray start --head` running "
+                               "there, and the port open?)") from None
+
+
 def _rss_kb(pid: Optional[int]) -> Optional[int]:
     """Resident memory of ``pid`` in KiB from /proc (None where unknown)."""
     if not pid:
@@ -155,6 +167,8 @@ class RayExecutor:
         if not ray.is_initialized():
             kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
                                           configure_logging=True)
+            if address:
+                _probe(address, connect_timeout_s)
             try:
                 if address:
                     ray.init(address=address, **kwargs)
