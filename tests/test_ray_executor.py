@@ -72,6 +72,14 @@ def _descendants(pid: int) -> set[int]:
     return out
 
 
+def _start_time(pid: int) -> int | None:
+    """Start time of ``pid`` (clock ticks since boot): tells a process from a later one with a reused pid."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -93,8 +101,13 @@ class Cluster:
              "--num-cpus", str(cpus), "--include-dashboard=false", "--disable-usage-stats",
              "--object-store-memory", str(100 * 1024 * 1024), "--temp-dir", self.tmp],
             stdout=self.log, stderr=subprocess.STDOUT, env=ENV, start_new_session=True)
-        self.seen: set[int] = set()
-        self._wait_ready()
+        self.seen: dict[int, int | None] = {}  # pid -> start time
+        self.killed = False
+        try:
+            self._wait_ready()
+        except BaseException:
+            self.kill()
+            raise
 
     def _wait_ready(self, timeout: float = 90.0) -> None:
         deadline = time.monotonic() + timeout
@@ -108,11 +121,17 @@ class Cluster:
 
     def track(self) -> None:
         """Remember the current descendants (workers die with the raylet, but kill them too)."""
-        self.seen |= _descendants(self.proc.pid)
+        for p in _descendants(self.proc.pid):
+            self.seen.setdefault(p, _start_time(p))
 
     def kill(self) -> None:
+        if self.killed:  # never signal recorded pids twice: they may have been reused meanwhile
+            return
+        self.killed = True
         self.track()
-        pids = self.seen | {self.proc.pid}
+        pids = {p for p, t in self.seen.items() if _start_time(p) == t} | {self.proc.pid}
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.proc.pid, signal.SIGKILL)  # gcs, raylet, agents (the head's own session)
         for p in pids:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.kill(p, signal.SIGKILL)
@@ -123,7 +142,8 @@ class Cluster:
         self.log.close()
 
     def leftovers(self) -> list[int]:
-        return [p for p in self.seen | {self.proc.pid} if _alive(p)]
+        return [p for p, t in {**self.seen, self.proc.pid: None}.items()
+                if _alive(p) and (t is None or _start_time(p) == t)]
 
 
 @contextlib.contextmanager
