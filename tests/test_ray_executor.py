@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -140,6 +141,7 @@ class Cluster:
         while time.monotonic() < deadline and any(_alive(p) for p in pids):
             time.sleep(0.2)
         self.log.close()
+        shutil.rmtree(self.tmp, ignore_errors=True)  # Ray's session files and logs
 
     def leftovers(self) -> list[int]:
         return [p for p, t in {**self.seen, self.proc.pid: None}.items()
