@@ -39,5 +39,12 @@ demo: $(STAMP)
 	$(VENV)/bin/mixcount stats $(DEMO_OUT)/dataset
 	@echo "demo done: contact sheets in $(DEMO_OUT)/sheets, dataset in $(DEMO_OUT)/dataset (preview.png, annotations/)"
 
+# Benchmarks print their figures as one JSON line each (see docs/performance.md); minutes, not seconds.
+bench: $(STAMP)
+	$(PY) bench/ingest.py
+	$(PY) bench/compose.py
+	$(PY) bench/visibility.py
+	$(PY) bench/throughput.py --scenes 24
+
 clean-demo:
 	rm -rf catalog/demo catalog/catalog.db* catalog/collision catalog/renders catalog/usd_assets $(DEMO_OUT)
