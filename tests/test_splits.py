@@ -168,3 +168,21 @@ def test_split_object_ids(catalog):
         assert split_object_ids(s, "train") == [ids[0]] and split_object_ids(s, "test") == [ids[1]]
         with pytest.raises(CatalogError):
             split_object_ids(s, "dev")
+
+
+def test_objects_linked_only_through_an_excluded_duplicate_share_a_split(catalog):
+    # A and B are each a near-copy of X; X was excluded by curation. A and B must still be one group.
+    a, b, x = _add(catalog, [("widget", "Widget_A", None), ("widget", "Widget_B", None), ("widget", "Widget_X", None)])
+    with catalog.session() as s:
+        s.get(CatalogObject, x).status = "excluded"
+        s.commit()
+    _flag(catalog, a, x, "exact_duplicate")
+    _flag(catalog, b, x, "near_duplicate_geometry")
+    from mixcount.catalog.splits import duplicate_groups
+
+    with catalog.session() as s:
+        assert duplicate_groups(s, [a, b]) == [[a, b]]
+    for seed in range(6):
+        assign_splits(catalog, SplitConfig(seed=seed), table=TABLE)
+        rows = _splits(catalog)
+        assert rows[a].split == rows[b].split

@@ -146,7 +146,7 @@ def caption_catalog(
                 obj = futures[fut]
                 try:
                     result = fut.result()
-                except (CaptionError, OSError) as exc:  # OSError: unreadable render/model file
+                except Exception as exc:  # noqa: BLE001 - one object's failure (bad file, bad answer) is recorded; the batch goes on
                     attempts = int(getattr(exc, "attempts", 1))
                     message = scrub(str(exc) if isinstance(exc, CaptionError) else f"{type(exc).__name__}: {exc}")
                     session.add(

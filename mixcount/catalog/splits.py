@@ -197,14 +197,19 @@ class SplitSummary:
 
 
 def duplicate_groups(session: Session, object_ids: Iterable[int]) -> list[list[int]]:
-    """Connected components over duplicate and caption-collision flags, restricted to ``object_ids``."""
+    """Connected components over duplicate and caption-collision flags, restricted to ``object_ids``.
+
+    Links run through every flagged object, excluded ones included: A and B that are both duplicates of
+    an excluded X form one group, so they can never land in two splits.
+    """
     ids = set(object_ids)
     pairs = [
         (flag.object_id, int(flag.pair_object_id))  # type: ignore[arg-type]
         for flag in session.scalars(select(Flag).where(Flag.pair_object_id.is_not(None)))
-        if is_group_flag(flag.kind) and flag.object_id in ids and flag.pair_object_id in ids
+        if is_group_flag(flag.kind)
     ]
-    return connected_groups(pairs, members=ids)
+    groups = ([i for i in group if i in ids] for group in connected_groups(pairs, members=ids))
+    return [g for g in groups if g]
 
 
 def is_group_flag(kind: str) -> bool:
