@@ -37,6 +37,8 @@ demo: $(STAMP)
 	$(MIX) catalog list --summary
 	$(MIX) --config configs/quick.toml compose --n $(DEMO_SCENES) --out $(DEMO_OUT)/dataset --split train --resolution 256 --samples 8
 	$(VENV)/bin/mixcount stats $(DEMO_OUT)/dataset
+	$(VENV)/bin/mixcount baseline --gt $(DEMO_OUT)/dataset --split train --kind mean --out $(DEMO_OUT)/pred_mean.json
+	$(VENV)/bin/mixcount evaluate --gt $(DEMO_OUT)/dataset --split train --pred $(DEMO_OUT)/pred_mean.json
 	@echo "demo done: contact sheets in $(DEMO_OUT)/sheets, dataset in $(DEMO_OUT)/dataset (preview.png, annotations/)"
 
 # Benchmarks print their figures as one JSON line each (see docs/performance.md); minutes, not seconds.
