@@ -155,6 +155,21 @@ def test_depth_normals_and_settled_poses(composed) -> None:
         assert np.median(normal[surf][:, 2]) > 0  # camera space: surfaces face the camera (+z)
         dist = np.linalg.norm(np.array(meta["camera"]["cam_to_world"])[:3, 3])
         assert 0.2 * dist < np.median(depth[surf]) < 3.0 * dist
+        # planar depth: floor pixels (top face z = 0) equal the ray-plane intersection along the optical axis
+        from PIL import Image
+
+        inst = np.array(Image.open(d / "instance.png"))
+        K, C = np.array(meta["camera"]["K"]), np.array(meta["camera"]["cam_to_world"])
+        matches = 0
+        for r, c in ((1, 1), (1, w - 2), (h - 2, 1), (h - 2, w - 2)):
+            ray = C[:3, :3] @ np.array([(c + 0.5 - K[0, 2]) / K[0, 0], -(r + 0.5 - K[1, 2]) / K[1, 1], -1.0])
+            planar = -C[2, 3] / ray[2]
+            if inst[r, c] == 0 and planar > 0:
+                assert depth[r, c] <= planar * 1.01  # never farther than the floor
+                if abs(depth[r, c] - planar) < 0.01 * planar:
+                    matches += 1
+                    assert np.allclose(normal[r, c], C[:3, :3].T @ [0.0, 0.0, 1.0], atol=0.05)
+        assert matches >= 2
         kept = {o["name"]: o for o in meta["objects"] if o["status"] == "kept"}
         for o in kept.values():
             assert o["min_z"] >= -0.1 * o["size_m"], o  # nothing rests below the floor

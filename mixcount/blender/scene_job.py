@@ -175,6 +175,9 @@ def _import_floor(stage_path: Path) -> Any:
     if floor is None:
         raise RuntimeError("stage has no /World/Floor mesh")
     floor.pass_index = 0
+    # the stage's floor carries no normals and Blender imports it smooth-shaded: the top face's normals
+    # would be averaged with the side faces (a 45-degree tilt at the rim); a box/cylinder floor is flat
+    floor.data.shade_flat()
     return floor
 
 
@@ -487,7 +490,7 @@ def run_scene(req: dict[str, Any]) -> dict[str, Any]:
             bg = id_passes["depth"] > 1e9
             normal[bg] = 0.0
             np.save(out_dir / "normal.npy", normal.astype(np.float32))
-            depth = planar_depth(id_passes["depth"], camera, req.get("depth_is_ray_length", True))
+            depth = planar_depth(id_passes["depth"], camera, req.get("depth_is_ray_length", False))
             depth[bg] = 0.0
             np.save(out_dir / "depth.npy", depth.astype(np.float32))
         with timer.stage("rgb"):
@@ -518,7 +521,9 @@ def run_scene(req: dict[str, Any]) -> dict[str, Any]:
 
 
 def planar_depth(depth: np.ndarray, camera: PinholeCamera, is_ray_length: bool) -> np.ndarray:
-    """Cycles' depth pass -> planar depth along the optical axis (metres)."""
+    """Cycles' depth pass -> planar depth along the optical axis (metres). Blender 5.0's Cycles Depth pass
+    is already planar (checked against ray-plane intersections with the floor), so this is the identity
+    unless ``is_ray_length``."""
     d = depth.astype(np.float64)
     if not is_ray_length:
         return d

@@ -76,9 +76,12 @@ class LocalExecutor:
         for _ in self._threads:
             self._tasks.put(None)
         for t in self._threads:
-            t.join(timeout=5)
-        for w in self.workers:
-            w.close()
+            t.join(timeout=2)
+        for t, w in zip(self._threads, self.workers):
+            if t.is_alive():  # still inside a scene (interrupted run): do not wait for it
+                w.kill()
+            else:
+                w.close()
 
     def __enter__(self) -> "LocalExecutor":
         return self
