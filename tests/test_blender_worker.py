@@ -6,7 +6,6 @@ Budget: a few 128 px, 4-sample scenes (quick config, 60 physics frames); bpy run
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import signal
@@ -19,14 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import IN_CI, PROJECT_ROOT
+from tests.conftest import PROJECT_ROOT
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
-
-if importlib.util.find_spec("bpy") is None:  # pragma: no cover
-    if IN_CI:
-        raise RuntimeError("bpy is required in CI")
-    pytest.skip("bpy not installed", allow_module_level=True)
 
 V_T = 0.4
 
