@@ -119,19 +119,15 @@ def main() -> int:
     args = ap.parse_args()
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private 127.0.0.1 cluster
 
-    from mixcount.catalog.demo_library import generate_demo_library
     from mixcount.config import load_config
-    from mixcount.dataset.demo_pool import pool_from_demo_library
+    from mixcount.dataset.demo_pool import ensure_demo_pool
     from mixcount.run.factory import make_executor
     from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-tp-"))
-    lib = work / "demo"
-    if not (lib / "ground_truth.json").exists():
-        generate_demo_library(lib, seed=0)
-    pool = pool_from_demo_library(lib)
+    pool = ensure_demo_pool(work / "demo")
     cfg = load_config(["quick"], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
                                   "compose.render_threads=1", "compose.ray_cpus_per_worker=1"])
     assets = work / "assets"

@@ -39,20 +39,16 @@ def main() -> int:
     args = ap.parse_args()
 
     from mixcount.blender.worker import BlenderWorker
-    from mixcount.catalog.demo_library import generate_demo_library
     from mixcount.config import load_config
     from mixcount.dataset.compose_run import worker_options
-    from mixcount.dataset.demo_pool import pool_from_demo_library
+    from mixcount.dataset.demo_pool import ensure_demo_pool
     from mixcount.dataset.scene_task import WRITTEN, SceneTask, run_scene_task
     from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-vis-"))
-    lib = work / "demo"
-    if not (lib / "ground_truth.json").exists():
-        generate_demo_library(lib, seed=0)
-    pool = pool_from_demo_library(lib)
+    pool = ensure_demo_pool(work / "demo")
     threads = args.threads or os.cpu_count() or 1
     rows = []
     with BlenderWorker(name="bench-vis", log_dir=work) as worker:

@@ -34,3 +34,16 @@ def pool_from_demo_library(root: Path, *, split: str = "train") -> list[ObjectRe
             captions=caps, split=split, model_path=str(model.resolve()), content_hash=digest,
         ))
     return pool
+
+
+def ensure_demo_pool(root: Path, *, seed: int = 0, split: str = "train") -> list[ObjectRecord]:
+    """Generate the demo library at ``root`` unless it is already there, then return its pool.
+
+    The benchmarks reuse a library across runs with ``--work DIR``; generating it is deterministic.
+    """
+    from mixcount.catalog.demo_library import generate_demo_library
+
+    root = Path(root)
+    if not (root / "ground_truth.json").exists():
+        generate_demo_library(root, seed=seed)
+    return pool_from_demo_library(root, split=split)
