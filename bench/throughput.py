@@ -60,7 +60,7 @@ def _annotations(out: Path, split: str) -> list[tuple[Any, ...]]:
 
 def _run(kind: str, executor: Any, *, pool: list[Any], cfg: Any, out: Path, assets: Path, n: int,
          pids: Any) -> dict[str, Any]:
-    from mixcount.dataset.compose_run import compose_scenes
+    from mixcount.run.compose import compose_scenes
 
     t0 = time.perf_counter()
     summary = compose_scenes(pool=pool, config=cfg, out_dir=out, assets_dir=assets, n=n, executor=executor,
@@ -81,7 +81,7 @@ def _run(kind: str, executor: Any, *, pool: list[Any], cfg: Any, out: Path, asse
 
 def _memory(args: Any, *, pool: list[Any], cfg: Any, assets: Path, work: Path) -> dict[str, Any]:
     """RSS of one local bpy worker after each of ``args.memory`` scenes, recycling off and on."""
-    from mixcount.dataset.compose_run import compose_scenes
+    from mixcount.run.compose import compose_scenes
     from mixcount.run.local import LocalExecutor
 
     series: dict[str, Any] = {}
@@ -120,7 +120,7 @@ def main() -> int:
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private 127.0.0.1 cluster
 
     from mixcount.config import load_config
-    from mixcount.dataset.demo_pool import ensure_demo_pool
+    from mixcount.demo.pool import ensure_demo_pool
     from mixcount.run.factory import make_executor
     from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene

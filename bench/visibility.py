@@ -40,9 +40,9 @@ def main() -> int:
 
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
-    from mixcount.dataset.compose_run import worker_options
-    from mixcount.dataset.demo_pool import ensure_demo_pool
-    from mixcount.dataset.scene_task import WRITTEN, SceneTask, run_scene_task
+    from mixcount.run.compose import worker_options
+    from mixcount.demo.pool import ensure_demo_pool
+    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
     from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets

@@ -34,8 +34,8 @@ def _config(*extra: str):
 
 @pytest.fixture(scope="module")
 def library(tmp_path_factory: pytest.TempPathFactory):
-    from mixcount.catalog.demo_library import generate_demo_library
-    from mixcount.dataset.demo_pool import pool_from_demo_library
+    from mixcount.demo.library import generate_demo_library
+    from mixcount.demo.pool import pool_from_demo_library
 
     root = tmp_path_factory.mktemp("lib")
     generate_demo_library(root / "demo", seed=0, n_objects=8)
@@ -44,7 +44,7 @@ def library(tmp_path_factory: pytest.TempPathFactory):
 
 @pytest.fixture(scope="module")
 def composed(library, tmp_path_factory: pytest.TempPathFactory):
-    from mixcount.dataset.compose_run import compose_scenes
+    from mixcount.run.compose import compose_scenes
 
     pool, assets = library
     out = tmp_path_factory.mktemp("out")
@@ -214,7 +214,7 @@ def _kill_when_tmp_scene_appears(out: Path, kill, timeout: float = 120.0) -> thr
 
 
 def test_worker_killed_mid_scene_fails_only_that_scene(library, tmp_path: Path) -> None:
-    from mixcount.dataset.compose_run import compose_scenes
+    from mixcount.run.compose import compose_scenes
     from mixcount.run.local import LocalExecutor
 
     pool, assets = library
@@ -248,8 +248,8 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
     script = (
         "import sys; from pathlib import Path\n"
         "from tests.test_blender_worker import _config\n"
-        "from mixcount.dataset.demo_pool import pool_from_demo_library\n"
-        "from mixcount.dataset.compose_run import compose_scenes\n"
+        "from mixcount.demo.pool import pool_from_demo_library\n"
+        "from mixcount.run.compose import compose_scenes\n"
         f"pool = pool_from_demo_library(Path({str(Path(pool[0].model_path).parent.parent)!r}))\n"
         f"compose_scenes(pool=pool, config=_config(), out_dir=Path({str(out)!r}), assets_dir=Path({str(assets)!r}),"
         " n=2, seed=1, progress=False)\n"
@@ -261,7 +261,7 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
     th.join(5)
     assert proc.returncode == -signal.SIGKILL
     assert _scenes(out) == []  # nothing half-written is visible as a scene
-    from mixcount.dataset.compose_run import compose_scenes
+    from mixcount.run.compose import compose_scenes
 
     summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2, seed=1,
                              progress=False)

@@ -27,7 +27,7 @@ from mixcount.captions.http import (
     parse_retry_after,
     quota_exhausted,
 )
-from mixcount.catalog.captioning import caption_catalog
+from mixcount.captions.captioning import caption_catalog
 from mixcount.catalog.models import CaptionFailure, CaptionSet, CatalogObject, Render
 
 pytestmark = pytest.mark.network

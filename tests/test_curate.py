@@ -10,8 +10,8 @@ import pytest
 import trimesh
 from sqlalchemy import select
 
-from mixcount.catalog import descriptors as D
-from mixcount.catalog.curate import EXCLUDED_MARK, FILTER_KINDS, run_filter
+from mixcount.curation import descriptors as D
+from mixcount.curation.flags import EXCLUDED_MARK, FILTER_KINDS, run_filter
 from mixcount.catalog.models import CatalogObject, Flag, ReviewDecision
 from test_curate_support import library_catalog, quick_config
 

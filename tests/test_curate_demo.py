@@ -11,9 +11,9 @@ import pytest
 from PIL import Image
 from sqlalchemy import select
 
-from mixcount.catalog.curate import DUPLICATE_KINDS, evaluate_against_ground_truth
+from mixcount.curation.flags import DUPLICATE_KINDS, evaluate_against_ground_truth
 from mixcount.catalog.db import open_catalog
-from mixcount.catalog.demo_library import generate_demo_library
+from mixcount.demo.library import generate_demo_library
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.cli import main
 

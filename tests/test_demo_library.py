@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from mixcount.catalog.demo_library import CONTAINER_CATEGORIES, generate_demo_library
+from mixcount.demo.library import CONTAINER_CATEGORIES, generate_demo_library
 from mixcount.catalog.ingest import DTC_NAME
 
 

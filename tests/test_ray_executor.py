@@ -30,7 +30,7 @@ from typing import Any, Iterator
 
 import pytest
 
-from mixcount.dataset.scene_task import FAILED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.run.scene_task import FAILED, WRITTEN, SceneOutcome, SceneTask
 
 pytestmark = [pytest.mark.ray]
 

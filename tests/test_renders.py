@@ -14,7 +14,7 @@ from sqlalchemy import select
 
 from mixcount.catalog.ingest import ingest_paths
 from mixcount.catalog.models import CatalogObject, Render
-from mixcount.catalog.renders import canonical_render_path, mask_path_for, render_catalog
+from mixcount.curation.renders import canonical_render_path, mask_path_for, render_catalog
 from mixcount.config import load_config
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]

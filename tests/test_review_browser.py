@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from mixcount.catalog.curate import run_filter
+from mixcount.curation.flags import run_filter
 from mixcount.catalog.models import CatalogObject, ReviewDecision
-from mixcount.catalog.review import FORMAT
-from mixcount.catalog.sheets import write_sheets
+from mixcount.curation.review import FORMAT
+from mixcount.curation.sheets import write_sheets
 from mixcount.cli import main
 from test_curate_support import add_captions, library_catalog, quick_config
 

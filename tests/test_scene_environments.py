@@ -14,7 +14,7 @@ from mixcount.catalog.environments import classify_maps, is_environment_map
 from mixcount.config import load_config
 from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import PATTERNS, render_pattern, sample_pattern_params
-from mixcount.scene.pool import load_environments, load_materials
+from mixcount.catalog.pool import load_environments, load_materials
 from mixcount.scene.sampler import sample_scene
 from test_scene_distributions import rich_pool
 

@@ -14,10 +14,10 @@ import pytest
 from PIL import Image
 from sqlalchemy import select
 
-from mixcount.catalog.curate import run_filter
+from mixcount.curation.flags import run_filter
 from mixcount.catalog.models import CatalogObject, ReviewDecision
-from mixcount.catalog.review import FORMAT, import_decisions
-from mixcount.catalog.sheets import STATUS_COLOURS, collect, safe_json, write_sheets
+from mixcount.curation.review import FORMAT, import_decisions
+from mixcount.curation.sheets import STATUS_COLOURS, collect, safe_json, write_sheets
 from mixcount.cli import main
 from mixcount.errors import CatalogError
 from test_curate_support import add_captions, library_catalog, quick_config

@@ -12,7 +12,7 @@ import pytest
 
 from mixcount.config import load_config
 from mixcount.scene.config import SceneConfig
-from mixcount.scene.pool import load_pool
+from mixcount.catalog.pool import load_pool
 from mixcount.scene.sampler import sample_scene
 from mixcount.usd.stage import write_stage
 
@@ -84,7 +84,7 @@ print(json.dumps({
 def build_demo_catalog(root: Path, n_objects: int = 16):
     """Demo library -> real ingest -> every active object in train. Returns the open catalog."""
     from mixcount.catalog.db import open_catalog
-    from mixcount.catalog.demo_library import generate_demo_library
+    from mixcount.demo.library import generate_demo_library
     from mixcount.catalog.ingest import ingest_paths
     from mixcount.catalog.models import CatalogObject, Split
 

@@ -42,6 +42,7 @@ from mixcount.catalog.models import (
     utcnow,
 )
 from mixcount.config import Config
+from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.errors import CatalogError, IngestError
 
 DTC_MODEL = "3d-asset"
@@ -476,25 +477,13 @@ def _run_analysis(kwargs: dict[str, Any]) -> tuple[dict[str, Any] | None, str | 
         return None, f"mesh analysis failed: {type(exc).__name__}: {str(exc)[:200]}"
 
 
-def _make_progress(enabled: bool):  # type: ignore[no-untyped-def]
-    if not enabled:
-        return None
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    return Progress(
-        TextColumn("[bold]ingest[/]"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-        TextColumn("{task.description}"), console=Console(stderr=True), transient=False,
-    )
-
-
 def ingest_paths(
     catalog: Any,
     paths: Iterable[Path | str],
     *,
     config: Config,
     workers: int | None = None,
-    progress: bool = False,
+    progress: ProgressReporter | bool | None = None,
     strict: bool = False,
 ) -> IngestSummary:
     """Ingest every object under ``paths`` into ``catalog``; see the module docstring.
@@ -520,13 +509,11 @@ def ingest_paths(
         if outcome == "broken":
             summary.broken_objects.append((prep.cand.name, error or prep.error or ""))
 
-    bar = _make_progress(progress)
-    task = bar.add_task("", total=len(candidates)) if bar else None
+    bar = as_reporter(progress)
     pending: list[Prepared] = []
     status = "interrupted"
     try:
-        if bar:
-            bar.start()
+        bar.start("ingest", len(candidates))
         with catalog.session() as session:
             known = _existing_rows(session, candidates)
             for cand in candidates:
@@ -537,14 +524,14 @@ def ingest_paths(
                         count("broken", prep)  # still broken the same way: nothing to write
                     else:
                         count(_store(session, prep, None, prep.error, summary.run_id), prep)
-                    bar and bar.advance(task)  # type: ignore[func-returns-value]
+                    bar.advance()
                     continue
                 if existing is not None and existing.status != STATUS_BROKEN:
                     info = _ingest_info(existing)
                     same_path = existing.model_path == str(cand.model_path.resolve())  # type: ignore[union-attr]
                     if info.get("ingest_hash") == prep.ingest_hash and same_path:
                         count("unchanged", prep)
-                        bar and bar.advance(task)  # type: ignore[func-returns-value]
+                        bar.advance()
                         continue
                     if (
                         existing.content_hash == prep.content_hash
@@ -554,15 +541,14 @@ def ingest_paths(
                     ):
                         # only sidecars or the location changed: keep the measured facts
                         count(_store(session, prep, _facts_of(existing), None, summary.run_id), prep)
-                        bar and bar.advance(task)  # type: ignore[func-returns-value]
+                        bar.advance()
                         continue
                 pending.append(prep)
             if pending:
-                _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar, task)
+                _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar)
         status = "done"
     finally:
-        if bar:
-            bar.stop()
+        bar.stop()
         with catalog.session() as session:
             run = session.get(IngestRun, summary.run_id)
             if run is not None:
@@ -574,14 +560,13 @@ def ingest_paths(
     return summary
 
 
-def _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar, task):  # type: ignore[no-untyped-def]
+def _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar):  # type: ignore[no-untyped-def]
     """Run mesh analysis for ``pending`` (process pool when > 1 worker), storing each as it finishes."""
 
     def finish(prep: Prepared, facts: dict[str, Any] | None, error: str | None) -> None:
         outcome = _store(session, prep, facts, error, summary.run_id)
         count(outcome, prep, error)
-        if bar:
-            bar.update(task, advance=1, description=prep.cand.name[:40])
+        bar.advance(info=prep.cand.name[:40])
 
     if n_workers <= 1 or len(pending) == 1:
         for prep in pending:

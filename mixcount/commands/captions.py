@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from mixcount.commands.common import console, out, state
+from mixcount.commands.common import RichProgress, console, out, state
 from mixcount.errors import CatalogError, ConfigError
 
 
@@ -37,7 +37,7 @@ def caption_cmd(
     json_out: bool = typer.Option(True, "--json/--no-json", help="Print the summary as JSON on stdout."),
 ) -> None:
     """Caption every active object at three tiers (short / concise / detailed); resumable."""
-    from mixcount.catalog.captioning import caption_catalog
+    from mixcount.captions.captioning import caption_catalog
 
     st = state(ctx)
     cfg = st.config()
@@ -51,7 +51,7 @@ def caption_cmd(
     catalog = st.catalog()
     try:
         summary = caption_catalog(
-            catalog, cap, force=force, dedupe=dedupe, progress=True,
+            catalog, cap, force=force, dedupe=dedupe, progress=RichProgress(),
             colour_source=str(cfg["captions"]["colour_source"]),
             concurrency=int(cfg["captions"]["concurrency"]),
         )

@@ -13,7 +13,7 @@ from typing import Any, Optional
 
 import typer
 
-from mixcount.commands.common import console, out, state
+from mixcount.commands.common import RichProgress, console, out, state
 from mixcount.errors import CompositionError
 
 
@@ -21,7 +21,7 @@ def plan_scenes(catalog: Any, config: Any, *, n: int, split: Optional[str] = Non
                 seed: Optional[int] = None) -> list[Any]:
     """SceneSpecs for scenes ``seed .. seed+n-1`` of ``split`` (defaults from ``[compose]``)."""
     from mixcount.scene.config import SceneConfig
-    from mixcount.scene.pool import load_environments, load_materials, load_pool
+    from mixcount.catalog.pool import load_environments, load_materials, load_pool
     from mixcount.scene.sampler import sample_scene
 
     sconf = SceneConfig.from_config(config)
@@ -104,7 +104,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
         st = state(ctx)
-        if config_file is not None:  # rendering options are config overrides (area E: mixcount.dataset.compose_run)
+        if config_file is not None:  # rendering options are config overrides (area E: mixcount.run.compose)
             st.config_files.append(config_file)
         st.overrides += [f"compose.{k}={v}" for k, v in (("resolution", resolution), ("samples", samples)) if v is not None]
         st._config = None
@@ -119,10 +119,10 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             console.print(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}")
             out.print(json.dumps({"stages": [str(p) for p in paths]}, indent=2))
             return
-        from mixcount.dataset.compose_run import compose_scenes
+        from mixcount.run.compose import compose_scenes
 
         with catalog.session() as session:
-            from mixcount.scene.pool import load_environments, load_materials, load_pool
+            from mixcount.catalog.pool import load_environments, load_materials, load_pool
 
             pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
         executor = None  # local: compose_scenes starts its own pool; ray (area G): mixcount.run.factory
@@ -133,7 +133,8 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         try:
             summary = compose_scenes(pool=pool, config=st.config(), out_dir=out_dir.resolve(),
                                      assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n, split=split, seed=seed,
-                                     workers=workers, environments=tuple(envs), materials=tuple(mats), executor=executor)
+                                     workers=workers, environments=tuple(envs), materials=tuple(mats), executor=executor,
+                                     progress=RichProgress())
         finally:
             if executor is not None:
                 executor.close()

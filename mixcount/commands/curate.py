@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 from rich.markup import escape
 
-from mixcount.commands.common import console, out, state
+from mixcount.commands.common import RichProgress, console, out, state
 
 review_app = typer.Typer(help="Apply a person's accept/reject decisions from the HTML review page.",
                          no_args_is_help=True)
@@ -23,13 +23,13 @@ def render_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
 ) -> None:
     """Canonical white-background renders of active objects (bpy worker processes; resumable)."""
-    from mixcount.catalog.renders import render_catalog
+    from mixcount.curation.renders import render_catalog
 
     st = state(ctx)
     catalog = st.catalog()
     try:
         summary = render_catalog(catalog, st.config(), object_ids=ids or None, include_excluded=include_excluded,
-                                 force=force, progress=True)
+                                 force=force, progress=RichProgress())
     finally:
         catalog.close()
     for f in summary.failures:
@@ -46,7 +46,7 @@ def filter_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
 ) -> None:
     """Flag duplicates and degenerate/outlier objects, exclude all but one per duplicate group (idempotent)."""
-    from mixcount.catalog.curate import run_filter
+    from mixcount.curation.flags import run_filter
 
     st = state(ctx)
     catalog = st.catalog()
@@ -87,7 +87,7 @@ def sheet_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print what was written as JSON on stdout."),
 ) -> None:
     """Write PNG contact sheets and one self-contained HTML review page."""
-    from mixcount.catalog.sheets import write_sheets
+    from mixcount.curation.sheets import write_sheets
 
     catalog = state(ctx).catalog()
     try:
@@ -108,7 +108,7 @@ def review_import_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
 ) -> None:
     """Record accept/reject decisions (with reviewer and time) and apply them to object statuses."""
-    from mixcount.catalog.review import import_decisions
+    from mixcount.curation.review import import_decisions
 
     catalog = state(ctx).catalog()
     try:

@@ -20,7 +20,7 @@ def demo_library_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the ground truth's counts as JSON on stdout."),
 ) -> None:
     """Generate the demo library: everyday objects, containers and curation traps, plus ground_truth.json."""
-    from mixcount.catalog.demo_library import generate_demo_library
+    from mixcount.demo.library import generate_demo_library
 
     cfg = state(ctx).config()
     seed = int(cfg["demo"]["seed"]) if seed is None else seed

@@ -10,7 +10,7 @@ from typing import Optional
 import typer
 from rich.markup import escape
 
-from mixcount.commands.common import console, out, state
+from mixcount.commands.common import RichProgress, console, out, state
 from mixcount.errors import CatalogError
 
 
@@ -29,7 +29,7 @@ def ingest_cmd(
     discover(paths)  # a missing PATH is an error before the database is touched
     catalog = st.catalog()
     try:
-        summary = ingest_paths(catalog, paths, config=cfg, workers=workers, progress=True, strict=strict)
+        summary = ingest_paths(catalog, paths, config=cfg, workers=workers, progress=RichProgress(), strict=strict)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)

@@ -1,11 +1,11 @@
-"""Executors run :class:`~mixcount.dataset.scene_task.SceneTask` s; this is the local one.
+"""Executors run :class:`~mixcount.run.scene_task.SceneTask` s; this is the local one.
 
 The interface every executor implements (a Ray one lives in ``mixcount/run/ray_executor.py``):
 
 * ``slots`` - how many scenes may be in flight at once;
 * ``submit(task)`` - queue one task;
 * ``next_outcome(timeout=None)`` - block until some task finishes, return its
-  :class:`~mixcount.dataset.scene_task.SceneOutcome` (completion order, not submission order);
+  :class:`~mixcount.run.scene_task.SceneOutcome` (completion order, not submission order);
 * ``close()`` - stop the workers (also via ``with``).
 
 :class:`LocalExecutor` keeps ``workers`` threads, each owning one long-lived
@@ -20,7 +20,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable, Optional, Protocol
 
-from mixcount.dataset.scene_task import SceneOutcome, SceneTask, run_scene_task
+from mixcount.run.scene_task import SceneOutcome, SceneTask, run_scene_task
 
 
 class Executor(Protocol):

@@ -8,14 +8,14 @@ once per scene, and still never runs inside a Ray worker process itself). One ac
 * at most ``slots`` scenes are in flight (one per actor); further ``submit`` s wait in a local queue;
 * ``next_outcome`` returns outcomes in completion order (``ray.wait``);
 * a failed call fails one scene: a Ray error (task error, actor or node death, lost object, a call that
-  overran the scene timeout) becomes a :class:`~mixcount.dataset.scene_task.SceneOutcome` with status
+  overran the scene timeout) becomes a :class:`~mixcount.run.scene_task.SceneOutcome` with status
   "failed"; the actor is restarted by Ray (``max_restarts=-1``) and takes the next scene. Calls are never
   retried by Ray (``max_task_retries=0``): a rerun of ``compose`` redoes missing scenes, and the writer's
   temporary-folder-then-rename keeps a half-done scene out of OUT;
 * each actor recycles its BlenderWorker after ``recycle_after`` scenes (``[compose].recycle_after``) so
   the bpy process's memory stays flat over long runs.
 
-Files, not objects, carry the data: a :class:`~mixcount.dataset.scene_task.SceneTask` holds absolute paths
+Files, not objects, carry the data: a :class:`~mixcount.run.scene_task.SceneTask` holds absolute paths
 (the output folder and the converted USD assets), and the actor writes the finished scene folder there.
 Every node must therefore see the same paths (a shared filesystem: NFS, a cloud bucket mounted with the
 same path, ...) and have the same Python environment (see docs/ray.md). An actor checks that the task's
@@ -34,7 +34,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-from mixcount.dataset.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
+from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
 from mixcount.errors import MixcountError
 
 #: seconds a call may run beyond its task's ``timeout_s`` before the driver gives up on the actor

@@ -41,7 +41,7 @@ def ensure_demo_pool(root: Path, *, seed: int = 0, split: str = "train") -> list
 
     The benchmarks reuse a library across runs with ``--work DIR``; generating it is deterministic.
     """
-    from mixcount.catalog.demo_library import generate_demo_library
+    from mixcount.demo.library import generate_demo_library
 
     root = Path(root)
     if not (root / "ground_truth.json").exists():

@@ -37,8 +37,9 @@ from mixcount.catalog.models import (
     ReviewDecision,
 )
 from mixcount.errors import CaptionError
+from mixcount.progress import ProgressReporter, as_reporter
 
-log = logging.getLogger("mixcount.catalog.captioning")
+log = logging.getLogger("mixcount.captions.captioning")
 
 COLLISION_KIND = "caption_collision"
 
@@ -66,7 +67,7 @@ class CaptionSummary:
 def render_path_for(session: Session, object_id: int) -> Path | None:
     """The canonical render of an object (area B's helper when present, else the renders table)."""
     try:
-        from mixcount.catalog.renders import canonical_render_path  # type: ignore[import-not-found]
+        from mixcount.curation.renders import canonical_render_path  # type: ignore[import-not-found]
     except ImportError:
         canonical_render_path = None
     if canonical_render_path is not None:
@@ -106,7 +107,7 @@ def caption_catalog(
     dedupe: bool = False,
     object_ids: Iterable[int] | None = None,
     concurrency: int | None = None,
-    progress: bool = False,
+    progress: ProgressReporter | bool | None = None,
     redact: Callable[[str], str] | None = None,
     colour_source: str = "model",
 ) -> CaptionSummary:
@@ -133,9 +134,9 @@ def caption_catalog(
                 todo.append(obj)
         session.commit()
 
-        bar_ctx = _progress(progress, len(todo), f"captioning ({captioner.name})")
-        with bar_ctx as bar, ThreadPoolExecutor(max_workers=workers) as pool:
-            task = bar.add_task("caption", total=len(todo)) if bar is not None else None
+        bar = as_reporter(progress)
+        bar.start(f"captioning ({captioner.name})", len(todo))
+        with ThreadPoolExecutor(max_workers=workers) as pool:
             # Inputs (colours read from the render / model) are built in the workers too: they cost
             # more than a stub caption.
             futures: dict[Future[CaptionResult], CatalogObject] = {}
@@ -180,8 +181,8 @@ def caption_catalog(
                     _activate(obj, new)
                     summary.captioned += 1
                 session.commit()
-                if bar is not None and task is not None:
-                    bar.advance(task)
+                bar.advance()
+        bar.stop()
 
     flag_collisions(catalog, summary=summary)
     if dedupe:
@@ -196,26 +197,6 @@ def _measure_and_caption(captioner: Captioner, item: CaptionInput, colour_source
 def _as_completed_in_order(futures: dict[Future[CaptionResult], CatalogObject]) -> Iterable[Future[CaptionResult]]:
     """Completed futures in submission order: commits (and the DB) stay deterministic."""
     return list(futures)
-
-
-class _NoBar:
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, *exc: object) -> None:
-        return None
-
-
-def _progress(enabled: bool, total: int, label: str):  # type: ignore[no-untyped-def]
-    if not enabled or total == 0:
-        return _NoBar()
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    from mixcount.commands.common import console
-
-    return Progress(
-        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console, transient=False
-    )
 
 
 def normalise_caption(text: str) -> str:

@@ -2,7 +2,7 @@
 
 Flags (each with a score in [0, 1], a reason, and the paired object where it is a pairing; pairs are
 flagged in both directions). Thresholds are the ``[filter]`` section; descriptors in
-:mod:`mixcount.catalog.descriptors`; the rationale is in docs/curation.md.
+:mod:`mixcount.curation.descriptors`; the rationale is in docs/curation.md.
 
 * ``exact_duplicate``: identical model content (content hash), or the identical mesh (geometry hash) with
   indistinguishable canonical renders.
@@ -14,7 +14,7 @@ flagged in both directions). Thresholds are the ``[filter]`` section; descriptor
 * ``degenerate``: unreadable (broken) files, too few faces, zero volume although closed, extreme aspect
   ratio, too many non-manifold edges, a blank render.
 * ``size_outlier``: outside the absolute size bounds, or far from its category's median size.
-* ``caption_collision`` belongs to captioning (:mod:`mixcount.catalog.captioning`) and is left alone.
+* ``caption_collision`` belongs to captioning (:mod:`mixcount.captions.captioning`) and is left alone.
 
 Statuses: each connected group of duplicate pairs keeps one object, the first in the *quality order*
 (a person accepted it; fewer quality flags; image texture > vertex colours > plain material > none; more
@@ -40,7 +40,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from mixcount.catalog.grouping import connected_groups
-from mixcount.catalog import descriptors as D
+from mixcount.curation import descriptors as D
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
@@ -50,7 +50,7 @@ from mixcount.catalog.models import (
     Flag,
     ReviewDecision,
 )
-from mixcount.catalog.renders import canonical_render_path, mask_path_for
+from mixcount.curation.renders import canonical_render_path, mask_path_for
 from mixcount.config import Config
 
 EXACT = "exact_duplicate"

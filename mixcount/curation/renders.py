@@ -23,6 +23,7 @@ from mixcount.catalog.db import Catalog
 from mixcount.catalog.hashing import json_hash
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
 from mixcount.config import Config
+from mixcount.progress import ProgressReporter, as_reporter
 
 RENDER_VERSION = "canonical-v1"  # bump when the renderer changes what a render looks like
 CANONICAL = "canonical"
@@ -100,7 +101,7 @@ def render_catalog(
     object_ids: Iterable[int] | None = None,
     include_excluded: bool = False,
     force: bool = False,
-    progress: bool = False,
+    progress: ProgressReporter | bool | None = None,
 ) -> RenderSummary:
     """Render every active (and optionally excluded) object whose render is missing or stale."""
     from mixcount.blender.canonical_runner import run_jobs
@@ -131,16 +132,8 @@ def render_catalog(
         return summary
 
     section = config["render"]
-    bar = None
-    if progress:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        from mixcount.commands.common import console
-
-        bar = Progress(TextColumn("[bold]render[/]"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                       console=console, transient=False)
-        task = bar.add_task("render", total=len(jobs))
-        bar.start()
+    bar = as_reporter(progress)
+    bar.start("render", len(jobs))
     hashes = {j["key"]: j["model_hash"] for j in jobs}
 
     def on_result(key: str, rec: dict[str, Any]) -> None:
@@ -163,13 +156,11 @@ def render_catalog(
                 summary.failed += 1
                 summary.failures.append({"id": oid, "name": names[key], "error": row.error})
             session.commit()
-        if bar is not None:
-            bar.advance(task)
+        bar.advance()
 
     try:
         run_jobs(jobs, on_result=on_result, workers=int(section["workers"]), timeout_s=float(section["timeout_s"]),
                  threads_per_worker=int(section["threads"]))
     finally:
-        if bar is not None:
-            bar.stop()
+        bar.stop()
     return summary

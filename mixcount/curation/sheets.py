@@ -31,8 +31,8 @@ from sqlalchemy.orm import Session
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.catalog.records import active_captions
-from mixcount.catalog.renders import canonical_render_path
-from mixcount.catalog.review import FORMAT
+from mixcount.curation.renders import canonical_render_path
+from mixcount.curation.review import FORMAT
 from mixcount.errors import CatalogError
 
 ONLY = ("all", "flagged", "excluded")
@@ -71,7 +71,7 @@ def collect(session: Session, *, only: str = "all", category: str | None = None)
     """The objects a sheet shows, sorted by category then id."""
     if only not in ONLY:
         raise CatalogError(f"--only must be one of {', '.join(ONLY)}, not {only!r}")
-    from mixcount.catalog.curate import latest_decisions
+    from mixcount.curation.flags import latest_decisions
 
     query = select(CatalogObject).order_by(CatalogObject.category, CatalogObject.id)
     if category:

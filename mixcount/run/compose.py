@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-from mixcount.dataset.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 from mixcount.errors import CompositionError
+from mixcount.progress import ProgressReporter, as_reporter
 
 
 @dataclass
@@ -54,13 +55,10 @@ def worker_options(config: Any, *, oracle: bool = False, workers: int = 1) -> di
 def compose_scenes(
     *, pool: list[Any], config: Any, out_dir: Path, assets_dir: Path, n: int, split: Optional[str] = None,
     seed: Optional[int] = None, workers: Optional[int] = None, executor: Any = None,
-    environments: tuple = (), materials: tuple = (), progress: bool = True, oracle: bool = False,
+    environments: tuple = (), materials: tuple = (), progress: ProgressReporter | bool | None = None, oracle: bool = False,
     on_outcome: Optional[Callable[[SceneOutcome], None]] = None,
 ) -> ComposeSummary:
     """Render until ``n`` scenes of ``split`` are complete in ``out_dir`` (see module docstring)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    from mixcount.commands.common import console
     from mixcount.dataset.merge import finalize_dataset
     from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp, is_complete
     from mixcount.scene.config import SceneConfig
@@ -120,50 +118,50 @@ def compose_scenes(
                                                             if k in {d.object_id for d in spec.distractors}})
         return None
 
-    columns = [TextColumn("[bold]compose[/]"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("failed {task.fields[failed]}  regenerated {task.fields[regen]}"),
-               TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn()]
+    bar = as_reporter(progress)
+
+    def info() -> str:
+        return f"failed {summary.failed}  regenerated {summary.empty + summary.rejected}"
+
+    bar.start("compose", n)
     try:
-        with Progress(*columns, console=console, disable=not progress, transient=False) as bar:
-            task_id = bar.add_task("scenes", total=n, failed=0, regen=0)
-            while summary.written < n:
-                while in_flight < executor.slots and summary.written + in_flight < n:
-                    task = next_task()
-                    if task is None:
-                        break
-                    executor.submit(task)
-                    in_flight += 1
-                bar.update(task_id, completed=summary.written)
-                if in_flight == 0:
+        while summary.written < n:
+            while in_flight < executor.slots and summary.written + in_flight < n:
+                task = next_task()
+                if task is None:
                     break
-                outcome = executor.next_outcome()
-                in_flight -= 1
-                summary.outcomes.append(outcome.to_dict())
-                if outcome.status == WRITTEN:
-                    summary.written += 1
-                elif outcome.status == SKIPPED:
-                    summary.written += 1
-                    summary.skipped += 1
-                elif outcome.status in (EMPTY, REJECTED):
-                    if outcome.status == EMPTY:
-                        summary.empty += 1
-                    else:
-                        summary.rejected += 1
-                else:
-                    summary.failed += 1
-                    summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed,
-                                             "error": outcome.error})
-                    console.print(f"[red]scene {outcome.scene_id} failed:[/] {(outcome.error or '').splitlines()[0][:300]}")
-                if on_outcome is not None:
-                    on_outcome(outcome)
-                bar.update(task_id, completed=summary.written, failed=summary.failed,
-                           regen=summary.empty + summary.rejected)
+                executor.submit(task)
+                in_flight += 1
+            bar.update(completed=summary.written, info=info())
+            if in_flight == 0:
+                break
+            outcome = executor.next_outcome()
+            in_flight -= 1
+            summary.outcomes.append(outcome.to_dict())
+            if outcome.status == WRITTEN:
+                summary.written += 1
+            elif outcome.status == SKIPPED:
+                summary.written += 1
+                summary.skipped += 1
+            elif outcome.status == EMPTY:
+                summary.empty += 1
+            elif outcome.status == REJECTED:
+                summary.rejected += 1
+            else:
+                summary.failed += 1
+                summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed,
+                                         "error": outcome.error})
+                bar.note(f"scene {outcome.scene_id} failed: {(outcome.error or '').splitlines()[0][:300]}")
+            if on_outcome is not None:
+                on_outcome(outcome)
+            bar.update(completed=summary.written, info=info())
     finally:
+        bar.stop()
         if own_executor:
             executor.close()
     summary.seconds = round(time.perf_counter() - t0, 3)
     if summary.written < n:
-        console.print(f"[yellow]only {summary.written} of {n} scenes written after {attempts} attempts[/]")
+        bar.note(f"only {summary.written} of {n} scenes written after {attempts} attempts")
     summary.outputs = finalize_dataset(
         out_dir, config=config.to_dict(), config_hash=config.hash,
         run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
@@ -183,9 +181,9 @@ def _scene_split(scene_dir: Path) -> Optional[str]:
 
 def compose_from_catalog(catalog: Any, config: Any, *, n: int, out_dir: Path, split: Optional[str] = None,
                          seed: Optional[int] = None, workers: Optional[int] = None,
-                         progress: bool = True) -> ComposeSummary:
+                         progress: ProgressReporter | bool | None = None) -> ComposeSummary:
     """The CLI entry: load the sampler pool from the catalog and run :func:`compose_scenes`."""
-    from mixcount.scene.pool import load_environments, load_materials, load_pool
+    from mixcount.catalog.pool import load_environments, load_materials, load_pool
 
     with catalog.session() as session:
         pool = load_pool(session)

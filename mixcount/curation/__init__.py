@@ -1,0 +1,1 @@
+"""Curation: canonical renders, descriptors, duplicate/degenerate/outlier flags, review, contact sheets."""
