@@ -4,4 +4,9 @@
 modules that need them (``mixcount.blender`` runs bpy in worker processes only).
 """
 
-__version__ = "0.1.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("mixcount")  # one source of truth: pyproject.toml
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"

@@ -24,6 +24,14 @@ catalog_app = typer.Typer(
 app.add_typer(catalog_app, name="catalog")
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from mixcount import __version__
+
+        typer.echo(f"mixcount {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
 def _root(
     ctx: typer.Context,
@@ -35,6 +43,9 @@ def _root(
     ),
     set_: list[str] = typer.Option(
         [], "--set", help="Override one config key: --set scene.n_objects_max=50 (unknown keys are errors)."
+    ),
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True, help="Print the mixcount version and exit."
     ),
 ) -> None:
     ctx.obj = AppState(db=db, config_files=list(config), overrides=list(set_))
@@ -57,27 +68,24 @@ _register_commands()
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console-script entry point."""
+    """Console-script entry point: usage errors exit 2 with the usage line and one line of error,
+    a :class:`MixcountError` exits 2 with its message, Ctrl-C exits 130. Never a traceback for either."""
+    # typer vendors click as ``typer._click``: its exceptions are not ``click.exceptions`` classes.
+    from typer._click import exceptions as click_exc
+
     try:
-        result = app(args=argv, standalone_mode=False)
+        result = app(args=argv, standalone_mode=False, prog_name="mixcount")
     except MixcountError as exc:
         console.print(f"[bold red]error:[/] {exc}", highlight=False)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, typer.Abort):
         console.print("[yellow]interrupted[/]")
         return 130
-    except SystemExit as exc:  # typer's own exits (--help, usage errors)
+    except click_exc.ClickException as exc:  # usage errors: bad option, bad value, unknown command
+        exc.show()
+        return exc.exit_code
+    except SystemExit as exc:  # typer's own exits (--help)
         return int(exc.code or 0)
-    except Exception as exc:  # click usage errors come through here with standalone_mode=False
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            return exc.exit_code
-        if isinstance(exc, click.exceptions.Abort):
-            console.print("[yellow]aborted[/]")
-            return 130
-        raise
     # In non-standalone mode typer returns the code of typer.Exit(n) and 130 for Ctrl-C.
     if isinstance(result, int) and not isinstance(result, bool) and result:
         return result
