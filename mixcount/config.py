@@ -18,9 +18,9 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from mixcount.errors import ConfigError
+from mixcount.resources import data_dir
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
-CONFIG_DIR = PROJECT_ROOT / "configs"
+CONFIG_DIR = data_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"
 
 

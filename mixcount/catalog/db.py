@@ -15,10 +15,10 @@ from sqlalchemy.engine import Engine, make_url
 from sqlalchemy.exc import OperationalError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from mixcount.config import PROJECT_ROOT
+from mixcount.resources import data_dir
 from mixcount.errors import CatalogError
 
-MIGRATIONS_DIR = PROJECT_ROOT / "migrations"
+MIGRATIONS_DIR = data_dir("migrations")
 DEFAULT_DB_PATH = Path("catalog") / "catalog.db"
 
 

@@ -21,14 +21,14 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.config import PROJECT_ROOT
 from mixcount.errors import CompositionError
+from mixcount.resources import data_dir
 from mixcount.scene.environments import write_pattern_png
 from mixcount.scene.sampler import look_at_rotation
 from mixcount.scene.spec import ROLE_CONTAINER, PlacedObject, SceneSpec
 from mixcount.usd.assets import AssetPaths, convert_asset
 
-TEMPLATES_DIR = PROJECT_ROOT / "usd_templates"
+TEMPLATES_DIR = data_dir("usd_templates")
 TEMPLATE_LAYERS = ("scene_root.usda", "floor.usda", "camera_rig.usda", "lights.usda")
 STAGE_NAME = "scene.usda"
 CYLINDER_SEGMENTS = 64
