@@ -36,6 +36,7 @@ from mixcount.catalog.models import (
     Render,
     ReviewDecision,
 )
+from mixcount.catalog.decisions import accepted_ids
 from mixcount.errors import CaptionError
 from mixcount.progress import ProgressReporter, as_reporter
 
@@ -271,7 +272,7 @@ def dedupe_collisions(catalog: Catalog) -> int:
         flags = session.scalars(select(Flag).where(Flag.kind == COLLISION_KIND)).all()
         pairs = {(min(f.object_id, f.pair_object_id), max(f.object_id, f.pair_object_id))
                  for f in flags if f.pair_object_id is not None}
-        accepted = _accepted(session)
+        accepted = accepted_ids(session)
         excluded = 0
         for group in collision_groups(pairs):
             members = [session.get(CatalogObject, oid) for oid in group]
@@ -285,10 +286,3 @@ def dedupe_collisions(catalog: Catalog) -> int:
                     excluded += 1
         session.commit()
     return excluded
-
-
-def _accepted(session: Session) -> set[int]:
-    latest: dict[int, ReviewDecision] = {}
-    for rd in session.scalars(select(ReviewDecision).order_by(ReviewDecision.decided_at, ReviewDecision.id)):
-        latest[rd.object_id] = rd
-    return {oid for oid, rd in latest.items() if rd.decision == "accept"}

@@ -30,11 +30,10 @@ from urllib.parse import unquote
 import numpy as np
 
 from mixcount.errors import IngestError
+from mixcount.frame import UNIT_SCALE, to_metres_z_up, walk_geometry
 
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".usd", ".usda", ".usdc", ".usdz")
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
-UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
-UP_AXES = ("X", "Y", "Z")
 GLB_MAGIC = b"glTF"
 
 
@@ -211,11 +210,7 @@ def _load_trimesh(path: Path) -> _Parts:
     parts = _Parts([], [], set())
     if not scene.geometry:
         raise IngestError(f"no mesh data in file (not a valid {path.suffix.lower().lstrip('.').upper()} model)")
-    for node in scene.graph.nodes_geometry:
-        transform, geom_name = scene.graph[node]
-        geom = scene.geometry.get(geom_name)
-        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
-            continue
+    for _node, transform, geom in walk_geometry(scene):
         parts.vertices.append(trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform))
         parts.faces.append(np.asarray(geom.faces, dtype=np.int64))
         parts.appearance.add(_appearance_of(geom))
@@ -280,17 +275,6 @@ def _load_usd(path: Path) -> tuple[_Parts, float, str]:
     return parts, mpu, up
 
 
-def up_axis_rotation(up: str) -> np.ndarray:
-    """3x3 rotation taking a ``up``-up frame to Z-up (Y-up as Blender's glTF importer does it)."""
-    if up == "Z":
-        return np.eye(3)
-    if up == "Y":  # (x, y, z) -> (x, -z, y)
-        return np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
-    if up == "X":  # (x, y, z) -> (-z, y, x)
-        return np.array([[0, 0, -1.0], [0, 1.0, 0], [1.0, 0, 0]])
-    raise IngestError(f"unknown up axis {up!r} (expected X, Y or Z)")
-
-
 @dataclass
 class NormalisedMesh:
     """A geometry-only mesh in metres, Z-up, duplicate vertices merged, plus what the source used."""
@@ -330,7 +314,10 @@ def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> Norm
         raise IngestError("mesh has non-finite vertex coordinates")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise IngestError("mesh has face indices outside its vertex list")
-    vertices = vertices @ up_axis_rotation(up).T
+    try:
+        vertices = to_metres_z_up(vertices, 1.0, up)
+    except ValueError as exc:
+        raise IngestError(str(exc)) from None
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=True)  # merges duplicate vertices
     if len(mesh.faces) == 0:
         raise IngestError("mesh has no faces")

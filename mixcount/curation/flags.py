@@ -51,6 +51,7 @@ from mixcount.catalog.models import (
     ReviewDecision,
 )
 from mixcount.curation.renders import canonical_render_path, mask_path_for
+from mixcount.catalog.decisions import latest_decisions
 from mixcount.config import Config
 
 EXACT = "exact_duplicate"
@@ -101,14 +102,6 @@ class _Found:
 
 def _label(obj: CatalogObject) -> str:
     return f"#{obj.id} {obj.name!r}"
-
-
-def latest_decisions(session: Session) -> dict[int, ReviewDecision]:
-    """object id -> its latest review decision (by time, then insertion order)."""
-    latest: dict[int, ReviewDecision] = {}
-    for rd in session.scalars(select(ReviewDecision).order_by(ReviewDecision.decided_at, ReviewDecision.id)):
-        latest[rd.object_id] = rd
-    return latest
 
 
 def _appearance_kind(obj: CatalogObject) -> str:

@@ -26,6 +26,7 @@ from sqlalchemy import select
 
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
+from mixcount.catalog.decisions import latest_decisions
 from mixcount.errors import CatalogError
 
 FORMAT = "mixcount-review-v1"
@@ -119,9 +120,10 @@ def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = Non
                 summary.recorded += 1
         session.flush()
         # the latest decision per object sets its status (a file may hold older decisions than the DB)
-        for obj in {o.id: o for o, *_ in planned}.values():
-            latest = session.scalars(select(ReviewDecision).where(ReviewDecision.object_id == obj.id)
-                                     .order_by(ReviewDecision.decided_at.desc(), ReviewDecision.id.desc())).first()
+        touched = {o.id: o for o, *_ in planned}
+        newest = latest_decisions(session, touched)
+        for obj in touched.values():
+            latest = newest.get(obj.id)
             if latest is None or obj.status == STATUS_BROKEN:
                 continue
             want = STATUS_ACTIVE if latest.decision == "accept" else STATUS_EXCLUDED

@@ -71,7 +71,7 @@ def collect(session: Session, *, only: str = "all", category: str | None = None)
     """The objects a sheet shows, sorted by category then id."""
     if only not in ONLY:
         raise CatalogError(f"--only must be one of {', '.join(ONLY)}, not {only!r}")
-    from mixcount.curation.flags import latest_decisions
+    from mixcount.catalog.decisions import latest_decisions
 
     query = select(CatalogObject).order_by(CatalogObject.category, CatalogObject.id)
     if category:

@@ -26,20 +26,10 @@ from typing import Any, Optional
 import numpy as np
 
 from mixcount.errors import CompositionError
+from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
 
 CONVERTER_VERSION = 2  # bump when the converter output changes: cached assets are rebuilt
-UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
-
-
-def up_rotation(up: str) -> np.ndarray:
-    """3x3 rotation from a ``up``-up frame to Z-up (matches ``mixcount.catalog.mesh``)."""
-    up = (up or "Z").upper()
-    if up == "Y":
-        return np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
-    if up == "X":
-        return np.array([[0, 0, -1.0], [0, 1.0, 0], [1.0, 0, 0]])
-    return np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -51,13 +41,6 @@ class AssetPaths:
 
 def asset_key(content_hash: str, model_path: str) -> str:
     return content_hash or hashlib.sha256(str(model_path).encode()).hexdigest()
-
-
-def _source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str]) -> tuple[float, str]:
-    suffix = model_path.suffix.lower()
-    if suffix in (".glb", ".gltf"):
-        return 1.0, "Y"
-    return UNIT_SCALE.get((units or "m").lower(), 1.0), (up_axis or "Y").upper()
 
 
 # ------------------------------------------------------------------------------------ trimesh side
@@ -131,15 +114,11 @@ def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
         scene = trimesh.load(str(model_path), force="scene", process=False)
     except Exception as exc:
         raise CompositionError(f"cannot load model {model_path} for USD conversion: {exc}") from None
-    rot = up_rotation(up)
+    rot = up_axis_rotation(up)
     parts: list[_Part] = []
-    for node in sorted(scene.graph.nodes_geometry):
-        transform, geom_name = scene.graph[node]
-        geom = scene.geometry.get(geom_name)
-        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
-            continue
-        pts = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform) * scale
-        pts = pts @ rot.T
+    for _node, transform, geom in walk_geometry(scene):
+        pts = to_metres_z_up(trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform),
+                             scale, up)
         lin = np.asarray(transform)[:3, :3]
         normals = None
         try:
@@ -337,7 +316,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
         return AssetPaths(visual, coll, tuple(float(v) for v in c))  # type: ignore[arg-type]
     if not model.is_file():
         raise CompositionError(f"model file {model} of asset {key[:12]} does not exist")
-    scale, up = _source_frame(model, units, up_axis)
+    scale, _units, up = source_frame(model, units, up_axis)
     if model.suffix.lower() in USD_EXTENSIONS:
         center = _usd_center(model)
         _write_layer_atomically(lambda p, _t: _wrap_usd(p, key, model, center), visual, None)
@@ -387,7 +366,7 @@ def _usd_center(model: Path) -> np.ndarray:
     if stage is None:
         raise CompositionError(f"cannot open USD model {model}")
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
-    rot = up_rotation(str(UsdGeom.GetStageUpAxis(stage)))
+    rot = up_axis_rotation(str(UsdGeom.GetStageUpAxis(stage)))
     cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render])
     box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
     lo, hi = np.asarray(box.GetMin()) * mpu, np.asarray(box.GetMax()) * mpu
@@ -401,7 +380,7 @@ def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray) -> None:
 
     src = Usd.Stage.Open(str(model))
     mpu = float(UsdGeom.GetStageMetersPerUnit(src))
-    rot = up_rotation(str(UsdGeom.GetStageUpAxis(src)))
+    rot = up_axis_rotation(str(UsdGeom.GetStageUpAxis(src)))
     stage, root = _start_stage(path, key, str(model), center)
     src_xf = UsdGeom.Xform.Define(stage, "/Asset/Source")
     m = np.eye(4)

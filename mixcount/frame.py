@@ -1,0 +1,68 @@
+"""One normalisation of a model's frame: units -> metres, up axis -> Z-up, one walk over its nodes.
+
+Ingest (:mod:`mixcount.catalog.mesh`, mesh facts and collision meshes) and USD conversion
+(:mod:`mixcount.usd.assets`, the render asset) must place a model identically, or the collision mesh
+and the visual drift apart. Both use these functions. Pure numpy; trimesh only for the node walk.
+
+Rules: glTF/GLB are metres and Y-up by specification; USD carries ``metersPerUnit`` and ``upAxis``;
+OBJ/PLY/STL carry neither, so the ingest settings (``ingest.assume_units``, ``ingest.assume_up_axis``)
+or the values recorded for the object apply. A Y-up frame becomes Z-up as Blender's glTF importer does
+it: (x, y, z) -> (x, -z, y).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterator, Optional
+
+import numpy as np
+
+UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+UP_AXES = ("X", "Y", "Z")
+GLTF_EXTENSIONS = (".glb", ".gltf")
+
+
+def up_axis_rotation(up: str) -> np.ndarray:
+    """3x3 rotation taking a ``up``-up frame to Z-up; raises ValueError for anything but X, Y, Z."""
+    up = (up or "").upper()
+    if up == "Z":
+        return np.eye(3)
+    if up == "Y":  # (x, y, z) -> (x, -z, y)
+        return np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    if up == "X":  # (x, y, z) -> (-z, y, x)
+        return np.array([[0, 0, -1.0], [0, 1.0, 0], [1.0, 0, 0]])
+    raise ValueError(f"unknown up axis {up!r} (expected X, Y or Z)")
+
+
+def unit_scale(units: str) -> float:
+    """Metres per unit for a unit name; raises ValueError for an unknown name."""
+    try:
+        return UNIT_SCALE[units.lower()]
+    except KeyError:
+        raise ValueError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)})") from None
+
+
+def source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str]) -> tuple[float, str, str]:
+    """(metres per unit, units name, up axis) of a non-USD model file: glTF is fixed by its spec,
+    the rest use ``units``/``up_axis`` (defaults m / Y when nothing was recorded)."""
+    if model_path.suffix.lower() in GLTF_EXTENSIONS:
+        return 1.0, "m", "Y"
+    name = (units or "m").lower()
+    return unit_scale(name), name, (up_axis or "Y").upper()
+
+
+def walk_geometry(scene: Any) -> Iterator[tuple[str, np.ndarray, Any]]:
+    """(node name, 4x4 world transform, trimesh.Trimesh) for every triangle mesh of a trimesh Scene,
+    in sorted node order (deterministic: ingest and conversion see the parts in the same order)."""
+    import trimesh
+
+    for node in sorted(scene.graph.nodes_geometry):
+        transform, geom_name = scene.graph[node]
+        geom = scene.geometry.get(geom_name)
+        if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
+            yield node, np.asarray(transform, dtype=np.float64), geom
+
+
+def to_metres_z_up(points: np.ndarray, scale: float, up: str) -> np.ndarray:
+    """Source points (N, 3) in the model's units and up axis -> metres, Z-up."""
+    return (np.asarray(points, dtype=np.float64) * scale) @ up_axis_rotation(up).T
