@@ -16,6 +16,7 @@ from typing import Any, Mapping, Optional
 import numpy as np
 
 from mixcount.annotate.coco import build_scene_coco, category_id, class_map
+from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spec import SceneSpec
 
 TMP_PREFIX = ".tmp-"
@@ -94,23 +95,12 @@ def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]])
     return [cats[k] for k in sorted(cats)], class_cat
 
 
-def _quat_from_rotation(r: np.ndarray) -> list[float]:
-    """(w, x, y, z) of a rotation matrix."""
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(r).as_quat()
-    q = np.array([w, x, y, z])
-    if q[0] < 0:
-        q = -q
-    return [float(v) for v in q]
-
-
 def decompose(matrix: Any) -> dict[str, list[float]]:
     """translate / orient (w, x, y, z) / scale of a 4x4 column-vector matrix (no shear)."""
     m = np.asarray(matrix, dtype=np.float64)
     scale = np.linalg.norm(m[:3, :3], axis=0)
     rot = m[:3, :3] / np.where(scale == 0, 1.0, scale)
-    return {"translate": m[:3, 3].tolist(), "orient": _quat_from_rotation(rot), "scale": scale.tolist()}
+    return {"translate": m[:3, 3].tolist(), "orient": list(quat_from_matrix(rot)), "scale": scale.tolist()}
 
 
 def write_settled_stage(scene_usda: Path, out: Path, objects: list[dict[str, Any]]) -> None:
