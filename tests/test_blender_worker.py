@@ -181,10 +181,12 @@ def test_depth_normals_and_settled_poses(composed) -> None:
                                    "origin_outside_frame", "occluded")
 
 
-def test_worker_timeout_and_restart(tmp_path: Path) -> None:
+def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mixcount.blender.contract import SceneRequest
     from mixcount.blender.worker import BlenderWorker
     from mixcount.errors import RenderError
 
+    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds op "sleep"
     with BlenderWorker(name="t", log_dir=tmp_path) as w:
         first = w.request({"op": "ping"}, timeout=120)["pid"]
         with pytest.raises(RenderError, match="timed out"):
@@ -193,7 +195,8 @@ def test_worker_timeout_and_restart(tmp_path: Path) -> None:
         second = w.request({"op": "ping"}, timeout=120)["pid"]
         assert second != first and w.restarts == 1
         with pytest.raises(RenderError, match="scene failed"):
-            w.render_scene({"stage": str(tmp_path / "missing.usda"), "out_dir": str(tmp_path / "x")}, timeout=60)
+            w.render_scene(SceneRequest(stage=str(tmp_path / "missing.usda"), out_dir=str(tmp_path / "x"), threads=1,
+                                        oracle=False), timeout=60)
         assert w.request({"op": "ping"}, timeout=60)["pid"] == second  # a failed scene keeps the worker
 
 

@@ -416,7 +416,8 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         distractors=tuple(distractors), container=container, floor=floor, environment=environment,
         cameras=tuple(cameras),
         physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
-                            config.collision_shape, config.gravity),
+                            config.collision_shape, config.gravity, config.settle_below_floor_fraction,
+                            config.settle_penetration_fraction),
         render=RenderSpec(config.resolution, config.samples, config.denoise, config.visibility_threshold),
         assets=assets,
     )
