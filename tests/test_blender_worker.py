@@ -70,6 +70,9 @@ def test_compose_writes_n_complete_scenes(composed) -> None:
         assert meta["complete"] and meta["n_counted"] >= 1
         assert {"stage", "worker", "annotate", "total", "worker.physics", "worker.rgb"} <= set(meta["timings"])
         assert meta["camera"]["K"][0][0] > 0 and len(meta["camera"]["cam_to_world"]) == 4
+        scene_cfg = _config()["scene"]  # the physics values used are the stage's, recorded as such
+        assert meta["physics"]["substeps"] == scene_cfg["physics_substeps"] == meta["spec"]["physics"]["substeps"]
+        assert meta["physics"]["frames"] == scene_cfg["physics_frames"]
         assert (d / "exemplars").is_dir() and any((d / "exemplars").iterdir())
     summary_json = json.loads((out / "dataset.json").read_text())
     assert summary_json["counts"]["scenes"] == 2
