@@ -23,7 +23,6 @@ Writes into ``out_dir``: ``rgb.png``, ``ids.npy`` (int32 instance ids of counted
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from dataclasses import dataclass, field, replace
