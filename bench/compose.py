@@ -37,7 +37,7 @@ def main() -> int:
 
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
-    from mixcount.run.compose import worker_options
+    from mixcount.run.compose import render_threads
     from mixcount.demo.pool import ensure_demo_pool
     from mixcount.run.scene_task import SceneTask, run_scene_task
     from mixcount.scene.config import SceneConfig
@@ -52,14 +52,12 @@ def main() -> int:
     spec = sample_scene(args.seed, "train", SceneConfig.from_config(cfg), pool)
     assets = work / "assets"
     convert_scene_assets(spec, assets)
-    opts = worker_options(cfg, oracle=args.oracle, workers=1)
-    if args.threads == 0:
-        opts["threads"] = 0
+    threads = render_threads(cfg, workers=1) if args.threads else 0  # 0: Blender's automatic choice
     out = work / "out"
     with BlenderWorker(name="bench", log_dir=work) as worker:
         worker.request({"op": "ping"}, timeout=300)  # start-up is not part of a scene
         outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=3600,
-                                           worker_options=opts), worker)
+                                           threads=threads, oracle=args.oracle), worker)
     if outcome.status != "written":
         print(json.dumps({"status": outcome.status, "error": outcome.error}))
         return 1
@@ -77,7 +75,7 @@ def main() -> int:
         "whole_over_rgb": round(whole / rgb, 3),
     }
     if oracle_s is not None:
-        ious = [o["oracle_iou"] for o in kept if "oracle_iou" in o]
+        ious = [o["oracle_iou"] for o in kept if o["oracle_iou"] is not None]
         result["oracle"] = {"seconds": oracle_s, "renders": len(ious), "min_iou": round(min(ious), 5) if ious else None,
                             "mean_iou": round(sum(ious) / len(ious), 5) if ious else None,
                             "paper_method_over_rgb": round((whole + oracle_s - stages["silhouettes"]) / rgb, 3)}

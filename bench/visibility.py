@@ -40,7 +40,6 @@ def main() -> int:
 
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
-    from mixcount.run.compose import worker_options
     from mixcount.demo.pool import ensure_demo_pool
     from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
     from mixcount.scene.config import SceneConfig
@@ -61,7 +60,7 @@ def main() -> int:
             assets = work / "assets"
             convert_scene_assets(spec, assets)
             task = SceneTask(spec=spec, out_dir=str(work / f"out_{n}"), assets_dir=str(assets), timeout_s=3600,
-                             worker_options=worker_options(cfg, workers=1))
+                             threads=threads)
             outcome = run_scene_task(task, worker)
             if outcome.status != WRITTEN:
                 rows.append({"objects": n, "status": outcome.status, "error": outcome.error})

@@ -70,6 +70,9 @@ def test_compose_writes_n_complete_scenes(composed) -> None:
         assert meta["complete"] and meta["n_counted"] >= 1
         assert {"stage", "worker", "annotate", "total", "worker.physics", "worker.rgb"} <= set(meta["timings"])
         assert meta["camera"]["K"][0][0] > 0 and len(meta["camera"]["cam_to_world"]) == 4
+        scene_cfg = _config()["scene"]  # the physics values used are the stage's, recorded as such
+        assert meta["physics"]["substeps"] == scene_cfg["physics_substeps"] == meta["spec"]["physics"]["substeps"]
+        assert meta["physics"]["frames"] == scene_cfg["physics_frames"]
         assert (d / "exemplars").is_dir() and any((d / "exemplars").iterdir())
     summary_json = json.loads((out / "dataset.json").read_text())
     assert summary_json["counts"]["scenes"] == 2
@@ -181,10 +184,12 @@ def test_depth_normals_and_settled_poses(composed) -> None:
                                    "origin_outside_frame", "occluded")
 
 
-def test_worker_timeout_and_restart(tmp_path: Path) -> None:
+def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mixcount.blender.contract import SceneRequest
     from mixcount.blender.worker import BlenderWorker
     from mixcount.errors import RenderError
 
+    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds op "sleep"
     with BlenderWorker(name="t", log_dir=tmp_path) as w:
         first = w.request({"op": "ping"}, timeout=120)["pid"]
         with pytest.raises(RenderError, match="timed out"):
@@ -193,7 +198,8 @@ def test_worker_timeout_and_restart(tmp_path: Path) -> None:
         second = w.request({"op": "ping"}, timeout=120)["pid"]
         assert second != first and w.restarts == 1
         with pytest.raises(RenderError, match="scene failed"):
-            w.render_scene({"stage": str(tmp_path / "missing.usda"), "out_dir": str(tmp_path / "x")}, timeout=60)
+            w.render_scene(SceneRequest(stage=str(tmp_path / "missing.usda"), out_dir=str(tmp_path / "x"), threads=1,
+                                        oracle=False), timeout=60)
         assert w.request({"op": "ping"}, timeout=60)["pid"] == second  # a failed scene keeps the worker
 
 

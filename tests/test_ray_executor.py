@@ -183,7 +183,7 @@ def fake_runner(task: SceneTask, worker: Any) -> SceneOutcome:
     if task.spec.seed == 2:
         os._exit(3)
     return SceneOutcome(task.spec.scene_id, task.spec.seed, WRITTEN, 0.01, path=worker.name,
-                        timings={"threads": float(task.worker_options.get("threads", -1))})
+                        timings={"threads": float(task.threads)})
 
 
 def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -194,9 +194,9 @@ def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.Mo
 
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # tests/ is not importable on workers
     tasks = [SceneTask(spec=FakeSpec(f"scene_{s:06d}", s), out_dir=str(tmp_path), assets_dir=str(tmp_path),
-                       timeout_s=60, worker_options={"threads": 2}) for s in range(6)]
+                       timeout_s=60, threads=2) for s in range(6)]
     missing = SceneTask(spec=FakeSpec("scene_000099", 99), out_dir=str(tmp_path / "nowhere"),
-                        assets_dir=str(tmp_path), timeout_s=60)
+                        assets_dir=str(tmp_path), timeout_s=60, threads=2)
     with cluster() as c:
         monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
         ex = RayExecutor(address=c.address, slots=2, threads=1, recycle_after=2, runner=fake_runner,

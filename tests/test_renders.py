@@ -93,13 +93,15 @@ def test_render_catalog_white_centred_resumable(tmp_path, catalog):
     assert np.asarray(Image.open(paths[next(iter(paths))])).shape == (48, 48, 3)
 
 
-def test_runner_kills_hung_render_and_survives_crash(tmp_path):
+def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
     from mixcount.blender.canonical_runner import run_jobs
+    from mixcount.curation.renders import render_settings
 
+    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # hang / crash hooks
     glb = tmp_path / "box.glb"
     coloured(trimesh.creation.box(extents=(0.04, 0.04, 0.04)), (200, 200, 30)).export(glb)
-    base = {"model_path": str(glb), "out_dir": str(tmp_path / "out"), "resolution": 32, "samples": 1,
-            "denoise": False, "elevation_deg": 30.0, "azimuth_deg": 35.0}
+    base = {**render_settings(small_config(resolution=32, samples=1, denoise="false")),
+            "model_path": str(glb), "out_dir": str(tmp_path / "out")}
     jobs = [
         {**base, "key": "first", "stem": "first"},
         {**base, "key": "hang", "stem": "hang", "_test_hang_s": 300},
@@ -107,9 +109,9 @@ def test_runner_kills_hung_render_and_survives_crash(tmp_path):
         {**base, "key": "last", "stem": "last"},
     ]
     seen: dict[str, dict] = {}
-    run_jobs(jobs, on_result=lambda k, rec: seen.__setitem__(k, rec), timeout_s=8.0)
+    run_jobs(jobs, on_result=lambda k, rec: seen.__setitem__(k, rec), workers=1, timeout_s=8.0, threads_per_worker=0)
     assert set(seen) == {"first", "hang", "crash", "last"}
     assert seen["first"]["event"] == "done" and seen["last"]["event"] == "done"
     assert seen["hang"]["event"] == "failed" and "timed out" in seen["hang"]["error"]
-    assert seen["crash"]["event"] == "failed" and "exited with code 3" in seen["crash"]["error"]
+    assert seen["crash"]["event"] == "failed" and "worker died (exit code 3)" in seen["crash"]["error"]
     assert (tmp_path / "out" / "last.png").is_file() and not (tmp_path / "out" / "hang.png").exists()

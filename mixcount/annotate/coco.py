@@ -16,7 +16,7 @@ instance id) are the scene's internal exemplars.
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -74,10 +74,6 @@ def class_map(ids: np.ndarray, inst_to_category: Mapping[int, int]) -> np.ndarra
     for inst, cat in inst_to_category.items():
         lut[int(inst)] = int(cat)
     return lut[ids]
-
-
-def instance_masks(ids: np.ndarray, instance_ids: Iterable[int]) -> dict[int, np.ndarray]:
-    return {int(i): ids == int(i) for i in instance_ids}
 
 
 def build_scene_coco(ids: np.ndarray, objects: Sequence[Mapping[str, Any]], categories: Sequence[Mapping[str, Any]],

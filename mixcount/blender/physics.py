@@ -86,33 +86,3 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         if body.obj.name in settled:
             body.obj.matrix_world = mathutils.Matrix(settled[body.obj.name].tolist())
     return settled
-
-
-# ------------------------------------------------------------------------------------ checks (numpy)
-
-
-def hull_equations(local_vertices: np.ndarray) -> np.ndarray:
-    """Half-space equations (n, d) of the convex hull: inside where n.x + d <= 0."""
-    from scipy.spatial import ConvexHull
-
-    pts = np.unique(np.round(np.asarray(local_vertices, dtype=np.float64), 9), axis=0)
-    try:
-        return ConvexHull(pts).equations
-    except Exception:  # degenerate (flat) meshes: an axis-aligned box instead
-        lo, hi = pts.min(0), pts.max(0)
-        eqs = []
-        for ax in range(3):
-            n = np.zeros(3)
-            n[ax] = 1.0
-            eqs.append(np.r_[n, -hi[ax]])
-            eqs.append(np.r_[-n, lo[ax]])
-        return np.array(eqs)
-
-
-def penetration_depth(point_world: np.ndarray, matrix_world: np.ndarray, equations: np.ndarray) -> float:
-    """How deep (world metres, > 0 inside) a point lies inside a body's hull (uniform scale assumed)."""
-    inv = np.linalg.inv(matrix_world)
-    p = inv[:3, :3] @ point_world + inv[:3, 3]
-    scale = float(np.cbrt(abs(np.linalg.det(matrix_world[:3, :3]))))
-    signed = equations[:, :3] @ p + equations[:, 3]
-    return float(-signed.max() * scale)

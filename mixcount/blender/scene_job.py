@@ -7,28 +7,33 @@ a linked duplicate (a new object sharing that mesh) placed by the prim's world m
 prim's name, so mapping back to prims is by name; ``pass_index`` is the instance id. The floor (with its
 material) is imported through ``prim_path_mask``; camera and lights are built from their prims.
 
+:func:`run_scene` runs named steps: :func:`load_scene` (stage -> Blender scene), :func:`settle`
+(physics), :func:`check_settled`, :func:`check_frame`, :func:`silhouettes`, :func:`visibility_loop`,
+:func:`write_passes`, :func:`render_rgb` and, on request, :func:`reference_check`. Every decision
+between them is a pure function of :mod:`mixcount.blender.decisions`. What describes the scene
+(samples, denoise, visibility threshold, physics) is read from the stage's SceneSpec only; the
+:class:`~mixcount.blender.contract.SceneRequest` adds run-time settings (threads, oracle).
+
 Writes into ``out_dir``: ``rgb.png``, ``ids.npy`` (int32 instance ids of counted objects and distractors,
 0 elsewhere), ``depth.npy`` (float32 planar depth in metres along the optical axis, 0 = no surface),
 ``normal.npy`` (float32 unit normals in camera space: x right, y up, z towards the viewer; 0 = none) and
-``worker.json`` (per-object records, camera, timings, diagnostics). ``status`` in worker.json is
-"ok", "empty" (no counted object survived: the caller regenerates from the next seed) or "rejected".
+``worker.json`` (the :class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
+(no counted object survived: the caller regenerates from the next seed) or "rejected".
 """
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
+from dataclasses import dataclass, field, replace
 from typing import Any, Optional
 
 import numpy as np
 
 from mixcount.annotate.raster import PinholeCamera
-
-STATUS_OK = "ok"
-STATUS_EMPTY = "empty"
-STATUS_REJECTED = "rejected"
-
+from mixcount.blender import decisions as D
+from mixcount.blender.contract import DROPPED, STATUS_OK, ObjectResult, SceneRequest, SceneResult
+from mixcount.scene.spec import SceneSpec
 
 class Timer:
     def __init__(self) -> None:
@@ -118,7 +123,7 @@ class AssetCache:
         return mesh
 
     def hull(self, path: Path) -> np.ndarray:
-        from mixcount.blender.physics import hull_equations
+        from mixcount.blender.decisions import hull_equations
 
         key = str(path)
         if key not in self.hulls:
@@ -264,271 +269,302 @@ def _build_lights(scene: Any, stage: Any, stage_dir: Path) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------ the job
 
 
-def run_scene(req: dict[str, Any]) -> dict[str, Any]:
-    """Handle one ``scene`` request (see module docstring); returns the worker.json dict."""
-    import bpy
-    import mathutils
-    from pxr import Usd, UsdGeom
+@dataclass
+class SceneState:
+    """One job's Blender scene and its per-object results as the steps refine them."""
 
-    from mixcount.blender import passes as P
-    from mixcount.blender.physics import SHAPES, Body, penetration_depth, simulate
-    from mixcount.blender.visibility import camera_model, oracle_masks, unoccluded_mask, world_vertices
-    from mixcount.usd.read import labelled_prims
+    scene: Any
+    spec: SceneSpec
+    stage_path: Path
+    out_dir: Path
+    cam_obj: Any
+    lights: dict[str, Any]
+    cache: AssetCache
+    bodies: list[Any]  # mixcount.blender.physics.Body, floor and container included
+    objects: list[ObjectResult]  # counted objects and distractors, in stage order
+    blender_objects: dict[str, Any]  # prim path -> bpy object (removed from the scene when dropped)
+    diagnostics: list[dict[str, Any]] = field(default_factory=list)
 
-    timer = Timer()
-    stage_path = Path(req["stage"]).resolve()
-    out_dir = Path(req["out_dir"])
-    out_dir.mkdir(parents=True, exist_ok=True)
-    stage_dir = stage_path.parent
-    settle_cfg = dict(req.get("settle") or {})
-    below_frac = float(settle_cfg.get("below_floor_fraction", 0.1))
-    pen_frac = float(settle_cfg.get("penetration_fraction", 0.15))
-    diagnostics: list[dict[str, Any]] = []
+    def kept(self, role: Optional[str] = None) -> list[int]:
+        return [i for i, o in enumerate(self.objects) if o.kept and (role is None or o.role == role)]
 
-    with timer.stage("import"):
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        scene = bpy.context.scene
-        P.configure_common(scene, threads=int(req.get("threads", 0)))
-        stage = Usd.Stage.Open(str(stage_path))
-        if stage is None:
-            raise RuntimeError(f"cannot open stage {stage_path}")
-        spec = json.loads(stage.GetRootLayer().customLayerData["mixcount"]["spec"])
-        v_t = float(req.get("visibility_threshold", spec["render"]["visibility_threshold"]))
-        phys_prim = stage.GetPrimAtPath("/World/PhysicsScene")
-        frames = int(req.get("physics_frames") or phys_prim.GetCustomDataByKey("mixcount:frames") or spec["physics"]["frames"])
-        substeps = max(int(phys_prim.GetCustomDataByKey("mixcount:substeps") or spec["physics"]["substeps"]),
-                       int(req.get("min_substeps", 1)))  # objects dropped from 15 m tunnel at 2 substeps
-        iterations = int(phys_prim.GetCustomDataByKey("mixcount:solver_iterations")
-                         or spec["physics"]["solver_iterations"])
-        from pxr import UsdPhysics
+    def update(self, i: int, **changes: Any) -> None:
+        self.objects[i] = replace(self.objects[i], **changes)
 
-        gravity = float(UsdPhysics.Scene(phys_prim).GetGravityMagnitudeAttr().Get() or spec["physics"]["gravity"])
+    def drop(self, i: int, reason: str, step: str, **extra: Any) -> None:
+        """Mark object ``i`` dropped (with a diagnostic) and remove it from the Blender scene."""
+        import bpy
 
-        floor = _import_floor(stage_path)
-        cache = AssetCache()
-        records: list[dict[str, Any]] = []
-        objs: dict[str, Any] = {}
-        bodies: list[Body] = []
-        for ids in labelled_prims(stage):
-            prim = stage.GetPrimAtPath(ids.path)
-            if ids.role == "floor":
-                bodies.append(Body(floor, "passive", "CONVEX_HULL"))
-                continue
-            asset = _reference_path(prim, stage_dir)
-            if asset is None:
-                raise RuntimeError(f"prim {ids.path} references no asset")
-            mesh = cache.mesh(asset)
-            obj = bpy.data.objects.new(prim.GetName(), mesh)
-            scene.collection.objects.link(obj)
-            m = _np_matrix(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
-            obj.matrix_world = mathutils.Matrix(m.tolist())
-            obj.pass_index = int(ids.instance_id)
-            objs[ids.path] = obj
-            if ids.role == "container":
-                coll = prim.GetCustomDataByKey("mixcount:collision_asset")
-                if coll:
-                    cmesh = cache.mesh(Path(coll))
-                    cobj = bpy.data.objects.new(prim.GetName() + "_collision", cmesh)
-                    scene.collection.objects.link(cobj)
-                    cobj.matrix_world = mathutils.Matrix(m.tolist())
-                    cobj.hide_render = True
-                    bodies.append(Body(cobj, "passive", "MESH"))
-                else:
-                    bodies.append(Body(obj, "passive", "MESH"))
-                continue
-            approx = str(prim.GetAttribute("physics:approximation").Get() or "convexHull")
-            has_rb = prim.HasAPI(UsdPhysics.RigidBodyAPI)
-            bodies.append(Body(obj, "active" if has_rb else "passive", SHAPES.get(approx, "CONVEX_HULL")))
-            size = prim.GetCustomDataByKey("mixcount:size_m")
-            records.append({
-                "name": prim.GetName(), "path": ids.path, "role": ids.role, "instance_id": ids.instance_id,
-                "object_id": ids.object_id, "class_index": ids.class_index, "asset": str(asset),
-                "size_m": float(size) if size is not None else float(max(obj.dimensions)),
-                "spawn_matrix": m.tolist(), "status": "kept", "reason": None,
-            })
-        cam_prims = [p for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]
-        if not cam_prims:
-            raise RuntimeError("stage has no camera")
-        cam_obj = _build_camera(scene, cam_prims[0])
-        if len(cam_prims) > 1:
-            diagnostics.append({"kind": "cameras", "message": f"{len(cam_prims)} cameras: rendering {cam_prims[0].GetName()} only"})
-        light_info = _build_lights(scene, stage, stage_dir)
-
-    by_name = {r["name"]: r for r in records}
-
-    def drop(rec: dict[str, Any], reason: str, stage_name: str, **extra: Any) -> None:
-        rec["status"], rec["reason"] = "dropped", reason
-        diagnostics.append({"kind": "dropped", "object": rec["name"], "instance_id": rec["instance_id"],
-                            "role": rec["role"], "reason": reason, "stage": stage_name, **extra})
-        obj = objs.pop(rec["path"], None)
+        o = self.objects[i]
+        self.update(i, status=DROPPED, reason=reason)
+        self.diagnostics.append({"kind": "dropped", "object": o.name, "instance_id": o.instance_id,
+                                 "role": o.role, "reason": reason, "stage": step, **extra})
+        obj = self.blender_objects.pop(o.path, None)
         if obj is not None:
             bpy.data.objects.remove(obj, do_unlink=True)
 
-    with timer.stage("physics"):
-        settled = simulate(scene, bodies, frames=frames, substeps=substeps, iterations=iterations, gravity=gravity)
 
-    with timer.stage("settle_checks"):
-        fl = spec["floor"]
-        hx, hy = float(fl["half_extent"][0]), float(fl["half_extent"][1])
-        live = []
-        for rec in records:
-            obj = objs[rec["path"]]
-            mat = settled.get(obj.name, np.array(obj.matrix_world))
-            rec["matrix_world"] = mat.tolist()
-            local, _ = cache.arrays[rec["asset"]]
-            wv = world_vertices(local, mat)
-            rec["min_z"] = float(wv[:, 2].min()) if np.isfinite(wv).all() else float("nan")
-            c = mat[:3, 3]
-            if not np.isfinite(mat).all():
-                drop(rec, "unstable", "settle")
-            elif c[2] < 0 or rec["min_z"] < -below_frac * rec["size_m"]:
-                drop(rec, "below_floor", "settle", min_z=rec["min_z"])
-            elif (fl["shape"] == "cylinder" and float(np.hypot(c[0], c[1])) > hx) or \
-                    (fl["shape"] != "cylinder" and (abs(c[0]) > hx or abs(c[1]) > hy)):
-                drop(rec, "flung_out", "settle", position=c.tolist())
+def load_scene(req: SceneRequest) -> SceneState:
+    """Factory-empty Blender -> floor, one linked duplicate per instance prim, camera and lights."""
+    import bpy
+    from pxr import Usd, UsdGeom
+
+    from mixcount.blender import passes as P
+
+    stage_path = Path(req.stage).resolve()
+    out_dir = Path(req.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    P.configure_common(scene, threads=req.threads)
+    stage = Usd.Stage.Open(str(stage_path))
+    if stage is None:
+        raise RuntimeError(f"cannot open stage {stage_path}")
+    spec = SceneSpec.from_json(stage.GetRootLayer().customLayerData["mixcount"]["spec"])
+    state = SceneState(scene=scene, spec=spec, stage_path=stage_path, out_dir=out_dir, cam_obj=None, lights={},
+                       cache=AssetCache(), bodies=[], objects=[], blender_objects={})
+    _add_instances(state, stage)
+    cam_prims = [p for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]
+    if not cam_prims:
+        raise RuntimeError("stage has no camera")
+    state.cam_obj = _build_camera(scene, cam_prims[0])
+    if len(cam_prims) > 1:
+        state.diagnostics.append({"kind": "cameras",
+                                  "message": f"{len(cam_prims)} cameras: rendering {cam_prims[0].GetName()} only"})
+    state.lights = _build_lights(scene, stage, stage_path.parent)
+    return state
+
+
+def _add_instances(state: SceneState, stage: Any) -> None:
+    """The floor and every labelled prim as Blender objects and physics bodies; an ObjectResult each for
+    counted objects and distractors."""
+    import bpy
+    import mathutils
+    from pxr import Usd, UsdGeom, UsdPhysics
+
+    from mixcount.blender.physics import SHAPES, Body
+    from mixcount.usd.read import labelled_prims
+
+    scene, stage_dir = state.scene, state.stage_path.parent
+    floor = _import_floor(state.stage_path)
+    for ids in labelled_prims(stage):
+        prim = stage.GetPrimAtPath(ids.path)
+        if ids.role == "floor":
+            state.bodies.append(Body(floor, "passive", "CONVEX_HULL"))
+            continue
+        asset = _reference_path(prim, stage_dir)
+        if asset is None:
+            raise RuntimeError(f"prim {ids.path} references no asset")
+        mesh = state.cache.mesh(asset)
+        obj = bpy.data.objects.new(prim.GetName(), mesh)
+        scene.collection.objects.link(obj)
+        m = _np_matrix(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+        obj.matrix_world = mathutils.Matrix(m.tolist())
+        obj.pass_index = int(ids.instance_id)
+        state.blender_objects[ids.path] = obj
+        if ids.role == "container":
+            coll = prim.GetCustomDataByKey("mixcount:collision_asset")
+            if coll:
+                cobj = bpy.data.objects.new(prim.GetName() + "_collision", state.cache.mesh(Path(coll)))
+                scene.collection.objects.link(cobj)
+                cobj.matrix_world = mathutils.Matrix(m.tolist())
+                cobj.hide_render = True
+                state.bodies.append(Body(cobj, "passive", "MESH"))
             else:
-                rec["_aabb"] = (wv.min(0), wv.max(0))
-                live.append(rec)
-        # deep interpenetration: one body's centre inside another's hull, deeper than a fraction of its size
-        for i, a in enumerate(live):
-            if a["status"] != "kept":
-                continue
-            for b in live[i + 1:]:
-                if b["status"] != "kept":
-                    continue
-                (alo, ahi), (blo, bhi) = a["_aabb"], b["_aabb"]
-                if np.any(ahi < blo) or np.any(bhi < alo):
-                    continue
-                ma, mb = np.array(a["matrix_world"]), np.array(b["matrix_world"])
-                d1 = penetration_depth(ma[:3, 3], mb, cache.hull(b["asset"]))
-                d2 = penetration_depth(mb[:3, 3], ma, cache.hull(a["asset"]))
-                depth = max(d1, d2)
-                if depth > pen_frac * min(a["size_m"], b["size_m"]):
-                    drop(b, "interpenetration", "settle", other=a["name"], depth=round(depth, 4))
-        for rec in records:
-            rec.pop("_aabb", None)
+                state.bodies.append(Body(obj, "passive", "MESH"))
+            continue
+        approx = str(prim.GetAttribute("physics:approximation").Get() or state.spec.physics.collision_shape)
+        kind = "active" if prim.HasAPI(UsdPhysics.RigidBodyAPI) else "passive"
+        state.bodies.append(Body(obj, kind, SHAPES[approx]))
+        size = prim.GetCustomDataByKey("mixcount:size_m")
+        state.objects.append(ObjectResult(
+            name=prim.GetName(), path=ids.path, role=ids.role, instance_id=ids.instance_id,
+            object_id=ids.object_id, class_index=ids.class_index, asset=str(asset),
+            size_m=float(size) if size is not None else float(max(obj.dimensions)),
+            spawn_matrix=tuple(tuple(float(v) for v in row) for row in m)))
 
-    camera: PinholeCamera = camera_model(scene, cam_obj)
-    H, W = camera.height, camera.width
-    with timer.stage("frame_check"):
-        for rec in records:
-            if rec["status"] != "kept":
-                continue
-            mat = np.array(rec["matrix_world"])
-            px, depth = camera.project(mat[None, :3, 3])
-            rec["origin_px"] = [float(px[0, 0]), float(px[0, 1])]
-            if depth[0] <= camera.near or not (0 <= px[0, 0] < W and 0 <= px[0, 1] < H):
-                drop(rec, "origin_outside_frame", "frame")
 
-    with timer.stage("silhouettes"):
-        sil: dict[int, np.ndarray] = {}
-        for rec in records:
-            if rec["status"] != "kept":
-                continue
-            local, tris = cache.arrays[rec["asset"]]
-            mask = unoccluded_mask(camera, local, tris, np.array(rec["matrix_world"]))
-            sil[rec["instance_id"]] = mask
-            rec["unoccluded_px"] = int(mask.sum())
+def settle(state: SceneState) -> dict[str, np.ndarray]:
+    """Rigid-body simulation with exactly the stage's physics values; settled matrix per active body."""
+    from mixcount.blender.physics import simulate
 
-    def measure(index: np.ndarray) -> None:
-        ids, counts = np.unique(index, return_counts=True)
-        vis = dict(zip(ids.tolist(), counts.tolist()))
-        for rec in records:
-            if rec["status"] != "kept":
-                continue
-            v = int(vis.get(rec["instance_id"], 0))
-            u = rec["unoccluded_px"]
-            rec["visible_px"] = v
-            rec["visibility"] = float(min(1.0, v / u)) if u > 0 else 0.0
+    ph = state.spec.physics
+    return simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
+                    iterations=ph.solver_iterations, gravity=ph.gravity)
 
-    exr = out_dir / "_ids.exr"
+
+def check_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:
+    """Record settled poses; drop unstable / below-floor / flung-out bodies, then deep interpenetrations."""
+    from mixcount.blender.visibility import world_vertices
+
+    ph, floor = state.spec.physics, state.spec.floor
+    live: list[int] = []
+    bodies: list[D.SettledBody] = []
+    for i, o in enumerate(state.objects):
+        obj = state.blender_objects[o.path]
+        mat = settled.get(obj.name, np.array(obj.matrix_world))
+        local, _ = state.cache.arrays[o.asset]
+        wv = world_vertices(local, mat)
+        min_z = float(wv[:, 2].min()) if np.isfinite(wv).all() else float("nan")
+        state.update(i, matrix_world=tuple(tuple(float(v) for v in row) for row in mat), min_z=min_z)
+        reason = D.settle_verdict(mat, min_z, o.size_m, floor_shape=floor.shape,
+                                  half_extent=(float(floor.half_extent[0]), float(floor.half_extent[1])),
+                                  below_floor_fraction=ph.settle_below_floor_fraction)
+        if reason is None:
+            live.append(i)
+            bodies.append(D.SettledBody(mat, wv.min(0), wv.max(0), state.cache.hull(o.asset), o.size_m))
+        elif reason == D.BELOW_FLOOR:
+            state.drop(i, reason, "settle", min_z=min_z)
+        elif reason == D.FLUNG_OUT:
+            state.drop(i, reason, "settle", position=mat[:3, 3].tolist())
+        else:
+            state.drop(i, reason, "settle")
+    for j, k, depth in D.interpenetrations(bodies, ph.settle_penetration_fraction):
+        state.drop(live[j], D.INTERPENETRATION, "settle", other=state.objects[live[k]].name, depth=round(depth, 4))
+
+
+def check_frame(state: SceneState, camera: PinholeCamera) -> None:
+    """Drop objects whose origin projects outside the image (or behind the camera)."""
+    for i in state.kept():
+        origin, inside = D.origin_in_frame(camera, np.array(state.objects[i].matrix_world))
+        state.update(i, origin_px=origin)
+        if not inside:
+            state.drop(i, D.OUTSIDE_FRAME, "frame")
+
+
+def silhouettes(state: SceneState, camera: PinholeCamera) -> dict[int, np.ndarray]:
+    """Each kept object's unoccluded mask (numpy rasteriser), by instance id."""
+    from mixcount.blender.visibility import unoccluded_mask
+
+    masks: dict[int, np.ndarray] = {}
+    for i in state.kept():
+        o = state.objects[i]
+        local, tris = state.cache.arrays[o.asset]
+        mask = unoccluded_mask(camera, local, tris, np.array(o.matrix_world))
+        masks[o.instance_id] = mask
+        state.update(i, unoccluded_px=int(mask.sum()))
+    return masks
+
+
+def visibility_loop(state: SceneState, timer: Timer) -> tuple[dict[str, np.ndarray], int]:
+    """Render the id pass, measure visibility, drop occluded counted objects and re-render (up to
+    MAX_VISIBILITY_ROUNDS times); returns the last id passes and the number of renders."""
+    from mixcount.blender import passes as P
+
+    v_t = state.spec.render.visibility_threshold
+    exr = state.out_dir / "_ids.exr"
     rounds = 0
     while True:
         with timer.stage("id_pass"):
-            id_passes = P.render_id_passes(scene, exr)
+            id_passes = P.render_id_passes(state.scene, exr)
         with timer.stage("visibility"):
-            measure(id_passes["index"])
-            low = [r for r in records if r["status"] == "kept" and r["role"] == "counted"
-                   and r["visibility"] <= 1.0 - v_t]
-            if not low or rounds >= 3:
+            kept = state.kept()
+            vis = D.measure_visibility(id_passes["index"],
+                                       {state.objects[i].instance_id: state.objects[i].unoccluded_px for i in kept})
+            by_inst = {}
+            for i in kept:
+                o = state.objects[i]
+                visible_px, visibility = vis[o.instance_id]
+                state.update(i, visible_px=visible_px, visibility=visibility)
+                by_inst[o.instance_id] = i
+            counted = {state.objects[i].instance_id: state.objects[i].visibility for i in state.kept("counted")}
+            low = D.occluded(counted, v_t)
+            if not low or rounds >= D.MAX_VISIBILITY_ROUNDS:
                 break
-            for rec in low:
-                drop(rec, "occluded", "visibility", visibility=round(rec["visibility"], 4))
+            for inst in low:
+                state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(counted[inst], 4))
             rounds += 1
     P.remove_quiet(exr)
+    return id_passes, rounds + 1
 
-    counted = [r for r in records if r["status"] == "kept" and r["role"] == "counted"]
-    status = STATUS_OK
-    if not counted:
-        status = STATUS_EMPTY
-    elif any(r["visibility"] < 1.0 - v_t for r in counted):
-        status = STATUS_REJECTED
-        diagnostics.append({"kind": "recheck_failed",
-                            "objects": [r["name"] for r in counted if r["visibility"] < 1.0 - v_t]})
 
-    result: dict[str, Any] = {
-        "status": status, "stage": str(stage_path), "scene_id": spec["scene_id"], "seed": spec["seed"],
-        "visibility_threshold": v_t, "id_pass_rounds": rounds + 1,
-        "physics": {"frames": frames, "substeps": substeps, "solver_iterations": iterations, "gravity": gravity},
-        "camera": {
-            "name": cam_obj.name, "width": W, "height": H, "K": camera.K.tolist(),
-            "cam_to_world": camera.cam_to_world.tolist(), "focal_length_mm": float(cam_obj.data.lens),
-            "sensor_width_mm": float(cam_obj.data.sensor_width),
-            "clip_range": [float(cam_obj.data.clip_start), float(cam_obj.data.clip_end)],
-            "convention": "camera looks down -Z, +Y up (Blender/USD); K maps to pixel x right, y down",
-        },
-        "lights": light_info, "objects": records, "diagnostics": diagnostics,
+def final_status(state: SceneState) -> str:
+    """ok / empty / rejected by the final visibility re-check (a diagnostic names the failing objects)."""
+    counted = {state.objects[i].instance_id: state.objects[i].visibility for i in state.kept("counted")}
+    status, failing = D.scene_status(counted, state.spec.render.visibility_threshold)
+    if failing:
+        names = {o.instance_id: o.name for o in state.objects}
+        state.diagnostics.append({"kind": "recheck_failed", "objects": [names[i] for i in failing]})
+    return status
+
+
+def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: PinholeCamera) -> None:
+    """ids.npy (kept objects only), normal.npy (camera space) and depth.npy (planar metres)."""
+    keep = [state.objects[i].instance_id for i in state.kept()]
+    np.save(state.out_dir / "ids.npy", D.instance_map(id_passes["index"], keep))
+    np.save(state.out_dir / "normal.npy", D.camera_normals(id_passes["normal"], camera.cam_to_world, id_passes["depth"]))
+    np.save(state.out_dir / "depth.npy", D.planar_depth(id_passes["depth"]))
+
+
+def render_rgb(state: SceneState) -> None:
+    """The final image with the stage's samples and denoiser."""
+    from mixcount.blender import passes as P
+
+    P.configure_rgb(state.scene, samples=state.spec.render.samples, denoise=state.spec.render.denoise)
+    P.render_to(state.scene, state.out_dir / "rgb.png")
+
+
+def reference_check(state: SceneState, masks: dict[int, np.ndarray], camera: PinholeCamera) -> None:
+    """The paper's one-render-per-object masks against the rasterised ones: oracle_* fields on each kept
+    object and ``oracle_masks.npz`` (packed bits of both masks)."""
+    from mixcount.blender.visibility import oracle_masks
+
+    kept = state.kept()
+    oracle = oracle_masks(state.scene, [state.blender_objects[state.objects[i].path] for i in kept], state.out_dir)
+    save = {}
+    for i in kept:
+        o = state.objects[i]
+        om, rm = oracle[o.instance_id], masks[o.instance_id]
+        union = int((om | rm).sum())
+        state.update(i, oracle_unoccluded_px=int(om.sum()),
+                     oracle_iou=int((om & rm).sum()) / union if union else 1.0,
+                     oracle_visibility=(o.visible_px / int(om.sum())) if om.any() else 0.0)
+        save[f"oracle_{o.instance_id}"] = np.packbits(om)
+        save[f"raster_{o.instance_id}"] = np.packbits(rm)
+    np.savez_compressed(state.out_dir / "oracle_masks.npz", shape=np.array([camera.height, camera.width]), **save)
+
+
+def _camera_record(cam_obj: Any, camera: PinholeCamera) -> dict[str, Any]:
+    return {
+        "name": cam_obj.name, "width": camera.width, "height": camera.height, "K": camera.K.tolist(),
+        "cam_to_world": camera.cam_to_world.tolist(), "focal_length_mm": float(cam_obj.data.lens),
+        "sensor_width_mm": float(cam_obj.data.sensor_width),
+        "clip_range": [float(cam_obj.data.clip_start), float(cam_obj.data.clip_end)],
+        "convention": "camera looks down -Z, +Y up (Blender/USD); K maps to pixel x right, y down",
     }
+
+
+def run_scene(req: SceneRequest) -> SceneResult:
+    """Handle one scene request (see module docstring); writes and returns the SceneResult."""
+    from mixcount.blender.visibility import camera_model
+
+    timer = Timer()
+    with timer.stage("import"):
+        state = load_scene(req)
+    with timer.stage("physics"):
+        settled = settle(state)
+    with timer.stage("settle_checks"):
+        check_settled(state, settled)
+    camera = camera_model(state.scene, state.cam_obj)
+    with timer.stage("frame_check"):
+        check_frame(state, camera)
+    with timer.stage("silhouettes"):
+        masks = silhouettes(state, camera)
+    id_passes, renders = visibility_loop(state, timer)
+    status = final_status(state)
     if status == STATUS_OK:
         with timer.stage("write_passes"):
-            ids = id_passes["index"].copy()
-            keep_ids = {r["instance_id"] for r in records if r["status"] == "kept"}
-            ids[~np.isin(ids, list(keep_ids))] = 0
-            np.save(out_dir / "ids.npy", ids.astype(np.int32))
-            R = camera.cam_to_world[:3, :3]
-            normal = id_passes["normal"] @ R  # world -> camera: R^T n, row-vector form
-            bg = id_passes["depth"] > 1e9
-            normal[bg] = 0.0
-            np.save(out_dir / "normal.npy", normal.astype(np.float32))
-            depth = planar_depth(id_passes["depth"], camera, req.get("depth_is_ray_length", False))
-            depth[bg] = 0.0
-            np.save(out_dir / "depth.npy", depth.astype(np.float32))
+            write_passes(state, id_passes, camera)
         with timer.stage("rgb"):
-            P.configure_rgb(scene, samples=int(req.get("samples", spec["render"]["samples"])),
-                            denoise=bool(req.get("denoise", spec["render"]["denoise"])))
-            P.render_to(scene, out_dir / "rgb.png")
-        if req.get("oracle"):
+            render_rgb(state)
+        if req.oracle:
             with timer.stage("oracle"):
-                kept = [objs[r["path"]] for r in records if r["status"] == "kept"]
-                masks = oracle_masks(scene, kept, out_dir)
-                save = {}
-                for rec in records:
-                    if rec["status"] != "kept":
-                        continue
-                    om = masks[rec["instance_id"]]
-                    rm = sil[rec["instance_id"]]
-                    rec["oracle_unoccluded_px"] = int(om.sum())
-                    inter = int((om & rm).sum())
-                    union = int((om | rm).sum())
-                    rec["oracle_iou"] = inter / union if union else 1.0
-                    rec["oracle_visibility"] = (rec["visible_px"] / int(om.sum())) if om.any() else 0.0
-                    save[f"oracle_{rec['instance_id']}"] = np.packbits(om)
-                    save[f"raster_{rec['instance_id']}"] = np.packbits(rm)
-                np.savez_compressed(out_dir / "oracle_masks.npz", shape=np.array([H, W]), **save)
-    result["timings"] = timer.times
-    (out_dir / "worker.json").write_text(json.dumps(result, indent=1))
+                reference_check(state, masks, camera)
+    spec = state.spec
+    result = SceneResult(
+        status=status, stage=str(state.stage_path), scene_id=spec.scene_id, seed=spec.seed,
+        visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=renders,
+        physics=spec.physics.to_dict(), camera=_camera_record(state.cam_obj, camera), lights=state.lights,
+        objects=tuple(state.objects), diagnostics=tuple(state.diagnostics), timings=dict(timer.times))
+    (state.out_dir / "worker.json").write_text(result.to_json())
     return result
-
-
-def planar_depth(depth: np.ndarray, camera: PinholeCamera, is_ray_length: bool) -> np.ndarray:
-    """Cycles' depth pass -> planar depth along the optical axis (metres). Blender 5.0's Cycles Depth pass
-    is already planar (checked against ray-plane intersections with the floor), so this is the identity
-    unless ``is_ray_length``."""
-    d = depth.astype(np.float64)
-    if not is_ray_length:
-        return d
-    h, w = d.shape
-    xs = (np.arange(w) + 0.5 - camera.cx) / camera.fx
-    ys = (np.arange(h) + 0.5 - camera.cy) / camera.fy
-    norm = np.sqrt(1.0 + xs[None, :] ** 2 + ys[:, None] ** 2)
-    return d / norm

@@ -1,6 +1,6 @@
-"""Parent side of the bpy worker: a long-lived subprocess that renders many scenes.
+"""Parent side of the bpy worker: a long-lived subprocess that renders many scenes or canonical renders.
 
-:class:`BlenderWorker` starts ``python -m mixcount.blender.worker_main`` lazily, sends one JSON request
+:class:`BlenderWorker` starts ``python -m <WORKER_MODULE>`` (:mod:`mixcount.blender.worker_main`) lazily, sends one JSON request
 per line and waits for the answer with a deadline. A worker that dies mid-scene (crash, OOM kill) or
 overruns the per-scene timeout is killed (its whole process group) and the request raises
 :class:`~mixcount.errors.RenderError`; the next request starts a fresh worker. The worker's stderr
@@ -20,9 +20,11 @@ import threading
 from pathlib import Path
 from typing import Any, Optional
 
+from mixcount.blender.contract import SceneRequest, SceneResult
 from mixcount.errors import RenderError
 
 STARTUP_TIMEOUT_S = 180.0
+WORKER_MODULE = "mixcount.blender.worker_main"  # the entry module the worker process runs
 
 
 class BlenderWorker:
@@ -59,7 +61,7 @@ class BlenderWorker:
         env = dict(os.environ)
         env.setdefault("PYTHONUNBUFFERED", "1")
         self.proc = subprocess.Popen(
-            [self.python, "-m", "mixcount.blender.worker_main"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            [self.python, "-m", WORKER_MODULE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
             stderr=log, env=env, start_new_session=True,
         )
         log.close()
@@ -159,9 +161,19 @@ class BlenderWorker:
         self._send(payload)
         return self._read(timeout, f"handling {payload.get('op')!r}")
 
-    def render_scene(self, job: dict[str, Any], *, timeout: float) -> dict[str, Any]:
-        """Run one scene request; returns the worker.json contents. Raises RenderError on failure."""
-        answer = self.request({"op": "scene", **job}, timeout=timeout)
+    def _answer(self, payload: dict[str, Any], timeout: float, what: str) -> dict[str, Any]:
+        answer = self.request(payload, timeout=timeout)
         if not answer.get("ok"):
-            raise RenderError(f"{self.name}: scene failed: {answer.get('error')}\n{answer.get('traceback', '')}")
-        return json.loads(Path(answer["result"]).read_text())
+            raise RenderError(f"{self.name}: {what} failed: {answer.get('error')}\n{answer.get('traceback', '')}")
+        return answer
+
+    def render_scene(self, req: SceneRequest, *, timeout: float) -> SceneResult:
+        """Run one scene; returns its SceneResult. Raises RenderError on failure, crash or timeout."""
+        answer = self._answer({"op": "scene", "request": req.to_dict()}, timeout, "scene")
+        return SceneResult.from_json(Path(answer["result"]).read_text())
+
+    def render_canonical(self, job: dict[str, Any], *, timeout: float) -> dict[str, Any]:
+        """Canonical renders of one object (``job``: see mixcount.blender.canonical.render_object);
+        returns ``{"views": [...]}``. Raises RenderError on failure, crash or timeout."""
+        answer = self._answer({"op": "canonical", "job": job}, timeout, "render")
+        return {"views": answer["views"]}

@@ -5,12 +5,16 @@ each with one JSON line on its ORIGINAL stdout. Everything bpy / Cycles print (C
 redirected to stderr at start-up, so the protocol channel carries nothing else. Requests:
 
 * ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``
-* ``{"op": "scene", "stage": ..., "out_dir": ..., ...}`` -> ``{"ok": true, "status": ..., "result": path}``
-  (see :func:`mixcount.blender.scene_job.run_scene`); a Python error answers ``{"ok": false, "error",
-  "traceback"}`` and the worker stays up for the next scene.
-* ``{"op": "sleep", "seconds": s}`` (tests of the per-scene timeout), ``{"op": "exit"}``.
+* ``{"op": "scene", "request": SceneRequest}`` -> ``{"ok": true, "status": ..., "result": path of
+  worker.json}`` (the :class:`~mixcount.blender.contract.SceneResult`, see
+  :func:`mixcount.blender.scene_job.run_scene`)
+* ``{"op": "canonical", "job": {...}}`` -> ``{"ok": true, "views": [...]}`` (one catalog object's
+  canonical renders, see :func:`mixcount.blender.canonical.render_object`)
+* ``{"op": "exit"}`` -> ``{"ok": true}`` and the process ends.
 
-The first line the worker writes is ``{"ready": true, "pid": ...}`` once bpy is imported.
+A Python error in a handler answers ``{"ok": false, "error", "traceback"}`` and the worker stays up for
+the next request. The first line the worker writes is ``{"ready": true, "pid": ...}`` once bpy is imported.
+:func:`main` takes the handler table, so another entry module can serve more ops with the same loop.
 """
 
 from __future__ import annotations
@@ -20,9 +24,33 @@ import os
 import sys
 import time
 import traceback
+from typing import Any, Callable, Mapping, Optional
+
+Handler = Callable[[dict[str, Any]], dict[str, Any]]
 
 
-def main() -> int:
+def handle_scene(req: dict[str, Any]) -> dict[str, Any]:
+    from mixcount.blender.contract import SceneRequest
+    from mixcount.blender.scene_job import run_scene
+
+    scene_req = SceneRequest.from_dict(req["request"])
+    t0 = time.perf_counter()
+    result = run_scene(scene_req)
+    return {"ok": True, "status": result.status, "result": os.path.join(scene_req.out_dir, "worker.json"),
+            "seconds": round(time.perf_counter() - t0, 3)}
+
+
+def handle_canonical(req: dict[str, Any]) -> dict[str, Any]:
+    from mixcount.blender.canonical import render_object
+
+    return {"ok": True, **render_object(req["job"])}
+
+
+HANDLERS: dict[str, Handler] = {"scene": handle_scene, "canonical": handle_canonical}
+
+
+def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
+    handlers = HANDLERS if handlers is None else handlers
     proto = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # bpy and Cycles print to fd 1: keep the protocol channel clean
     sys.stdout = sys.stderr
@@ -32,8 +60,6 @@ def main() -> int:
         proto.flush()
 
     import bpy  # noqa: F401  (import once: the slow part of a worker's start)
-
-    from mixcount.blender.scene_job import run_scene
 
     reply({"ready": True, "pid": os.getpid()})
     for line in sys.stdin:
@@ -52,21 +78,15 @@ def main() -> int:
         if op == "ping":
             reply({"ok": True, "pid": os.getpid()})
             continue
-        if op == "sleep":
-            time.sleep(float(req.get("seconds", 1.0)))
-            reply({"ok": True})
+        handler = handlers.get(op)
+        if handler is None:
+            reply({"ok": False, "error": f"unknown op {op!r}"})
             continue
-        if op == "scene":
-            t0 = time.perf_counter()
-            try:
-                result = run_scene(req)
-                reply({"ok": True, "status": result["status"], "result": os.path.join(req["out_dir"], "worker.json"),
-                       "seconds": round(time.perf_counter() - t0, 3)})
-            except Exception as exc:  # the scene fails, the worker lives on
-                reply({"ok": False, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()})
-            sys.stderr.flush()
-            continue
-        reply({"ok": False, "error": f"unknown op {op!r}"})
+        try:
+            reply(handler(req))
+        except Exception as exc:  # the request fails, the worker lives on
+            reply({"ok": False, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()})
+        sys.stderr.flush()
     return 0
 
 

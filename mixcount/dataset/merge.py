@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, Iterable, Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -140,8 +140,3 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
     summary = write_dataset_summary(out_dir, config=config, config_hash=config_hash, run=run)
     return {"annotations": {k: str(v) for k, v in ann.items()}, "preview": str(preview) if preview else None,
             "dataset": str(summary)}
-
-
-def iter_scene_meta(out_dir: Path) -> Iterable[dict[str, Any]]:
-    for d in complete_scenes(out_dir):
-        yield json.loads((d / "metadata.json").read_text())

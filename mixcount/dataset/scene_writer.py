@@ -11,11 +11,13 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import Any, Mapping, Optional
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 
 from mixcount.annotate.coco import build_scene_coco, category_id, class_map
+from mixcount.blender.contract import KEPT, ObjectResult, SceneResult
+from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spec import SceneSpec
 
 TMP_PREFIX = ".tmp-"
@@ -94,26 +96,15 @@ def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]])
     return [cats[k] for k in sorted(cats)], class_cat
 
 
-def _quat_from_rotation(r: np.ndarray) -> list[float]:
-    """(w, x, y, z) of a rotation matrix."""
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(r).as_quat()
-    q = np.array([w, x, y, z])
-    if q[0] < 0:
-        q = -q
-    return [float(v) for v in q]
-
-
 def decompose(matrix: Any) -> dict[str, list[float]]:
     """translate / orient (w, x, y, z) / scale of a 4x4 column-vector matrix (no shear)."""
     m = np.asarray(matrix, dtype=np.float64)
     scale = np.linalg.norm(m[:3, :3], axis=0)
     rot = m[:3, :3] / np.where(scale == 0, 1.0, scale)
-    return {"translate": m[:3, 3].tolist(), "orient": _quat_from_rotation(rot), "scale": scale.tolist()}
+    return {"translate": m[:3, 3].tolist(), "orient": list(quat_from_matrix(rot)), "scale": scale.tolist()}
 
 
-def write_settled_stage(scene_usda: Path, out: Path, objects: list[dict[str, Any]]) -> None:
+def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectResult]) -> None:
     """scene.usda -> settled.usda: dropped prims removed, kept ones at their settled pose (same names and
     customData, plus mixcount:visibility and mixcount:status on each kept instance)."""
     from pxr import Gf, Sdf, Usd, UsdGeom
@@ -123,11 +114,11 @@ def write_settled_stage(scene_usda: Path, out: Path, objects: list[dict[str, Any
     layer.TransferContent(src)
     stage = Usd.Stage.Open(layer)
     for rec in objects:
-        if rec["status"] != "kept":
-            stage.RemovePrim(rec["path"])
+        if not rec.kept:
+            stage.RemovePrim(rec.path)
             continue
-        prim = stage.GetPrimAtPath(rec["path"])
-        pose = decompose(rec["matrix_world"])
+        prim = stage.GetPrimAtPath(rec.path)
+        pose = decompose(rec.matrix_world)
         xf = UsdGeom.Xformable(prim)
         for op in xf.GetOrderedXformOps():
             kind = op.GetOpType()
@@ -139,8 +130,8 @@ def write_settled_stage(scene_usda: Path, out: Path, objects: list[dict[str, Any
                        else Gf.Quatd(w, Gf.Vec3d(x, y, z)))
             elif kind == UsdGeom.XformOp.TypeScale:
                 op.Set(Gf.Vec3f(*pose["scale"]))
-        if "visibility" in rec:
-            prim.SetCustomDataByKey("mixcount:visibility", float(rec["visibility"]))
+        if rec.visibility is not None:
+            prim.SetCustomDataByKey("mixcount:visibility", float(rec.visibility))
     data = dict(layer.customLayerData)
     mc = dict(data.get("mixcount", {}))
     mc["settled"] = True
@@ -177,18 +168,17 @@ def write_exemplar_crops(rgb_path: Path, coco: Mapping[str, Any], out: Path, mar
     return written
 
 
-def finalize_scene(tmp: Path, spec: SceneSpec, worker: dict[str, Any], *, captions: Mapping[int, Mapping[str, str]],
+def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions: Mapping[int, Mapping[str, str]],
                    timings: dict[str, float], extra: Optional[dict[str, Any]] = None) -> dict[str, Any]:
-    """Turn the worker's raw outputs in ``tmp`` into the scene's files; returns metadata.json's dict."""
+    """Turn the worker's raw outputs in ``tmp`` and its SceneResult into the scene's files; returns
+    metadata.json's dict (its ``objects`` are the ObjectResult fields plus category, box and pose)."""
     ids = np.load(tmp / "ids.npy")
     cats, class_cat = scene_categories(spec, captions)
     objects = []
-    for rec in worker["objects"]:
-        cid = class_cat[rec["class_index"]] if rec["role"] == "counted" else category_id(rec["object_id"], None)
-        rec = dict(rec)
-        rec["category_id"] = cid
-        objects.append(rec)
-    kept = [r for r in objects if r["status"] == "kept"]
+    for rec in worker.objects:
+        cid = class_cat[rec.class_index] if rec.role == "counted" else category_id(rec.object_id, None)
+        objects.append({**rec.to_dict(), "category_id": cid})
+    kept = [r for r in objects if r["status"] == KEPT]
     inst_cat = {int(r["instance_id"]): int(r["category_id"]) for r in kept}
     _png16(ids.astype(np.uint16), tmp / "instance.png")
     _png16(class_map(ids, inst_cat), tmp / "class.png")
@@ -199,11 +189,11 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: dict[str, Any], *, captio
         a = by_inst.get(int(r["instance_id"]))
         if a is not None:
             r.update(bbox=a["bbox"], area=a["area"], exemplar_score=a["exemplar_score"], annotation_id=a["id"])
-        if r["status"] == "kept":
+        if r["status"] == KEPT:
             r["pose"] = decompose(r["matrix_world"])
     (tmp / "coco.json").write_text(json.dumps(coco))
     exemplars = write_exemplar_crops(tmp / "rgb.png", coco, tmp / "exemplars")
-    write_settled_stage(tmp / "scene.usda", tmp / "settled.usda", objects)
+    write_settled_stage(tmp / "scene.usda", tmp / "settled.usda", worker.objects)
     os.remove(tmp / "ids.npy")
     if (tmp / "worker.json").exists():
         os.remove(tmp / "worker.json")  # everything in it is in metadata.json
@@ -214,14 +204,14 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: dict[str, Any], *, captio
     meta = {
         "scene_id": spec.scene_id, "seed": spec.seed, "split": spec.split, "config_hash": spec.config_hash,
         "image": {"file_name": f"scenes/{spec.scene_id}/rgb.png", "width": int(ids.shape[1]), "height": int(ids.shape[0])},
-        "camera": worker["camera"], "lights": worker.get("lights"), "physics": worker.get("physics"),
-        "visibility_threshold": worker["visibility_threshold"],
+        "camera": worker.camera, "lights": worker.lights, "physics": worker.physics,
+        "visibility_threshold": worker.visibility_threshold,
         "counts": counts, "n_counted": sum(counts.values()),
         "n_distractors": sum(1 for r in kept if r["role"] == "distractor"),
-        "n_dropped": sum(1 for r in objects if r["status"] != "kept"),
+        "n_dropped": sum(1 for r in objects if r["status"] != KEPT),
         "categories": cats, "objects": objects, "exemplars": exemplars,
-        "diagnostics": worker.get("diagnostics", []),
-        "timings": {**timings, **{f"worker.{k}": v for k, v in worker.get("timings", {}).items()}},
+        "diagnostics": list(worker.diagnostics),
+        "timings": {**timings, **{f"worker.{k}": v for k, v in worker.timings.items()}},
         "spec": spec.to_dict(),
         "files": {"rgb": "rgb.png", "instance": "instance.png", "class": "class.png", "depth": "depth.npy",
                   "normal": "normal.npy", "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json"},

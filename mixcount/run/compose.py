@@ -39,17 +39,9 @@ class ComposeSummary:
         return dict(self.__dict__)
 
 
-def worker_options(config: Any, *, oracle: bool = False, workers: int = 1) -> dict[str, Any]:
-    comp = config["compose"]
-    threads = int(comp.get("render_threads", 0)) or max(1, (os.cpu_count() or 1) // max(1, workers))
-    return {
-        "samples": int(comp["samples"]), "denoise": bool(comp["denoise"]),
-        "visibility_threshold": float(comp["visibility_threshold"]), "threads": threads,
-        "settle": {"below_floor_fraction": float(comp.get("settle_below_floor_fraction", 0.1)),
-                   "penetration_fraction": float(comp.get("settle_penetration_fraction", 0.15))},
-        "min_substeps": int(comp.get("physics_min_substeps", 1)),
-        "oracle": bool(oracle),
-    }
+def render_threads(config: Any, workers: int) -> int:
+    """Cycles threads per worker: ``compose.render_threads``, or CPU count / workers when it is 0."""
+    return int(config["compose"]["render_threads"]) or max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
 def compose_scenes(
@@ -67,7 +59,7 @@ def compose_scenes(
     comp = config["compose"]
     split = split or str(comp["split"])
     base = int(comp["seed"] if seed is None else seed)
-    workers = int(workers or comp.get("workers", 1))
+    workers = int(workers or comp["workers"])
     sconf = SceneConfig.from_config(config)
     out_dir = Path(out_dir)
     (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
@@ -75,9 +67,9 @@ def compose_scenes(
     if not any(getattr(o, "split", None) == split for o in pool):
         raise CompositionError(f"no active objects in split {split!r}: ingest, caption and split the catalog first")
     captions = {int(o.object_id): o.captions.to_dict() for o in pool}
-    opts = worker_options(config, oracle=oracle, workers=workers)
-    timeout = float(comp.get("scene_timeout_s", 900.0))
-    max_attempts = int(math.ceil(n * float(comp.get("max_attempts_factor", 3.0)))) + 4
+    threads = render_threads(config, workers)
+    timeout = float(comp["scene_timeout_s"])
+    max_attempts = int(math.ceil(n * float(comp["max_attempts_factor"]))) + 4
 
     summary = ComposeSummary(requested=n)
     t0 = time.perf_counter()
@@ -85,7 +77,7 @@ def compose_scenes(
     if own_executor:
         from mixcount.run.local import LocalExecutor
 
-        executor = LocalExecutor(workers, log_dir=out_dir / "logs", recycle_after=int(comp.get("recycle_after", 0)))
+        executor = LocalExecutor(workers, log_dir=out_dir / "logs", recycle_after=int(comp["recycle_after"]))
     next_seed = base
     attempts = 0
     in_flight = 0
@@ -114,7 +106,7 @@ def compose_scenes(
                 summary.failures.append({"scene_id": sid, "seed": s, "error": f"sampling: {exc}"})
                 continue
             return SceneTask(spec=spec, out_dir=str(out_dir), assets_dir=str(assets_dir), timeout_s=timeout,
-                             worker_options=opts, captions={k: v for k, v in captions.items()
+                             threads=threads, oracle=oracle, captions={k: v for k, v in captions.items()
                                                             if k in {d.object_id for d in spec.distractors}})
         return None
 
@@ -165,7 +157,7 @@ def compose_scenes(
     summary.outputs = finalize_dataset(
         out_dir, config=config.to_dict(), config_hash=config.hash,
         run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
-        preview_scenes=int(comp.get("preview_scenes", 16)),
+        preview_scenes=int(comp["preview_scenes"]),
     )
     return summary
 

@@ -7,7 +7,6 @@ worker after that many scenes; 0 = never). Ray also reads ``ray_cpus_per_worker`
 
 from __future__ import annotations
 
-import inspect
 from pathlib import Path
 from typing import Any, Optional
 
@@ -33,8 +32,7 @@ def make_executor(kind: str = "local", workers: Optional[int] = None, address: O
 
         n = int(workers or comp.get("workers", 1) or 1)
         kwargs: dict[str, Any] = dict(log_dir=log_dir, **extra)
-        if recycle and "recycle_after" in inspect.signature(LocalExecutor).parameters:
-            kwargs.setdefault("recycle_after", recycle)
+        kwargs.setdefault("recycle_after", recycle)
         return LocalExecutor(n, **kwargs)
     if kind == "ray":
         from mixcount.run.ray_executor import RayExecutor

@@ -199,7 +199,7 @@ class RayExecutor:
 
     def submit(self, task: SceneTask) -> None:
         if self.threads:
-            task = dataclasses.replace(task, worker_options={**task.worker_options, "threads": int(self.threads)})
+            task = dataclasses.replace(task, threads=int(self.threads))
         self._pending.append(task)
         self._dispatch()
 

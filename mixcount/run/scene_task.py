@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+from mixcount.blender.contract import STATUS_EMPTY, STATUS_OK, SceneRequest
 from mixcount.scene.spec import SceneSpec
 
 WRITTEN = "written"
@@ -30,7 +31,8 @@ class SceneTask:
     out_dir: str
     assets_dir: str
     timeout_s: float
-    worker_options: dict[str, Any] = field(default_factory=dict)  # samples, denoise, threads, settle, oracle
+    threads: int  # Cycles threads in the worker (run-time only; the scene's settings travel in the stage)
+    oracle: bool = False  # also run the one-render-per-object reference (tests, benchmarks)
     captions: dict[int, dict[str, str]] = field(default_factory=dict)  # distractor captions by object id
     keep_failed: bool = False
 
@@ -69,17 +71,18 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
         write_stage(spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
         timings["stage"] = round(time.perf_counter() - t, 4)
         t = time.perf_counter()
-        result = worker.render_scene({"stage": str(tmp / "scene.usda"), "out_dir": str(tmp), **task.worker_options},
-                                     timeout=task.timeout_s)
+        request = SceneRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=task.threads,
+                               oracle=task.oracle)
+        result = worker.render_scene(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
-        status = result["status"]
-        if status != "ok":
+        status = result.status
+        if status != STATUS_OK:
             rej = out / "scenes" / REJECTED_DIR
             rej.mkdir(parents=True, exist_ok=True)
             (rej / f"{spec.scene_id}.json").write_text(json.dumps(
                 {"scene_id": spec.scene_id, "seed": spec.seed, "status": status,
-                 "diagnostics": result.get("diagnostics", [])}, indent=1))
-            return SceneOutcome(spec.scene_id, spec.seed, EMPTY if status == "empty" else REJECTED,
+                 "diagnostics": list(result.diagnostics)}, indent=1))
+            return SceneOutcome(spec.scene_id, spec.seed, EMPTY if status == STATUS_EMPTY else REJECTED,
                                 time.perf_counter() - t0, error=f"scene {status}", timings=timings)
         t = time.perf_counter()
         timings["total"] = 0.0

@@ -75,6 +75,8 @@ class SceneConfig:
     physics_solver_iterations: int
     collision_shape: str
     gravity: float
+    settle_below_floor_fraction: float
+    settle_penetration_fraction: float
     n_cameras: int
     camera_elevation_deg: Range
     camera_roll_deg: Range

@@ -21,6 +21,7 @@ import numpy as np
 from mixcount.errors import CompositionError
 from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import sample_environment, sample_floor_material
+from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord
 from mixcount.scene.spec import (
     ROLE_COUNTED,
@@ -77,28 +78,6 @@ def qualify(caption: str, qualifier: Optional[str]) -> str:
     if text[:1].isupper() and not text[1:2].isupper():
         text = text[:1].lower() + text[1:]
     return f"{qualifier.capitalize()} {text}"
-
-
-def _quat_from_matrix(m: np.ndarray) -> tuple[float, float, float, float]:
-    """(w, x, y, z) of a rotation matrix (Shepperd's method), w >= 0."""
-    t = np.trace(m)
-    if t > 0:
-        s = math.sqrt(t + 1.0) * 2
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    qa = np.asarray(q, dtype=float)
-    qa /= np.linalg.norm(qa)
-    if qa[0] < 0:
-        qa = -qa
-    return tuple(round(float(v), 9) for v in qa)  # type: ignore[return-value]
 
 
 def look_at_rotation(position: np.ndarray, target: np.ndarray, roll_deg: float) -> np.ndarray:
@@ -416,7 +395,7 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         rot = look_at_rotation(pos, target, roll)
         res = (config.resolution, config.resolution)
         cameras.append(CameraSpec(
-            name=f"cam_{k}", position=_vec(pos), look_at=_vec(target), orientation=_quat_from_matrix(rot),
+            name=f"cam_{k}", position=_vec(pos), look_at=_vec(target), orientation=quat_from_matrix(rot),
             elevation_deg=round(elev, _R), azimuth_deg=round(azim, _R), roll_deg=round(roll, _R),
             distance=round(dist, _R), focal_length_mm=config.focal_length_mm,
             sensor_width_mm=config.sensor_width_mm, sensor_height_mm=config.sensor_width_mm * res[1] / res[0],
@@ -437,7 +416,8 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         distractors=tuple(distractors), container=container, floor=floor, environment=environment,
         cameras=tuple(cameras),
         physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
-                            config.collision_shape, config.gravity),
+                            config.collision_shape, config.gravity, config.settle_below_floor_fraction,
+                            config.settle_penetration_fraction),
         render=RenderSpec(config.resolution, config.samples, config.denoise, config.visibility_threshold),
         assets=assets,
     )

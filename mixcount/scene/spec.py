@@ -278,6 +278,8 @@ class PhysicsSpec:
     solver_iterations: int
     collision_shape: str
     gravity: float
+    settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.blender.decisions)
+    settle_penetration_fraction: float
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -285,7 +287,8 @@ class PhysicsSpec:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "PhysicsSpec":
         return cls(int(d["frames"]), int(d["substeps"]), int(d["solver_iterations"]),
-                   str(d["collision_shape"]), float(d["gravity"]))
+                   str(d["collision_shape"]), float(d["gravity"]), float(d["settle_below_floor_fraction"]),
+                   float(d["settle_penetration_fraction"]))
 
 
 @dataclass(frozen=True)

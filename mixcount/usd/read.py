@@ -8,10 +8,8 @@ All mixcount customData is nested under one ``mixcount`` dictionary, so USD's ke
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Optional
 
-from mixcount.scene.spec import SceneSpec
 
 
 @dataclass(frozen=True)
@@ -37,14 +35,6 @@ def stage_metadata(stage: Any) -> dict[str, Any]:
     """scene_id, seed, config_hash, split and spec (JSON string) from the stage's customLayerData."""
     data = stage.GetRootLayer().customLayerData.get("mixcount", {})
     return dict(data)
-
-
-def read_spec(path: str | Path) -> SceneSpec:
-    """The SceneSpec stored in a scene.usda (no pxr needed: parse via Sdf only)."""
-    from pxr import Sdf
-
-    layer = Sdf.Layer.FindOrOpen(str(path))
-    return SceneSpec.from_json(layer.customLayerData["mixcount"]["spec"])
 
 
 def labelled_prims(stage: Any) -> list[PrimIds]:

@@ -252,9 +252,9 @@ def _write_lights(stage: Any, spec: SceneSpec) -> None:
     sun.GetIntensityAttr().Set(float(env.sun_strength))
     e, a = math.radians(float(env.sun_elevation_deg)), math.radians(float(env.sun_azimuth_deg))
     towards_sun = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
-    from mixcount.scene.sampler import _quat_from_matrix
+    from mixcount.scene.rotation import quat_from_matrix
 
-    q = _quat_from_matrix(look_at_rotation(towards_sun, np.zeros(3), 0.0))  # light shines down its -Z
+    q = quat_from_matrix(look_at_rotation(towards_sun, np.zeros(3), 0.0))  # light shines down its -Z
     xf = UsdGeom.Xformable(sun)
     xf.AddOrientOp(UsdGeom.XformOp.PrecisionFloat).Set(Gf.Quatf(q[0], Gf.Vec3f(q[1], q[2], q[3])))
 

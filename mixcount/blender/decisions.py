@@ -1,0 +1,182 @@
+"""The worker's pure decisions (numpy and scipy only, no bpy): which settled bodies are kept, which
+objects are in the frame and visible enough, what a scene's status is, and how Cycles' passes become the
+stored depth / normal / instance maps. :mod:`mixcount.blender.scene_job` calls these between Blender steps;
+tests/test_blender_decisions.py checks them without Blender.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from mixcount.annotate.raster import PinholeCamera
+from mixcount.blender.contract import STATUS_EMPTY, STATUS_OK, STATUS_REJECTED
+
+BELOW_FLOOR = "below_floor"
+FLUNG_OUT = "flung_out"
+UNSTABLE = "unstable"
+INTERPENETRATION = "interpenetration"
+OUTSIDE_FRAME = "origin_outside_frame"
+OCCLUDED = "occluded"
+
+BACKGROUND_DEPTH = 1e9  # Cycles writes 1e10 where a pixel sees no surface
+MAX_VISIBILITY_ROUNDS = 3  # re-renders of the id pass after dropping occluded objects
+
+
+# ------------------------------------------------------------------------------------ settling
+
+
+def settle_verdict(matrix_world: np.ndarray, min_z: float, size_m: float, *, floor_shape: str,
+                   half_extent: tuple[float, float], below_floor_fraction: float) -> Optional[str]:
+    """Why a settled body must be dropped, or None to keep it.
+
+    ``unstable``: a non-finite pose; ``below_floor``: its centre under z = 0 or its lowest vertex more
+    than ``below_floor_fraction`` of its size under it; ``flung_out``: its centre outside the floor's
+    footprint (a disc of radius ``half_extent[0]`` for a cylinder floor, a rectangle otherwise).
+    """
+    m = np.asarray(matrix_world, dtype=np.float64)
+    if not np.isfinite(m).all():
+        return UNSTABLE
+    c = m[:3, 3]
+    if c[2] < 0 or not np.isfinite(min_z) or min_z < -below_floor_fraction * size_m:
+        return BELOW_FLOOR
+    hx, hy = float(half_extent[0]), float(half_extent[1])
+    if floor_shape == "cylinder":
+        outside = float(np.hypot(c[0], c[1])) > hx
+    else:
+        outside = abs(c[0]) > hx or abs(c[1]) > hy
+    return FLUNG_OUT if outside else None
+
+
+def hull_equations(local_vertices: np.ndarray) -> np.ndarray:
+    """Half-space equations (n, d) of the convex hull: inside where n.x + d <= 0."""
+    from scipy.spatial import ConvexHull
+
+    pts = np.unique(np.round(np.asarray(local_vertices, dtype=np.float64), 9), axis=0)
+    try:
+        return ConvexHull(pts).equations
+    except Exception:  # degenerate (flat) meshes: an axis-aligned box instead
+        lo, hi = pts.min(0), pts.max(0)
+        eqs = []
+        for ax in range(3):
+            n = np.zeros(3)
+            n[ax] = 1.0
+            eqs.append(np.r_[n, -hi[ax]])
+            eqs.append(np.r_[-n, lo[ax]])
+        return np.array(eqs)
+
+
+def penetration_depth(point_world: np.ndarray, matrix_world: np.ndarray, equations: np.ndarray) -> float:
+    """How deep (world metres, > 0 inside) a point lies inside a body's hull (uniform scale assumed)."""
+    inv = np.linalg.inv(matrix_world)
+    p = inv[:3, :3] @ point_world + inv[:3, 3]
+    scale = float(np.cbrt(abs(np.linalg.det(matrix_world[:3, :3]))))
+    signed = equations[:, :3] @ p + equations[:, 3]
+    return float(-signed.max() * scale)
+
+
+@dataclass(frozen=True)
+class SettledBody:
+    """A body that passed :func:`settle_verdict`: pose, world AABB, local hull equations and size."""
+
+    matrix_world: np.ndarray
+    aabb_min: np.ndarray
+    aabb_max: np.ndarray
+    hull: np.ndarray
+    size_m: float
+
+
+def interpenetrations(bodies: Sequence[SettledBody], fraction: float) -> list[tuple[int, int, float]]:
+    """Deep overlaps: (dropped index, other index, depth) for every pair whose centre lies inside the
+    other's hull deeper than ``fraction`` of the smaller size. In each pair the later body (the higher
+    instance id) is dropped; a dropped body is not compared again."""
+    dropped: set[int] = set()
+    out: list[tuple[int, int, float]] = []
+    for i, a in enumerate(bodies):
+        if i in dropped:
+            continue
+        for j in range(i + 1, len(bodies)):
+            if j in dropped:
+                continue
+            b = bodies[j]
+            if np.any(a.aabb_max < b.aabb_min) or np.any(b.aabb_max < a.aabb_min):
+                continue
+            ma, mb = np.asarray(a.matrix_world), np.asarray(b.matrix_world)
+            depth = max(penetration_depth(ma[:3, 3], mb, b.hull), penetration_depth(mb[:3, 3], ma, a.hull))
+            if depth > fraction * min(a.size_m, b.size_m):
+                dropped.add(j)
+                out.append((j, i, depth))
+    return out
+
+
+# ------------------------------------------------------------------------------------ frame and visibility
+
+
+def origin_in_frame(camera: PinholeCamera, matrix_world: np.ndarray) -> tuple[tuple[float, float], bool]:
+    """The projected origin (x = column, y = row) and whether it lies in the image in front of the camera."""
+    m = np.asarray(matrix_world, dtype=np.float64)
+    px, depth = camera.project(m[None, :3, 3])
+    x, y = float(px[0, 0]), float(px[0, 1])
+    inside = bool(depth[0] > camera.near and 0 <= x < camera.width and 0 <= y < camera.height)
+    return (x, y), inside
+
+
+def measure_visibility(index: np.ndarray, unoccluded_px: Mapping[int, int]) -> dict[int, tuple[int, float]]:
+    """instance id -> (visible pixels in the id pass, visible / unoccluded pixels capped at 1)."""
+    ids, counts = np.unique(index, return_counts=True)
+    seen = dict(zip(ids.tolist(), counts.tolist()))
+    out = {}
+    for inst, u in unoccluded_px.items():
+        v = int(seen.get(int(inst), 0))
+        out[int(inst)] = (v, float(min(1.0, v / u)) if u > 0 else 0.0)
+    return out
+
+
+def occluded(counted_visibility: Mapping[int, float], threshold: float) -> list[int]:
+    """Counted instance ids to drop: occlusion (1 - visibility) >= the visibility threshold v_t."""
+    return [i for i, v in counted_visibility.items() if v <= 1.0 - threshold]
+
+
+def scene_status(counted_visibility: Mapping[int, float], threshold: float) -> tuple[str, list[int]]:
+    """The final re-check: "empty" with no counted object left, "rejected" (and the failing ids) when one
+    is less than 1 - v_t visible, else "ok"."""
+    if not counted_visibility:
+        return STATUS_EMPTY, []
+    failing = [i for i, v in counted_visibility.items() if v < 1.0 - threshold]
+    return (STATUS_REJECTED, failing) if failing else (STATUS_OK, [])
+
+
+# ------------------------------------------------------------------------------------ passes
+
+
+def background_mask(depth_pass: np.ndarray) -> np.ndarray:
+    """Pixels that see no surface (Cycles' depth 1e10)."""
+    return np.asarray(depth_pass) > BACKGROUND_DEPTH
+
+
+def planar_depth(depth_pass: np.ndarray) -> np.ndarray:
+    """Cycles' Depth pass -> float32 planar depth along the optical axis (metres), 0 where no surface.
+
+    Blender 5.0's Cycles Depth pass is already planar (checked against ray-plane intersections with the
+    floor in tests/test_blender_worker.py), so only the background changes."""
+    d = np.asarray(depth_pass, dtype=np.float32).copy()
+    d[background_mask(depth_pass)] = 0.0
+    return d
+
+
+def camera_normals(normal_world: np.ndarray, cam_to_world: np.ndarray, depth_pass: np.ndarray) -> np.ndarray:
+    """World-space normals (H, W, 3) -> float32 camera space (x right, y up, z towards the camera), 0 on
+    the background."""
+    R = np.asarray(cam_to_world, dtype=np.float64)[:3, :3]
+    n = np.asarray(normal_world, dtype=np.float64) @ R  # R^T n in row-vector form
+    n[background_mask(depth_pass)] = 0.0
+    return n.astype(np.float32)
+
+
+def instance_map(index: np.ndarray, keep_ids: Sequence[int]) -> np.ndarray:
+    """int32 id pass with only ``keep_ids`` (kept counted objects and distractors); 0 elsewhere."""
+    ids = np.asarray(index).astype(np.int32)
+    ids[~np.isin(ids, list(keep_ids))] = 0
+    return ids

@@ -1,0 +1,128 @@
+"""The worker's pure decisions and the worker contract, without Blender: settle verdicts, deep
+interpenetration, frame check, visibility and the final status, pass conversions, JSON round-trip."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mixcount.annotate.raster import PinholeCamera
+from mixcount.blender import decisions as D
+from mixcount.blender.contract import ObjectResult, SceneRequest, SceneResult
+
+
+def pose(x: float = 0.0, y: float = 0.0, z: float = 0.0, scale: float = 1.0) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] *= scale
+    m[:3, 3] = (x, y, z)
+    return m
+
+
+FLOOR = dict(floor_shape="cube", half_extent=(2.0, 1.0), below_floor_fraction=0.1)
+
+
+def test_settle_verdict_reasons() -> None:
+    assert D.settle_verdict(pose(0, 0, 0.5), 0.0, 1.0, **FLOOR) is None
+    assert D.settle_verdict(pose(0, 0, 0.5), -0.09, 1.0, **FLOOR) is None  # within 10 % of its size
+    assert D.settle_verdict(pose(0, 0, 0.5), -0.11, 1.0, **FLOOR) == D.BELOW_FLOOR
+    assert D.settle_verdict(pose(0, 0, -0.01), 0.0, 1.0, **FLOOR) == D.BELOW_FLOOR  # centre under z = 0
+    assert D.settle_verdict(pose(1.9, 0.0, 0.5), 0.0, 1.0, **FLOOR) is None
+    assert D.settle_verdict(pose(0.0, 1.1, 0.5), 0.0, 1.0, **FLOOR) == D.FLUNG_OUT  # rectangle: |y| > hy
+    cyl = dict(FLOOR, floor_shape="cylinder")
+    assert D.settle_verdict(pose(1.5, 1.5, 0.5), 0.0, 1.0, **cyl) == D.FLUNG_OUT  # radius 2.12 > 2
+    assert D.settle_verdict(pose(1.2, 1.2, 0.5), 0.0, 1.0, **cyl) is None  # a cylinder ignores hy
+    bad = pose(0, 0, 0.5)
+    bad[0, 3] = np.nan
+    assert D.settle_verdict(bad, float("nan"), 1.0, **FLOOR) == D.UNSTABLE
+
+
+def cube_body(x: float, size: float = 1.0) -> D.SettledBody:
+    local = np.array([[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5) for sz in (-0.5, 0.5)]) * size
+    m = pose(x, 0.0, 0.5)
+    world = local + m[:3, 3]
+    return D.SettledBody(m, world.min(0), world.max(0), D.hull_equations(local), size)
+
+
+def test_interpenetration_drops_the_later_body_once() -> None:
+    bodies = [cube_body(0.0), cube_body(0.1), cube_body(0.15), cube_body(3.0)]
+    drops = D.interpenetrations(bodies, 0.15)
+    # body 1's centre is 0.4 m inside body 0 (> 0.15); body 2 overlaps both but body 1 is gone by then
+    assert [(j, k) for j, k, _ in drops] == [(1, 0), (2, 0)]
+    assert drops[0][2] == pytest.approx(0.4)
+    assert D.interpenetrations([cube_body(0.0), cube_body(0.9)], 0.15) == []  # touching: 0.1 < 0.15
+    assert D.penetration_depth(np.array([0.0, 0, 0.5]), pose(0, 0, 0.5, 2.0), cube_body(0).hull) == pytest.approx(1.0)
+
+
+def camera() -> PinholeCamera:
+    # looking down -Z from z = 10 over the origin, 100 x 80 px
+    return PinholeCamera.from_physical(50.0, 36.0, 100, 80, pose(0, 0, 10), near=0.1)
+
+
+def test_origin_in_frame() -> None:
+    cam = camera()
+    (x, y), inside = D.origin_in_frame(cam, pose(0, 0, 0))
+    assert inside and (x, y) == pytest.approx((50.0, 40.0))
+    _, inside = D.origin_in_frame(cam, pose(50, 0, 0))
+    assert not inside
+    _, inside = D.origin_in_frame(cam, pose(0, 0, 20))  # behind the camera
+    assert not inside
+
+
+def test_visibility_occlusion_and_status() -> None:
+    index = np.zeros((4, 5), dtype=np.int32)
+    index[0, :4] = 1  # 4 px of object 1
+    index[1, :1] = 2  # 1 px of object 2
+    vis = D.measure_visibility(index, {1: 5, 2: 4, 3: 0, 4: 3})
+    assert vis == {1: (4, 0.8), 2: (1, 0.25), 3: (0, 0.0), 4: (0, 0.0)}
+    counted = {k: v for k, (_, v) in vis.items()}
+    assert D.occluded(counted, 0.4) == [2, 3, 4]
+    assert D.occluded({1: 0.6}, 0.4) == [1]  # occlusion 0.4 >= v_t: dropped ...
+    assert D.scene_status({1: 0.6}, 0.4) == ("ok", [])  # ... but the re-check only rejects below 1 - v_t
+    assert D.scene_status({1: 0.8, 2: 0.5}, 0.4) == ("rejected", [2])
+    assert D.scene_status({}, 0.4) == ("empty", [])
+
+
+def test_pass_conversions() -> None:
+    depth = np.array([[2.0, 1e10], [3.5, 1e10]], dtype=np.float32)
+    d = D.planar_depth(depth)
+    assert d.dtype == np.float32 and d.tolist() == [[2.0, 0.0], [3.5, 0.0]]
+    c2w = np.eye(4)
+    c2w[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # camera rotated 90 degrees about z
+    normal = np.zeros((2, 2, 3), dtype=np.float32)
+    normal[..., 0] = 1.0  # world +x
+    n = D.camera_normals(normal, c2w, depth)
+    assert n.dtype == np.float32
+    assert n[0, 0].tolist() == [0.0, -1.0, 0.0] and n[0, 1].tolist() == [0.0, 0.0, 0.0]  # world +x = camera -y
+    ids = D.instance_map(np.array([[0, 1], [2, 7]]), [1, 7])
+    assert ids.dtype == np.int32 and ids.tolist() == [[0, 1], [0, 7]]
+
+
+def test_contract_json_round_trip() -> None:
+    req = SceneRequest(stage="/x/scene.usda", out_dir="/x", threads=2, oracle=True)
+    assert SceneRequest.from_dict(json.loads(json.dumps(req.to_dict()))) == req
+    m = tuple(tuple(float(v) for v in r) for r in pose(1, 2, 3))
+    kept = ObjectResult(name="obj_0001", path="/World/Objects/obj_0001", role="counted", instance_id=1, object_id=5,
+                        class_index=0, asset="/a.usdc", size_m=0.5, spawn_matrix=m, matrix_world=m, min_z=0.0,
+                        origin_px=(10.5, 20.0), unoccluded_px=40, visible_px=30, visibility=0.75)
+    dropped = ObjectResult(name="dist_01", path="/World/Distractors/dist_01", role="distractor", instance_id=2,
+                           object_id=6, class_index=-1, asset="/b.usdc", size_m=0.7, spawn_matrix=m,
+                           status="dropped", reason="flung_out")
+    res = SceneResult(status="ok", stage="/x/scene.usda", scene_id="scene_000001", seed=1, visibility_threshold=0.4,
+                      id_pass_rounds=1, physics={"substeps": 8}, camera={"width": 128}, lights={},
+                      objects=(kept, dropped), diagnostics=({"kind": "dropped", "object": "dist_01"},),
+                      timings={"rgb": 1.5})
+    back = SceneResult.from_json(res.to_json())
+    assert back == res
+    assert back.objects[0].kept and not back.objects[1].kept
+    with pytest.raises(ValueError, match="unknown ObjectResult fields"):
+        ObjectResult.from_dict({**kept.to_dict(), "_aabb": 1})
+
+
+def test_contract_and_decisions_import_no_engine() -> None:
+    code = ("import sys, mixcount, mixcount.blender, mixcount.blender.contract, mixcount.blender.decisions; "
+            "assert 'bpy' not in sys.modules and 'pxr' not in sys.modules, sorted(m for m in sys.modules if m in ('bpy', 'pxr'))")
+    subprocess.run([sys.executable, "-c", code], check=True)
