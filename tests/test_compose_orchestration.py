@@ -1,0 +1,156 @@
+"""Compose orchestration without Blender: a fake worker stands in for bpy behind the real scene task.
+
+Everything but the render is real: the sampler, the USD stage writer, ``run_scene_task`` (temporary
+folder, rejected markers, atomic rename), ``finalize_scene`` and the dataset merge. The fake worker
+answers "empty", "rejected", crashes or draws every object as a square in the id pass, chosen per seed.
+The real bpy worker is tested in test_blender_worker.py.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from mixcount.blender.contract import STATUS_EMPTY, STATUS_OK, STATUS_REJECTED, ObjectResult, SceneResult
+from mixcount.config import load_config
+from mixcount.dataset.scene_writer import REJECTED_DIR
+from mixcount.run.compose import compose_scenes
+from mixcount.run.local import LocalExecutor
+from mixcount.run.scene_task import SceneTask, run_scene_task
+from mixcount.scene.pool import ObjectRecord, fallback_captions
+from mixcount.scene.spec import SceneSpec
+
+SIDE = 96
+
+
+class FakeWorker:
+    """Answers ``render_scene`` like the bpy worker: ids.npy + rgb.png in the request's folder and a
+    SceneResult. ``plan(seed)`` picks "ok", "empty", "rejected" or "crash"."""
+
+    def __init__(self, spec: SceneSpec, plan: Callable[[int], str], calls: list[int]) -> None:
+        self.spec, self.plan, self.calls = spec, plan, calls
+
+    def render_scene(self, request, timeout=None):  # noqa: ANN001 - the BlenderWorker signature
+        spec = self.spec
+        self.calls.append(spec.seed)
+        what = self.plan(spec.seed)
+        if what == "crash":
+            raise RuntimeError("worker died (exit code -9)")
+        placed = list(spec.objects) + list(spec.distractors)
+        ids = np.zeros((SIDE, SIDE), dtype=np.int32)
+        cols = math.ceil(math.sqrt(len(placed)))
+        cell = SIDE // cols
+        objects = []
+        paths = [f"/World/Objects/obj_{p.instance_id:04d}" for p in spec.objects]
+        paths += [f"/World/Distractors/dist_{k:02d}" for k in range(1, len(spec.distractors) + 1)]
+        for k, (p, prim_path) in enumerate(zip(placed, paths)):
+            r, c = divmod(k, cols)
+            ids[r * cell + 1:(r + 1) * cell - 1, c * cell + 1:(c + 1) * cell - 1] = p.instance_id
+            px = int(np.count_nonzero(ids == p.instance_id))
+            objects.append(ObjectResult(
+                name=prim_path.rsplit("/", 1)[-1], path=prim_path, role=p.role,
+                instance_id=p.instance_id, object_id=p.object_id, class_index=p.class_index, asset="a.usda",
+                size_m=p.size_m, spawn_matrix=tuple(tuple(float(i == j) for j in range(4)) for i in range(4)),
+                matrix_world=tuple(tuple(float(i == j) for j in range(4)) for i in range(4)), min_z=0.0,
+                origin_px=((c + 0.5) * cell, (r + 0.5) * cell), unoccluded_px=px, visible_px=px, visibility=1.0))
+        out = Path(request.out_dir)
+        np.save(out / "ids.npy", ids)
+        Image.fromarray(((ids % 7) * 36).astype(np.uint8)).convert("RGB").save(out / "rgb.png")
+        status = {"ok": STATUS_OK, "empty": STATUS_EMPTY, "rejected": STATUS_REJECTED}[what]
+        return SceneResult(status=status, stage=request.stage, scene_id=spec.scene_id, seed=spec.seed,
+                           visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=1,
+                           physics=spec.physics.to_dict(), camera={}, lights={}, objects=tuple(objects))
+
+
+def _pool(root: Path) -> list[ObjectRecord]:
+    shapes = {"cube": trimesh.creation.box((0.06, 0.05, 0.04)),
+              "ball": trimesh.creation.icosphere(subdivisions=2, radius=0.03),
+              "can": trimesh.creation.cylinder(radius=0.02, height=0.08),
+              "cone": trimesh.creation.cone(radius=0.03, height=0.05),
+              "tray": trimesh.creation.box((0.3, 0.2, 0.02))}
+    pool = []
+    for k, (name, mesh) in enumerate(shapes.items(), start=1):
+        path = root / f"{name}.glb"
+        mesh.export(path)
+        dims = tuple(float(v) for v in np.sort(mesh.extents)[::-1])
+        pool.append(ObjectRecord(object_id=k, name=name, category=name, dims=dims,
+                                 captions=fallback_captions(f"red {name}", name), split="train",
+                                 model_path=str(path), content_hash=f"hash{k}"))
+    return pool
+
+
+@pytest.fixture()
+def setup(tmp_path: Path):
+    config = load_config(["quick"])
+    return config, _pool(tmp_path), tmp_path / "out", tmp_path / "assets"
+
+
+def _run(setup, plan: Callable[[int], str], n: int, calls: list[int]):
+    config, pool, out, assets = setup
+    runner = lambda task, _worker: run_scene_task(task, FakeWorker(task.spec, plan, calls))  # noqa: E731
+    with LocalExecutor(1, runner=runner) as executor:
+        return compose_scenes(pool=pool, config=config, out_dir=out, assets_dir=assets, n=n, split="train",
+                              seed=100, executor=executor)
+
+
+def test_empty_rejected_and_failed_seeds_are_replaced_and_finalized(setup) -> None:
+    plan = {100: "empty", 101: "rejected", 102: "crash"}
+    calls: list[int] = []
+    summary = _run(setup, lambda s: plan.get(s, "ok"), 3, calls)
+    out = setup[2]
+    assert (summary.written, summary.empty, summary.rejected, summary.failed) == (3, 1, 1, 1)
+    assert calls == [100, 101, 102, 103, 104, 105]
+    assert sorted(p.name for p in (out / "scenes" / REJECTED_DIR).iterdir()) == ["scene_000100.json",
+                                                                               "scene_000101.json"]
+    assert json.loads((out / "scenes" / REJECTED_DIR / "scene_000101.json").read_text())["status"] == "rejected"
+    assert summary.failures[0]["scene_id"] == "scene_000102" and "worker died" in summary.failures[0]["error"]
+    scenes = sorted(p.name for p in (out / "scenes").iterdir() if not p.name.startswith("."))
+    assert scenes == ["scene_000103", "scene_000104", "scene_000105"]
+    assert not list((out / "scenes").glob(".tmp-*")), "a failed scene must not leave a half folder"
+    merged = json.loads((out / "annotations" / "instances_train.json").read_text())
+    assert len(merged["images"]) == 3
+    n_counted = sum(json.loads((out / "scenes" / s / "metadata.json").read_text())["n_counted"] for s in scenes)
+    assert n_counted == sum(1 for a in merged["annotations"] if not a["is_distractor"]) > 0
+    summary_json = json.loads((out / "dataset.json").read_text())
+    assert summary_json["splits"]["train"]["scenes"] == 3
+    assert summary_json["counts"] == {"scenes": 3, "counted_objects": n_counted}
+    assert (out / "preview.png").is_file()
+
+    # A rerun: the failed seed is retried first (it left nothing behind), rejected seeds stay rejected,
+    # finished scenes are skipped, nothing is rendered twice.
+    again: list[int] = []
+    summary2 = _run(setup, lambda s: "ok", 3, again)
+    assert again == [102]
+    assert (summary2.written, summary2.skipped) == (3, 2)
+    scenes = sorted(p.name for p in (out / "scenes").iterdir() if not p.name.startswith("."))
+    assert scenes == ["scene_000102", "scene_000103", "scene_000104", "scene_000105"]
+    merged = json.loads((out / "annotations" / "instances_train.json").read_text())
+    assert len(merged["images"]) == len({img["file_name"] for img in merged["images"]}) == 4
+
+
+def test_max_attempts_bounds_a_split_that_never_yields_a_scene(setup) -> None:
+    config = setup[0]
+    calls: list[int] = []
+    summary = _run(setup, lambda s: "empty", 2, calls)
+    limit = math.ceil(2 * config["compose"]["max_attempts_factor"]) + 4
+    assert summary.written == 0 and summary.empty == limit and len(calls) == limit
+    assert len(list((setup[2] / "scenes" / REJECTED_DIR).iterdir())) == limit
+
+
+def test_scene_task_is_picklable_plain_data(setup) -> None:
+    import pickle
+
+    from mixcount.scene.config import SceneConfig
+    from mixcount.scene.sampler import sample_scene
+
+    config, pool = setup[0], setup[1]
+    spec = sample_scene(7, "train", SceneConfig.from_config(config), pool)
+    task = SceneTask(spec=spec, out_dir="o", assets_dir="a", timeout_s=5.0, threads=1)
+    assert pickle.loads(pickle.dumps(task)) == task
