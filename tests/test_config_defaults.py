@@ -97,7 +97,8 @@ def code_defaults(path: Path, rel: str | None = None) -> list[str]:
                     and key in KEYS:
                 found.append(f"{rel}:{node.lineno} .{node.func.attr}({key!r}, ...) re-defaults {KEYS[key]}")
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "getattr" \
-                and len(node.args) == 3 and isinstance(node.args[1], ast.Constant) and node.args[1].value in KEYS:
+                and len(node.args) == 3 and isinstance(node.args[1], ast.Constant) and node.args[1].value in KEYS \
+                and _literal(node.args[2]):
             found.append(f"{rel}:{node.lineno} getattr(..., {node.args[1].value!r}, default)")
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
             a = node.args
@@ -124,7 +125,7 @@ def test_scan_catches_known_offender_shapes(tmp_path: Path):
         "def a(comp):\n    return comp.get('physics_min_substeps', 1)\n"
         "def b(job):\n    return job.get('world_strength', 1.0)\n"
         "def c(settle):\n    return settle.get('penetration_fraction', 0.15)\n"
-        "def d(cfg):\n    return getattr(cfg, 'samples', 32)\n"
+        "def d(cfg, o):\n    return getattr(cfg, 'samples', 32), getattr(o, 'split', None)\n"
         "def e(scene, *, sun_strength=2.0):\n    return sun_strength\n"
         "def f(meta):\n    return meta.get('visibility_unrelated', 1), meta.get('samples')\n"
     )

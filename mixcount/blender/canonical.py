@@ -234,18 +234,18 @@ def render_object(job: dict[str, Any]) -> dict[str, Any]:
     objects = import_model(model)
     pts = centre_objects(objects)
     configure_render(scene, resolution=int(job["resolution"]), samples=int(job["samples"]),
-                     denoise=bool(job.get("denoise", True)), threads=int(job.get("threads", 0)))
+                     denoise=bool(job["denoise"]), threads=int(job["threads"]))
     base_az = float(job["azimuth_deg"])
-    add_lighting(scene, world_strength=float(job.get("world_strength", 1.0)),
-                 sun_strength=float(job.get("sun_strength", 2.0)), azimuth_deg=base_az)
-    n_extra = int(job.get("extra_views", 0))
+    add_lighting(scene, world_strength=float(job["world_strength"]),
+                 sun_strength=float(job["sun_strength"]), azimuth_deg=base_az)
+    n_extra = int(job["extra_views"])
     views = [("canonical", base_az)] + [
         (f"view_{k}", base_az + 360.0 * k / (n_extra + 1)) for k in range(1, n_extra + 1)
     ]
     results = []
     for view, az in views:
         cam = add_camera(pts, elevation_deg=float(job["elevation_deg"]), azimuth_deg=az,
-                         margin=float(job.get("margin", 0.06)))
+                         margin=float(job["margin"]))
         stem = job["stem"] if view == "canonical" else f"{job['stem']}_{view}"
         raw = out_dir / f".{stem}.raw.png"
         scene.render.filepath = str(raw)

@@ -122,7 +122,7 @@ def _run_chunk(jobs: list[dict[str, Any]], *, timeout_s: float, work_dir: Path, 
 
 
 def run_jobs(jobs: list[dict[str, Any]], *, on_result: Callable[[str, dict[str, Any]], None],
-             workers: int = 1, timeout_s: float = 120.0, threads_per_worker: int = 0) -> None:
+             workers: int, timeout_s: float, threads_per_worker: int) -> None:
     """Render ``jobs`` (dicts with a unique ``key``) in ``workers`` processes; call ``on_result`` once
     per job with its done/failed record, on this thread, as results arrive."""
     if not jobs:

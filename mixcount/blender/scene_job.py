@@ -280,24 +280,23 @@ def run_scene(req: dict[str, Any]) -> dict[str, Any]:
     out_dir = Path(req["out_dir"])
     out_dir.mkdir(parents=True, exist_ok=True)
     stage_dir = stage_path.parent
-    settle_cfg = dict(req.get("settle") or {})
-    below_frac = float(settle_cfg.get("below_floor_fraction", 0.1))
-    pen_frac = float(settle_cfg.get("penetration_fraction", 0.15))
+    below_frac = float(req["settle"]["below_floor_fraction"])
+    pen_frac = float(req["settle"]["penetration_fraction"])
     diagnostics: list[dict[str, Any]] = []
 
     with timer.stage("import"):
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
-        P.configure_common(scene, threads=int(req.get("threads", 0)))
+        P.configure_common(scene, threads=int(req["threads"]))
         stage = Usd.Stage.Open(str(stage_path))
         if stage is None:
             raise RuntimeError(f"cannot open stage {stage_path}")
         spec = json.loads(stage.GetRootLayer().customLayerData["mixcount"]["spec"])
-        v_t = float(req.get("visibility_threshold", spec["render"]["visibility_threshold"]))
+        v_t = float(req["visibility_threshold"])
         phys_prim = stage.GetPrimAtPath("/World/PhysicsScene")
         frames = int(req.get("physics_frames") or phys_prim.GetCustomDataByKey("mixcount:frames") or spec["physics"]["frames"])
         substeps = max(int(phys_prim.GetCustomDataByKey("mixcount:substeps") or spec["physics"]["substeps"]),
-                       int(req.get("min_substeps", 1)))  # objects dropped from 15 m tunnel at 2 substeps
+                       int(req["min_substeps"]))  # objects dropped from 15 m tunnel at 2 substeps
         iterations = int(phys_prim.GetCustomDataByKey("mixcount:solver_iterations")
                          or spec["physics"]["solver_iterations"])
         from pxr import UsdPhysics
@@ -494,8 +493,7 @@ def run_scene(req: dict[str, Any]) -> dict[str, Any]:
             depth[bg] = 0.0
             np.save(out_dir / "depth.npy", depth.astype(np.float32))
         with timer.stage("rgb"):
-            P.configure_rgb(scene, samples=int(req.get("samples", spec["render"]["samples"])),
-                            denoise=bool(req.get("denoise", spec["render"]["denoise"])))
+            P.configure_rgb(scene, samples=int(req["samples"]), denoise=bool(req["denoise"]))
             P.render_to(scene, out_dir / "rgb.png")
         if req.get("oracle"):
             with timer.stage("oracle"):
