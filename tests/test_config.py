@@ -67,3 +67,15 @@ def test_section_checks_run_at_load():
     with pytest.raises(ConfigError, match="low 3 > high 2"):
         load_config(overrides=["scene.n_classes=[3, 2]"])
     assert load_config(overrides=["split.train_fraction=2.0"]).split.fractions[0] == pytest.approx(2.0 / 2.3)
+
+
+def test_cli_builds_the_config_once_with_command_options_last():
+    from mixcount.commands.common import AppState
+    from mixcount.errors import MixcountError
+
+    st = AppState(config_files=[Path("quick")], overrides=["compose.samples=8", "compose.seed=3"])
+    cfg = st.config(values={"compose.samples": 2, "compose.split": None})
+    assert (cfg.compose.samples, cfg.compose.seed, cfg.compose.split) == (2, 3, "train")  # None = not given
+    assert st.config() is cfg
+    with pytest.raises(MixcountError, match="first config"):
+        st.config(values={"compose.samples": 3})
