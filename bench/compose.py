@@ -40,7 +40,6 @@ def main() -> int:
     from mixcount.run.compose import render_threads
     from mixcount.demo.pool import ensure_demo_pool
     from mixcount.run.scene_task import SceneTask, run_scene_task
-    from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
@@ -49,7 +48,7 @@ def main() -> int:
     cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
                            f"scene.n_objects=[{args.objects},{args.objects}]", f"scene.physics_frames={args.frames}",
                            f"compose.render_threads={args.threads}"])
-    spec = sample_scene(args.seed, "train", SceneConfig.from_config(cfg), pool)
+    spec = sample_scene(args.seed, "train", cfg, pool)
     assets = work / "assets"
     convert_scene_assets(spec, assets)
     threads = render_threads(cfg, workers=1) if args.threads else 0  # 0: Blender's automatic choice

@@ -50,7 +50,7 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--subdivide", type=int, default=2, help="subdivide every part K times (x4^K faces)")
     args = parser.parse_args()
-    config = load_config([])
+    config = load_config(values={"ingest.workers": args.workers}).ingest
     with tempfile.TemporaryDirectory(prefix="mixcount-bench-") as tmp:
         root = Path(tmp)
         libs, total, seed = [], 0, 0
@@ -65,13 +65,13 @@ def main() -> int:
             seed += 1
         gen_s = time.perf_counter() - t0
         print(f"generated {total} objects in {len(libs)} libraries in {gen_s:.1f} s", file=sys.stderr)
-        catalog = open_catalog(str(root / "bench.db"))
+        catalog = open_catalog(str(root / "bench.db"), data_dir="")
         try:
             t0 = time.perf_counter()
-            first = ingest_paths(catalog, libs, config=config, workers=args.workers)
+            first = ingest_paths(catalog, libs, config=config)
             first_s = time.perf_counter() - t0
             t0 = time.perf_counter()
-            rerun = ingest_paths(catalog, libs, config=config, workers=args.workers)
+            rerun = ingest_paths(catalog, libs, config=config)
             rerun_s = time.perf_counter() - t0
         finally:
             catalog.close()

@@ -122,7 +122,6 @@ def main() -> int:
     from mixcount.config import load_config
     from mixcount.demo.pool import ensure_demo_pool
     from mixcount.run.factory import make_executor
-    from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
@@ -131,16 +130,15 @@ def main() -> int:
     cfg = load_config(["quick"], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
                                   "compose.render_threads=1", "compose.ray_cpus_per_worker=1"])
     assets = work / "assets"
-    sconf = SceneConfig.from_config(cfg)
-    for s in range(int(cfg["compose"]["seed"]), int(cfg["compose"]["seed"]) + 3 * args.scenes + 4):
-        convert_scene_assets(sample_scene(s, "train", sconf, pool), assets)  # warm the asset cache
+    for s in range(cfg.compose.seed, cfg.compose.seed + 3 * args.scenes + 4):
+        convert_scene_assets(sample_scene(s, "train", cfg, pool), assets)  # warm the asset cache
 
     if args.memory:
         print(json.dumps(_memory(args, pool=pool, cfg=cfg, assets=assets, work=work)))
         return 0
     runs = []
     if args.only in (None, "local"):
-        ex = make_executor("local", args.workers, config=cfg, log_dir=work / "logs")
+        ex = make_executor("local", args.workers, config=cfg.compose, log_dir=work / "logs")
         try:
             runs.append(_run("local", ex, pool=pool, cfg=cfg, out=work / "local", assets=assets, n=args.scenes,
                              pids=lambda: [w.pid for w in ex.workers]))
@@ -148,7 +146,7 @@ def main() -> int:
             ex.close()
     if args.only in (None, "ray"):
         t = time.perf_counter()
-        ex = make_executor("ray", args.workers, config=cfg, log_dir=work / "logs")
+        ex = make_executor("ray", args.workers, config=cfg.compose, log_dir=work / "logs")
         startup = time.perf_counter() - t
         try:
             runs.append({**_run("ray", ex, pool=pool, cfg=cfg, out=work / "ray", assets=assets, n=args.scenes,

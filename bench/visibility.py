@@ -42,7 +42,6 @@ def main() -> int:
     from mixcount.config import load_config
     from mixcount.demo.pool import ensure_demo_pool
     from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
-    from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
@@ -56,7 +55,7 @@ def main() -> int:
             cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
                                    f"scene.n_objects=[{n},{n}]", f"scene.physics_frames={args.frames}",
                                    f"compose.render_threads={threads}"])
-            spec = sample_scene(args.seed, "train", SceneConfig.from_config(cfg), pool)
+            spec = sample_scene(args.seed, "train", cfg, pool)
             assets = work / "assets"
             convert_scene_assets(spec, assets)
             task = SceneTask(spec=spec, out_dir=str(work / f"out_{n}"), assets_dir=str(assets), timeout_s=3600,

@@ -1,9 +1,12 @@
-"""Configuration: ``configs/default.toml`` is the schema and the defaults.
+"""Configuration: ``configs/default.toml`` is the schema and the only place a default lives.
 
 Every key mixcount knows is in ``default.toml``. Other files (``quick.toml``, a user's ``--config``)
 and ``--set section.key=value`` overrides may only change keys that exist there; an unknown key or a
-value of the wrong type is a :class:`ConfigError`. The result is a :class:`Config`: a frozen, hashable
-view whose sections each area turns into its own frozen dataclass (``SceneConfig.from_config(cfg)``...).
+value of the wrong type is a :class:`ConfigError`. :func:`load_config` merges them once and returns a
+:class:`Config`: frozen, with one frozen dataclass per TOML section (``cfg.compose.samples``,
+``cfg.scene.n_objects``). Section fields carry no defaults: a key missing from ``default.toml`` or a field
+missing from a dataclass is an error at load time, and code never supplies its own fallback value.
+The CLI builds the Config once per invocation and passes it (or one of its sections) down.
 """
 
 from __future__ import annotations
@@ -12,13 +15,15 @@ import copy
 import hashlib
 import json
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, fields
+from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any, Mapping, Optional, Sequence
 
 from mixcount.errors import ConfigError
 from mixcount.resources import data_dir
+from mixcount.scene.config import SceneConfig
 
 CONFIG_DIR = data_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"
@@ -99,55 +104,225 @@ def _thaw(value: Any) -> Any:
 
 
 @dataclass(frozen=True)
-class Config:
-    """Read-only configuration. ``cfg["scene"]["n_objects"]`` or ``cfg.get("scene.n_objects")``."""
+class CatalogConfig:
+    """``[catalog]``: where the catalog keeps its files."""
 
-    data: Mapping[str, Any]
-    sources: tuple[str, ...] = field(default=())
+    data_dir: str
 
-    def __getitem__(self, section: str) -> Mapping[str, Any]:
-        try:
-            return self.data[section]
-        except KeyError:
-            raise ConfigError(f"unknown config section {section!r}") from None
 
-    def get(self, dotted: str) -> Any:
-        node: Any = self.data
-        for part in dotted.split("."):
-            if not isinstance(node, Mapping) or part not in node:
-                raise ConfigError(f"unknown config key {dotted!r}")
-            node = node[part]
-        return node
+@dataclass(frozen=True)
+class IngestConfig:
+    """``[ingest]``: mesh analysis of ingested objects (docs/ingest.md)."""
 
-    def to_dict(self) -> dict[str, Any]:
-        return _thaw(self.data)
+    collision_face_budget: int
+    workers: int
+    max_file_mb: float
+    assume_units: str
+    assume_up_axis: str
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """``[demo]``: the generated demo library."""
+
+    seed: int
+    n_objects: int
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """``[render]``: canonical white-background renders (docs/curation.md)."""
+
+    resolution: int
+    samples: int
+    denoise: bool
+    elevation_deg: float
+    azimuth_deg: float
+    extra_views: int
+    margin: float
+    world_strength: float
+    sun_strength: float
+    workers: int
+    threads: int
+    timeout_s: float
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """``[filter]``: duplicate and quality flag thresholds (docs/curation.md)."""
+
+    exact_phash: float
+    exact_colour: float
+    geometry_d2: float
+    geometry_proportions: float
+    geometry_size: float
+    geometry_edge_similarity: float
+    appearance_phash: float
+    appearance_colour: float
+    min_faces: int
+    min_volume_m3: float
+    max_aspect_ratio: float
+    max_nonmanifold_fraction: float
+    min_render_coverage: float
+    min_size_m: float
+    max_size_m: float
+    category_min_objects: int
+    category_size_factor: float
+    exclude_degenerate: bool
+
+
+@dataclass(frozen=True)
+class CaptionsConfig:
+    """``[captions]``: the stub and http captioners (docs/captions.md)."""
+
+    captioner: str
+    stub_prompt_version: str
+    colour_source: str
+    provider: str
+    endpoint: str
+    model: str
+    api_key_env: str
+    http_prompt_version: str
+    timeout_s: float
+    concurrency: int
+    max_retries: int
+    backoff_base_s: float
+    backoff_cap_s: float
+    max_retry_after_s: float
+    max_image_px: int
+    temperature: float
+
+    def validate(self) -> None:
+        if self.captioner not in ("stub", "http"):
+            raise ConfigError(f"captions.captioner must be stub or http, got {self.captioner!r}")
+        if self.colour_source not in ("model", "render"):
+            raise ConfigError(f"captions.colour_source must be model or render, got {self.colour_source!r}")
+        if self.max_retries < 0 or self.concurrency < 1 or self.timeout_s <= 0:
+            raise ConfigError("captions: max_retries >= 0, concurrency >= 1 and timeout_s > 0 are required")
+
+
+@dataclass(frozen=True)
+class SplitConfig:
+    """``[split]``: object splits (docs/splits.md)."""
+
+    seed: int
+    train_fraction: float
+    val_fraction: float
+    test_fraction: float
+    use_fsc147: bool
 
     @property
+    def fractions(self) -> tuple[float, float, float]:
+        """(train, val, test), normalised to sum to 1."""
+        fr = (self.train_fraction, self.val_fraction, self.test_fraction)
+        total = sum(fr)
+        return (fr[0] / total, fr[1] / total, fr[2] / total)
+
+    def validate(self) -> None:
+        fr = (self.train_fraction, self.val_fraction, self.test_fraction)
+        if min(fr) < 0 or sum(fr) <= 0:
+            raise ConfigError(f"split fractions must be >= 0 with a positive sum, got {fr}")
+
+
+@dataclass(frozen=True)
+class ComposeConfig:
+    """``[compose]``: the rendering run (docs/blender.md, docs/ray.md)."""
+
+    split: str
+    seed: int
+    resolution: int
+    samples: int
+    denoise: bool
+    visibility_threshold: float
+    workers: int
+    render_threads: int
+    recycle_after: int
+    ray_cpus_per_worker: int
+    scene_timeout_s: float
+    max_attempts_factor: float
+    preview_scenes: int
+
+    def validate(self) -> None:
+        if self.split not in ("train", "val", "test"):
+            raise ConfigError(f"compose.split must be train, val or test, got {self.split!r}")
+        if self.workers < 1 or self.resolution < 1 or self.samples < 1:
+            raise ConfigError("compose.workers, compose.resolution and compose.samples must be >= 1")
+
+
+def _tuples(value: Any) -> Any:
+    return tuple(_tuples(v) for v in value) if isinstance(value, (list, tuple)) else value
+
+
+def _build_section(cls: type, name: str, values: Mapping[str, Any]) -> Any:
+    """One section dataclass from its merged values: exactly the dataclass's fields, lists as tuples."""
+    names = {f.name for f in fields(cls)}
+    if set(values) != names:
+        missing, extra = sorted(names - set(values)), sorted(set(values) - names)
+        raise ConfigError(f"config section [{name}] does not match {cls.__name__}: "
+                          f"missing {missing}, unexpected {extra} (default.toml and the dataclass must agree)")
+    from_section = getattr(cls, "from_section", None)
+    section = from_section(values) if from_section else cls(**{k: _tuples(v) for k, v in values.items()})
+    validate = getattr(section, "validate", None)
+    if validate is not None:
+        validate()
+    return section
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole configuration, read-only: one frozen dataclass per section of ``default.toml``."""
+
+    catalog: CatalogConfig
+    ingest: IngestConfig
+    demo: DemoConfig
+    render: RenderConfig
+    filter: FilterConfig
+    captions: CaptionsConfig
+    split: SplitConfig
+    scene: SceneConfig
+    compose: ComposeConfig
+    sources: tuple[str, ...]
+    data: Mapping[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every value as plain TOML-like data (recorded in dataset.json)."""
+        return _thaw(self.data)
+
+    @cached_property
     def hash(self) -> str:
         """Stable short hash of every value: recorded in stage metadata and dataset.json."""
         blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
-    def with_overrides(self, overrides: Mapping[str, Any]) -> "Config":
-        """Return a copy with dotted keys replaced (checked like any override)."""
-        data = self.to_dict()
-        for dotted, value in overrides.items():
-            nested: dict[str, Any] = {}
-            node = nested
-            parts = dotted.split(".")
-            for part in parts[:-1]:
-                node = node.setdefault(part, {})
-            node[parts[-1]] = value
-            _merge(data, nested, "", "override")
-        return Config(_freeze(data), self.sources + ("overrides",))
+
+SECTIONS: dict[str, type] = {
+    "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "render": RenderConfig,
+    "filter": FilterConfig, "captions": CaptionsConfig, "split": SplitConfig, "scene": SceneConfig,
+    "compose": ComposeConfig,
+}
+
+
+def _nested(dotted: str, value: Any) -> dict[str, Any]:
+    parts = dotted.split(".")
+    nested: dict[str, Any] = {}
+    node = nested
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+    node[parts[-1]] = value
+    return nested
 
 
 def load_config(
-    files: list[Path | str] | tuple[Path | str, ...] = (),
-    overrides: list[str] | tuple[str, ...] = (),
+    files: Sequence[Path | str] = (),
+    overrides: Sequence[str] = (),
+    *,
+    values: Optional[Mapping[str, Any]] = None,
 ) -> Config:
-    """Load default.toml, then each of ``files`` in order, then ``section.key=value`` overrides."""
+    """Load default.toml, then each of ``files`` in order, then ``section.key=value`` ``overrides``, then
+    ``values`` (dotted key -> Python value, e.g. a command's ``--samples``), and build the :class:`Config`."""
     data = copy.deepcopy(_read_toml(DEFAULT_CONFIG))
+    if set(data) != set(SECTIONS):
+        raise ConfigError(f"{DEFAULT_CONFIG} sections {sorted(data)} do not match {sorted(SECTIONS)}")
     sources = [str(DEFAULT_CONFIG)]
     for f in files:
         path = Path(f)
@@ -159,11 +334,10 @@ def load_config(
         sources.append(str(path))
     for text in overrides:
         parts, value = _parse_override(text)
-        nested: dict[str, Any] = {}
-        node = nested
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = value
-        _merge(data, nested, "", f"override {text!r}")
+        _merge(data, _nested(".".join(parts), value), "", f"override {text!r}")
         sources.append(f"set:{text}")
-    return Config(_freeze(data), tuple(sources))
+    for dotted, value in (values or {}).items():
+        _merge(data, _nested(dotted, value), "", f"option {dotted}")
+        sources.append(f"set:{dotted}={value!r}")
+    sections = {name: _build_section(cls, name, data[name]) for name, cls in SECTIONS.items()}
+    return Config(**sections, sources=tuple(sources), data=_freeze(data))

@@ -22,6 +22,6 @@ def db_url(tmp_path: Path) -> str:
 def catalog(db_url: str):
     from mixcount.catalog.db import open_catalog
 
-    cat = open_catalog(db_url)
+    cat = open_catalog(db_url, data_dir="")
     yield cat
     cat.close()

@@ -143,7 +143,7 @@ def test_merge_renumbers_and_loads_with_pycocotools(tmp_path: Path) -> None:
                                                      "n_distractors": 1, "counts": {"40": 1},
                                                      "timings": {"total": 1.0 + k}, "complete": True}))
     (tmp_path / "scenes" / "scene_000009").mkdir()  # incomplete: ignored
-    res = finalize_dataset(tmp_path, config={"x": 1}, config_hash="abc")
+    res = finalize_dataset(tmp_path, config={"x": 1}, config_hash="abc", preview_scenes=16)
     coco = COCO(res["annotations"]["val"])
     assert len(coco.getImgIds()) == 2 and len(coco.getAnnIds()) == 4
     assert sorted(a["id"] for a in coco.dataset["annotations"]) == [1, 2, 3, 4]

@@ -29,7 +29,8 @@ def _config(*extra: str):
     from mixcount.config import load_config
 
     return load_config([PROJECT_ROOT / "configs" / "quick.toml"],
-                       ["compose.render_threads=2", "compose.resolution=128", "compose.samples=4", *extra])
+                       ["compose.render_threads=2", "compose.resolution=128", "compose.samples=4", "compose.seed=1",
+                        *extra])
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +49,7 @@ def composed(library, tmp_path_factory: pytest.TempPathFactory):
 
     pool, assets = library
     out = tmp_path_factory.mktemp("out")
-    summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2, seed=1,
+    summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2,
                              progress=False, oracle=True)
     return out, summary
 
@@ -225,7 +226,7 @@ def test_worker_killed_mid_scene_fails_only_that_scene(library, tmp_path: Path) 
 
     pool, assets = library
     out = tmp_path / "out"
-    with LocalExecutor(1, log_dir=tmp_path) as ex:
+    with LocalExecutor(1, log_dir=tmp_path, recycle_after=0) as ex:
         killed: list[int] = []
 
         def kill() -> None:
@@ -238,7 +239,7 @@ def test_worker_killed_mid_scene_fails_only_that_scene(library, tmp_path: Path) 
                 time.sleep(0.05)
 
         th = _kill_when_tmp_scene_appears(out, kill)
-        summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=1, seed=1,
+        summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=1,
                                  executor=ex, progress=False)
         th.join(5)
     assert killed
@@ -258,7 +259,7 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
         "from mixcount.run.compose import compose_scenes\n"
         f"pool = pool_from_demo_library(Path({str(Path(pool[0].model_path).parent.parent)!r}))\n"
         f"compose_scenes(pool=pool, config=_config(), out_dir=Path({str(out)!r}), assets_dir=Path({str(assets)!r}),"
-        " n=2, seed=1, progress=False)\n"
+        " n=2, progress=False)\n"
     )
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=PROJECT_ROOT, start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -269,11 +270,11 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
     assert _scenes(out) == []  # nothing half-written is visible as a scene
     from mixcount.run.compose import compose_scenes
 
-    summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2, seed=1,
+    summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2,
                              progress=False)
     assert summary.written == 2 and summary.failed == 0
     assert [d.name for d in _scenes(out)] == ["scene_000001", "scene_000002"]
     assert not list((out / "scenes").glob(".tmp-*"))
-    again = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2, seed=1,
+    again = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2,
                            progress=False)
     assert again.skipped == 2 and again.written == 2

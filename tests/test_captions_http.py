@@ -3,6 +3,7 @@ and the Gemini generateContent APIs, with one scripted behaviour per object cate
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import re
@@ -22,12 +23,13 @@ from sqlalchemy import select
 
 from mixcount.captions.http import (
     HttpCaptioner,
-    HttpCaptionerConfig,
+    endpoint_url,
     gemini_retry_delay,
     parse_retry_after,
     quota_exhausted,
 )
 from mixcount.captions.captioning import caption_catalog
+from mixcount.config import load_config
 from mixcount.catalog.models import CaptionFailure, CaptionSet, CatalogObject, Render
 
 pytestmark = pytest.mark.network
@@ -35,6 +37,11 @@ pytestmark = pytest.mark.network
 API_KEY = "sk-test-SECRET-9f8e7d6c5b4a"
 KEY_ENV = "MIXCOUNT_TEST_CAPTION_KEY"
 TIMEOUT_S = 0.5
+
+
+def http_conf(**changes: Any):
+    """The ``[captions]`` section of default.toml with the test's endpoint, model and limits."""
+    return dataclasses.replace(load_config().captions, **changes)
 
 
 def _good(category: str) -> dict[str, str]:
@@ -213,12 +220,12 @@ def test_http_captioner_against_loopback_server(provider, server, catalog, tmp_p
     monkeypatch.setenv(KEY_ENV, API_KEY)
     ids = _add_objects(catalog, tmp_path, CATEGORIES)
     sleeps: list[float] = []
-    conf = HttpCaptionerConfig(provider=provider, endpoint=server.base, model="vision-test-1", api_key_env=KEY_ENV,
+    conf = http_conf(provider=provider, endpoint=server.base, model="vision-test-1", api_key_env=KEY_ENV,
                                timeout_s=TIMEOUT_S, concurrency=3, max_retries=2, backoff_base_s=0.25,
                                backoff_cap_s=1.0, max_retry_after_s=30.0)
     with httpx.Client() as client:
         cap = HttpCaptioner(conf, client, sleep=sleeps.append, rng=np.random.default_rng(0))
-        summary = caption_catalog(catalog, cap)
+        summary = caption_catalog(catalog, cap, concurrency=conf.concurrency, colour_source="model")
 
     for cat, (attempts, ok) in EXPECTED.items():
         assert server.attempts(provider, cat) == attempts, (cat, server.attempts(provider, cat))
@@ -278,14 +285,14 @@ def test_http_captioner_against_loopback_server(provider, server, catalog, tmp_p
 def test_resume_skips_same_captioner_and_force_recaptions(server, catalog, tmp_path, monkeypatch):
     monkeypatch.setenv(KEY_ENV, API_KEY)
     _add_objects(catalog, tmp_path, ["ok"])
-    conf = HttpCaptionerConfig(provider="openai", endpoint=server.base + "/v1", model="m", api_key_env=KEY_ENV,
+    conf = http_conf(provider="openai", endpoint=server.base + "/v1", model="m", api_key_env=KEY_ENV,
                                timeout_s=2.0, concurrency=1, max_retries=0)
     with httpx.Client() as client:
         cap = HttpCaptioner(conf, client, sleep=lambda s: None)
-        assert caption_catalog(catalog, cap).captioned == 1
-        again = caption_catalog(catalog, cap)
+        assert caption_catalog(catalog, cap, concurrency=conf.concurrency, colour_source="model").captioned == 1
+        again = caption_catalog(catalog, cap, concurrency=conf.concurrency, colour_source="model")
         assert (again.captioned, again.skipped) == (0, 1)
-        forced = caption_catalog(catalog, cap, force=True)
+        forced = caption_catalog(catalog, cap, concurrency=1, colour_source="model", force=True)
         assert forced.captioned == 1
     assert server.attempts("openai", "ok") == 2
     with catalog.session() as s:
@@ -298,7 +305,7 @@ def test_missing_key_env_is_a_config_error(monkeypatch):
 
     monkeypatch.delenv(KEY_ENV, raising=False)
     with pytest.raises(ConfigError, match=KEY_ENV):
-        HttpCaptioner(HttpCaptionerConfig(model="m", api_key_env=KEY_ENV))
+        HttpCaptioner(http_conf(model="m", api_key_env=KEY_ENV))
 
 
 def test_retry_hint_parsing():
@@ -316,9 +323,9 @@ def test_retry_hint_parsing():
 
 
 def test_urls_for_both_providers():
-    assert HttpCaptionerConfig(provider="openai", model="m", endpoint="http://h:1").url() == "http://h:1/v1/chat/completions"
-    assert HttpCaptionerConfig(provider="openai", model="m", endpoint="http://h/v1/").url() == "http://h/v1/chat/completions"
-    assert HttpCaptionerConfig(provider="gemini", model="g-1", endpoint="").url() == (
+    assert endpoint_url(http_conf(provider="openai", model="m", endpoint="http://h:1")) == "http://h:1/v1/chat/completions"
+    assert endpoint_url(http_conf(provider="openai", model="m", endpoint="http://h/v1/")) == "http://h/v1/chat/completions"
+    assert endpoint_url(http_conf(provider="gemini", model="g-1", endpoint="")) == (
         "https://generativelanguage.googleapis.com/v1beta/models/g-1:generateContent")
 
 

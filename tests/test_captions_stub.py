@@ -97,9 +97,9 @@ def _item(**kw) -> CaptionInput:
 
 
 def test_stub_is_grounded_deterministic_and_within_bounds(tmp_path: Path):
-    stub = StubCaptioner()
+    stub = StubCaptioner("stub-v1")
     glb = _coloured_glb(tmp_path / "b.glb", trimesh.creation.icosphere(2, 0.1), (240, 200, 20))
-    item = _item(model_path=str(glb)).with_measured_colours()
+    item = _item(model_path=str(glb)).with_measured_colours("model")
     r = stub.caption(item)
     assert r == stub.caption(item)
     assert_bounds(r.short, r.concise, r.detailed)
@@ -126,7 +126,7 @@ def test_stub_is_grounded_deterministic_and_within_bounds(tmp_path: Path):
     ],
 )
 def test_stub_bounds_hold_for_odd_inputs(name, category, dims, watertight):
-    r = StubCaptioner().caption(_item(name=name, category=category, dims=dims, watertight=watertight, volume=None))
+    r = StubCaptioner("stub-v1").caption(_item(name=name, category=category, dims=dims, watertight=watertight, volume=None))
     assert_bounds(r.short, r.concise, r.detailed)
 
 
@@ -214,8 +214,8 @@ def test_demo_library_captions_are_distinct(tmp_path, catalog):
 
     root = tmp_path / "demo"
     truth = demo.generate_demo_library(root, seed=0, n_objects=40)
-    ingest.ingest_paths(catalog, [root], config=load_config(["quick"]), workers=1)
-    summary = caption_catalog(catalog, StubCaptioner())
+    ingest.ingest_paths(catalog, [root], config=load_config(["quick"], ["ingest.workers=1"]).ingest)
+    summary = caption_catalog(catalog, StubCaptioner("stub-v1"), concurrency=2, colour_source="model")
     assert summary.failed == 0 and summary.captioned >= 40
     with catalog.session() as s:
         rows = s.execute(

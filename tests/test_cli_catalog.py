@@ -80,7 +80,7 @@ def test_json_shape_and_later_fields(demo_db, capsys):
     a, b = active[0], active[1]
     assert len(a["dims_m"]) == 3 and all(0.005 < d < 0.4 for d in a["dims_m"])
     # later issues fill flags, captions and split: the same shape carries them
-    cat = open_catalog(db)
+    cat = open_catalog(db, data_dir="")
     with cat.session() as s:
         s.add(Flag(object_id=a["id"], kind="exact_duplicate", score=1.0, reason="same bytes", pair_object_id=b["id"]))
         s.add(CaptionSet(object_id=a["id"], captioner="stub", provider="stub", model="m", prompt_version="v1",

@@ -88,16 +88,16 @@ def _pool(root: Path) -> list[ObjectRecord]:
 
 @pytest.fixture()
 def setup(tmp_path: Path):
-    config = load_config(["quick"])
+    config = load_config(["quick"], values={"compose.seed": 100, "compose.split": "train"})
     return config, _pool(tmp_path), tmp_path / "out", tmp_path / "assets"
 
 
 def _run(setup, plan: Callable[[int], str], n: int, calls: list[int]):
     config, pool, out, assets = setup
     runner = lambda task, _worker: run_scene_task(task, FakeWorker(task.spec, plan, calls))  # noqa: E731
-    with LocalExecutor(1, runner=runner) as executor:
-        return compose_scenes(pool=pool, config=config, out_dir=out, assets_dir=assets, n=n, split="train",
-                              seed=100, executor=executor)
+    with LocalExecutor(1, runner=runner, recycle_after=0) as executor:
+        return compose_scenes(pool=pool, config=config, out_dir=out, assets_dir=assets, n=n,
+                              executor=executor)
 
 
 def test_empty_rejected_and_failed_seeds_are_replaced_and_finalized(setup) -> None:
@@ -139,7 +139,7 @@ def test_max_attempts_bounds_a_split_that_never_yields_a_scene(setup) -> None:
     config = setup[0]
     calls: list[int] = []
     summary = _run(setup, lambda s: "empty", 2, calls)
-    limit = math.ceil(2 * config["compose"]["max_attempts_factor"]) + 4
+    limit = math.ceil(2 * config.compose.max_attempts_factor) + 4
     assert summary.written == 0 and summary.empty == limit and len(calls) == limit
     assert len(list((setup[2] / "scenes" / REJECTED_DIR).iterdir())) == limit
 
@@ -147,10 +147,9 @@ def test_max_attempts_bounds_a_split_that_never_yields_a_scene(setup) -> None:
 def test_scene_task_is_picklable_plain_data(setup) -> None:
     import pickle
 
-    from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
 
     config, pool = setup[0], setup[1]
-    spec = sample_scene(7, "train", SceneConfig.from_config(config), pool)
+    spec = sample_scene(7, "train", config, pool)
     task = SceneTask(spec=spec, out_dir="o", assets_dir="a", timeout_s=5.0, threads=1)
     assert pickle.loads(pickle.dumps(task)) == task

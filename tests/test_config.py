@@ -1,3 +1,4 @@
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -10,12 +11,12 @@ def test_defaults_load_and_hash_is_stable():
     a = load_config()
     b = load_config()
     assert a.hash == b.hash
-    assert a["ingest"]["collision_face_budget"] == 2000
+    assert a.ingest.collision_face_budget == 2000
 
 
 def test_quick_overlays_default():
     quick = load_config(["quick"])
-    assert quick["render"]["resolution"] < load_config()["render"]["resolution"]
+    assert quick.render.resolution < load_config().render.resolution
     assert quick.hash != load_config().hash
 
 
@@ -30,13 +31,51 @@ def test_unknown_key_is_an_error(tmp_path: Path):
 
 def test_override_type_is_checked():
     cfg = load_config(overrides=["ingest.collision_face_budget=500", "ingest.assume_units=cm"])
-    assert cfg["ingest"]["collision_face_budget"] == 500
-    assert cfg["ingest"]["assume_units"] == "cm"
+    assert cfg.ingest.collision_face_budget == 500
+    assert cfg.ingest.assume_units == "cm"
     with pytest.raises(ConfigError, match="expects int"):
         load_config(overrides=["ingest.collision_face_budget=abc"])
 
 
 def test_config_is_read_only():
     cfg = load_config()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.ingest.workers = 9  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.compose = cfg.compose  # type: ignore[misc]
     with pytest.raises(TypeError):
-        cfg["ingest"]["workers"] = 9  # type: ignore[index]
+        cfg.data["ingest"]["workers"] = 9  # type: ignore[index]
+
+
+def test_values_apply_after_files_and_overrides_and_are_recorded():
+    cfg = load_config(["quick"], ["compose.samples=8"], values={"compose.samples": 2, "compose.split": "val"})
+    assert (cfg.compose.samples, cfg.compose.split, cfg.compose.resolution) == (2, "val", 128)
+    assert cfg.to_dict()["compose"]["samples"] == 2 and cfg.hash != load_config(["quick"]).hash
+    with pytest.raises(ConfigError, match="expects int"):
+        load_config(values={"compose.samples": "many"})
+    with pytest.raises(ConfigError, match="unknown config key"):
+        load_config(values={"compose.nope": 1})
+
+
+def test_section_checks_run_at_load():
+    with pytest.raises(ConfigError, match="split fractions"):
+        load_config(overrides=["split.train_fraction=-1.0"])
+    with pytest.raises(ConfigError, match="compose.split"):
+        load_config(overrides=["compose.split=holdout"])
+    with pytest.raises(ConfigError, match="captions.colour_source"):
+        load_config(overrides=["captions.colour_source=guess"])
+    with pytest.raises(ConfigError, match="low 3 > high 2"):
+        load_config(overrides=["scene.n_classes=[3, 2]"])
+    assert load_config(overrides=["split.train_fraction=2.0"]).split.fractions[0] == pytest.approx(2.0 / 2.3)
+
+
+def test_cli_builds_the_config_once_with_command_options_last():
+    from mixcount.commands.common import AppState
+    from mixcount.errors import MixcountError
+
+    st = AppState(config_files=[Path("quick")], overrides=["compose.samples=8", "compose.seed=3"])
+    cfg = st.config(values={"compose.samples": 2, "compose.split": None})
+    assert (cfg.compose.samples, cfg.compose.seed, cfg.compose.split) == (2, 3, "train")  # None = not given
+    assert st.config() is cfg
+    with pytest.raises(MixcountError, match="first config"):
+        st.config(values={"compose.samples": 3})

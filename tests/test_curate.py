@@ -31,7 +31,7 @@ def flags_of(catalog, oid):
 def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
     objs = library_catalog(catalog, tmp_path)
     ids = {k: o.id for k, o in objs.items()}
-    summary = run_filter(catalog, quick_config())
+    summary = run_filter(catalog, quick_config().filter)
     assert summary.ground_truth is None  # not a demo library
     assert summary.missing_renders == 0 and not summary.descriptor_failures
 
@@ -60,7 +60,7 @@ def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
 def test_filter_idempotent_review_outranks_and_foreign_state_kept(catalog, tmp_path):
     objs = library_catalog(catalog, tmp_path)
     ids = {k: o.id for k, o in objs.items()}
-    cfg = quick_config()
+    cfg = quick_config().filter
     first = run_filter(catalog, cfg)
     before = state(catalog)
     second = run_filter(catalog, cfg)
@@ -102,14 +102,14 @@ def test_shape_descriptor_known_answers():
     box = desc(trimesh.creation.box((1, 1, 1)))
     box_tall = desc(trimesh.creation.box((1, 1, 1.05)))
     ico, uv = desc(trimesh.creation.icosphere(4)), desc(trimesh.creation.uv_sphere(1, (40, 40)))
-    th = quick_config()["filter"]
+    th = quick_config().filter
     assert D.d2_distance(cyl, cyl_scaled) < 1e-9 and D.ratio_distance(cyl, cyl_scaled) < 1e-9  # scale-free
     assert D.size_ratio(cyl_scaled, cyl) == pytest.approx(3.0)
-    assert D.d2_distance(ico, uv) < th["geometry_d2"] and D.ratio_distance(ico, uv) < th["geometry_proportions"]
-    assert D.d2_distance(cyl, cyl_coarse) < th["geometry_d2"]
-    assert D.d2_distance(cyl, cyl_fat) > th["geometry_d2"] or D.ratio_distance(cyl, cyl_fat) > th["geometry_proportions"]
-    assert D.ratio_distance(box, box_tall) > th["geometry_proportions"]  # D2 hardly sees 5 %; proportions do
-    assert D.d2_distance(box, ico) > 2 * th["geometry_d2"]
+    assert D.d2_distance(ico, uv) < th.geometry_d2 and D.ratio_distance(ico, uv) < th.geometry_proportions
+    assert D.d2_distance(cyl, cyl_coarse) < th.geometry_d2
+    assert D.d2_distance(cyl, cyl_fat) > th.geometry_d2 or D.ratio_distance(cyl, cyl_fat) > th.geometry_proportions
+    assert D.ratio_distance(box, box_tall) > th.geometry_proportions  # D2 hardly sees 5 %; proportions do
+    assert D.d2_distance(box, ico) > 2 * th.geometry_d2
 
 
 def test_nonmanifold_fraction_and_phash():

@@ -40,7 +40,7 @@ def test_demo_library_precision_recall(tmp_path, capsys):
     assert gt["precision"] >= 0.7
 
     # the right pair, by folder name, for every trap; and one member of each pair is excluded
-    catalog = open_catalog(db)
+    catalog = open_catalog(db, data_dir="")
     try:
         with catalog.session() as s:
             by_folder = {o.name: o for o in s.scalars(select(CatalogObject))}

@@ -27,7 +27,7 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 
 
 def cfg(**ingest):
-    return load_config([], [f"ingest.{k}={json.dumps(v)}" for k, v in ingest.items()])
+    return load_config([], [f"ingest.{k}={json.dumps(v)}" for k, v in ingest.items()]).ingest
 
 
 def objects_by_name(catalog) -> dict[str, CatalogObject]:
@@ -63,7 +63,7 @@ def write_usd(path: Path, *, extents_cm=(4.0, 6.0, 10.0), up="Y", mpu=0.01) -> N
 def test_dtc_layout_facts_match_ground_truth(tmp_path, catalog):
     lib = tmp_path / "lib"
     truth = generate_demo_library(lib, seed=1, n_objects=12)
-    summary = ingest_paths(catalog, [lib], config=cfg(), workers=2)
+    summary = ingest_paths(catalog, [lib], config=cfg(workers=2))
     assert summary.total == truth["expected"]["total"]
     assert summary.new == truth["expected"]["active"]
     assert summary.broken == truth["expected"]["broken"] == 2
@@ -110,7 +110,7 @@ def test_dtc_category_from_folder_name_and_collision_budget(tmp_path, catalog):
     (folder / "metadata.json").write_text(json.dumps({"name": "Peach marker"}))
     (folder / "LICENSE.txt").write_text("CC0")
     (folder / "preview.jpg").write_bytes(b"not checked")
-    summary = ingest_paths(catalog, [folder], config=cfg(collision_face_budget=300), workers=1)
+    summary = ingest_paths(catalog, [folder], config=cfg(collision_face_budget=300, workers=1))
     assert summary.new == 1
     obj = objects_by_name(catalog)["Markers_B07Z5P84J2_Peach"]
     assert obj.category == "marker"  # first token of the name, singular, lower case
@@ -151,7 +151,7 @@ def test_plain_folder_every_format(tmp_path, catalog):
     UsdUtils.CreateNewUsdzPackage(str(tmp_path / "figurine.usdc"), str(lib / "figurine.usdz"))
     (lib / "notes.txt").write_text("ignored: not a model")
 
-    summary = ingest_paths(catalog, [lib], config=cfg(assume_units="cm", assume_up_axis="Y"), workers=2)
+    summary = ingest_paths(catalog, [lib], config=cfg(assume_units="cm", assume_up_axis="Y", workers=2))
     assert (summary.new, summary.broken) == (7, 0), summary.broken_objects
     objs = objects_by_name(catalog)
     assert set(objs) == {"mug_scaled", "model", "block_cm", "eraser", "can", "bottle", "figurine"}
@@ -175,10 +175,10 @@ def test_plain_folder_every_format(tmp_path, catalog):
 def test_rerun_is_idempotent_and_keeps_ids(tmp_path, catalog):
     lib = tmp_path / "lib"
     generate_demo_library(lib, seed=2, n_objects=6)
-    first = ingest_paths(catalog, [lib], config=cfg(), workers=2)
+    first = ingest_paths(catalog, [lib], config=cfg(workers=2))
     with catalog.session() as s:
         before = {o.source_id: (o.id, o.content_hash, o.updated_at, o.status) for o in s.scalars(select(CatalogObject))}
-    second = ingest_paths(catalog, [lib], config=cfg(), workers=2)
+    second = ingest_paths(catalog, [lib], config=cfg(workers=2))
     assert second.new == 0 and second.updated == 0
     assert second.unchanged == first.new and second.broken == first.broken
     with catalog.session() as s:
@@ -194,7 +194,7 @@ def test_changed_file_updates_same_row_and_keeps_history(tmp_path, catalog):
     folder.mkdir(parents=True)
     textured_box((0.08, 0.08, 0.1)).export(folder / "3d-asset.glb")
     (folder / "metadata.json").write_text(json.dumps({"category": "mug"}))
-    ingest_paths(catalog, [lib], config=cfg(), workers=1)
+    ingest_paths(catalog, [lib], config=cfg(workers=1))
     with catalog.session() as s:
         obj = s.scalars(select(CatalogObject)).one()
         oid, old_hash, old_coll = obj.id, obj.content_hash, obj.collision_path
@@ -207,14 +207,14 @@ def test_changed_file_updates_same_row_and_keeps_history(tmp_path, catalog):
 
     # metadata-only change: updated without mesh work, facts kept
     (folder / "metadata.json").write_text(json.dumps({"category": "cup"}))
-    summary = ingest_paths(catalog, [lib], config=cfg(), workers=1)
+    summary = ingest_paths(catalog, [lib], config=cfg(workers=1))
     assert summary.updated == 1
     obj = objects_by_name(catalog)["Mug_B0TESTMUG1_Red"]
     assert obj.id == oid and obj.category == "cup" and obj.content_hash == old_hash
 
     # the model changes: new facts, same row, history intact
     textured_box((0.1, 0.1, 0.12), (10, 10, 200)).export(folder / "3d-asset.glb")
-    summary = ingest_paths(catalog, [lib], config=cfg(), workers=1)
+    summary = ingest_paths(catalog, [lib], config=cfg(workers=1))
     assert (summary.updated, summary.new) == (1, 0)
     with catalog.session() as s:
         assert s.scalar(select(func.count()).select_from(CatalogObject)) == 1
@@ -229,10 +229,10 @@ def test_changed_file_updates_same_row_and_keeps_history(tmp_path, catalog):
 
     # it breaks, then gets fixed: broken keeps the row too, and the fix brings it back
     (folder / "3d-asset.glb").write_bytes(b"garbage")
-    assert ingest_paths(catalog, [lib], config=cfg(), workers=1).broken == 1
+    assert ingest_paths(catalog, [lib], config=cfg(workers=1)).broken == 1
     assert objects_by_name(catalog)["Mug_B0TESTMUG1_Red"].status == "broken"
     textured_box((0.1, 0.1, 0.12)).export(folder / "3d-asset.glb")
-    assert ingest_paths(catalog, [lib], config=cfg(), workers=1).updated == 1
+    assert ingest_paths(catalog, [lib], config=cfg(workers=1)).updated == 1
     obj = objects_by_name(catalog)["Mug_B0TESTMUG1_Red"]
     assert (obj.id, obj.status, obj.error) == (oid, "active", None)
 
@@ -240,8 +240,8 @@ def test_changed_file_updates_same_row_and_keeps_history(tmp_path, catalog):
 def test_collision_budget_change_reanalyses(tmp_path, catalog):
     path = tmp_path / "ball.glb"
     trimesh.creation.icosphere(subdivisions=3, radius=0.03).export(path)
-    ingest_paths(catalog, [path], config=cfg(), workers=1)
-    summary = ingest_paths(catalog, [path], config=cfg(collision_face_budget=100), workers=1)
+    ingest_paths(catalog, [path], config=cfg(workers=1))
+    summary = ingest_paths(catalog, [path], config=cfg(collision_face_budget=100, workers=1))
     assert summary.updated == 1
     assert objects_by_name(catalog)["ball"].collision_face_count <= 100
 

@@ -114,8 +114,8 @@ def bad_library(tmp_path: Path) -> tuple[Path, dict[str, str]]:
 
 def test_every_bad_input_is_broken_with_a_specific_reason(bad_library, catalog):
     lib, expect = bad_library
-    config = load_config([])
-    summary = ingest_paths(catalog, [lib], config=config, workers=2)
+    config = load_config([], ["ingest.workers=2"]).ingest
+    summary = ingest_paths(catalog, [lib], config=config)
     with catalog.session() as s:
         objs = s.scalars(select(CatalogObject)).all()
     by_id = {o.source_id: o for o in objs}
@@ -130,7 +130,7 @@ def test_every_bad_input_is_broken_with_a_specific_reason(bad_library, catalog):
     good = by_id["Ball_B0GOOD0001_Red"]
     assert good.status == "active" and good.dims == pytest.approx((0.05, 0.05, 0.05))
     # a second run changes nothing and reports the same broken count
-    again = ingest_paths(catalog, [lib], config=config, workers=2)
+    again = ingest_paths(catalog, [lib], config=config)
     assert (again.new, again.updated, again.unchanged, again.broken) == (0, 0, 2, summary.broken)
 
 

@@ -13,7 +13,7 @@ from mixcount.catalog.models import Base
 def test_migrate_empty_file_to_head(tmp_path: Path):
     path = tmp_path / "fresh.db"
     assert not path.exists()
-    cat = open_catalog(str(path))
+    cat = open_catalog(str(path), data_dir="")
     try:
         assert path.exists()
         assert current_revision(cat.engine) == head_revision()
@@ -27,7 +27,7 @@ def test_migrate_empty_file_to_head(tmp_path: Path):
 
 
 def test_orm_matches_migrated_schema(tmp_path: Path):
-    cat = open_catalog(str(tmp_path / "c.db"))
+    cat = open_catalog(str(tmp_path / "c.db"), data_dir="")
     try:
         with cat.engine.connect() as conn:
             diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
@@ -38,8 +38,8 @@ def test_orm_matches_migrated_schema(tmp_path: Path):
 
 def test_reopen_is_idempotent(tmp_path: Path):
     path = tmp_path / "c.db"
-    open_catalog(str(path)).close()
-    cat = open_catalog(str(path))
+    open_catalog(str(path), data_dir="").close()
+    cat = open_catalog(str(path), data_dir="")
     try:
         assert current_revision(cat.engine) == head_revision()
     finally:

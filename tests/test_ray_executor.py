@@ -199,7 +199,7 @@ def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.Mo
                         assets_dir=str(tmp_path), timeout_s=60, threads=2)
     with cluster() as c:
         monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
-        ex = RayExecutor(address=c.address, slots=2, threads=1, recycle_after=2, runner=fake_runner,
+        ex = RayExecutor(address=c.address, slots=2, cpus_per_slot=1.0, threads=1, recycle_after=2, runner=fake_runner,
                          worker_factory=FakeWorker)
         try:
             assert ex.slots == 2
@@ -305,4 +305,4 @@ def test_unreachable_address_fails_fast_with_a_clear_error() -> None:
 
     port = _free_port()  # nobody listens there: refused at once instead of Ray's minutes of GCS retries
     with pytest.raises(RayExecutorError, match=f"cannot reach the Ray cluster at 127.0.0.1:{port}"):
-        RayExecutor(address=f"127.0.0.1:{port}", slots=1)
+        RayExecutor(address=f"127.0.0.1:{port}", slots=1, cpus_per_slot=1.0, recycle_after=0)

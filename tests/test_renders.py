@@ -21,8 +21,8 @@ pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 
 def small_config(**render):
-    overrides = ["render.resolution=64", "render.samples=2"] + [f"render.{k}={v}" for k, v in render.items()]
-    return load_config(["configs/quick.toml"], overrides)
+    values = {"render.resolution": 64, "render.samples": 2, **{f"render.{k}": v for k, v in render.items()}}
+    return load_config(["configs/quick.toml"], values=values)
 
 
 def coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:
@@ -47,13 +47,13 @@ def by_name(catalog) -> dict[str, CatalogObject]:
 def test_render_catalog_white_centred_resumable(tmp_path, catalog):
     lib = write_library(tmp_path / "lib")
     cfg = small_config()
-    ingest_paths(catalog, [lib], config=cfg)
+    ingest_paths(catalog, [lib], config=cfg.ingest)
     objs = by_name(catalog)
     assert len(objs) == 4
     vanishing = next(o for n, o in objs.items() if "vanishing" in n)
     Path(vanishing.model_path).unlink()  # ingested fine, gone by render time: that object fails, batch goes on
 
-    summary = render_catalog(catalog, cfg)
+    summary = render_catalog(catalog, cfg.render)
     assert (summary.objects, summary.rendered, summary.failed) == (4, 3, 1)
     assert summary.failures[0]["id"] == vanishing.id and summary.failures[0]["error"]
 
@@ -85,10 +85,10 @@ def test_render_catalog_white_centred_resumable(tmp_path, catalog):
     big = np.asarray(Image.open(paths[next(n for n in paths if n.startswith("bigredbox"))]), dtype=float)
     assert np.abs(small - big).mean() < 4.0
 
-    again = render_catalog(catalog, cfg)
+    again = render_catalog(catalog, cfg.render)
     assert (again.rendered, again.skipped, again.failed) == (0, 3, 1)  # failures are retried, the rest skipped
 
-    bigger = render_catalog(catalog, small_config(resolution=48))  # settings changed: render again
+    bigger = render_catalog(catalog, small_config(resolution=48).render)  # settings changed: render again
     assert bigger.rendered == 3
     assert np.asarray(Image.open(paths[next(iter(paths))])).shape == (48, 48, 3)
 
@@ -100,7 +100,7 @@ def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
     monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # hang / crash hooks
     glb = tmp_path / "box.glb"
     coloured(trimesh.creation.box(extents=(0.04, 0.04, 0.04)), (200, 200, 30)).export(glb)
-    base = {**render_settings(small_config(resolution=32, samples=1, denoise="false")),
+    base = {**render_settings(small_config(resolution=32, samples=1, denoise=False).render),
             "model_path": str(glb), "out_dir": str(tmp_path / "out")}
     jobs = [
         {**base, "key": "first", "stem": "first"},
@@ -109,7 +109,8 @@ def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
         {**base, "key": "last", "stem": "last"},
     ]
     seen: dict[str, dict] = {}
-    run_jobs(jobs, on_result=lambda k, rec: seen.__setitem__(k, rec), workers=1, timeout_s=8.0, threads_per_worker=0)
+    run_jobs(jobs, on_result=lambda k, rec: seen.__setitem__(k, rec), workers=1, timeout_s=8.0,
+             threads_per_worker=0)
     assert set(seen) == {"first", "hang", "crash", "last"}
     assert seen["first"]["event"] == "done" and seen["last"]["event"] == "done"
     assert seen["hang"]["event"] == "failed" and "timed out" in seen["hang"]["error"]

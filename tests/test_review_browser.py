@@ -49,7 +49,7 @@ def browser():
 
 def test_review_page_round_trip(browser, catalog, tmp_path):
     objs = library_catalog(catalog, tmp_path)
-    run_filter(catalog, quick_config())
+    run_filter(catalog, quick_config().filter)
     cone, cyl = objs["cone"], objs["cyl"]
     add_captions(catalog, cone.id, CAPTION)
     page_path = Path(write_sheets(catalog, tmp_path / "sheet")["html"])

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from mixcount.config import load_config
-from mixcount.scene.config import SceneConfig
 from mixcount.scene.pool import ObjectRecord, fallback_captions
 from mixcount.scene.sampler import sample_scene
 
@@ -45,10 +44,9 @@ def rich_pool() -> list[ObjectRecord]:
 @pytest.fixture(scope="module")
 def samples():
     cfg = load_config([], ["scene.spawn_max_tries=1"])
-    sconf = SceneConfig.from_config(cfg)
     pool = rich_pool()
-    specs = [sample_scene(seed, "train", sconf, pool) for seed in range(N_SCENES)]
-    return sconf, pool, specs
+    specs = [sample_scene(seed, "train", cfg, pool) for seed in range(N_SCENES)]
+    return cfg.scene, pool, specs
 
 
 def test_counts_and_classes_follow_config(samples):

@@ -12,7 +12,6 @@ from PIL import Image
 
 from mixcount.catalog.environments import classify_maps, is_environment_map
 from mixcount.config import load_config
-from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import PATTERNS, render_pattern, sample_pattern_params
 from mixcount.catalog.pool import load_environments, load_materials
 from mixcount.scene.sampler import sample_scene
@@ -59,16 +58,16 @@ def test_patterns_are_deterministic_repetitive_and_seamless(pattern):
 
 
 def test_default_scenes_use_sky_and_procedural_floors():
-    conf = SceneConfig.from_config(load_config())
+    conf = load_config()
     patterns = set()
     for seed in range(60):
         s = sample_scene(seed, "train", conf, rich_pool())
         assert s.environment.kind == "sky"
-        lo, hi = conf.sky_sun_elevation_deg
+        lo, hi = conf.scene.sky_sun_elevation_deg
         assert lo <= s.environment.sun_elevation_deg <= hi
         assert s.floor.material.kind == "procedural"
         patterns.add(s.floor.material.params["pattern"])
-        assert s.floor.shape in conf.floor_shapes
+        assert s.floor.shape in conf.scene.floor_shapes
     assert patterns == set(PATTERNS)
 
 
@@ -94,7 +93,7 @@ def test_ingest_env_and_materials_cli_then_sampled(tmp_path, db_url):
     assert main(["--db", db_url, "catalog", "ingest-env", str(envs)]) == 0
     assert main(["--db", db_url, "catalog", "ingest-env", str(envs)]) == 0  # idempotent
     assert main(["--db", db_url, "catalog", "ingest-materials", str(tmp_path / "materials")]) == 0
-    cat = open_catalog(db_url)
+    cat = open_catalog(db_url, data_dir="")
     with cat.session() as session:
         environments = load_environments(session)
         materials = load_materials(session)
@@ -103,7 +102,7 @@ def test_ingest_env_and_materials_cli_then_sampled(tmp_path, db_url):
     assert [m.name for m in materials] == ["Bricks_01"]
     assert Path(materials[0].maps["base_color"]).name == "Bricks_01_Color.png"
 
-    conf = SceneConfig.from_config(load_config([], ["scene.procedural_floor_probability=0.0"]))
+    conf = load_config([], ["scene.procedural_floor_probability=0.0"])
     seen = set()
     for seed in range(20):
         s = sample_scene(seed, "train", conf, rich_pool(), environments=environments, materials=materials)

@@ -7,9 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from mixcount.config import load_config
+from mixcount.config import Config, load_config
 from mixcount.errors import CompositionError, ConfigError
-from mixcount.scene.config import SceneConfig
 from mixcount.scene.pool import ObjectRecord
 from mixcount.scene.sampler import qualify, sample_scene
 from mixcount.scene.spec import Captions, SceneSpec
@@ -27,8 +26,8 @@ def quat_rotate(q, v):
 
 
 @pytest.fixture(scope="module")
-def conf() -> SceneConfig:
-    return SceneConfig.from_config(load_config())
+def conf() -> Config:
+    return load_config()
 
 
 def test_same_seed_same_spec_and_json_round_trip(conf):
@@ -40,7 +39,7 @@ def test_same_seed_same_spec_and_json_round_trip(conf):
     assert a.to_json() != c.to_json()
     back = SceneSpec.from_json(a.to_json())
     assert back == a
-    assert a.scene_id == "scene_000011" and a.seed == 11 and a.config_hash == conf.config_hash
+    assert a.scene_id == "scene_000011" and a.seed == 11 and a.config_hash == conf.hash
 
 
 def test_scale_is_applied_consistently(conf):
@@ -53,37 +52,37 @@ def test_scale_is_applied_consistently(conf):
             assert max(by_id[o.object_id].dims) * o.scale[0] == pytest.approx(o.size_m, rel=1e-4)
         if s.container is not None:
             real = np.asarray(by_id[s.container.object_id].dims)
-            ratio = np.asarray(s.container.extent_m) / real / conf.scale
-            assert np.all(ratio >= conf.container_scale_jitter[0] - 1e-4)
-            assert np.all(ratio <= conf.container_scale_jitter[1] + 1e-4)
-        assert s.floor.uv_scale_m / conf.scale == pytest.approx(
-            np.clip(s.floor.uv_scale_m / conf.scale, *conf.floor_uv_scale), rel=1e-6)
+            ratio = np.asarray(s.container.extent_m) / real / conf.scene.scale
+            assert np.all(ratio >= conf.scene.container_scale_jitter[0] - 1e-4)
+            assert np.all(ratio <= conf.scene.container_scale_jitter[1] + 1e-4)
+        assert s.floor.uv_scale_m / conf.scene.scale == pytest.approx(
+            np.clip(s.floor.uv_scale_m / conf.scene.scale, *conf.scene.floor_uv_scale), rel=1e-6)
 
 
 def test_spawn_positions_inside_ellipse_and_height_range(conf):
     pool = rich_pool()
-    s_ = conf.scale
+    s_ = conf.scene.scale
     checked = stacked = 0
     for seed in range(60):
         s = sample_scene(seed, "train", conf, pool)
         if s.container is None:
-            lo, hi = conf.spawn_xy_no_container[0] * s_, conf.spawn_xy_no_container[1] * s_
+            lo, hi = conf.scene.spawn_xy_no_container[0] * s_, conf.scene.spawn_xy_no_container[1] * s_
             for o in s.objects:
                 assert lo - 1e-6 <= o.position[0] <= hi + 1e-6 and lo - 1e-6 <= o.position[1] <= hi + 1e-6
-                assert conf.spawn_height[0] * s_ - 1e-6 <= o.position[2]
+                assert conf.scene.spawn_height[0] * s_ - 1e-6 <= o.position[2]
             continue
         c = s.container
         yaw = 2 * math.atan2(c.orientation[3], c.orientation[0])
-        a = max(c.extent_m[0] / 2 - conf.spawn_margin * s_, conf.spawn_min_semi_axis * s_)
-        b = max(c.extent_m[1] / 2 - conf.spawn_margin * s_, conf.spawn_min_semi_axis * s_)
+        a = max(c.extent_m[0] / 2 - conf.scene.spawn_margin * s_, conf.scene.spawn_min_semi_axis * s_)
+        b = max(c.extent_m[1] / 2 - conf.scene.spawn_margin * s_, conf.scene.spawn_min_semi_axis * s_)
         top = c.extent_m[2]
         for o in s.objects:
             x, y = o.position[0], o.position[1]
             lx = math.cos(yaw) * x + math.sin(yaw) * y  # into the container's frame
             ly = -math.sin(yaw) * x + math.cos(yaw) * y
             assert (lx / a) ** 2 + (ly / b) ** 2 <= 1 + 1e-4
-            assert top + conf.spawn_height[0] * s_ - 1e-5 <= o.position[2]
-            if o.position[2] > top + conf.spawn_height[1] * s_ + 1e-5:
+            assert top + conf.scene.spawn_height[0] * s_ - 1e-5 <= o.position[2]
+            if o.position[2] > top + conf.scene.spawn_height[1] * s_ + 1e-5:
                 stacked += 1  # no free spot in the range: lifted above its column (spawn_stack)
             checked += 1
         # distractors stand outside the container's box and apart from each other
@@ -104,7 +103,7 @@ def test_spawn_spheres_do_not_overlap(conf):
         gap = np.linalg.norm(pos[:, None] - pos[None], axis=2) - (r[:, None] + r[None])
         np.fill_diagonal(gap, 1.0)
         assert gap.min() >= -1e-5, (seed, len(pos))
-    loose = SceneConfig.from_config(load_config([], ["scene.spawn_stack=false", "scene.n_objects=[200, 200]"]))
+    loose = load_config([], ["scene.spawn_stack=false", "scene.n_objects=[200, 200]"])
     s = sample_scene(0, "train", loose, rich_pool())
     assert max(o.position[2] for o in s.objects) <= (s.container.extent_m[2] if s.container else 0) + 15.0 + 1e-5
 
@@ -137,7 +136,7 @@ def test_camera_looks_at_target_with_roll_and_distance(conf):
             assert abs(right[2]) == pytest.approx(abs(math.sin(math.radians(cam.roll_deg))) * math.cos(
                 math.asin(-want[2])), abs=1e-4)
             assert up[2] > 0  # never upside down
-            assert cam.resolution == (conf.resolution, conf.resolution)
+            assert cam.resolution == (conf.compose.resolution, conf.compose.resolution)
 
 
 def test_split_and_status_are_respected(conf):
@@ -170,23 +169,24 @@ def test_config_rejects_bad_values():
     with pytest.raises(ConfigError):
         load_config([], ["scene.no_such_key=1"])
     with pytest.raises(ConfigError):
-        SceneConfig.from_config(load_config([], ["scene.p_same_category=-1.0"]))
+        load_config([], ["scene.p_same_category=-1.0"])
     with pytest.raises(ConfigError):
-        SceneConfig.from_config(load_config([], ["scene.n_classes=[3, 2]"]))
+        load_config([], ["scene.n_classes=[3, 2]"])
     with pytest.raises(ConfigError):
-        SceneConfig.from_config(load_config([], ['scene.floor_patterns=["zigzag"]']))
-    quick = SceneConfig.from_config(load_config(["quick"]))
-    assert quick.n_objects == (6, 14) and quick.resolution == 128 and quick.samples == 4
-    assert quick.physics_frames == 60
-    full = SceneConfig.from_config(load_config())
-    assert full.scale == 10.0 and full.n_objects == (30, 200) and full.n_classes == (2, 4)
-    assert full.class_size == (0.045, 0.12) and full.visibility_threshold == 0.4 and full.resolution == 1024
+        load_config([], ['scene.floor_patterns=["zigzag"]'])
+    quick = load_config(["quick"])
+    assert quick.scene.n_objects == (6, 14) and quick.compose.resolution == 128 and quick.compose.samples == 4
+    assert quick.scene.physics_frames == 60
+    full = load_config()
+    assert full.scene.scale == 10.0 and full.scene.n_objects == (30, 200) and full.scene.n_classes == (2, 4)
+    assert full.scene.class_size == (0.045, 0.12) and full.compose.visibility_threshold == 0.4
+    assert full.compose.resolution == 1024
 
 
 def test_several_cameras_share_the_scene():
-    conf = SceneConfig.from_config(load_config([], ["scene.n_cameras=3"]))
+    conf = load_config([], ["scene.n_cameras=3"])
     s = sample_scene(4, "train", conf, rich_pool())
     assert [c.name for c in s.cameras] == ["cam_0", "cam_1", "cam_2"]
     assert len({c.position for c in s.cameras}) == 3
-    one = sample_scene(4, "train", SceneConfig.from_config(load_config()), rich_pool())
+    one = sample_scene(4, "train", load_config(), rich_pool())
     assert one.classes == s.classes and one.objects == s.objects  # cameras are drawn last

@@ -9,11 +9,16 @@ import pytest
 from sqlalchemy import select
 
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, Split
-from mixcount.catalog.splits import FscTable, SplitConfig, assign_splits, check_splits, normalise, singular
+from mixcount.catalog.splits import FscTable, assign_splits, check_splits, normalise, singular
+from mixcount.config import load_config
 from mixcount.cli import main
 
 TABLE = FscTable.load()
 
+
+def split_conf(seed: int):
+    """default.toml's ``[split]`` section (70/15/15, FSC-147 on) with ``seed``."""
+    return load_config(values={"split.seed": seed}).split
 
 def _add(catalog, rows: list[tuple[str, str, str | None]]) -> list[int]:
     """Objects (category, name, short caption or None); returns their ids in order."""
@@ -84,7 +89,7 @@ def test_matched_objects_take_the_table_split_and_assignment_is_reproducible(cat
     matched = [("ball", "B", None), ("marker", "M", None), ("bottle cap", "C", None), ("apple", "A", None),
                ("mug", "U", None), ("sea shell", "S", None)]
     ids = _add(catalog, matched + [("widget", f"Widget_{i}", None) for i in range(60)])
-    conf = SplitConfig(seed=5, fractions=(0.7, 0.15, 0.15))
+    conf = split_conf(5)
     summary = assign_splits(catalog, conf, table=TABLE)
     assert summary.leaks == []
     first = {k: (v.split, v.method, v.fsc_class) for k, v in _splits(catalog).items()}
@@ -101,7 +106,7 @@ def test_matched_objects_take_the_table_split_and_assignment_is_reproducible(cat
     assign_splits(catalog, conf, table=TABLE)
     again = {k: (v.split, v.method, v.fsc_class) for k, v in _splits(catalog).items()}
     assert again == first
-    assign_splits(catalog, SplitConfig(seed=6, fractions=conf.fractions), table=TABLE)
+    assign_splits(catalog, split_conf(6), table=TABLE)
     other = {k: v.split for k, v in _splits(catalog).items()}
     assert other != {k: v[0] for k, v in first.items()}
     assert all(other[i] == first[i][0] for i in ids[:6])  # matched ones never move
@@ -115,7 +120,7 @@ def test_duplicate_groups_never_span_splits(catalog, db_url, capsys):
     _flag(catalog, ball, w1, "exact_duplicate")  # unmatched copy of a train-class object -> train
     _flag(catalog, marker, ball2, "near_duplicate_geometry")  # test class + train class -> test wins
     _flag(catalog, w2, w3, "caption_collision")  # unmatched pair -> one random split
-    summary = assign_splits(catalog, SplitConfig(seed=1), table=TABLE)
+    summary = assign_splits(catalog, split_conf(1), table=TABLE)
     sp = _splits(catalog)
     assert sp[ball].split == sp[w1].split == "train" and sp[w1].method == "group"
     assert sp[marker].split == sp[ball2].split == "test" and sp[ball2].method == "group"
@@ -154,7 +159,7 @@ def test_excluded_and_broken_objects_get_no_split(catalog):
         s.get(CatalogObject, ids[1]).status = "excluded"
         s.get(CatalogObject, ids[2]).status = "broken"
         s.commit()
-    assign_splits(catalog, SplitConfig(seed=0), table=TABLE)
+    assign_splits(catalog, split_conf(0), table=TABLE)
     assert set(_splits(catalog)) == {ids[0]}
 
 
@@ -163,7 +168,7 @@ def test_split_object_ids(catalog):
     from mixcount.errors import CatalogError
 
     ids = _add(catalog, [("ball", "B", None), ("marker", "M", None)])
-    assign_splits(catalog, SplitConfig(seed=0), table=TABLE)
+    assign_splits(catalog, split_conf(0), table=TABLE)
     with catalog.session() as s:
         assert split_object_ids(s, "train") == [ids[0]] and split_object_ids(s, "test") == [ids[1]]
         with pytest.raises(CatalogError):
@@ -183,6 +188,6 @@ def test_objects_linked_only_through_an_excluded_duplicate_share_a_split(catalog
     with catalog.session() as s:
         assert duplicate_groups(s, [a, b]) == [[a, b]]
     for seed in range(6):
-        assign_splits(catalog, SplitConfig(seed=seed), table=TABLE)
+        assign_splits(catalog, split_conf(seed), table=TABLE)
         rows = _splits(catalog)
         assert rows[a].split == rows[b].split

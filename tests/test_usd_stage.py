@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 
 from mixcount.config import load_config
-from mixcount.scene.config import SceneConfig
 from mixcount.catalog.pool import load_pool
 from mixcount.scene.sampler import sample_scene
 from mixcount.usd.stage import write_stage
@@ -89,8 +88,8 @@ def build_demo_catalog(root: Path, n_objects: int = 16):
     from mixcount.catalog.models import CatalogObject, Split
 
     generate_demo_library(root / "lib", seed=0, n_objects=n_objects)
-    cat = open_catalog(f"sqlite:///{root / 'catalog.db'}")
-    ingest_paths(cat, [root / "lib"], config=load_config(["quick"]), workers=1)
+    cat = open_catalog(f"sqlite:///{root / 'catalog.db'}", data_dir="")
+    ingest_paths(cat, [root / "lib"], config=load_config(["quick"], ["ingest.workers=1"]).ingest)
     with cat.session() as session:
         for obj in session.query(CatalogObject).filter_by(status="active").order_by(CatalogObject.id):
             session.add(Split(object_id=obj.id, split="train", method="random"))
@@ -104,7 +103,7 @@ def demo(tmp_path_factory):
     cat = build_demo_catalog(root)
     with cat.session() as session:
         pool = load_pool(session, split="train")
-    conf = SceneConfig.from_config(load_config(["quick"], ["scene.no_container_probability=0.0"]))
+    conf = load_config(["quick"], ["scene.no_container_probability=0.0"])
     yield root, cat, pool, conf
     cat.close()
 
@@ -131,10 +130,10 @@ def test_demo_stage_opens_clean_in_fresh_usd_process(demo):
     assert sorted(info["ids"]) == list(range(0, spec.n_counted + len(spec.distractors) + 2))
     assert info["physics_ok"] and info["physics_scene"] and info["container_collider"] and info["floor_collider"]
     assert info["floor_material"] and info["dome"] == 1
-    assert info["meta"] == {"scene_id": "scene_000007", "seed": 7, "config_hash": conf.config_hash, "split": "train"}
+    assert info["meta"] == {"scene_id": "scene_000007", "seed": 7, "config_hash": conf.hash, "split": "train"}
     assert json.loads(info["spec"]) == json.loads(spec.to_json())
     assert info["mpu"] == 1.0 and info["up"] == "Z" and info["default_prim"] == "/World"
-    assert info["camera"] == pytest.approx([conf.focal_length_mm, conf.sensor_width_mm])  # millimetres
+    assert info["camera"] == pytest.approx([conf.scene.focal_length_mm, conf.scene.sensor_width_mm])  # millimetres
     classes = json.loads(info["spec"])["classes"]
     for c in classes:
         assert set(c["captions"]) == {"short", "concise", "detailed"}
@@ -162,7 +161,7 @@ def test_stage_without_container_and_with_hdri(demo, tmp_path):
 
     root, cat, pool, _conf = demo
     hdr = write_hdr(tmp_path / "sky.hdr")
-    conf = SceneConfig.from_config(load_config(["quick"], ["scene.no_container_probability=1.0"]))
+    conf = load_config(["quick"], ["scene.no_container_probability=1.0"])
     spec = sample_scene(3, "train", conf, pool, environments=[EnvironmentRecord(1, "sky", str(hdr), "h")])
     path = write_stage(spec, tmp_path / "out", cat)
     info = run_child(path)

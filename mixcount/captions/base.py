@@ -78,12 +78,10 @@ class CaptionInput:
     colours: ColourSummary = field(default=EMPTY)
 
     @classmethod
-    def from_object(
-        cls, obj: Any, *, render_path: Path | None = None, with_colours: bool = True, colour_source: str = "model"
-    ) -> "CaptionInput":
+    def from_object(cls, obj: Any, *, render_path: Path | None = None) -> "CaptionInput":
         """Build from a ``CatalogObject`` (a plain snapshot: safe to hand to worker threads).
 
-        With ``with_colours`` the dominant colours are measured now (see :meth:`with_measured_colours`).
+        Colours are not measured here (that reads files): see :meth:`with_measured_colours`.
         """
         item = cls(
             object_id=int(obj.id),
@@ -99,13 +97,13 @@ class CaptionInput:
             model_path=obj.model_path,
             render_path=Path(render_path) if render_path is not None and Path(render_path).is_file() else None,
         )
-        return item.with_measured_colours(colour_source) if with_colours else item
+        return item
 
-    def with_measured_colours(self, source: str = "model") -> "CaptionInput":
+    def with_measured_colours(self, source: str) -> "CaptionInput":
         """A copy with dominant colours measured from ``source`` first ("model": the surface albedo
         sampled from the model file; "render": the canonical render's pixels), the other one as fallback.
 
-        The model's albedo is the default: it does not depend on the render's lighting, which in a
+        The model's albedo (``captions.colour_source = "model"``) does not depend on the render's lighting, which in a
         white-world render washes saturated colours out to "light grey"/"beige" (see docs/captions.md).
         """
         if source not in COLOUR_SOURCES:

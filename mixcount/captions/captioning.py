@@ -107,15 +107,18 @@ def caption_catalog(
     force: bool = False,
     dedupe: bool = False,
     object_ids: Iterable[int] | None = None,
-    concurrency: int | None = None,
+    concurrency: int,
+    colour_source: str,
     progress: ProgressReporter | bool | None = None,
     redact: Callable[[str], str] | None = None,
-    colour_source: str = "model",
 ) -> CaptionSummary:
-    """Caption active objects with ``captioner``; record sets and failures; flag (and dedupe) collisions."""
+    """Caption active objects with ``captioner``; record sets and failures; flag (and dedupe) collisions.
+
+    ``concurrency`` (threads) and ``colour_source`` are ``captions.concurrency`` / ``captions.colour_source``.
+    """
     summary = CaptionSummary(captioner.name, captioner.provider, captioner.model, captioner.prompt_version)
     scrub = redact or getattr(captioner, "redact", None) or (lambda s: s)
-    workers = max(1, int(concurrency or getattr(captioner, "concurrency", 1) or 1))
+    workers = max(1, concurrency)
 
     with catalog.session() as session:
         query = select(CatalogObject).where(CatalogObject.status == STATUS_ACTIVE).order_by(CatalogObject.id)
@@ -142,7 +145,7 @@ def caption_catalog(
             # more than a stub caption.
             futures: dict[Future[CaptionResult], CatalogObject] = {}
             for obj in todo:
-                item = CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id), with_colours=False)
+                item = CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id))
                 futures[pool.submit(_measure_and_caption, captioner, item, colour_source)] = obj
             for fut in _as_completed_in_order(futures):
                 obj = futures[fut]

@@ -36,7 +36,6 @@ import os
 import re
 import threading
 import time
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -45,6 +44,7 @@ import httpx
 import numpy as np
 
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
+from mixcount.config import CaptionsConfig
 from mixcount.errors import CaptionError, ConfigError
 
 log = logging.getLogger("mixcount.captions.http")
@@ -62,7 +62,6 @@ SYSTEM_PROMPT = (
     "reflective surface.'). Describe only what is visible and what tells this object apart from similar "
     "ones; do not mention the background, the photograph, or sizes in units."
 )
-PROMPT_VERSION = "http-v1"
 
 JSON_SCHEMA: dict[str, Any] = {
     "type": "object",
@@ -95,64 +94,27 @@ class _BadAnswer(Exception):
         self.content = content
 
 
-@dataclass(frozen=True)
-class HttpCaptionerConfig:
-    provider: str = "openai"
-    endpoint: str = ""
-    model: str = ""
-    api_key_env: str = "MIXCOUNT_CAPTION_API_KEY"
-    timeout_s: float = 60.0
-    concurrency: int = 4
-    max_retries: int = 4
-    backoff_base_s: float = 1.0
-    backoff_cap_s: float = 30.0
-    max_retry_after_s: float = 120.0
-    prompt_version: str = PROMPT_VERSION
-    max_image_px: int = 512
-    temperature: float = 0.2
+def check_http_config(config: CaptionsConfig) -> None:
+    """What the http captioner needs beyond what every config satisfies."""
+    if config.provider not in PROVIDERS:
+        raise ConfigError(f"captions.provider must be one of {PROVIDERS}, got {config.provider!r}")
+    if not config.model:
+        raise ConfigError("captions.model must name the model for the http captioner")
 
-    @classmethod
-    def from_config(cls, cfg: Any) -> "HttpCaptionerConfig":
-        """From the ``[captions]`` section of a :class:`mixcount.config.Config`."""
-        sec: Mapping[str, Any] = cfg["captions"]
-        conf = cls(
-            provider=str(sec["provider"]),
-            endpoint=str(sec["endpoint"]),
-            model=str(sec["model"]),
-            api_key_env=str(sec["api_key_env"]),
-            timeout_s=float(sec["timeout_s"]),
-            concurrency=int(sec["concurrency"]),
-            max_retries=int(sec["max_retries"]),
-            backoff_base_s=float(sec["backoff_base_s"]),
-            backoff_cap_s=float(sec["backoff_cap_s"]),
-            max_retry_after_s=float(sec["max_retry_after_s"]),
-            prompt_version=str(sec["http_prompt_version"]),
-            max_image_px=int(sec["max_image_px"]),
-            temperature=float(sec["temperature"]),
-        )
-        conf.check()
-        return conf
 
-    def check(self) -> None:
-        if self.provider not in PROVIDERS:
-            raise ConfigError(f"captions.provider must be one of {PROVIDERS}, got {self.provider!r}")
-        if not self.model:
-            raise ConfigError("captions.model must name the model for the http captioner")
-        if self.max_retries < 0 or self.concurrency < 1 or self.timeout_s <= 0:
-            raise ConfigError("captions: max_retries >= 0, concurrency >= 1 and timeout_s > 0 are required")
-
-    def url(self) -> str:
-        base = (self.endpoint or DEFAULT_ENDPOINTS[self.provider]).rstrip("/")
-        if self.provider == "openai":
-            if base.endswith("/chat/completions"):
-                return base
-            return base + ("/chat/completions" if base.endswith("/v1") else "/v1/chat/completions")
-        if base.endswith(":generateContent"):
+def endpoint_url(config: CaptionsConfig) -> str:
+    """The request URL for ``captions.provider`` / ``endpoint`` / ``model``."""
+    base = (config.endpoint or DEFAULT_ENDPOINTS[config.provider]).rstrip("/")
+    if config.provider == "openai":
+        if base.endswith("/chat/completions"):
             return base
-        model = self.model.removeprefix("models/")
-        if re.search(r"/v1(beta\d*)?$", base):
-            return f"{base}/models/{model}:generateContent"
-        return f"{base}/v1beta/models/{model}:generateContent"
+        return base + ("/chat/completions" if base.endswith("/v1") else "/v1/chat/completions")
+    if base.endswith(":generateContent"):
+        return base
+    model = config.model.removeprefix("models/")
+    if re.search(r"/v1(beta\d*)?$", base):
+        return f"{base}/models/{model}:generateContent"
+    return f"{base}/v1beta/models/{model}:generateContent"
 
 
 def encode_image(path: Path, max_px: int) -> str:
@@ -237,18 +199,18 @@ class HttpCaptioner:
 
     def __init__(
         self,
-        config: HttpCaptionerConfig,
+        config: CaptionsConfig,
         client: httpx.Client | None = None,
         *,
         api_key: str | None = None,
         sleep: Callable[[float], None] = time.sleep,
         rng: np.random.Generator | None = None,
     ) -> None:
-        config.check()
+        check_http_config(config)
         self.config = config
         self.provider = config.provider
         self.model = config.model
-        self.prompt_version = config.prompt_version
+        self.prompt_version = config.http_prompt_version
         self.concurrency = config.concurrency
         if api_key is None:
             if config.api_key_env:
@@ -269,7 +231,7 @@ class HttpCaptioner:
         self._sleep = sleep
         self._rng = rng or np.random.default_rng()
         self._rng_lock = threading.Lock()  # numpy Generators are not thread-safe
-        self.url = config.url()
+        self.url = endpoint_url(config)
 
     def close(self) -> None:
         if self._own_client:

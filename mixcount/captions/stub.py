@@ -21,7 +21,6 @@ import json
 from mixcount.captions.base import CaptionInput, CaptionResult, name_tokens
 from mixcount.captions.colours import NAMES
 
-PROMPT_VERSION = "stub-v1"
 _COLOUR_WORDS = {w for n in NAMES for w in n.split()}
 _CONTAINERS = {"plate", "tray", "bowl"}
 
@@ -147,7 +146,8 @@ class StubCaptioner:
     provider = "offline"
     model = "stub"
 
-    def __init__(self, prompt_version: str = PROMPT_VERSION) -> None:
+    def __init__(self, prompt_version: str) -> None:
+        """``prompt_version``: ``captions.stub_prompt_version`` (bump it to re-caption everything)."""
         self.prompt_version = prompt_version
 
     def caption(self, item: CaptionInput) -> CaptionResult:

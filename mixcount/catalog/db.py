@@ -122,7 +122,7 @@ class Catalog:
         self.engine.dispose()
 
 
-def data_dir_for(url: str, configured: str = "") -> Path:
+def data_dir_for(url: str, configured: str) -> Path:
     """Files beside the catalog: the SQLite file's directory, else ``catalog.data_dir`` or ./catalog."""
     if configured:
         return Path(configured).expanduser().resolve()
@@ -132,8 +132,9 @@ def data_dir_for(url: str, configured: str = "") -> Path:
     return Path("catalog").resolve()
 
 
-def open_catalog(db: str | None = None, *, data_dir: str = "", migrate_to_head: bool = True) -> Catalog:
-    """Open (creating if needed) and migrate the catalog at ``db`` (path or SQLAlchemy URL)."""
+def open_catalog(db: str | None, *, data_dir: str, migrate_to_head: bool = True) -> Catalog:
+    """Open (creating if needed) and migrate the catalog at ``db`` (path or SQLAlchemy URL; None = the
+    default). ``data_dir``: ``catalog.data_dir`` ("" = beside the SQLite file)."""
     url = resolve_db_url(db)
     engine = make_engine(url)
     try:

@@ -41,7 +41,7 @@ from mixcount.catalog.models import (
     IngestRun,
     utcnow,
 )
-from mixcount.config import Config
+from mixcount.config import IngestConfig
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.errors import CatalogError, IngestError
 
@@ -311,12 +311,11 @@ class Prepared:
     error: str | None = None
 
 
-def settings_of(config: Config) -> dict[str, Any]:
-    ing = config["ingest"]
+def settings_of(config: IngestConfig) -> dict[str, Any]:
     return {
-        "collision_face_budget": int(ing["collision_face_budget"]),
-        "assume_units": ing["assume_units"],
-        "assume_up_axis": ing["assume_up_axis"],
+        "collision_face_budget": config.collision_face_budget,
+        "assume_units": config.assume_units,
+        "assume_up_axis": config.assume_up_axis,
         "analysis_version": 1,  # bump when mesh.py measures differently
     }
 
@@ -481,8 +480,7 @@ def ingest_paths(
     catalog: Any,
     paths: Iterable[Path | str],
     *,
-    config: Config,
-    workers: int | None = None,
+    config: IngestConfig,
     progress: ProgressReporter | bool | None = None,
     strict: bool = False,
 ) -> IngestSummary:
@@ -493,8 +491,8 @@ def ingest_paths(
     paths = list(paths)
     candidates = discover(paths)
     settings = settings_of(config)
-    max_bytes = float(config["ingest"]["max_file_mb"]) * 2**20
-    n_workers = max(1, int(workers if workers is not None else config["ingest"]["workers"]))
+    max_bytes = config.max_file_mb * 2**20
+    n_workers = max(1, config.workers)
     summary = IngestSummary()
     collision_dir = catalog.collision_dir
 

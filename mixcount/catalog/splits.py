@@ -34,7 +34,8 @@ from sqlalchemy.orm import Session
 from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Flag, Split
-from mixcount.errors import CatalogError, ConfigError
+from mixcount.config import SplitConfig
+from mixcount.errors import CatalogError
 
 SPLITS = ("train", "val", "test")
 HELD_OUT_RANK = {"train": 0, "val": 1, "test": 2}
@@ -150,26 +151,6 @@ class FscTable:
             if found is not None:
                 return found, source
         return None, None
-
-
-@dataclass(frozen=True)
-class SplitConfig:
-    seed: int = 0
-    fractions: tuple[float, float, float] = (0.7, 0.15, 0.15)
-    use_fsc147: bool = True
-
-    @classmethod
-    def from_config(cls, cfg: Any, seed: int | None = None) -> "SplitConfig":
-        sec = cfg["split"]
-        fr = (float(sec["train_fraction"]), float(sec["val_fraction"]), float(sec["test_fraction"]))
-        if min(fr) < 0 or sum(fr) <= 0:
-            raise ConfigError(f"split fractions must be >= 0 with a positive sum, got {fr}")
-        total = sum(fr)
-        return cls(
-            seed=int(sec["seed"] if seed is None else seed),
-            fractions=(fr[0] / total, fr[1] / total, fr[2] / total),
-            use_fsc147=bool(sec["use_fsc147"]),
-        )
 
 
 @dataclass

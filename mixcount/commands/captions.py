@@ -9,19 +9,20 @@ from typing import Optional
 import typer
 
 from mixcount.commands.common import RichProgress, console, out, state
+from mixcount.config import CaptionsConfig
 from mixcount.errors import CatalogError, ConfigError
 
 
-def make_captioner(kind: str, cfg):  # type: ignore[no-untyped-def]
-    """Build the captioner named ``kind`` (stub | http) from the ``[captions]`` config."""
+def make_captioner(kind: str, captions: CaptionsConfig):  # type: ignore[no-untyped-def]
+    """Build the captioner named ``kind`` (stub | http) from the ``[captions]`` section."""
     if kind == "stub":
         from mixcount.captions.stub import StubCaptioner
 
-        return StubCaptioner(prompt_version=str(cfg["captions"]["stub_prompt_version"]))
+        return StubCaptioner(prompt_version=captions.stub_prompt_version)
     if kind == "http":
-        from mixcount.captions.http import HttpCaptioner, HttpCaptionerConfig
+        from mixcount.captions.http import HttpCaptioner
 
-        return HttpCaptioner(HttpCaptionerConfig.from_config(cfg))
+        return HttpCaptioner(captions)
     raise ConfigError(f"unknown captioner {kind!r} (stub | http)")
 
 
@@ -40,20 +41,14 @@ def caption_cmd(
     from mixcount.captions.captioning import caption_catalog
 
     st = state(ctx)
-    cfg = st.config()
-    kind = captioner or str(cfg["captions"]["captioner"])
-    from mixcount.captions.base import COLOUR_SOURCES
-
-    if cfg["captions"]["colour_source"] not in COLOUR_SOURCES:
-        raise ConfigError(f"captions.colour_source must be one of {COLOUR_SOURCES}")
-    cap = make_captioner(kind, cfg)
+    conf = st.config(values={"captions.captioner": captioner}).captions
+    cap = make_captioner(conf.captioner, conf)
     logging.getLogger("httpx").setLevel(logging.WARNING)
     catalog = st.catalog()
     try:
         summary = caption_catalog(
             catalog, cap, force=force, dedupe=dedupe, progress=RichProgress(),
-            colour_source=str(cfg["captions"]["colour_source"]),
-            concurrency=int(cfg["captions"]["concurrency"]),
+            colour_source=conf.colour_source, concurrency=conf.concurrency,
         )
     finally:
         catalog.close()
@@ -80,11 +75,10 @@ def split_cmd(
     """Assign train / val / test per object (FSC-147 matches first); exit non-zero on any leak."""
     from rich.table import Table
 
-    from mixcount.catalog.splits import SPLITS, FscTable, SplitConfig, assign_splits, check_splits
+    from mixcount.catalog.splits import SPLITS, FscTable, assign_splits, check_splits
 
     st = state(ctx)
-    cfg = st.config()
-    conf = SplitConfig.from_config(cfg, seed=seed)
+    conf = st.config(values={"split.seed": seed}).split
     table = FscTable.load()
     catalog = st.catalog()
     try:

@@ -1,15 +1,21 @@
-"""Shared CLI state: the resolved catalog URL and configuration for the current invocation."""
+"""Shared CLI state: the resolved catalog URL and configuration for the current invocation.
+
+The configuration is built once per invocation (:meth:`AppState.config`): default.toml, the global
+``--config`` files, a command's own config file, the global ``--set`` overrides and then the command's
+options that stand for config keys (``compose --samples`` = ``compose.samples``). After that it is frozen.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Optional, Sequence
 
 import typer
 from rich.console import Console
 
 from mixcount.config import Config, load_config
+from mixcount.errors import MixcountError
 
 console = Console(stderr=True, soft_wrap=True)  # progress and summaries; JSON goes to stdout only
 out = Console(highlight=False, soft_wrap=True)
@@ -60,15 +66,23 @@ class AppState:
     overrides: list[str] = field(default_factory=list)
     _config: Config | None = None
 
-    def config(self) -> Config:
+    def config(self, *, files: Sequence[Path] = (), values: Optional[Mapping[str, Any]] = None) -> Config:
+        """The invocation's configuration, built on the first call and then fixed.
+
+        ``files`` (a command's own ``--config``) and ``values`` (dotted key -> value, from command options
+        that stand for config keys; None values are left out) apply on that first call only.
+        """
+        values = {k: v for k, v in (values or {}).items() if v is not None}
         if self._config is None:
-            self._config = load_config(self.config_files, self.overrides)
+            self._config = load_config([*self.config_files, *files], self.overrides, values=values)
+        elif files or values:
+            raise MixcountError("internal: command config options must be given on the first config() call")
         return self._config
 
     def catalog(self):  # type: ignore[no-untyped-def]
         from mixcount.catalog.db import open_catalog
 
-        return open_catalog(self.db, data_dir=self.config()["catalog"]["data_dir"])
+        return open_catalog(self.db, data_dir=self.config().catalog.data_dir)
 
 
 def state(ctx: typer.Context) -> AppState:

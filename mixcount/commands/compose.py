@@ -1,7 +1,7 @@
 """``mixcount compose`` (plan, USD stages; the Blender run is added by the rendering area) and
 ``mixcount catalog ingest-env`` / ``ingest-materials``.
 
-``plan_scenes`` is the one place that turns (catalog, config, n, split, seed) into SceneSpecs; the
+``plan_scenes`` is the one place that turns (catalog, config, n) into SceneSpecs; the
 dry run prints them, ``--stage-only`` writes ``OUT/scenes/<scene_id>/scene.usda`` for each.
 """
 
@@ -14,19 +14,16 @@ from typing import Any, Optional
 import typer
 
 from mixcount.commands.common import RichProgress, console, out, state
+from mixcount.config import Config
 from mixcount.errors import CompositionError
 
 
-def plan_scenes(catalog: Any, config: Any, *, n: int, split: Optional[str] = None,
-                seed: Optional[int] = None) -> list[Any]:
-    """SceneSpecs for scenes ``seed .. seed+n-1`` of ``split`` (defaults from ``[compose]``)."""
-    from mixcount.scene.config import SceneConfig
+def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
+    """SceneSpecs for scenes ``compose.seed .. compose.seed+n-1`` of ``compose.split``."""
     from mixcount.catalog.pool import load_environments, load_materials, load_pool
     from mixcount.scene.sampler import sample_scene
 
-    sconf = SceneConfig.from_config(config)
-    split = split or str(config["compose"]["split"])
-    base = int(config["compose"]["seed"] if seed is None else seed)
+    split, base = config.compose.split, config.compose.seed
     with catalog.session() as session:
         pool = load_pool(session)
         envs = load_environments(session)
@@ -36,7 +33,7 @@ def plan_scenes(catalog: Any, config: Any, *, n: int, split: Optional[str] = Non
             f"no active objects in split {split!r}: ingest, caption and split the catalog first "
             "(mixcount catalog ingest / caption / split)"
         )
-    return [sample_scene(base + k, split, sconf, pool, environments=envs, materials=mats) for k in range(n)]
+    return [sample_scene(base + k, split, config, pool, environments=envs, materials=mats) for k in range(n)]
 
 
 def summarise(spec: Any) -> dict[str, Any]:
@@ -104,12 +101,13 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
         st = state(ctx)
-        if config_file is not None:  # rendering options are config overrides (area E: mixcount.run.compose)
-            st.config_files.append(config_file)
-        st.overrides += [f"compose.{k}={v}" for k, v in (("resolution", resolution), ("samples", samples)) if v is not None]
-        st._config = None
+        # --config, --split, --seed, --workers, --resolution and --samples are config overrides: applied in
+        # the one build of the configuration, so dataset.json records what was run.
+        cfg = st.config(files=[config_file] if config_file is not None else [], values={
+            "compose.split": split, "compose.seed": seed, "compose.workers": workers,
+            "compose.resolution": resolution, "compose.samples": samples})
         catalog = st.catalog()
-        specs = plan_scenes(catalog, st.config(), n=n, split=split, seed=seed)
+        specs = plan_scenes(catalog, cfg, n=n)
         if dry_run:
             _print_dry_run(specs)
             out.print(json.dumps([summarise(s) for s in specs], indent=2))
@@ -125,15 +123,16 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             from mixcount.catalog.pool import load_environments, load_materials, load_pool
 
             pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
-        executor = None  # local: compose_scenes starts its own pool; ray (area G): mixcount.run.factory
+        executor = None  # local: compose_scenes starts its own pool; ray: mixcount.run.factory
         if executor_kind != "local" or address:
             from mixcount.run.factory import make_executor
 
-            executor = make_executor(executor_kind, workers, address, config=st.config(), log_dir=out_dir.resolve() / "logs")
+            executor = make_executor(executor_kind, workers, address, config=cfg.compose,
+                                     log_dir=out_dir.resolve() / "logs")
         try:
-            summary = compose_scenes(pool=pool, config=st.config(), out_dir=out_dir.resolve(),
-                                     assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n, split=split, seed=seed,
-                                     workers=workers, environments=tuple(envs), materials=tuple(mats), executor=executor,
+            summary = compose_scenes(pool=pool, config=cfg, out_dir=out_dir.resolve(),
+                                     assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n,
+                                     environments=tuple(envs), materials=tuple(mats), executor=executor,
                                      progress=RichProgress())
         finally:
             if executor is not None:

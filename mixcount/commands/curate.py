@@ -28,7 +28,7 @@ def render_cmd(
     st = state(ctx)
     catalog = st.catalog()
     try:
-        summary = render_catalog(catalog, st.config(), object_ids=ids or None, include_excluded=include_excluded,
+        summary = render_catalog(catalog, st.config().render, object_ids=ids or None, include_excluded=include_excluded,
                                  force=force, progress=RichProgress())
     finally:
         catalog.close()
@@ -51,7 +51,7 @@ def filter_cmd(
     st = state(ctx)
     catalog = st.catalog()
     try:
-        summary = run_filter(catalog, st.config())
+        summary = run_filter(catalog, st.config().filter)
     finally:
         catalog.close()
     flags = ", ".join(f"{n} {k}" for k, n in summary.flags.items())

@@ -22,11 +22,9 @@ def demo_library_cmd(
     """Generate the demo library: everyday objects, containers and curation traps, plus ground_truth.json."""
     from mixcount.demo.library import generate_demo_library
 
-    cfg = state(ctx).config()
-    seed = int(cfg["demo"]["seed"]) if seed is None else seed
-    n = int(cfg["demo"]["n_objects"]) if n is None else n
+    demo = state(ctx).config(values={"demo.seed": seed, "demo.n_objects": n}).demo
     t0 = time.perf_counter()
-    truth = generate_demo_library(path, seed=seed, n_objects=n or None)
+    truth = generate_demo_library(path, seed=demo.seed, n_objects=demo.n_objects or None)
     exp = truth["expected"]
     console.print(
         f"demo library in {path}: {exp['total']} folders ({exp['active']} good, {exp['broken']} broken) in "

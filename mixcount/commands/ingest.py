@@ -25,11 +25,11 @@ def ingest_cmd(
     from mixcount.catalog.ingest import discover, ingest_paths
 
     st = state(ctx)
-    cfg = st.config()
+    cfg = st.config(values={"ingest.workers": workers})
     discover(paths)  # a missing PATH is an error before the database is touched
     catalog = st.catalog()
     try:
-        summary = ingest_paths(catalog, paths, config=cfg, workers=workers, progress=RichProgress(), strict=strict)
+        summary = ingest_paths(catalog, paths, config=cfg.ingest, progress=RichProgress(), strict=strict)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)

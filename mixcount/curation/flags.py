@@ -52,7 +52,7 @@ from mixcount.catalog.models import (
 )
 from mixcount.curation.renders import canonical_render_path, mask_path_for
 from mixcount.catalog.decisions import latest_decisions
-from mixcount.config import Config
+from mixcount.config import FilterConfig
 
 EXACT = "exact_duplicate"
 NEAR_GEOMETRY = "near_duplicate_geometry"
@@ -132,7 +132,7 @@ def _describe(catalog: Catalog, session: Session, items: list[_Item], summary: F
             summary.descriptor_failures.append({"id": obj.id, "name": obj.name, "error": f"render unreadable: {exc}"})
 
 
-def _pair_flags(items: list[_Item], th: dict[str, Any]) -> list[_Found]:
+def _pair_flags(items: list[_Item], th: FilterConfig) -> list[_Found]:
     found: list[_Found] = []
     for x, y in combinations(items, 2):
         a, b = x.obj, y.obj
@@ -144,7 +144,7 @@ def _pair_flags(items: list[_Item], th: dict[str, Any]) -> list[_Found]:
             ph, col = D.phash_distance(x.look, y.look), D.colour_distance(x.look, y.look)
             edge = D.edge_similarity(x.look, y.look)
         if (a.geometry_hash and a.geometry_hash == b.geometry_hash and ph is not None and col is not None
-                and ph <= th["exact_phash"] and col <= th["exact_colour"]):
+                and ph <= th.exact_phash and col <= th.exact_colour):
             found.append(_Found(a.id, b.id, EXACT, 1.0,
                                 f"identical mesh and indistinguishable renders (pHash {ph:.3f}, colour {col:.3f})"))
             continue
@@ -152,16 +152,16 @@ def _pair_flags(items: list[_Item], th: dict[str, Any]) -> list[_Found]:
             d2 = D.d2_distance(x.shape, y.shape)
             prop = D.ratio_distance(x.shape, y.shape)
             size = abs(math.log(D.size_ratio(x.shape, y.shape)))
-            same_layout = edge is None or edge >= th["geometry_edge_similarity"]
-            if d2 <= th["geometry_d2"] and prop <= th["geometry_proportions"] and size <= th["geometry_size"] and same_layout:
-                score = 1.0 - max(d2 / th["geometry_d2"], prop / th["geometry_proportions"], size / th["geometry_size"]) / 2
+            same_layout = edge is None or edge >= th.geometry_edge_similarity
+            if d2 <= th.geometry_d2 and prop <= th.geometry_proportions and size <= th.geometry_size and same_layout:
+                score = 1.0 - max(d2 / th.geometry_d2, prop / th.geometry_proportions, size / th.geometry_size) / 2
                 layout = f", edge structure {edge:.2f}" if edge is not None else ""
                 colours = f", colours differ by {col:.2f}" if col is not None else ""
                 found.append(_Found(a.id, b.id, NEAR_GEOMETRY, round(max(0.0, score), 4),
                                     f"same shape and size (D2 {d2:.3f}, proportions {prop:.3f}, size ratio "
                                     f"{math.exp(size):.3f}{layout}{colours})"))
-        if ph is not None and col is not None and ph <= th["appearance_phash"] and col <= th["appearance_colour"]:
-            score = 1.0 - max(ph / th["appearance_phash"], col / th["appearance_colour"]) / 2
+        if ph is not None and col is not None and ph <= th.appearance_phash and col <= th.appearance_colour:
+            score = 1.0 - max(ph / th.appearance_phash, col / th.appearance_colour) / 2
             extra = ""
             if x.shape is not None and y.shape is not None:
                 extra = f"; real sizes differ {max(D.size_ratio(x.shape, y.shape), D.size_ratio(y.shape, x.shape)):.2f}x"
@@ -170,24 +170,24 @@ def _pair_flags(items: list[_Item], th: dict[str, Any]) -> list[_Found]:
     return found
 
 
-def _quality_flags(items: list[_Item], broken: list[CatalogObject], th: dict[str, Any]) -> list[_Found]:
+def _quality_flags(items: list[_Item], broken: list[CatalogObject], th: FilterConfig) -> list[_Found]:
     found = [_Found(o.id, None, DEGENERATE, 1.0, f"unreadable model: {o.error or 'broken'}") for o in broken]
     for it in items:
         o, s = it.obj, it.shape
         reasons: list[str] = []
         faces = s.faces if s is not None else (o.face_count or 0)
-        if faces < th["min_faces"]:
-            reasons.append(f"only {faces} faces (< {th['min_faces']})")
+        if faces < th.min_faces:
+            reasons.append(f"only {faces} faces (< {th.min_faces})")
         if s is not None:
-            if s.watertight and (s.volume_m3 or 0.0) <= th["min_volume_m3"]:
+            if s.watertight and (s.volume_m3 or 0.0) <= th.min_volume_m3:
                 reasons.append(f"closed mesh with zero volume ({s.volume_m3:.3g} m^3)")
             aspect = D.aspect_ratio(s.extents_m)
-            if aspect > th["max_aspect_ratio"]:
-                reasons.append(f"extreme aspect ratio {aspect:.0f}:1 (> {th['max_aspect_ratio']:g})")
-            if s.nonmanifold_fraction > th["max_nonmanifold_fraction"]:
+            if aspect > th.max_aspect_ratio:
+                reasons.append(f"extreme aspect ratio {aspect:.0f}:1 (> {th.max_aspect_ratio:g})")
+            if s.nonmanifold_fraction > th.max_nonmanifold_fraction:
                 reasons.append(f"{100 * s.nonmanifold_fraction:.1f}% non-manifold edges "
-                               f"(> {100 * th['max_nonmanifold_fraction']:g}%)")
-        if it.look is not None and it.look.coverage < th["min_render_coverage"]:
+                               f"(> {100 * th.max_nonmanifold_fraction:g}%)")
+        if it.look is not None and it.look.coverage < th.min_render_coverage:
             reasons.append(f"blank render ({100 * it.look.coverage:.2f}% object pixels)")
         if reasons:
             found.append(_Found(o.id, None, DEGENERATE, 1.0, "; ".join(reasons)))
@@ -200,19 +200,19 @@ def _quality_flags(items: list[_Item], broken: list[CatalogObject], th: dict[str
     for it in items:
         size = sizes[it.obj.id]
         reason, score = None, 1.0
-        if size < th["min_size_m"]:
-            reason = f"largest side {size * 100:.2f} cm is below {th['min_size_m'] * 100:g} cm"
-        elif size > th["max_size_m"]:
-            reason = f"largest side {size:.2f} m is above {th['max_size_m']:g} m"
+        if size < th.min_size_m:
+            reason = f"largest side {size * 100:.2f} cm is below {th.min_size_m * 100:g} cm"
+        elif size > th.max_size_m:
+            reason = f"largest side {size:.2f} m is above {th.max_size_m:g} m"
         else:
             peers = by_cat[it.obj.category]
-            if len(peers) >= th["category_min_objects"]:
+            if len(peers) >= th.category_min_objects:
                 median = float(np.median(peers))
                 factor = max(size / median, median / size)
-                if factor > th["category_size_factor"]:
+                if factor > th.category_size_factor:
                     reason = (f"{size * 100:.1f} cm is {factor:.1f}x {'larger' if size > median else 'smaller'} than "
                               f"the {it.obj.category} median {median * 100:.1f} cm")
-                    score = min(1.0, math.log(factor) / math.log(th["category_size_factor"]) / 2)
+                    score = min(1.0, math.log(factor) / math.log(th.category_size_factor) / 2)
         if reason:
             found.append(_Found(it.obj.id, None, SIZE_OUTLIER, round(score, 4), reason))
     return found
@@ -233,13 +233,10 @@ def _groups(pairs: Iterable[tuple[int, int]]) -> list[list[int]]:
     return connected_groups(pairs)
 
 
-def thresholds(config: Config) -> dict[str, Any]:
-    return dict(config["filter"])
+def run_filter(catalog: Catalog, th: FilterConfig, *, ground_truth: bool = True) -> FilterSummary:
+    """Recompute every filter flag, re-pick duplicate keepers, re-apply review decisions (idempotent).
 
-
-def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -> FilterSummary:
-    """Recompute every filter flag, re-pick duplicate keepers, re-apply review decisions (idempotent)."""
-    th = thresholds(config)
+    ``th``: the ``[filter]`` thresholds."""
     summary = FilterSummary()
     with catalog.session() as session:
         objects = session.scalars(select(CatalogObject).order_by(CatalogObject.id)).all()
@@ -285,7 +282,7 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
             for o in candidates:
                 if o is not keep and o.id not in accepted:
                     exclude[o.id] = f"{EXCLUDED_MARK} duplicate group keeps {_label(keep)}"
-        if th["exclude_degenerate"]:
+        if th.exclude_degenerate:
             for f in found:
                 if f.kind == DEGENERATE and f.a in item_of and f.a not in accepted and by_id[f.a].status == STATUS_ACTIVE:
                     exclude.setdefault(f.a, f"{EXCLUDED_MARK} degenerate")

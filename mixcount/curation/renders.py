@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.hashing import json_hash
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
-from mixcount.config import Config
+from mixcount.config import RenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
 
 RENDER_VERSION = "canonical-v1"  # bump when the renderer changes what a render looks like
@@ -44,10 +44,9 @@ class RenderSummary:
         return asdict(self)
 
 
-def render_settings(config: Config) -> dict[str, Any]:
+def render_settings(config: RenderConfig) -> dict[str, Any]:
     """The ``[render]`` keys that change the picture, plus the renderer version."""
-    section = config["render"]
-    settings = {key: section[key] for key in SETTING_KEYS}
+    settings = {key: getattr(config, key) for key in SETTING_KEYS}
     settings["version"] = RENDER_VERSION
     return settings
 
@@ -96,7 +95,7 @@ def _upsert(session: Session, object_id: int, view: str) -> Render:
 
 def render_catalog(
     catalog: Catalog,
-    config: Config,
+    config: RenderConfig,
     *,
     object_ids: Iterable[int] | None = None,
     include_excluded: bool = False,
@@ -108,7 +107,7 @@ def render_catalog(
 
     settings = render_settings(config)
     shash = settings_hash(settings)
-    views = view_names(int(settings["extra_views"]))
+    views = view_names(config.extra_views)
     summary = RenderSummary(settings_hash=shash)
     out_dir = catalog.renders_dir
     statuses = [STATUS_ACTIVE, STATUS_EXCLUDED] if include_excluded else [STATUS_ACTIVE]
@@ -131,7 +130,6 @@ def render_catalog(
     if not jobs:
         return summary
 
-    section = config["render"]
     bar = as_reporter(progress)
     bar.start("render", len(jobs))
     hashes = {j["key"]: j["model_hash"] for j in jobs}
@@ -159,8 +157,8 @@ def render_catalog(
         bar.advance()
 
     try:
-        run_jobs(jobs, on_result=on_result, workers=int(section["workers"]), timeout_s=float(section["timeout_s"]),
-                 threads_per_worker=int(section["threads"]))
+        run_jobs(jobs, on_result=on_result, workers=config.workers, timeout_s=config.timeout_s,
+                 threads_per_worker=config.threads)
     finally:
         bar.stop()
     return summary

@@ -134,7 +134,7 @@ def write_dataset_summary(out_dir: Path, *, config: Optional[dict[str, Any]] = N
 
 
 def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, config_hash: str = "",
-                     run: Optional[dict[str, Any]] = None, preview_scenes: int = 16) -> dict[str, Any]:
+                     run: Optional[dict[str, Any]] = None, preview_scenes: int) -> dict[str, Any]:
     ann = merge_annotations(out_dir)
     preview = write_preview(out_dir, max_scenes=preview_scenes)
     summary = write_dataset_summary(out_dir, config=config, config_hash=config_hash, run=run)

@@ -1,6 +1,6 @@
 """A generated demo object library in the Digital Twin Catalog layout, deterministic from a seed.
 
-``generate_demo_library(root, seed=0)`` writes one folder per object, named like DTC's
+``generate_demo_library(root, seed=...)`` writes one folder per object, named like DTC's
 ``Marker_B07Z5P84J2_Peach``, holding ``3d-asset.glb``, ``metadata.json``, ``LICENSE`` and
 ``preview.png``, plus ``root/ground_truth.json`` describing every folder and the planted traps:
 
@@ -682,7 +682,7 @@ def _recolour(parts: list[Part], hue_shift: float) -> list[Part]:
     return out
 
 
-def generate_demo_library(root: Path, *, seed: int = 0, n_objects: int | None = None) -> dict[str, Any]:
+def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None) -> dict[str, Any]:
     """Write the demo library under ``root`` (replacing a previous one) and return the ground truth.
 
     ``n_objects`` limits the number of ordinary objects (round-robin over categories, so a small

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
 
+from mixcount.config import Config
 from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 from mixcount.errors import CompositionError
 from mixcount.progress import ProgressReporter, as_reporter
@@ -39,28 +40,25 @@ class ComposeSummary:
         return dict(self.__dict__)
 
 
-def render_threads(config: Any, workers: int) -> int:
+def render_threads(config: Config, workers: int) -> int:
     """Cycles threads per worker: ``compose.render_threads``, or CPU count / workers when it is 0."""
-    return int(config["compose"]["render_threads"]) or max(1, (os.cpu_count() or 1) // max(1, workers))
+    return config.compose.render_threads or max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
 def compose_scenes(
-    *, pool: list[Any], config: Any, out_dir: Path, assets_dir: Path, n: int, split: Optional[str] = None,
-    seed: Optional[int] = None, workers: Optional[int] = None, executor: Any = None,
+    *, pool: list[Any], config: Config, out_dir: Path, assets_dir: Path, n: int, executor: Any = None,
     environments: tuple = (), materials: tuple = (), progress: ProgressReporter | bool | None = None, oracle: bool = False,
     on_outcome: Optional[Callable[[SceneOutcome], None]] = None,
 ) -> ComposeSummary:
-    """Render until ``n`` scenes of ``split`` are complete in ``out_dir`` (see module docstring)."""
+    """Render until ``n`` scenes of ``compose.split`` are complete in ``out_dir`` (see module docstring).
+
+    Seeds start at ``compose.seed``; without an ``executor`` a local pool of ``compose.workers`` runs."""
     from mixcount.dataset.merge import finalize_dataset
     from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp, is_complete
-    from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene, scene_id_for
 
-    comp = config["compose"]
-    split = split or str(comp["split"])
-    base = int(comp["seed"] if seed is None else seed)
-    workers = int(workers or comp["workers"])
-    sconf = SceneConfig.from_config(config)
+    comp = config.compose
+    split, base, workers = comp.split, comp.seed, comp.workers
     out_dir = Path(out_dir)
     (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
     clean_stale_tmp(out_dir)
@@ -68,8 +66,8 @@ def compose_scenes(
         raise CompositionError(f"no active objects in split {split!r}: ingest, caption and split the catalog first")
     captions = {int(o.object_id): o.captions.to_dict() for o in pool}
     threads = render_threads(config, workers)
-    timeout = float(comp["scene_timeout_s"])
-    max_attempts = int(math.ceil(n * float(comp["max_attempts_factor"]))) + 4
+    timeout = comp.scene_timeout_s
+    max_attempts = int(math.ceil(n * comp.max_attempts_factor)) + 4
 
     summary = ComposeSummary(requested=n)
     t0 = time.perf_counter()
@@ -77,7 +75,7 @@ def compose_scenes(
     if own_executor:
         from mixcount.run.local import LocalExecutor
 
-        executor = LocalExecutor(workers, log_dir=out_dir / "logs", recycle_after=int(comp["recycle_after"]))
+        executor = LocalExecutor(workers, log_dir=out_dir / "logs", recycle_after=comp.recycle_after)
     next_seed = base
     attempts = 0
     in_flight = 0
@@ -100,7 +98,7 @@ def compose_scenes(
                 continue
             attempts += 1
             try:
-                spec = sample_scene(s, split, sconf, pool, environments=environments, materials=materials)
+                spec = sample_scene(s, split, config, pool, environments=environments, materials=materials)
             except Exception as exc:  # noqa: BLE001 - a seed that cannot be sampled is a failed scene
                 summary.failed += 1
                 summary.failures.append({"scene_id": sid, "seed": s, "error": f"sampling: {exc}"})
@@ -157,7 +155,7 @@ def compose_scenes(
     summary.outputs = finalize_dataset(
         out_dir, config=config.to_dict(), config_hash=config.hash,
         run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
-        preview_scenes=int(comp["preview_scenes"]),
+        preview_scenes=comp.preview_scenes,
     )
     return summary
 
@@ -171,8 +169,7 @@ def _scene_split(scene_dir: Path) -> Optional[str]:
         return None
 
 
-def compose_from_catalog(catalog: Any, config: Any, *, n: int, out_dir: Path, split: Optional[str] = None,
-                         seed: Optional[int] = None, workers: Optional[int] = None,
+def compose_from_catalog(catalog: Any, config: Config, *, n: int, out_dir: Path,
                          progress: ProgressReporter | bool | None = None) -> ComposeSummary:
     """The CLI entry: load the sampler pool from the catalog and run :func:`compose_scenes`."""
     from mixcount.catalog.pool import load_environments, load_materials, load_pool
@@ -182,5 +179,5 @@ def compose_from_catalog(catalog: Any, config: Any, *, n: int, out_dir: Path, sp
         envs = load_environments(session)
         mats = load_materials(session)
     return compose_scenes(pool=pool, config=config, out_dir=out_dir, assets_dir=Path(catalog.usd_assets_dir), n=n,
-                          split=split, seed=seed, workers=workers, environments=tuple(envs),
+                          environments=tuple(envs),
                           materials=tuple(mats), progress=progress)

@@ -10,36 +10,35 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Optional
 
+from mixcount.config import ComposeConfig
 from mixcount.errors import MixcountError
 
 EXECUTORS = ("local", "ray")
 
 
 def make_executor(kind: str = "local", workers: Optional[int] = None, address: Optional[str] = None, *,
-                  config: Any = None, log_dir: Optional[Path] = None, **extra: Any) -> Any:
+                  config: ComposeConfig, log_dir: Optional[Path] = None, **extra: Any) -> Any:
     """A started executor of ``kind`` ("local" or "ray"); close it (or use ``with``) when done.
 
-    ``workers`` defaults to ``[compose].workers`` locally and, on a Ray cluster given by ``address``, to
-    every CPU of the cluster divided by ``ray_cpus_per_worker``. ``extra`` goes to the executor class.
+    ``config``: the ``[compose]`` section. ``workers`` (None: ``compose.workers``) sets the slots; on a Ray
+    cluster given by ``address``, None means every CPU of the cluster divided by ``ray_cpus_per_worker``.
+    ``extra`` goes to the executor class.
     """
-    comp = config["compose"] if config is not None else {}
-    recycle = int(comp.get("recycle_after", 0) or 0)
+    comp = config
+    recycle = comp.recycle_after
     kind = (kind or "local").lower()
     if kind == "local":
         if address:
             raise MixcountError("--address is only used with --executor ray")
         from mixcount.run.local import LocalExecutor
 
-        n = int(workers or comp.get("workers", 1) or 1)
-        kwargs: dict[str, Any] = dict(log_dir=log_dir, **extra)
-        kwargs.setdefault("recycle_after", recycle)
-        return LocalExecutor(n, **kwargs)
+        return LocalExecutor(workers or comp.workers, log_dir=log_dir, recycle_after=recycle, **extra)
     if kind == "ray":
         from mixcount.run.ray_executor import RayExecutor
 
-        cpus = float(comp.get("ray_cpus_per_worker", 1) or 1)
-        threads = int(comp.get("render_threads", 0) or 0) or max(1, int(round(cpus)))
-        slots = workers if workers else (None if address else int(comp.get("workers", 1) or 1))
+        cpus = float(comp.ray_cpus_per_worker)
+        threads = comp.render_threads or max(1, int(round(cpus)))
+        slots = workers if workers else (None if address else comp.workers)
         return RayExecutor(address=address, slots=slots, cpus_per_slot=cpus, threads=threads,
                            recycle_after=recycle, log_dir=log_dir, **extra)
     raise MixcountError(f"unknown executor {kind!r}: choose one of {', '.join(EXECUTORS)}")

@@ -36,8 +36,8 @@ class Executor(Protocol):
 class LocalExecutor:
     """A pool of ``workers`` bpy worker processes on this machine."""
 
-    def __init__(self, workers: int = 1, *, log_dir: Optional[Path] = None,
-                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int = 0) -> None:
+    def __init__(self, workers: int, *, log_dir: Optional[Path] = None,
+                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int) -> None:
         from mixcount.blender.worker import BlenderWorker
 
         self.recycle_after = max(0, int(recycle_after))  # restart a worker after this many scenes (flat memory)

@@ -66,7 +66,7 @@ def failed_outcome(task: SceneTask, error: str, seconds: float = 0.0) -> SceneOu
 class SceneActor:
     """Body of the Ray actor (wrapped with ``ray.remote`` lazily, so importing this module needs no Ray)."""
 
-    def __init__(self, name: str, *, recycle_after: int = 0, log_dir: Optional[str] = None,
+    def __init__(self, name: str, *, recycle_after: int, log_dir: Optional[str] = None,
                  runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task,
                  worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory) -> None:
         self.name = name
@@ -149,8 +149,8 @@ def _rss_kb(pid: Optional[int]) -> Optional[int]:
 class RayExecutor:
     """``slots`` scene actors on a Ray cluster (see the module docstring)."""
 
-    def __init__(self, address: Optional[str] = None, slots: Optional[int] = None, *, cpus_per_slot: float = 1.0,
-                 threads: Optional[int] = None, recycle_after: int = 0, log_dir: Optional[Path] = None,
+    def __init__(self, address: Optional[str] = None, slots: Optional[int] = None, *, cpus_per_slot: float,
+                 threads: Optional[int] = None, recycle_after: int, log_dir: Optional[Path] = None,
                  runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task,
                  worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory,
                  object_store_mb: int = 200, connect_timeout_s: float = 120.0) -> None:

@@ -1,4 +1,5 @@
-"""Scene-sampling parameters: the ``[scene]`` and ``[compose]`` config sections as one frozen dataclass.
+"""Scene-sampling parameters: the ``[scene]`` config section as a frozen dataclass (built by
+:func:`mixcount.config.load_config`; the sampler reads it as ``cfg.scene``).
 
 Geometric values marked "·s" in ``configs/default.toml`` are stored here unscaled; the sampler
 multiplies them by :attr:`SceneConfig.scale` when it uses them, so the spec holds metres of the scene.
@@ -7,9 +8,8 @@ multiplies them by :attr:`SceneConfig.scale` when it uses them, so the spec hold
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, Mapping
 
-from mixcount.config import Config
 from mixcount.errors import ConfigError
 
 Range = tuple[float, float]
@@ -90,38 +90,20 @@ class SceneConfig:
     sky_sun_elevation_deg: Range
     sky_sun_strength: Range
     sky_turbidity: Range
-    # [compose]
-    resolution: int = 1024
-    samples: int = 32
-    denoise: bool = True
-    visibility_threshold: float = 0.4
-    config_hash: str = ""
 
     @classmethod
-    def from_config(cls, cfg: Config) -> "SceneConfig":
-        """Build from a loaded :class:`~mixcount.config.Config`; checks ranges and probabilities."""
-        scene = dict(cfg["scene"])
-        compose = dict(cfg["compose"])
+    def from_section(cls, scene: Mapping[str, Any]) -> "SceneConfig":
+        """Build from the merged ``[scene]`` values: ranges become checked (low, high) tuples."""
         int_ranges = {"n_objects", "n_classes", "n_distractors"}
         values: dict[str, Any] = {}
         for f in fields(cls):
-            if f.name == "config_hash":
-                continue
-            if f.name in ("resolution", "samples", "denoise", "visibility_threshold"):
-                if f.name in compose:
-                    values[f.name] = compose[f.name]
-                continue
-            if f.name not in scene:
-                raise ConfigError(f"missing config key scene.{f.name}")
             value = scene[f.name]
             if f.type in ("Range", "IntRange"):
                 value = _range(f.name, value, integer=f.name in int_ranges)
             elif isinstance(value, (list, tuple)):
                 value = tuple(value)
             values[f.name] = value
-        conf = cls(**values, config_hash=cfg.hash)
-        conf.validate()
-        return conf
+        return cls(**values)
 
     def validate(self) -> None:
         """Reject values the sampler cannot honour (they would fail later, less clearly)."""

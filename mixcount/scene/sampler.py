@@ -14,7 +14,7 @@ the configured probabilities; infeasible options are dropped and the rest renorm
 from __future__ import annotations
 
 import math
-from typing import Optional, Sequence
+from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import sample_environment, sample_floor_material
 from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord
+
+if TYPE_CHECKING:
+    from mixcount.config import Config
 from mixcount.scene.spec import (
     ROLE_COUNTED,
     ROLE_DISTRACTOR,
@@ -241,10 +244,15 @@ def eligible_objects(pool: Sequence[ObjectRecord], split: str) -> list[ObjectRec
     )
 
 
-def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[ObjectRecord], *,
+def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectRecord], *,
                  environments: Sequence[EnvironmentRecord] = (), materials: Sequence[MaterialRecord] = (),
                  scene_id: Optional[str] = None) -> SceneSpec:
-    """Sample one scene of ``split`` from ``pool``; the same arguments always give the same spec."""
+    """Sample one scene of ``split`` from ``pool``; the same arguments always give the same spec.
+
+    Reads ``cfg.scene`` (everything sampled) and ``cfg.compose`` (image size and render settings the spec
+    records); ``cfg.hash`` goes into the spec.
+    """
+    config, compose = cfg.scene, cfg.compose
     rng = np.random.default_rng(seed)
     s = config.scale
     in_split = eligible_objects(pool, split)
@@ -393,7 +401,7 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         e, a = math.radians(elev), math.radians(azim)
         pos = target + dist * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
         rot = look_at_rotation(pos, target, roll)
-        res = (config.resolution, config.resolution)
+        res = (compose.resolution, compose.resolution)
         cameras.append(CameraSpec(
             name=f"cam_{k}", position=_vec(pos), look_at=_vec(target), orientation=quat_from_matrix(rot),
             elevation_deg=round(elev, _R), azimuth_deg=round(azim, _R), roll_deg=round(roll, _R),
@@ -412,12 +420,12 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
     )
     return SceneSpec(
         scene_id=scene_id or scene_id_for(seed), seed=int(seed), split=split, scale=s,
-        config_hash=config.config_hash, classes=tuple(classes), objects=tuple(objects),
+        config_hash=cfg.hash, classes=tuple(classes), objects=tuple(objects),
         distractors=tuple(distractors), container=container, floor=floor, environment=environment,
         cameras=tuple(cameras),
         physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
                             config.collision_shape, config.gravity, config.settle_below_floor_fraction,
                             config.settle_penetration_fraction),
-        render=RenderSpec(config.resolution, config.samples, config.denoise, config.visibility_threshold),
+        render=RenderSpec(compose.resolution, compose.samples, compose.denoise, compose.visibility_threshold),
         assets=assets,
     )
