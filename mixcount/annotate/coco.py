@@ -8,7 +8,7 @@ its one size has the same id in every scene. The class map stores these ids in 1
 
 Exemplar score (documented in docs/blender.md):
 ``s = v * sqrt(min(1, a / a_ref)) * (0.5 if the box touches the image border else 1)`` where ``v`` is
-the object's visibility (visible / unoccluded pixels), ``a`` its visible area in pixels and ``a_ref`` the
+the object's visibility (visible / amodal pixels), ``a`` its visible area in pixels and ``a_ref`` the
 median visible area of its class in the scene. Fully visible, typical-sized, untruncated instances score
 1; occluded, unusually small or cut-off ones less. The three best counted instances per class (ties by
 instance id) are the scene's internal exemplars, listed best first in ``images[].exemplars`` (a

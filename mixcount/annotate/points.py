@@ -14,10 +14,13 @@ continuous frame of ``bbox`` and ``segmentation``, where pixel (r, c) covers [c,
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import NDArray
 
 
-def interior_point(mask: np.ndarray) -> list[int]:
+def interior_point(mask: NDArray[Any]) -> list[int]:
     """``[x, y]`` (column, row) of the pixel of ``mask`` farthest from its edge; ValueError when empty."""
     from scipy.ndimage import distance_transform_edt
 

@@ -9,12 +9,11 @@ HDRIs and PBR sets. Broken and excluded objects never enter the pool.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Optional
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
-
-from pathlib import Path
 
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Environment, Material, Render, Split
 from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord, fallback_captions
