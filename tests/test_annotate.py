@@ -153,3 +153,117 @@ def test_merge_renumbers_and_loads_with_pycocotools(tmp_path: Path) -> None:
     assert summary["counts"]["scenes"] == 2 and summary["splits"]["val"]["counted_objects"] == 2
     assert summary["timings_mean_s"]["total"] == 1.5
     assert (tmp_path / "preview.png").exists()
+
+
+def test_interior_point_lies_deep_inside_the_visible_pixels() -> None:
+    from mixcount.annotate.points import interior_point
+
+    ring = np.zeros((30, 30), bool)  # a ring: its centroid (15, 15) is not on the mask
+    ring[5:25, 5:25] = True
+    ring[9:21, 9:21] = False
+    x, y = interior_point(ring)
+    assert ring[y, x]
+    ell = np.zeros((40, 40), bool)  # an L: thick vertical bar, thin foot
+    ell[0:40, 0:12] = True
+    ell[30:40, 0:40] = True
+    x, y = interior_point(ell)
+    assert ell[y, x] and 4 <= x <= 8  # centre of the thick bar (distance 6 from its edges)
+    cut = np.zeros((20, 20), bool)  # cut by the left frame border: the border counts as an edge
+    cut[5:15, 0:10] = True
+    assert interior_point(cut) == [4, 9]  # not at column 0, 10 px from the mask's right edge
+    single = np.zeros((5, 5), bool)
+    single[3, 1] = True
+    assert interior_point(single) == [1, 3]  # [x, y] = [column, row]
+    with pytest.raises(ValueError):
+        interior_point(np.zeros((3, 3), bool))
+
+
+def test_scene_coco_points_keypoints_and_amodal_masks() -> None:
+    from pycocotools import mask as mask_util
+
+    from mixcount.annotate.coco import ground_truth_pairs
+
+    ids = _synthetic_ids()
+    amodal = {k: ids == k for k in (1, 2, 3, 4)}
+    amodal[2] = amodal[2].copy()
+    amodal[2][20:30, 9:14] = True  # object 2 is partly hidden: 40 visible of 90 amodal pixels
+    amodal[3] = np.zeros_like(amodal[3])  # a silhouette that missed the visible pixels: united with them
+    objects = [{"instance_id": k, "category_id": 40 if k != 3 else 12, "role": "counted" if k != 3 else "distractor",
+                "visibility": 0.5} for k in (1, 2, 3, 4)]
+    coco = build_scene_coco(ids, objects, [{"id": 12, "name": "d"}, {"id": 40, "name": "a"}], image_id=1,
+                            file_name="x.png", scene_id="s", amodal=amodal)
+    anns = {a["id"]: a for a in coco["annotations"]}
+    for inst, a in anns.items():
+        x, y = a["point"]
+        assert isinstance(x, int) and ids[y, x] == inst
+        assert a["keypoints"] == [x, y, 2] and a["num_keypoints"] == 1
+        vis = mask_util.decode(a["segmentation"]).astype(bool)
+        am = mask_util.decode(a["segmentation_amodal"]).astype(bool)
+        assert (am >= vis).all() and a["area_amodal"] == int(am.sum()) >= a["area"]
+        assert a["bbox_amodal"] == bbox_of(am)
+        assert a["visibility"] == pytest.approx(a["area"] / a["area_amodal"], abs=1e-6)
+    assert anns[2]["visibility"] == pytest.approx(40 / 90) and anns[2]["bbox_amodal"] == [5.0, 20.0, 9.0, 10.0]
+    assert anns[1]["visibility"] == 1.0 and anns[3]["area_amodal"] == anns[3]["area"]
+    assert all(c["keypoints"] == ["center"] and c["skeleton"] == [] for c in coco["categories"])
+    # internal exemplars best first: object 2 (less visible) ranks after object 1
+    ex = {e["category_id"]: e["annotation_ids"] for e in coco["images"][0]["exemplars"]}
+    scores = [anns[i]["exemplar_score"] for i in ex[40]]
+    assert scores == sorted(scores, reverse=True) and ex[40].index(1) < ex[40].index(2)
+    assert ground_truth_pairs(coco) == {12: 1, 40: 3}  # distractors included
+
+
+def test_pycocotools_reads_points_as_keypoints(tmp_path: Path) -> None:
+    from pycocotools.coco import COCO
+
+    ids = _synthetic_ids()
+    coco = build_scene_coco(ids, [{"instance_id": 1, "category_id": 40, "role": "counted", "visibility": 1.0}],
+                            [{"id": 40, "name": "a"}], image_id=1, file_name="x.png", scene_id="s")
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(coco))
+    c = COCO(str(path))
+    ann = c.loadAnns(c.getAnnIds(catIds=[40]))[0]
+    assert c.loadCats(40)[0]["keypoints"] == ["center"] and ann["num_keypoints"] == 1
+    assert ann["keypoints"][2] == 2 and ids[ann["keypoints"][1], ann["keypoints"][0]] == 1
+
+
+def test_external_exemplars_are_copied_once_under_out(tmp_path: Path) -> None:
+    from mixcount.dataset.external_exemplars import copy_external_exemplars
+
+    src = tmp_path / "renders"
+    src.mkdir()
+    (src / "obj_3.png").write_bytes(b"png-3")
+    out = tmp_path / "out"
+    got = copy_external_exemplars(out, {3: str(src / "obj_3.png"), 4: None, 5: str(src / "gone.png")}, [3, 4, 5])
+    assert got == {3: "exemplars/external/obj_3.png"}
+    assert (out / got[3]).read_bytes() == b"png-3"
+    mtime = (out / got[3]).stat().st_mtime_ns
+    assert copy_external_exemplars(out, {3: str(src / "obj_3.png")}, [3]) == got
+    assert (out / got[3]).stat().st_mtime_ns == mtime  # identical file: not rewritten
+    (src / "obj_3.png").write_bytes(b"png-3 re-rendered")
+    copy_external_exemplars(out, {3: str(src / "obj_3.png")}, [3])
+    assert (out / got[3]).read_bytes() == b"png-3 re-rendered"
+    assert not list((out / "exemplars" / "external").glob(".*tmp"))
+
+
+def test_load_pool_carries_the_canonical_render_as_external_exemplar(catalog, tmp_path: Path) -> None:
+    from mixcount.catalog.models import CatalogObject, Render, Split
+    from mixcount.catalog.pool import load_pool
+
+    png = tmp_path / "obj.png"
+    png.write_bytes(b"png")
+    with catalog.session() as s:
+        objs = []
+        for k in range(4):
+            o = CatalogObject(source="folder", source_id=f"o{k}", name=f"Mug_{k}", category="mug",
+                              model_path=str(tmp_path / f"{k}.glb"), dim_x=0.1, dim_y=0.1, dim_z=0.1)
+            s.add(o)
+            s.flush()
+            s.add(Split(object_id=o.id, split="train", method="random"))
+            objs.append(o.id)
+        s.add(Render(object_id=objs[0], view="canonical", path=str(png)))  # usable
+        s.add(Render(object_id=objs[1], view="canonical", path=str(png), error="render failed"))
+        s.add(Render(object_id=objs[2], view="canonical", path=str(tmp_path / "vanished.png")))
+        s.add(Render(object_id=objs[3], view="view_1", path=str(png)))  # not the canonical view
+        s.commit()
+        pool = {r.object_id: r.render_path for r in load_pool(s)}
+    assert pool == {objs[0]: str(png), objs[1]: None, objs[2]: None, objs[3]: None}

@@ -76,14 +76,25 @@ def test_visibility_occlusion_and_status() -> None:
     index = np.zeros((4, 5), dtype=np.int32)
     index[0, :4] = 1  # 4 px of object 1
     index[1, :1] = 2  # 1 px of object 2
-    vis = D.measure_visibility(index, {1: 5, 2: 4, 3: 0, 4: 3})
-    assert vis == {1: (4, 0.8), 2: (1, 0.25), 3: (0, 0.0), 4: (0, 0.0)}
-    counted = {k: v for k, (_, v) in vis.items()}
-    assert D.occluded(counted, 0.4) == [2, 3, 4]
+    sil = {k: np.zeros((4, 5), bool) for k in (1, 2, 3, 4)}
+    sil[1][0, :5] = True  # 5 px silhouette, 4 visible
+    sil[2][1:3, :2] = True  # 4 px silhouette, 1 visible
+    sil[4][3, :3] = True  # 3 px silhouette, none visible; object 3 has no silhouette at all
+    vis = D.measure_visibility(index, sil)
+    assert vis == {1: (4, 5, 0.8), 2: (1, 4, 0.25), 3: (0, 0, 0.0), 4: (0, 3, 0.0)}
+    # a visible pixel the rasteriser missed (a silhouette edge) still counts in the amodal mask
+    index[2, 4] = 1
+    assert D.measure_visibility(index, {1: sil[1]})[1] == (5, 6, 5 / 6)
+    am = D.amodal_mask(sil[1], index, 1)
+    assert am.sum() == 6 and am[2, 4] and (am >= (index == 1)).all()
+    visibility = {k: v.visibility for k, v in vis.items()}
+    assert D.occluded(visibility, 0.4) == [2, 3, 4]
     assert D.occluded({1: 0.6}, 0.4) == [1]  # occlusion 0.4 >= v_t: dropped ...
     assert D.scene_status({1: 0.6}, 0.4) == ("ok", [])  # ... but the re-check only rejects below 1 - v_t
     assert D.scene_status({1: 0.8, 2: 0.5}, 0.4) == ("rejected", [2])
-    assert D.scene_status({}, 0.4) == ("empty", [])
+    assert D.scene_status({1: 0.8}, 0.4, {7: 0.3}) == ("rejected", [7])  # distractors under the same rule
+    assert D.scene_status({1: 0.8}, 0.4, {7: 0.9}) == ("ok", [])
+    assert D.scene_status({}, 0.4, {7: 0.9}) == ("empty", [])
 
 
 def test_pass_conversions() -> None:
@@ -107,7 +118,7 @@ def test_contract_json_round_trip() -> None:
     m = tuple(tuple(float(v) for v in r) for r in pose(1, 2, 3))
     kept = ObjectResult(name="obj_0001", path="/World/Objects/obj_0001", role="counted", instance_id=1, object_id=5,
                         class_index=0, asset="/a.usdc", size_m=0.5, spawn_matrix=m, matrix_world=m, min_z=0.0,
-                        origin_px=(10.5, 20.0), unoccluded_px=40, visible_px=30, visibility=0.75)
+                        origin_px=(10.5, 20.0), unoccluded_px=40, visible_px=30, amodal_px=40, visibility=0.75)
     dropped = ObjectResult(name="dist_01", path="/World/Distractors/dist_01", role="distractor", instance_id=2,
                            object_id=6, class_index=-1, asset="/b.usdc", size_m=0.7, spawn_matrix=m,
                            status="dropped", reason="flung_out")

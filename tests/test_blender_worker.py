@@ -43,15 +43,34 @@ def library(tmp_path_factory: pytest.TempPathFactory):
     return pool_from_demo_library(root / "demo"), root / "assets"
 
 
+def _with_renders(pool, folder: Path):
+    """The pool with a canonical-render file for every object but the first (external exemplars)."""
+    from dataclasses import replace
+
+    from PIL import Image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = [pool[0]]
+    for rec in pool[1:]:
+        png = folder / f"obj_{rec.object_id}.png"
+        im = Image.new("RGB", (32, 32), (255, 255, 255))
+        im.paste((rec.object_id * 30 % 256, 40, 90), (12, 12, 20, 20))
+        im.save(png)
+        out.append(replace(rec, render_path=str(png)))
+    return out
+
+
 @pytest.fixture(scope="module")
 def composed(library, tmp_path_factory: pytest.TempPathFactory):
+    """Two scenes with 3-5 distractors each, the one-render-per-object reference on."""
     from mixcount.run.compose import compose_scenes
 
     pool, assets = library
     out = tmp_path_factory.mktemp("out")
-    summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2,
-                             progress=False, oracle=True)
-    return out, summary
+    pool = _with_renders(pool, out.parent / (out.name + "_renders"))
+    summary = compose_scenes(pool=pool, config=_config("scene.n_distractors=[3, 5]"), out_dir=out,
+                             assets_dir=assets, n=2, progress=False, oracle=True)
+    return out, summary, pool
 
 
 def _scenes(out: Path) -> list[Path]:
@@ -59,7 +78,7 @@ def _scenes(out: Path) -> list[Path]:
 
 
 def test_compose_writes_n_complete_scenes(composed) -> None:
-    out, summary = composed
+    out, summary, _ = composed
     assert summary.written == 2 and summary.failed == 0
     dirs = _scenes(out)
     assert len(dirs) == 2
@@ -71,9 +90,9 @@ def test_compose_writes_n_complete_scenes(composed) -> None:
         assert meta["complete"] and meta["n_counted"] >= 1
         assert {"stage", "worker", "annotate", "total", "worker.physics", "worker.rgb"} <= set(meta["timings"])
         assert meta["camera"]["K"][0][0] > 0 and len(meta["camera"]["cam_to_world"]) == 4
-        scene_cfg = _config()["scene"]  # the physics values used are the stage's, recorded as such
-        assert meta["physics"]["substeps"] == scene_cfg["physics_substeps"] == meta["spec"]["physics"]["substeps"]
-        assert meta["physics"]["frames"] == scene_cfg["physics_frames"]
+        scene_cfg = _config().scene  # the physics values used are the stage's, recorded as such
+        assert meta["physics"]["substeps"] == scene_cfg.physics_substeps == meta["spec"]["physics"]["substeps"]
+        assert meta["physics"]["frames"] == scene_cfg.physics_frames
         assert (d / "exemplars").is_dir() and any((d / "exemplars").iterdir())
     summary_json = json.loads((out / "dataset.json").read_text())
     assert summary_json["counts"]["scenes"] == 2
@@ -86,7 +105,7 @@ def test_coco_masks_equal_instance_map_and_counts(composed) -> None:
     from pycocotools import mask as mask_util
     from pycocotools.coco import COCO
 
-    out, _ = composed
+    out, _, _ = composed
     merged = COCO(str(out / "annotations" / "instances_train.json"))
     assert len(merged.getImgIds()) == 2
     for d in _scenes(out):
@@ -114,7 +133,7 @@ def test_coco_masks_equal_instance_map_and_counts(composed) -> None:
 
 
 def test_counted_objects_visible_by_oracle_and_raster_agrees(composed) -> None:
-    out, _ = composed
+    out, _, _ = composed
     n_checked = 0
     for d in _scenes(out):
         meta = json.loads((d / "metadata.json").read_text())
@@ -126,11 +145,92 @@ def test_counted_objects_visible_by_oracle_and_raster_agrees(composed) -> None:
             om = np.unpackbits(oracle[f"oracle_{o['instance_id']}"])[: h * w].reshape(h, w).astype(bool)
             rm = np.unpackbits(oracle[f"raster_{o['instance_id']}"])[: h * w].reshape(h, w).astype(bool)
             iou = (om & rm).sum() / max(1, (om | rm).sum())
-            assert iou >= 0.99, (d.name, o["name"], iou)
-            if o["role"] == "counted":
-                assert o["visible_px"] / om.sum() >= 1.0 - V_T - 1e-9, (d.name, o["name"])
-                n_checked += 1
+            # one edge pixel of an 80-pixel object at 128 px is already 1.25 % of IoU
+            assert iou >= 0.99 or (om ^ rm).sum() <= 1, (d.name, o["name"], iou)
+            assert o["visible_px"] / om.sum() >= 1.0 - V_T - 1e-9, (d.name, o["role"], o["name"])
+            n_checked += 1
     assert n_checked >= 2
+
+
+def _decode(rle) -> np.ndarray:
+    from pycocotools import mask as mask_util
+
+    return mask_util.decode(rle).astype(bool)
+
+
+def test_every_annotation_visible_points_amodal_and_ground_truth_agree(composed) -> None:
+    """Counted objects and distractors alike: >= 1 - v_t visible by the one-render-per-object reference,
+    points on their own instance pixels, amodal masks containing the visible ones; metadata.json, the
+    merged COCO and ``evaluate`` agree on the (image, category, count) pairs."""
+    from PIL import Image
+
+    from mixcount.evaluate.metrics import evaluate, load_ground_truth, parse_predictions
+
+    out, _, pool = composed
+    distractor_vis, removed = [], []
+    meta_pairs: dict[tuple[str, int], int] = {}
+    for d in _scenes(out):
+        meta = json.loads((d / "metadata.json").read_text())
+        coco = json.loads((d / "coco.json").read_text())
+        inst = np.array(Image.open(d / "instance.png"))
+        oracle = np.load(d / "oracle_masks.npz")
+        h, w = oracle["shape"]
+        assert not (d / "amodal.npz").exists()
+        for a in coco["annotations"]:
+            vis = _decode(a["segmentation"])
+            om = np.unpackbits(oracle[f"oracle_{a['id']}"])[: h * w].reshape(h, w).astype(bool)
+            ref_visibility = vis.sum() / (om | vis).sum()
+            assert ref_visibility >= 1.0 - V_T, (d.name, a["id"], a["is_distractor"], ref_visibility)
+            if a["is_distractor"]:
+                distractor_vis.append(float(ref_visibility))
+            x, y = a["point"]
+            assert inst[y, x] == a["id"] and a["keypoints"] == [x, y, 2] and a["num_keypoints"] == 1
+            am = _decode(a["segmentation_amodal"])
+            assert (am >= vis).all() and a["area_amodal"] == int(am.sum())
+            assert a["visibility"] == pytest.approx(a["area"] / a["area_amodal"], abs=1e-6)
+            assert (om & am).sum() / (om | am).sum() >= 0.98  # the amodal mask is the reference's silhouette
+            x0, y0, bw, bh = a["bbox_amodal"]
+            assert (x0, y0, x0 + bw, y0 + bh) == (np.nonzero(am.any(0))[0][0], np.nonzero(am.any(1))[0][0],
+                                                  np.nonzero(am.any(0))[0][-1] + 1, np.nonzero(am.any(1))[0][-1] + 1)
+        kept_distractors = [o for o in meta["objects"] if o["role"] == "distractor" and o["status"] == "kept"]
+        assert len(kept_distractors) == meta["n_distractors"] == sum(a["is_distractor"] for a in coco["annotations"])
+        gone = [o for o in meta["objects"] if o["role"] == "distractor" and o["status"] != "kept"]
+        removed += gone
+        for o in gone:
+            assert o["reason"] in ("below_floor", "flung_out", "interpenetration", "unstable",
+                                   "origin_outside_frame", "occluded")
+            assert not (inst == o["instance_id"]).any()  # removed before the final passes
+        for p in meta["ground_truth"]:
+            meta_pairs[(meta["scene_id"], p["category_id"])] = p["count"]
+    assert distractor_vis, "the composed scenes must hold distractors"
+    print(f"\ndistractors: {len(distractor_vis)} annotated, visibility (reference) min {min(distractor_vis):.3f} "
+          f"mean {np.mean(distractor_vis):.3f}; removed {len(removed)}: {[o['reason'] for o in removed]}")
+
+    gt_path = out / "annotations" / "instances_train.json"
+    gt = load_ground_truth(gt_path, "train")
+    coco_pairs = {(gt.images[i]["scene_id"], c): n for (i, c), n in gt.counts.items()}
+    assert coco_pairs == meta_pairs
+    by_scene = {img["scene_id"]: img["id"] for img in gt.images.values()}
+    rows = [{"image_id": by_scene[s], "category_id": c, "count": n} for (s, c), n in meta_pairs.items()]
+    res = evaluate(gt, parse_predictions(rows)).overall
+    assert (res.mae, res.pairs, res.missing, res.extra) == (0.0, len(coco_pairs), 0, 0)
+
+    # external exemplars: every category's canonical render copied under OUT and referenced by path
+    renders = {r.object_id: r.render_path for r in pool}
+    doc = json.loads(gt_path.read_text())
+    for c in doc["categories"]:
+        src = renders.get(c["object_id"])
+        assert c["keypoints"] == ["center"] and c["skeleton"] == []
+        if src is None:
+            assert c["external_exemplar"] is None
+        else:
+            assert c["external_exemplar"] == f"exemplars/external/obj_{c['object_id']}.png"
+            assert (out / c["external_exemplar"]).read_bytes() == Path(src).read_bytes()
+    for img in doc["images"]:  # internal exemplars best first
+        anns = {a["id"]: a for a in doc["annotations"]}
+        for e in img["exemplars"]:
+            scores = [anns[i]["exemplar_score"] for i in e["annotation_ids"]]
+            assert scores == sorted(scores, reverse=True)
 
 
 def test_depth_normals_and_settled_poses(composed) -> None:
@@ -138,7 +238,7 @@ def test_depth_normals_and_settled_poses(composed) -> None:
 
     from mixcount.usd.read import labelled_prims
 
-    out, _ = composed
+    out, _, _ = composed
     for d in _scenes(out):
         meta = json.loads((d / "metadata.json").read_text())
         h, w = meta["image"]["height"], meta["image"]["width"]

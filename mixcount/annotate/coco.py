@@ -8,10 +8,11 @@ its one size has the same id in every scene. The class map stores these ids in 1
 
 Exemplar score (documented in docs/blender.md):
 ``s = v * sqrt(min(1, a / a_ref)) * (0.5 if the box touches the image border else 1)`` where ``v`` is
-the object's visibility (visible / unoccluded pixels), ``a`` its visible area in pixels and ``a_ref`` the
+the object's visibility (visible / amodal pixels), ``a`` its visible area in pixels and ``a_ref`` the
 median visible area of its class in the scene. Fully visible, typical-sized, untruncated instances score
 1; occluded, unusually small or cut-off ones less. The three best counted instances per class (ties by
-instance id) are the scene's internal exemplars.
+instance id) are the scene's internal exemplars, listed best first in ``images[].exemplars`` (a
+model that takes the first N exemplar boxes of a category gets the N best).
 """
 
 from __future__ import annotations
@@ -76,14 +77,24 @@ def class_map(ids: np.ndarray, inst_to_category: Mapping[int, int]) -> np.ndarra
     return lut[ids]
 
 
+KEYPOINT_NAMES = ["center"]  # one keypoint per annotation: its point (see mixcount.annotate.points)
+
+
 def build_scene_coco(ids: np.ndarray, objects: Sequence[Mapping[str, Any]], categories: Sequence[Mapping[str, Any]],
-                     *, image_id: int, file_name: str, scene_id: str) -> dict[str, Any]:
+                     *, image_id: int, file_name: str, scene_id: str,
+                     amodal: Optional[Mapping[int, np.ndarray]] = None) -> dict[str, Any]:
     """One scene's COCO dict.
 
     ``objects``: records with ``instance_id``, ``category_id``, ``role`` ("counted" | "distractor") and
     ``visibility``; objects without visible pixels get no annotation. Each annotation's mask is exactly
-    the pixels of its id in ``ids``. Annotation ids are the instance ids (unique within the scene).
+    the pixels of its id in ``ids``; its ``point`` / ``keypoints`` the visible pixel farthest from the
+    mask edge. With ``amodal`` (instance id -> the object's unoccluded mask in the frame) each annotation
+    also gets ``segmentation_amodal`` (that mask united with the visible one), ``bbox_amodal``,
+    ``area_amodal`` and ``visibility`` = area / area_amodal; without it ``visibility`` is the record's.
+    Annotation ids are the instance ids (unique within the scene). Field conventions: docs/annotations.md.
     """
+    from mixcount.annotate.points import interior_point
+
     h, w = ids.shape
     anns: list[dict[str, Any]] = []
     areas_by_cat: dict[int, list[int]] = {}
@@ -106,9 +117,18 @@ def build_scene_coco(ids: np.ndarray, objects: Sequence[Mapping[str, Any]], cate
         area = int(m.sum())
         cat = int(obj["category_id"])
         vis = float(obj.get("visibility", 1.0))
+        amodal_fields: dict[str, Any] = {}
+        if amodal is not None:
+            am = np.asarray(amodal[inst], dtype=bool) | m
+            area_amodal = int(am.sum())
+            vis = area / area_amodal
+            amodal_fields = {"segmentation_amodal": mask_to_rle(am), "bbox_amodal": bbox_of(am),
+                             "area_amodal": area_amodal}
+        x, y = interior_point(m)
         anns.append({
             "id": inst, "image_id": image_id, "category_id": cat, "bbox": box, "segmentation": mask_to_rle(m),
-            "area": area, "iscrowd": 0, "visibility": round(vis, 6), "is_distractor": obj["role"] != "counted",
+            "area": area, "iscrowd": 0, "point": [x, y], "keypoints": [x, y, 2], "num_keypoints": 1,
+            **amodal_fields, "visibility": round(vis, 6), "is_distractor": obj["role"] != "counted",
             "instance_id": inst,
             "exemplar_score": exemplar_score(vis, area, ref.get(cat, float(area)), touches_border(box, w, h)),
         })
@@ -119,7 +139,17 @@ def build_scene_coco(ids: np.ndarray, objects: Sequence[Mapping[str, Any]], cate
         exemplars.append({"category_id": cat, "annotation_ids": [a["id"] for a in ranked[:N_EXEMPLARS]]})
     image = {"id": image_id, "file_name": file_name, "width": int(w), "height": int(h), "scene_id": scene_id,
              "exemplars": exemplars}
-    return {"images": [image], "annotations": anns, "categories": [dict(c) for c in categories]}
+    cats = [{**c, "keypoints": list(KEYPOINT_NAMES), "skeleton": []} for c in categories]
+    return {"images": [image], "annotations": anns, "categories": cats}
+
+
+def ground_truth_pairs(coco: Mapping[str, Any]) -> dict[int, int]:
+    """The evaluation protocol's ground truth of one scene: annotations per category id, distractors
+    included (what ``mixcount evaluate`` counts per (image, category) pair)."""
+    out: dict[int, int] = {}
+    for a in coco["annotations"]:
+        out[int(a["category_id"])] = out.get(int(a["category_id"]), 0) + 1
+    return dict(sorted(out.items()))
 
 
 def counts_per_category(coco: Mapping[str, Any]) -> dict[int, int]:

@@ -68,9 +68,10 @@ class ObjectResult:
     matrix_world: Optional[Matrix] = None  # settled pose (None when physics left it non-finite)
     min_z: Optional[float] = None  # lowest settled vertex
     origin_px: Optional[tuple[float, float]] = None  # projected origin (x = column, y = row)
-    unoccluded_px: Optional[int] = None  # pixels of its own silhouette
+    unoccluded_px: Optional[int] = None  # pixels of its rasterised silhouette (in the frame)
     visible_px: Optional[int] = None  # pixels of its id in the id pass
-    visibility: Optional[float] = None  # visible / unoccluded
+    amodal_px: Optional[int] = None  # pixels of silhouette | visible (the amodal mask, in the frame)
+    visibility: Optional[float] = None  # visible / amodal (BOP's visib_fract)
     oracle_unoccluded_px: Optional[int] = None
     oracle_iou: Optional[float] = None
     oracle_visibility: Optional[float] = None

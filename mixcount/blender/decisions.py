@@ -7,7 +7,7 @@ tests/test_blender_decisions.py checks them without Blender.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Optional, Sequence
+from typing import Mapping, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -123,28 +123,50 @@ def origin_in_frame(camera: PinholeCamera, matrix_world: np.ndarray) -> tuple[tu
     return (x, y), inside
 
 
-def measure_visibility(index: np.ndarray, unoccluded_px: Mapping[int, int]) -> dict[int, tuple[int, float]]:
-    """instance id -> (visible pixels in the id pass, visible / unoccluded pixels capped at 1)."""
-    ids, counts = np.unique(index, return_counts=True)
-    seen = dict(zip(ids.tolist(), counts.tolist()))
+class Visibility(NamedTuple):
+    """One object's visibility in an id pass: visible pixels, amodal pixels and their ratio."""
+
+    visible_px: int
+    amodal_px: int
+    visibility: float
+
+
+def amodal_mask(silhouette: np.ndarray, index: np.ndarray, instance_id: int) -> np.ndarray:
+    """The object's amodal (unoccluded) mask inside the frame: its rasterised silhouette united with its
+    visible pixels in the id pass, so the amodal mask always contains the visible one (the rasteriser and
+    Cycles may disagree on a pixel at the silhouette's edge)."""
+    return np.asarray(silhouette, dtype=bool) | (np.asarray(index) == int(instance_id))
+
+
+def measure_visibility(index: np.ndarray, silhouettes: Mapping[int, np.ndarray]) -> dict[int, Visibility]:
+    """instance id -> :class:`Visibility` with visibility = visible / amodal pixels (BOP's visib_fract).
+
+    Both counts are pixels of the frame: the part of an object outside the image is in neither, so
+    truncation by the frame border does not lower visibility (only occlusion does)."""
+    idx = np.asarray(index)
     out = {}
-    for inst, u in unoccluded_px.items():
-        v = int(seen.get(int(inst), 0))
-        out[int(inst)] = (v, float(min(1.0, v / u)) if u > 0 else 0.0)
+    for inst, sil in silhouettes.items():
+        visible = idx == int(inst)
+        v = int(visible.sum())
+        a = int((np.asarray(sil, dtype=bool) | visible).sum())
+        out[int(inst)] = Visibility(v, a, float(v / a) if a > 0 else 0.0)
     return out
 
 
-def occluded(counted_visibility: Mapping[int, float], threshold: float) -> list[int]:
-    """Counted instance ids to drop: occlusion (1 - visibility) >= the visibility threshold v_t."""
-    return [i for i, v in counted_visibility.items() if v <= 1.0 - threshold]
+def occluded(visibility: Mapping[int, float], threshold: float) -> list[int]:
+    """Instance ids to drop (counted objects and distractors alike): occlusion (1 - visibility) >= the
+    visibility threshold v_t, so a kept object is more than 1 - v_t visible."""
+    return [i for i, v in visibility.items() if v <= 1.0 - threshold]
 
 
-def scene_status(counted_visibility: Mapping[int, float], threshold: float) -> tuple[str, list[int]]:
-    """The final re-check: "empty" with no counted object left, "rejected" (and the failing ids) when one
-    is less than 1 - v_t visible, else "ok"."""
+def scene_status(counted_visibility: Mapping[int, float], threshold: float,
+                 distractor_visibility: Optional[Mapping[int, float]] = None) -> tuple[str, list[int]]:
+    """The final re-check: "empty" with no counted object left, "rejected" (and the failing ids) when a
+    kept counted object or distractor is less than 1 - v_t visible, else "ok"."""
     if not counted_visibility:
         return STATUS_EMPTY, []
-    failing = [i for i, v in counted_visibility.items() if v < 1.0 - threshold]
+    every = {**counted_visibility, **(distractor_visibility or {})}
+    failing = [i for i, v in every.items() if v < 1.0 - threshold]
     return (STATUS_REJECTED, failing) if failing else (STATUS_OK, [])
 
 

@@ -9,14 +9,15 @@ material) is imported through ``prim_path_mask``; camera and lights are built fr
 
 :func:`run_scene` runs named steps: :func:`load_scene` (stage -> Blender scene), :func:`settle`
 (physics), :func:`check_settled`, :func:`check_frame`, :func:`silhouettes`, :func:`visibility_loop`,
-:func:`write_passes`, :func:`render_rgb` and, on request, :func:`reference_check`. Every decision
+:func:`final_status`, :func:`write_passes`, :func:`write_amodal_masks`, :func:`render_rgb` and, on request, :func:`reference_check`. Every decision
 between them is a pure function of :mod:`mixcount.blender.decisions`. What describes the scene
 (samples, denoise, visibility threshold, physics) is read from the stage's SceneSpec only; the
 :class:`~mixcount.blender.contract.SceneRequest` adds run-time settings (threads, oracle).
 
 Writes into ``out_dir``: ``rgb.png``, ``ids.npy`` (int32 instance ids of counted objects and distractors,
 0 elsewhere), ``depth.npy`` (float32 planar depth in metres along the optical axis, 0 = no surface),
-``normal.npy`` (float32 unit normals in camera space: x right, y up, z towards the viewer; 0 = none) and
+``normal.npy`` (float32 unit normals in camera space: x right, y up, z towards the viewer; 0 = none),
+``amodal.npz`` (each kept object's amodal mask, see :func:`write_amodal_masks`) and
 ``worker.json`` (the :class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
 (no counted object survived: the caller regenerates from the next seed) or "rejected".
 """
@@ -446,9 +447,13 @@ def silhouettes(state: SceneState, camera: PinholeCamera) -> dict[int, np.ndarra
     return masks
 
 
-def visibility_loop(state: SceneState, timer: Timer) -> tuple[dict[str, np.ndarray], int]:
-    """Render the id pass, measure visibility, drop occluded counted objects and re-render (up to
-    MAX_VISIBILITY_ROUNDS times); returns the last id passes and the number of renders."""
+def visibility_loop(state: SceneState, masks: dict[int, np.ndarray], timer: Timer) -> tuple[dict[str, np.ndarray], int]:
+    """Render the id pass, measure every kept object's visibility (visible / amodal pixels), drop the
+    occluded ones - counted objects and distractors under the same rule - and re-render (up to
+    MAX_VISIBILITY_ROUNDS times); returns the last id passes and the number of renders.
+
+    Dropping an object removes it from the Blender scene, so the next id pass and the final RGB render
+    no longer show it; the loop only ends on an id pass rendered without every dropped object."""
     from mixcount.blender import passes as P
 
     v_t = state.spec.render.visibility_threshold
@@ -459,33 +464,46 @@ def visibility_loop(state: SceneState, timer: Timer) -> tuple[dict[str, np.ndarr
             id_passes = P.render_id_passes(state.scene, exr)
         with timer.stage("visibility"):
             kept = state.kept()
-            vis = D.measure_visibility(id_passes["index"],
-                                       {state.objects[i].instance_id: state.objects[i].unoccluded_px for i in kept})
+            vis = D.measure_visibility(id_passes["index"], {state.objects[i].instance_id: masks[state.objects[i].instance_id]
+                                                            for i in kept})
             by_inst = {}
             for i in kept:
                 o = state.objects[i]
-                visible_px, visibility = vis[o.instance_id]
-                state.update(i, visible_px=visible_px, visibility=visibility)
+                m = vis[o.instance_id]
+                state.update(i, visible_px=m.visible_px, amodal_px=m.amodal_px, visibility=m.visibility)
                 by_inst[o.instance_id] = i
-            counted = {state.objects[i].instance_id: state.objects[i].visibility for i in state.kept("counted")}
-            low = D.occluded(counted, v_t)
+            low = D.occluded({state.objects[i].instance_id: state.objects[i].visibility for i in kept}, v_t)
             if not low or rounds >= D.MAX_VISIBILITY_ROUNDS:
                 break
             for inst in low:
-                state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(counted[inst], 4))
+                state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(vis[inst].visibility, 4))
             rounds += 1
     P.remove_quiet(exr)
     return id_passes, rounds + 1
 
 
 def final_status(state: SceneState) -> str:
-    """ok / empty / rejected by the final visibility re-check (a diagnostic names the failing objects)."""
-    counted = {state.objects[i].instance_id: state.objects[i].visibility for i in state.kept("counted")}
-    status, failing = D.scene_status(counted, state.spec.render.visibility_threshold)
+    """ok / empty / rejected by the final visibility re-check of every kept counted object and distractor
+    (a diagnostic names the failing objects)."""
+    def visibility(role: str) -> dict[int, float]:
+        return {state.objects[i].instance_id: float(state.objects[i].visibility or 0.0) for i in state.kept(role)}
+
+    status, failing = D.scene_status(visibility("counted"), state.spec.render.visibility_threshold,
+                                     visibility("distractor"))
     if failing:
         names = {o.instance_id: o.name for o in state.objects}
         state.diagnostics.append({"kind": "recheck_failed", "objects": [names[i] for i in failing]})
     return status
+
+
+def write_amodal_masks(state: SceneState, masks: dict[int, np.ndarray], id_passes: dict[str, np.ndarray]) -> None:
+    """``amodal.npz``: each kept object's amodal mask (silhouette | visible pixels, packed bits under
+    ``amodal_<instance id>``) and the image ``shape``; the scene writer turns them into RLE."""
+    index = id_passes["index"]
+    save = {f"amodal_{state.objects[i].instance_id}":
+            np.packbits(D.amodal_mask(masks[state.objects[i].instance_id], index, state.objects[i].instance_id))
+            for i in state.kept()}
+    np.savez_compressed(state.out_dir / "amodal.npz", shape=np.array(index.shape[:2]), **save)
 
 
 def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: PinholeCamera) -> None:
@@ -550,11 +568,12 @@ def run_scene(req: SceneRequest) -> SceneResult:
         check_frame(state, camera)
     with timer.stage("silhouettes"):
         masks = silhouettes(state, camera)
-    id_passes, renders = visibility_loop(state, timer)
+    id_passes, renders = visibility_loop(state, masks, timer)
     status = final_status(state)
     if status == STATUS_OK:
         with timer.stage("write_passes"):
             write_passes(state, id_passes, camera)
+            write_amodal_masks(state, masks, id_passes)
         with timer.stage("rgb"):
             render_rgb(state)
         if req.oracle:

@@ -1,19 +1,21 @@
 """Catalog -> sampler records: the only SQL behind ``mixcount compose``.
 
 :func:`load_pool` reads active objects that have a split (captions from the active caption set, else a
-fallback from name and category); :func:`load_environments` / :func:`load_materials` read the ingested
+fallback from name and category; the canonical render, when one exists on disk, as the external exemplar);
+:func:`load_environments` / :func:`load_materials` read the ingested
 HDRIs and PBR sets. Broken and excluded objects never enter the pool.
 """
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Optional
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Environment, Material, Split
+from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Environment, Material, Render, Split
 from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord, fallback_captions
 from mixcount.scene.spec import Captions
 
@@ -35,6 +37,12 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
         select(CaptionSet).where(CaptionSet.active.is_(True)).order_by(CaptionSet.id)
     ).scalars():
         caps[cs.object_id] = Captions(cs.short, cs.concise, cs.detailed)
+    renders: dict[int, str] = {}  # view "canonical" = mixcount.curation.renders.CANONICAL
+    for oid, path in session.execute(
+        select(Render.object_id, Render.path).where(Render.view == "canonical", Render.error.is_(None))
+    ):
+        if path and Path(path).is_file():
+            renders[int(oid)] = str(path)
     pool = []
     for obj, obj_split in rows:
         dims = (float(obj.dim_x or 0.0), float(obj.dim_y or 0.0), float(obj.dim_z or 0.0))
@@ -47,6 +55,7 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
                 split=obj_split, model_path=obj.model_path, content_hash=obj.content_hash or "",
                 collision_path=obj.collision_path, status=obj.status,
                 source_units=obj.source_units, source_up_axis=obj.source_up_axis,
+                render_path=renders.get(int(obj.id)),
             )
         )
     return pool

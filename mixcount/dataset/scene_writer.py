@@ -15,7 +15,7 @@ from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 
-from mixcount.annotate.coco import build_scene_coco, category_id, class_map
+from mixcount.annotate.coco import build_scene_coco, category_id, class_map, ground_truth_pairs
 from mixcount.blender.contract import KEPT, ObjectResult, SceneResult
 from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spec import SceneSpec
@@ -73,8 +73,13 @@ def move_into_place(tmp: Path, final: Path) -> None:
     os.rename(tmp, final)
 
 
-def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]]) -> tuple[list[dict[str, Any]], dict[int, int]]:
-    """COCO categories of a scene (counted classes, then distractor objects) and class_index -> category id."""
+def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]],
+                     external_exemplars: Optional[Mapping[int, str]] = None) -> tuple[list[dict[str, Any]], dict[int, int]]:
+    """COCO categories of a scene (counted classes, then distractor objects) and class_index -> category id.
+
+    ``external_exemplars`` (object id -> path relative to OUT of its canonical render) fills each
+    category's ``external_exemplar`` (None when the object has no render)."""
+    ext = external_exemplars or {}
     cats: dict[int, dict[str, Any]] = {}
     class_cat: dict[int, int] = {}
     for c in spec.classes:
@@ -83,7 +88,8 @@ def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]])
         name = c.name if c.size_qualifier is None else f"{c.name} ({c.size_qualifier})"
         cats[cid] = {"id": cid, "name": name, "object_id": c.object_id, "category": c.category,
                      "short": c.captions.short, "concise": c.captions.concise, "detailed": c.captions.detailed,
-                     "size_qualifier": c.size_qualifier, "supercategory": c.category}
+                     "size_qualifier": c.size_qualifier, "supercategory": c.category,
+                     "external_exemplar": ext.get(c.object_id)}
     for d in spec.distractors:
         cid = category_id(d.object_id, None)
         if cid in cats:
@@ -92,7 +98,8 @@ def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]])
         cap = captions.get(d.object_id) or {}
         cats[cid] = {"id": cid, "name": a.name, "object_id": a.object_id, "category": a.category,
                      "short": cap.get("short", a.category), "concise": cap.get("concise", a.name),
-                     "detailed": cap.get("detailed", a.name), "size_qualifier": None, "supercategory": a.category}
+                     "detailed": cap.get("detailed", a.name), "size_qualifier": None, "supercategory": a.category,
+                     "external_exemplar": ext.get(a.object_id)}
     return [cats[k] for k in sorted(cats)], class_cat
 
 
@@ -168,12 +175,25 @@ def write_exemplar_crops(rgb_path: Path, coco: Mapping[str, Any], out: Path, mar
     return written
 
 
+def read_amodal_masks(path: Path) -> Optional[dict[int, np.ndarray]]:
+    """The worker's ``amodal.npz`` -> instance id -> boolean mask (None when the file is absent)."""
+    if not path.is_file():
+        return None
+    with np.load(path) as z:
+        h, w = (int(v) for v in z["shape"])
+        return {int(k[len("amodal_"):]): np.unpackbits(z[k])[: h * w].reshape(h, w).astype(bool)
+                for k in z.files if k.startswith("amodal_")}
+
+
 def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions: Mapping[int, Mapping[str, str]],
-                   timings: dict[str, float], extra: Optional[dict[str, Any]] = None) -> dict[str, Any]:
+                   timings: dict[str, float], extra: Optional[dict[str, Any]] = None,
+                   external_exemplars: Optional[Mapping[int, str]] = None) -> dict[str, Any]:
     """Turn the worker's raw outputs in ``tmp`` and its SceneResult into the scene's files; returns
-    metadata.json's dict (its ``objects`` are the ObjectResult fields plus category, box and pose)."""
+    metadata.json's dict (its ``objects`` are the ObjectResult fields plus category, box, point, amodal
+    box, pose; its ``ground_truth`` the evaluation pairs of this image, distractors included)."""
     ids = np.load(tmp / "ids.npy")
-    cats, class_cat = scene_categories(spec, captions)
+    amodal = read_amodal_masks(tmp / "amodal.npz")
+    cats, class_cat = scene_categories(spec, captions, external_exemplars)
     objects = []
     for rec in worker.objects:
         cid = class_cat[rec.class_index] if rec.role == "counted" else category_id(rec.object_id, None)
@@ -183,18 +203,23 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
     _png16(ids.astype(np.uint16), tmp / "instance.png")
     _png16(class_map(ids, inst_cat), tmp / "class.png")
     coco = build_scene_coco(ids, kept, cats, image_id=1, file_name=f"scenes/{spec.scene_id}/rgb.png",
-                            scene_id=spec.scene_id)
+                            scene_id=spec.scene_id, amodal=amodal)
     by_inst = {a["id"]: a for a in coco["annotations"]}
     for r in objects:
         a = by_inst.get(int(r["instance_id"]))
         if a is not None:
-            r.update(bbox=a["bbox"], area=a["area"], exemplar_score=a["exemplar_score"], annotation_id=a["id"])
+            r.update(bbox=a["bbox"], area=a["area"], point=a["point"], visibility=a["visibility"],
+                     exemplar_score=a["exemplar_score"], annotation_id=a["id"])
+            if "bbox_amodal" in a:
+                r.update(bbox_amodal=a["bbox_amodal"], area_amodal=a["area_amodal"])
         if r["status"] == KEPT:
             r["pose"] = decompose(r["matrix_world"])
     (tmp / "coco.json").write_text(json.dumps(coco))
     exemplars = write_exemplar_crops(tmp / "rgb.png", coco, tmp / "exemplars")
     write_settled_stage(tmp / "scene.usda", tmp / "settled.usda", worker.objects)
     os.remove(tmp / "ids.npy")
+    if amodal is not None:
+        os.remove(tmp / "amodal.npz")  # the masks are in coco.json as segmentation_amodal
     if (tmp / "worker.json").exists():
         os.remove(tmp / "worker.json")  # everything in it is in metadata.json
     counts: dict[str, int] = {}
@@ -207,7 +232,8 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         "camera": worker.camera, "lights": worker.lights, "physics": worker.physics,
         "visibility_threshold": worker.visibility_threshold,
         "counts": counts, "n_counted": sum(counts.values()),
-        "n_distractors": sum(1 for r in kept if r["role"] == "distractor"),
+        "n_distractors": sum(1 for a in coco["annotations"] if a["is_distractor"]),
+        "ground_truth": [{"category_id": c, "count": n} for c, n in ground_truth_pairs(coco).items()],
         "n_dropped": sum(1 for r in objects if r["status"] != KEPT),
         "categories": cats, "objects": objects, "exemplars": exemplars,
         "diagnostics": list(worker.diagnostics),

@@ -4,8 +4,9 @@ Seeds are drawn in order from the base seed (scene_id ``scene_<seed:06d>``). A c
 counts as written and is skipped; a seed whose scene came out empty (no counted object visible enough)
 or failed the final visibility re-check is recorded under ``OUT/scenes/.rejected/`` and the next seed is
 drawn (the paper's "regenerate"); errors and timeouts are reported and retried by a rerun. ``n`` counts
-written scenes. At the end the COCO files are merged and dataset.json / preview.png rewritten from every
-complete scene in OUT.
+written scenes. The canonical render of every object a scene uses is copied to ``OUT/exemplars/external/``
+(:mod:`mixcount.dataset.external_exemplars`) before its task runs. At the end the COCO files are merged
+and dataset.json / preview.png rewritten from every complete scene in OUT.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ def compose_scenes(
     """Render until ``n`` scenes of ``compose.split`` are complete in ``out_dir`` (see module docstring).
 
     Seeds start at ``compose.seed``; without an ``executor`` a local pool of ``compose.workers`` runs."""
+    from mixcount.dataset.external_exemplars import copy_external_exemplars
     from mixcount.dataset.merge import finalize_dataset
     from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp, is_complete
     from mixcount.scene.sampler import sample_scene, scene_id_for
@@ -65,6 +67,8 @@ def compose_scenes(
     if not any(getattr(o, "split", None) == split for o in pool):
         raise CompositionError(f"no active objects in split {split!r}: ingest, caption and split the catalog first")
     captions = {int(o.object_id): o.captions.to_dict() for o in pool}
+    renders = {int(o.object_id): o.render_path for o in pool}
+    external: dict[int, str] = {}  # object id -> its render's copy under OUT/exemplars/external
     threads = render_threads(config, workers)
     timeout = comp.scene_timeout_s
     max_attempts = int(math.ceil(n * comp.max_attempts_factor)) + 4
@@ -103,9 +107,12 @@ def compose_scenes(
                 summary.failed += 1
                 summary.failures.append({"scene_id": sid, "seed": s, "error": f"sampling: {exc}"})
                 continue
+            used = {c.object_id for c in spec.classes} | {d.object_id for d in spec.distractors}
+            external.update(copy_external_exemplars(out_dir, renders, used - set(external)))
             return SceneTask(spec=spec, out_dir=str(out_dir), assets_dir=str(assets_dir), timeout_s=timeout,
                              threads=threads, oracle=oracle, captions={k: v for k, v in captions.items()
-                                                            if k in {d.object_id for d in spec.distractors}})
+                                                            if k in {d.object_id for d in spec.distractors}},
+                             external_exemplars={k: external[k] for k in sorted(used) if k in external})
         return None
 
     bar = as_reporter(progress)

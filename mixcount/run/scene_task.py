@@ -34,6 +34,7 @@ class SceneTask:
     threads: int  # Cycles threads in the worker (run-time only; the scene's settings travel in the stage)
     oracle: bool = False  # also run the one-render-per-object reference (tests, benchmarks)
     captions: dict[int, dict[str, str]] = field(default_factory=dict)  # distractor captions by object id
+    external_exemplars: dict[int, str] = field(default_factory=dict)  # object id -> render copy, relative to OUT
     keep_failed: bool = False
 
 
@@ -86,7 +87,8 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
                                 time.perf_counter() - t0, error=f"scene {status}", timings=timings)
         t = time.perf_counter()
         timings["total"] = 0.0
-        meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings)
+        meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings,
+                              external_exemplars=task.external_exemplars)
         timings["annotate"] = round(time.perf_counter() - t, 4)
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])

@@ -28,6 +28,7 @@ class ObjectRecord:
     status: str = "active"
     source_units: Optional[str] = None
     source_up_axis: Optional[str] = None
+    render_path: Optional[str] = None  # canonical white-background render (the external exemplar), if any
 
     @property
     def max_dim(self) -> float:
