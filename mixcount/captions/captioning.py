@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog.grouping import connected_groups
 from mixcount.captions.base import TIERS, CaptionInput, Captioner, CaptionResult
+from mixcount.captions.text import normalise_caption
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
@@ -198,11 +199,6 @@ def _measure_and_caption(captioner: Captioner, item: CaptionInput, colour_source
 def _as_completed_in_order(futures: dict[Future[CaptionResult], CatalogObject]) -> Iterable[Future[CaptionResult]]:
     """Completed futures in submission order: commits (and the DB) stay deterministic."""
     return list(futures)
-
-
-def normalise_caption(text: str) -> str:
-    """Case- and whitespace-insensitive key of a caption (a trailing full stop does not count)."""
-    return " ".join(text.lower().split()).rstrip(". ")
 
 
 def active_captions(session: Session, *, include_excluded: bool = False) -> dict[int, CaptionSet]:
