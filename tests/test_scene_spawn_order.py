@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from library_pool import library_pool
 from scipy import stats
 
-from library_pool import library_pool
 from mixcount.config import load_config
 from mixcount.scene.config import SceneConfig
 from mixcount.scene.sampler import sample_scene

@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 from typing import Optional
 
+
 def normalise_caption(text: str) -> str:
     """Case- and whitespace-insensitive key of a caption (a trailing full stop does not count)."""
     return " ".join(text.lower().split()).rstrip(". ")
