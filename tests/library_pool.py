@@ -40,7 +40,7 @@ def _size_word(max_dim: float) -> str:
 
 
 def library_pool(split: str = "train") -> list[ObjectRecord]:
-    """~75 active objects of one split (colliding captions included) plus objects that must never be drawn."""
+    """63 active objects of one split (colliding captions included) plus objects that must never be drawn."""
     pool: list[ObjectRecord] = []
     oid = 1
     for cat, (dims, colours) in _CATEGORIES.items():
