@@ -31,7 +31,7 @@ demo: $(STAMP)
 	$(MIX) catalog ingest catalog/demo
 	$(MIX) --set render.resolution=256 --set render.samples=8 catalog render
 	$(MIX) catalog filter
-	$(MIX) catalog caption --captioner stub --dedupe
+	$(MIX) catalog caption --captioner stub
 	$(MIX) catalog split
 	$(MIX) catalog sheet --out $(DEMO_OUT)/sheets --only all
 	$(MIX) catalog list --summary

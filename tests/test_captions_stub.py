@@ -1,5 +1,5 @@
 """The offline stub captioner: colours named from real pixels / model surfaces, word bounds, determinism,
-resumable `catalog caption`, caption-collision flags and --dedupe, and the demo library's collision rate."""
+resumable `catalog caption`, caption-collision flags, --keep-collisions and the default dedupe, and the demo library's collision rate."""
 
 from __future__ import annotations
 
@@ -163,9 +163,10 @@ def _library(catalog, tmp_path: Path) -> dict[str, int]:
 def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, tmp_path, capsys):
     ids = _library(catalog, tmp_path)
     db = db_url.removeprefix("sqlite:///")
-    assert main(["--db", db, "--set", "captions.colour_source=render", "catalog", "caption"]) == 0
+    assert main(["--db", db, "--set", "captions.colour_source=render", "catalog", "caption",
+                 "--keep-collisions"]) == 0  # flag only, for a person to review
     first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert (first["captioned"], first["skipped"], first["failed"]) == (5, 0, 0)
+    assert (first["captioned"], first["skipped"], first["failed"], first["excluded"]) == (5, 0, 0, 0)
     assert first["collision_pairs"] == 1 and first["objects_in_collision"] == 2
 
     with catalog.session() as s:
@@ -177,11 +178,14 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
     texts = [normalise_caption(cs.short) for k, cs in sets.items() if k not in (ids["e"],)]
     assert len(texts) == len(set(texts))
 
-    assert main(["--db", db, "catalog", "caption"]) == 0  # resumable: nothing to do
+    assert main(["--db", db, "catalog", "caption", "--keep-collisions"]) == 0  # resumable: nothing to do
     again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert (again["captioned"], again["skipped"]) == (0, 5)
+    assert (again["captioned"], again["skipped"], again["excluded"]) == (0, 5, 0)
+    with catalog.session() as s:
+        assert s.get(CatalogObject, ids["e"]).status == "active"
 
-    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption", "--dedupe"]) == 0
+    # the default resolves the collision (the paper's rule)
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption"]) == 0
     third = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (third["captioned"], third["excluded"]) == (5, 1)
     with catalog.session() as s:
@@ -191,8 +195,9 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
     assert statuses[ids["e"]] == "excluded" and statuses[ids["a"]] == "active"
     assert total == 10 and len(active) == 5 and {cs.prompt_version for cs in active} == {"stub-v2"}
 
-    # a later run keeps the excluded copy's flag (the reason it was dropped) but has nothing left to resolve
-    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption"]) == 0
+    # a later run keeps the excluded copy's flag (the reason it was dropped) but has nothing left to resolve;
+    # --dedupe is still accepted (it names the default)
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption", "--dedupe"]) == 0
     fourth = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (fourth["skipped"], fourth["collision_pairs"]) == (4, 0)
     with catalog.session() as s:
@@ -215,8 +220,8 @@ def test_demo_library_captions_are_distinct(tmp_path, catalog):
     root = tmp_path / "demo"
     truth = demo.generate_demo_library(root, seed=0, n_objects=40)
     ingest.ingest_paths(catalog, [root], config=load_config(["quick"], ["ingest.workers=1"]).ingest)
-    summary = caption_catalog(catalog, StubCaptioner("stub-v1"), concurrency=2, colour_source="model")
-    assert summary.failed == 0 and summary.captioned >= 40
+    summary = caption_catalog(catalog, StubCaptioner("stub-v1"), concurrency=2, colour_source="model", dedupe=False)
+    assert summary.failed == 0 and summary.captioned >= 40 and summary.excluded == 0
     with catalog.session() as s:
         rows = s.execute(
             select(CatalogObject, CaptionSet).join(CaptionSet, CaptionSet.object_id == CatalogObject.id)

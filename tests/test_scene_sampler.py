@@ -158,10 +158,11 @@ def test_tiny_pool_degrades_gracefully(conf):
     assert sum(c.count for c in s.classes) == s.n_counted
 
 
-def test_qualifier_keeps_proper_nouns():
-    assert qualify("golden yellow apple", "smaller") == "Smaller golden yellow apple"
+def test_qualifier_replaces_the_size_word():
+    assert qualify("golden yellow apple", "smaller") == "smaller golden yellow apple"
     assert qualify("Fancy tomato ketchup toy", "larger") == "Larger fancy tomato ketchup toy"
     assert qualify("LEGO brick", "larger") == "Larger LEGO brick"
+    assert qualify("A large white bottle", "smaller") == "A smaller white bottle"
     assert qualify("apple", None) == "apple"
 
 

@@ -7,8 +7,9 @@ exist per object; exactly one is active (the newest one written or re-activated 
 
 Uniqueness: after captioning, active objects whose active captions are identical at any tier (case- and
 whitespace-insensitive, trailing full stop ignored) get a ``caption_collision`` flag per pair, in both
-directions. ``dedupe`` keeps one object per collision group (one a person accepted, else the lowest id)
-and sets the others' status to ``excluded``.
+directions. ``dedupe`` (the default, the paper's rule: prompts must tell objects apart) keeps one object
+per collision group (one a person accepted, else the lowest id) and sets the others' status to
+``excluded``; ``dedupe=False`` only flags them for a person to review.
 """
 
 from __future__ import annotations
@@ -23,9 +24,11 @@ from typing import Any, Callable, Iterable
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
-from mixcount.catalog.grouping import connected_groups
-from mixcount.captions.base import TIERS, CaptionInput, Captioner, CaptionResult
+from mixcount.captions.base import TIERS, Captioner, CaptionInput, CaptionResult
+from mixcount.captions.text import normalise_caption
 from mixcount.catalog.db import Catalog
+from mixcount.catalog.decisions import accepted_ids
+from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
     STATUS_EXCLUDED,
@@ -36,7 +39,6 @@ from mixcount.catalog.models import (
     Render,
     ReviewDecision,
 )
-from mixcount.catalog.decisions import accepted_ids
 from mixcount.errors import CaptionError
 from mixcount.progress import ProgressReporter, as_reporter
 
@@ -105,7 +107,7 @@ def caption_catalog(
     captioner: Captioner,
     *,
     force: bool = False,
-    dedupe: bool = False,
+    dedupe: bool = True,
     object_ids: Iterable[int] | None = None,
     concurrency: int,
     colour_source: str,
@@ -203,11 +205,6 @@ def _as_completed_in_order(futures: dict[Future[CaptionResult], CatalogObject]) 
     return list(futures)
 
 
-def normalise_caption(text: str) -> str:
-    """Case- and whitespace-insensitive key of a caption (a trailing full stop does not count)."""
-    return " ".join(text.lower().split()).rstrip(". ")
-
-
 def active_captions(session: Session, *, include_excluded: bool = False) -> dict[int, CaptionSet]:
     """object id -> active caption set, for active objects (and excluded ones if asked)."""
     statuses = (STATUS_ACTIVE, STATUS_EXCLUDED) if include_excluded else (STATUS_ACTIVE,)
@@ -238,7 +235,7 @@ def find_collisions(captions: dict[int, CaptionSet]) -> dict[tuple[int, int], li
 def flag_collisions(catalog: Catalog, *, summary: CaptionSummary | None = None) -> dict[tuple[int, int], list[str]]:
     """Replace all ``caption_collision`` flags with the current collisions (both directions per pair).
 
-    Excluded objects take part, so an object excluded by ``--dedupe`` keeps the flag that says why; the
+    Excluded objects take part, so an object excluded by deduplication keeps the flag that says why; the
     summary counts only pairs of two active objects (the ones still to resolve).
     """
     with catalog.session() as session:

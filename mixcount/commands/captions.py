@@ -33,7 +33,10 @@ def caption_cmd(
     ),
     force: bool = typer.Option(False, "--force", help="Caption again even objects this captioner already did."),
     dedupe: bool = typer.Option(
-        False, "--dedupe", help="Keep one object per group of identical captions; exclude the others."
+        True, "--dedupe/--keep-collisions",
+        help="Default: keep one object per group of identical captions (a person-accepted one, else the lowest "
+             "id) and exclude the others, as the paper does. --keep-collisions only flags them "
+             "(caption_collision) for review.",
     ),
     json_out: bool = typer.Option(True, "--json/--no-json", help="Print the summary as JSON on stdout."),
 ) -> None:
@@ -60,7 +63,7 @@ def caption_cmd(
         f"{summary.objects} active objects ({summary.captioner}/{summary.provider}/{summary.model}/"
         f"{summary.prompt_version}); caption collisions: {summary.collision_pairs} pairs over "
         f"{summary.objects_in_collision} objects {summary.collisions_by_tier}"
-        + (f"; excluded {summary.excluded}" if dedupe else ""),
+        + (f"; excluded {summary.excluded}" if dedupe else "; collisions kept (--keep-collisions)"),
         highlight=False,
     )
     if json_out:

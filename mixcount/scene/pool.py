@@ -65,7 +65,11 @@ def _words(name: str) -> list[str]:
 
 def fallback_captions(name: str, category: str) -> Captions:
     """Captions for an object nobody captioned yet, from its name and category: DTC folder names
-    ``Donut_B0VL4BA90T_Pink`` give "pink donut" (the id dropped, the category moved last)."""
+    ``Donut_B0VL4BA90T_Pink`` give "pink donut" (the id dropped, the category moved last).
+
+    The short tier is that phrase too when it has at most five words, else the category: objects of one
+    category then keep distinct prompts when their names differ (the sampler never puts two objects
+    with an identical caption into one scene)."""
     words = _words(name)
     cat = category.lower().strip()
     if words and cat and words[0] == cat:
@@ -73,4 +77,5 @@ def fallback_captions(name: str, category: str) -> Captions:
     elif cat and cat not in words:
         words.append(cat)
     phrase = " ".join(words) or cat or name
-    return Captions(short=cat or phrase, concise=phrase, detailed=f"{phrase} ({cat})" if cat else phrase)
+    short = phrase if len(phrase.split()) <= 5 else (cat or phrase)
+    return Captions(short=short, concise=phrase, detailed=f"{phrase} ({cat})" if cat else phrase)

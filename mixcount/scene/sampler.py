@@ -6,9 +6,17 @@ spawn poses, distractors, cameras. Everything geometric is in scene metres (real
 
 Class construction (paper, section 3 and supplementary): the first class is an eligible object of the
 split; each further class is (a) an existing class's object at a clearly different size (ratio in
-``resize_ratio``; both classes of the pair get a "Larger"/"Smaller" caption qualifier), (b) another
-object of an existing class's category, or (c) an object of a category not yet in the scene, with
-the configured probabilities; infeasible options are dropped and the rest renormalised.
+``resize_ratio``; both classes of the pair get a "larger"/"smaller" qualifier in place of their
+captions' size word), (b) another object of an existing class's category, or (c) an object of a
+category not yet in the scene, with the configured probabilities; infeasible options are dropped and
+the rest renormalised.
+
+Unique prompts: no two objects of one scene (counted classes and distractors) share a caption at any
+tier (compared by :func:`~mixcount.captions.text.normalise_caption`), so every prompt names one class.
+An object whose captions collide with one already in the scene is never drawn for it.
+
+Spawn order: the counted instances' class labels are shuffled before placement, so each spawn
+position gets a random class and class order never decides which class ends up on top of the pile.
 """
 
 from __future__ import annotations
@@ -18,6 +26,8 @@ from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
+from mixcount.captions.base import TIERS
+from mixcount.captions.text import normalise_caption, size_qualified
 from mixcount.errors import CompositionError
 from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import sample_environment, sample_floor_material
@@ -74,13 +84,13 @@ def _vec(v: Sequence[float]) -> tuple[float, float, float]:
 
 
 def qualify(caption: str, qualifier: Optional[str]) -> str:
-    """'golden yellow apple' + 'smaller' -> 'Smaller golden yellow apple' (the paper's samples)."""
-    if not qualifier:
-        return caption
-    text = caption.strip()
-    if text[:1].isupper() and not text[1:2].isupper():
-        text = text[:1].lower() + text[1:]
-    return f"{qualifier.capitalize()} {text}"
+    """'a large white bottle' + 'smaller' -> 'a smaller white bottle' (see :func:`size_qualified`)."""
+    return size_qualified(caption, qualifier)
+
+
+def caption_keys(captions: Captions) -> frozenset[tuple[str, str]]:
+    """(tier, normalised caption) of each tier: two objects whose keys intersect share a prompt."""
+    return frozenset((tier, normalise_caption(getattr(captions, tier))) for tier in TIERS)
 
 
 def look_at_rotation(position: np.ndarray, target: np.ndarray, roll_deg: float) -> np.ndarray:
@@ -144,7 +154,8 @@ def _build_classes(rng: np.random.Generator, config: SceneConfig, eligible: list
     while len(drafts) < n_classes:
         used = {d.obj.object_id for d in drafts}
         cats = {d.obj.category for d in drafts}
-        free = [o for o in eligible if o.object_id not in used]
+        taken = frozenset().union(*(caption_keys(d.obj.captions) for d in drafts))
+        free = [o for o in eligible if o.object_id not in used and not caption_keys(o.captions) & taken]
         resizable = _resize_options(drafts, lo, hi, config.resize_ratio[0])
         same_cat = [o for o in free if o.category in cats]
         other_cat = [o for o in free if o.category not in cats]
@@ -172,6 +183,25 @@ def _build_classes(rng: np.random.Generator, config: SceneConfig, eligible: list
             draft = _ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice)
         drafts.append(draft)
     return drafts
+
+
+def _distinct_caption_picks(rng: np.random.Generator, free: list[ObjectRecord], n: int,
+                            taken: frozenset[tuple[str, str]]) -> list[ObjectRecord]:
+    """Up to ``n`` objects of ``free`` drawn one by one, uniformly among those whose captions collide with
+    no caption already ``taken`` (by the classes or an earlier pick): the first fitting ones of a random
+    permutation, which is the same distribution."""
+    picks: list[ObjectRecord] = []
+    if n <= 0:
+        return picks
+    for i in rng.permutation(len(free)).tolist():
+        keys = caption_keys(free[i].captions)
+        if keys & taken:
+            continue
+        picks.append(free[i])
+        taken = taken | keys
+        if len(picks) == n:
+            break
+    return picks
 
 
 def _split_counts(rng: np.random.Generator, n: int, k: int) -> list[int]:
@@ -208,16 +238,19 @@ def _spawn_positions(rng: np.random.Generator, radii: np.ndarray, centre: np.nda
                      rng.uniform(z_range[0], z_range[1], (n, tries))], axis=2)
     out[0] = cand[0, 0]
     for i in range(1, n):
+        # squared centre distances against squared sums of radii: no square roots unless no spot is free
+        need = (radii[:i] + radii[i]) ** 2
         first = out[:i] - cand[i, 0]
-        if (np.sqrt(np.einsum("ij,ij->i", first, first)) - radii[:i]).min() >= radii[i]:
+        if (np.einsum("ij,ij->i", first, first) >= need).all():
             out[i] = cand[i, 0]
             continue
         diff = cand[i][:, None, :] - out[None, :i, :]
-        clearance = (np.sqrt(np.einsum("tij,tij->ti", diff, diff)) - radii[:i]).min(axis=1) - radii[i]
-        ok = np.flatnonzero(clearance >= 0)
+        d2 = np.einsum("tij,tij->ti", diff, diff)
+        ok = np.flatnonzero((d2 >= need).all(axis=1))
         if len(ok):
             out[i] = cand[i, ok[0]]
             continue
+        clearance = (np.sqrt(d2) - radii[:i]).min(axis=1) - radii[i]
         best = cand[i, int(np.argmax(clearance))].copy()
         if stack:
             # no free spot in the height range: stack above whatever this column already holds, so
@@ -304,8 +337,9 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
             construction=d.construction, base_class_index=d.base,
         ))
 
-    # counted instances: sizes, then spawn poses above the ellipse inscribed in the container's box
-    inst_class = np.concatenate([[ci] * cnt for ci, cnt in enumerate(counts)]).astype(int)
+    # counted instances in a random class order (a random class per spawn position), sizes, then spawn
+    # poses above the ellipse inscribed in the container's box
+    inst_class = rng.permutation(np.repeat(np.arange(len(counts)), counts)).astype(int)
     jitter = rng.uniform(config.instance_jitter[0], config.instance_jitter[1], len(inst_class))
     sizes = np.array([drafts[c].size for c in inst_class]) * jitter
     if container_obj is not None:
@@ -347,9 +381,12 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
 
     # distractors: other objects of the split, each once, resting upright around the pile
     used = {d.obj.object_id for d in drafts} | ({container_obj.object_id} if container_obj else set())
-    free = [o for o in in_split if o.object_id not in used]
+    # (never sharing a caption with a class, in its own or its size-qualified form, or with each other)
+    taken = frozenset().union(*(caption_keys(d.obj.captions) for d in drafts),
+                              *(caption_keys(c.captions) for c in classes))
+    free = [o for o in in_split if o.object_id not in used and not caption_keys(o.captions) & taken]
     n_dist = min(_ui(rng, config.n_distractors), len(free))
-    picks = [free[int(i)] for i in rng.choice(len(free), size=n_dist, replace=False)] if n_dist else []
+    picks = _distinct_caption_picks(rng, free, n_dist, taken)
     distractors: list[PlacedObject] = []
     placed_xy: list[tuple[float, float, float]] = []
     margin = config.distractor_margin * s
