@@ -47,6 +47,7 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
                 split=obj_split, model_path=obj.model_path, content_hash=obj.content_hash or "",
                 collision_path=obj.collision_path, status=obj.status,
                 source_units=obj.source_units, source_up_axis=obj.source_up_axis,
+                source=obj.source, source_id=obj.source_id, license=obj.license,
             )
         )
     return pool

@@ -28,6 +28,9 @@ class ObjectRecord:
     status: str = "active"
     source_units: Optional[str] = None
     source_up_axis: Optional[str] = None
+    source: Optional[str] = None  # provenance for attribution: ingest source (dtc | folder) ...
+    source_id: Optional[str] = None  # ... its stable key there ...
+    license: Optional[str] = None  # ... and the licence text found at ingest
 
     @property
     def max_dim(self) -> float:
