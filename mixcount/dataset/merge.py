@@ -1,5 +1,5 @@
 """Dataset-level outputs from the finished scene folders (no bpy): merged COCO per split,
-``OUT/dataset.json`` and the ``OUT/preview.png`` grid.
+``OUT/dataset.json``, the ``OUT/preview.png`` grid and ``OUT/ATTRIBUTION.json`` / ``.md``.
 
 Merging renumbers images (1.. in scene-id order) and annotations (1.. in image order) so the merged file
 is a valid COCO set; category ids need no renumbering (they are deterministic, see
@@ -135,11 +135,14 @@ def write_dataset_summary(out_dir: Path, *, config: Optional[dict[str, Any]] = N
 
 def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, config_hash: str = "",
                      run: Optional[dict[str, Any]] = None, preview_scenes: int = 16) -> dict[str, Any]:
+    from mixcount.export.attribution import JSON_NAME, write_attribution
+
     ann = merge_annotations(out_dir)
     preview = write_preview(out_dir, max_scenes=preview_scenes)
     summary = write_dataset_summary(out_dir, config=config, config_hash=config_hash, run=run)
+    write_attribution(out_dir, out_dir)  # ATTRIBUTION.json / .md: every object shown, its source and licence
     return {"annotations": {k: str(v) for k, v in ann.items()}, "preview": str(preview) if preview else None,
-            "dataset": str(summary)}
+            "dataset": str(summary), "attribution": str(Path(out_dir) / JSON_NAME)}
 
 
 def iter_scene_meta(out_dir: Path) -> Iterable[dict[str, Any]]:

@@ -143,6 +143,8 @@ def export_countgd(ds: ComposedDataset, out: Path | str, *, split: Optional[str]
     finally:
         bar.stop()
     folder.prune(IMAGES, image_files)
+    folder.prune(".", [f"{s}_odvg.jsonl" for s in splits], "*_odvg.jsonl")
+    folder.prune(".", [f"{s}_coco_exemplars.json" for s in splits], "*_coco_exemplars.json")
     folder.write_json(LABEL_MAP, label_map, indent=1)
     train = "train" if "train" in splits else splits[0]
     val = next((s for s in ("val", "test") if s in splits), train)

@@ -76,5 +76,6 @@ def export_fiftyone(ds: ComposedDataset, out: Path | str, *, split: Optional[str
     finally:
         bar.stop()
     folder.prune(DATA, files)
+    folder.prune(".", [f"labels_{s}.json" for s in splits], "labels_*.json")
     write_attribution(ds.root, folder.root, ds.scene_ids(splits))
     return folder.finish(ds.root, {"split": split, "caption_tier": tier}, {"splits": per_split})

@@ -189,6 +189,7 @@ def export_fsc147(ds: ComposedDataset, out: Path | str, *, split: Optional[str] 
     folder.write_json(ANNOTATIONS, annotations)
     folder.write_json(SPLITS, split_lists, indent=1)
     folder.write_text(CLASSES, "".join(class_lines))
+    folder.prune(".", [f"instances_{s}.json" for s in coco_by_split], "instances_*.json")
     for s, coco in coco_by_split.items():
         folder.write_json(f"instances_{s}.json", {
             "info": {"description": f"mixcount fsc147 export, {s}: boxes of each sample's class"},

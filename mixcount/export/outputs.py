@@ -106,14 +106,14 @@ class ExportFolder:
         """Count ``n`` per-sample files written by this run (the manifest reports written / up to date)."""
         self.written += n
 
-    def prune(self, rel_dir: str, keep: Iterable[str]) -> int:
-        """Delete files of ``rel_dir`` whose names are not in ``keep``; returns how many."""
+    def prune(self, rel_dir: str, keep: Iterable[str], pattern: str = "*") -> int:
+        """Delete files of ``rel_dir`` matching ``pattern`` whose names are not in ``keep``; returns how many."""
         folder = self.root / rel_dir
         if not folder.is_dir():
             return 0
         keep_set = set(keep)
         removed = 0
-        for p in folder.iterdir():
+        for p in folder.glob(pattern):
             if p.is_file() and p.name not in keep_set:
                 p.unlink()
                 removed += 1
