@@ -112,8 +112,8 @@ def attribution_markdown(doc: Mapping[str, Any]) -> str:
     lines = ["# Attribution", "", doc["note"], "",
              f"{len(doc['objects'])} catalog object(s) in {doc['scenes']} scene(s).", ""]
     if doc["missing_license"]:
-        lines += [f"**No licence was recorded at ingest for {len(doc['missing_license'])} object(s)** "
-                  f"(object ids {', '.join(map(str, doc['missing_license']))}): find their terms before sharing.", ""]
+        lines += [(f"**No licence was recorded at ingest for {len(doc['missing_license'])} object(s)** "
+                   f"(object ids {', '.join(map(str, doc['missing_license']))}): find their terms before sharing."), ""]
     lines += ["## Objects", "", "| object id | name | category | source | source id | roles | scenes | licence |",
               "|---|---|---|---|---|---|---|---|"]
     short = {lic["id"]: f"L{k + 1}" for k, lic in enumerate(doc["licenses"])}
@@ -126,8 +126,8 @@ def attribution_markdown(doc: Mapping[str, Any]) -> str:
         lines += [f"### {short[lic['id']]} ({lic['objects']} object(s), {lic['id']})", "", "```", lic["text"], "```", ""]
     if doc["environments"] or doc["materials"]:
         lines += ["## Environment maps and floor materials", "",
-                  "The catalog records no licence for these; check their sources (Poly Haven and similar "
-                  "libraries publish CC0 assets).", ""]
+                  ("The catalog records no licence for these; check their sources (Poly Haven and similar "
+                   "libraries publish CC0 assets)."), ""]
         for e in doc["environments"]:
             lines.append(f"- environment map `{e['path']}` ({e['scenes']} scene(s))")
         for m in doc["materials"]:

@@ -128,7 +128,7 @@ def export_fsc147(ds: ComposedDataset, out: Path | str, *, split: Optional[str] 
                 if not folder.fresh(f"{IMAGES}/{name}", [img.path]):
                     def save(tmp: Path, img: DatasetImage = img, size: tuple[int, int] = (new_w, new_h)) -> None:
                         with Image.open(img.path) as im:
-                            im.convert("RGB").resize(size, Image.BICUBIC).save(tmp, format="JPEG", quality=JPEG_QUALITY)
+                            im.convert("RGB").resize(size, Image.Resampling.BICUBIC).save(tmp, format="JPEG", quality=JPEG_QUALITY)
                     folder.write_with(f"{IMAGES}/{name}", save)
                     folder.produced()
                 anns = img.of_category(cid)

@@ -140,7 +140,7 @@ three-tier captions and internal exemplars.
 ```python
 from datasets import load_dataset
 ds = load_dataset("path/to/this/folder")
-row = ds["{sorted(split_rows)[0]}"][0]
+row = ds["{min(split_rows)}"][0]
 row["image"], row["classes"]["caption"], row["classes"]["count"]
 ```
 
