@@ -39,7 +39,9 @@ demo: $(STAMP)
 	$(VENV)/bin/mixcount stats $(DEMO_OUT)/dataset
 	$(VENV)/bin/mixcount baseline --gt $(DEMO_OUT)/dataset --split train --kind mean --out $(DEMO_OUT)/pred_mean.json
 	$(VENV)/bin/mixcount evaluate --gt $(DEMO_OUT)/dataset --split train --pred $(DEMO_OUT)/pred_mean.json
-	@echo "demo done: contact sheets in $(DEMO_OUT)/sheets, dataset in $(DEMO_OUT)/dataset (preview.png, annotations/)"
+	$(VENV)/bin/mixcount export $(DEMO_OUT)/dataset --format fsc147 --out $(DEMO_OUT)/export/fsc147
+	$(VENV)/bin/mixcount export $(DEMO_OUT)/dataset --format countgd --out $(DEMO_OUT)/export/countgd
+	@echo "demo done: contact sheets in $(DEMO_OUT)/sheets, dataset in $(DEMO_OUT)/dataset (preview.png, annotations/), exports in $(DEMO_OUT)/export"
 
 # Benchmarks print their figures as one JSON line each (see docs/performance.md); minutes, not seconds.
 bench: $(STAMP)

@@ -19,7 +19,11 @@ def _fmt(value: float | None, pct: bool = False) -> str:
 
 def evaluate_cmd(
     gt: Path = typer.Option(..., "--gt", help="COCO ground truth (OUT/annotations/instances_test.json) or a dataset folder."),
-    pred: Path = typer.Option(..., "--pred", help="Prediction JSON (rows of image_id, category_id, count|boxes|points)."),
+    pred: Path = typer.Option(
+        ..., "--pred",
+        help="Prediction JSON: rows of image_id, category_id, count|boxes|points, or COCO detection results "
+             "(image_id, category_id, bbox, score).",
+    ),
     split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder."),
     by: Optional[str] = typer.Option(
         None, "--by", help="Group by a field of the prediction rows (prompt, tier) or of GT categories/images."
@@ -31,12 +35,17 @@ def evaluate_cmd(
         False, "--score-absent", help="Score rows for known categories absent from an image as y = 0 pairs."
     ),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of a table."),
+    score_threshold: Optional[float] = typer.Option(
+        None, "--score-threshold",
+        help="COCO detection results only: a detection counts when its score is above this (default 0.5).",
+    ),
 ) -> None:
     """Score predicted counts: MAE, RMSE, NAE and Acc10% per (image, category), the MixCount protocol."""
-    from mixcount.evaluate.metrics import evaluate, load_ground_truth, load_predictions
+    from mixcount.evaluate.detections import load_prediction_file
+    from mixcount.evaluate.metrics import evaluate, load_ground_truth
 
     truth = load_ground_truth(gt, split=split)
-    rows = load_predictions(pred)
+    rows = load_prediction_file(pred, score_threshold)
     result = evaluate(truth, rows, by=by, counted_only=counted_only, score_absent=score_absent)
     if json_out:
         payload: dict[str, Any] = {"gt": truth.source, "pred": str(pred), **result.as_dict()}

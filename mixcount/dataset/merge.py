@@ -1,5 +1,5 @@
 """Dataset-level outputs from the finished scene folders (no bpy): merged COCO per split,
-``OUT/dataset.json`` and the ``OUT/preview.png`` grid.
+``OUT/dataset.json``, the ``OUT/preview.png`` grid and ``OUT/ATTRIBUTION.json`` / ``.md``.
 
 Merging renumbers images (1.. in scene-id order) and annotations (1.. in image order) so the merged file
 is a valid COCO set; category ids need no renumbering (they are deterministic, see
@@ -15,6 +15,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from mixcount.dataset.attribution import JSON_NAME, write_attribution
 from mixcount.dataset.scene_writer import is_complete
 
 
@@ -138,5 +139,6 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
     ann = merge_annotations(out_dir)
     preview = write_preview(out_dir, max_scenes=preview_scenes)
     summary = write_dataset_summary(out_dir, config=config, config_hash=config_hash, run=run)
+    write_attribution(out_dir, out_dir)  # ATTRIBUTION.json / .md: every object shown, its source and licence
     return {"annotations": {k: str(v) for k, v in ann.items()}, "preview": str(preview) if preview else None,
-            "dataset": str(summary)}
+            "dataset": str(summary), "attribution": str(Path(out_dir) / JSON_NAME)}

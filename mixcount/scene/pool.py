@@ -29,6 +29,9 @@ class ObjectRecord:
     source_units: Optional[str] = None
     source_up_axis: Optional[str] = None
     render_path: Optional[str] = None  # canonical white-background render (the external exemplar), if any
+    source: Optional[str] = None  # provenance for attribution: ingest source (dtc | folder) ...
+    source_id: Optional[str] = None  # ... its stable key there ...
+    license: Optional[str] = None  # ... and the licence text found at ingest
 
     @property
     def max_dim(self) -> float:

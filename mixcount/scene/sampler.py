@@ -452,7 +452,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     assets = tuple(
         AssetRef(object_id=o.object_id, name=o.name, category=o.category, model_path=o.model_path,
                  content_hash=o.content_hash, dims_m=_vec(o.dims), collision_path=o.collision_path,
-                 source_units=o.source_units, source_up_axis=o.source_up_axis)
+                 source_units=o.source_units, source_up_axis=o.source_up_axis, source=o.source,
+                 source_id=o.source_id, license=o.license)
         for _, o in sorted(used_objs.items())
     )
     return SceneSpec(

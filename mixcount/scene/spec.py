@@ -51,6 +51,9 @@ class AssetRef:
     collision_path: Optional[str] = None
     source_units: Optional[str] = None  # only meaningful for OBJ/PLY/STL (formats without units)
     source_up_axis: Optional[str] = None
+    source: Optional[str] = None  # provenance (ATTRIBUTION.json): ingest source, its key, licence text
+    source_id: Optional[str] = None
+    license: Optional[str] = None
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -63,7 +66,8 @@ class AssetRef:
             object_id=int(d["object_id"]), name=str(d["name"]), category=str(d["category"]),
             model_path=str(d["model_path"]), content_hash=str(d["content_hash"]), dims_m=_t(d["dims_m"]),
             collision_path=d.get("collision_path"), source_units=d.get("source_units"),
-            source_up_axis=d.get("source_up_axis"),
+            source_up_axis=d.get("source_up_axis"), source=d.get("source"), source_id=d.get("source_id"),
+            license=d.get("license"),
         )
 
 

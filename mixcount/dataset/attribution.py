@@ -1,0 +1,152 @@
+"""ATTRIBUTION.json / ATTRIBUTION.md: every catalog object a dataset shows, with its source and licence.
+
+A dataset cannot be shared without this: DTC models come under a CC BY-SA variant and the MixCount
+dataset itself is CC BY-SA. Everything is read from the dataset folder alone: each finished scene's
+``metadata.json`` holds the scene spec, whose ``assets`` list every catalog object the scene used with
+``source`` (dtc | folder), ``source_id`` (the stable key there), ``license`` (the licence text found at
+ingest) and ``content_hash``; the spec's classes, distractors and container give each object's role.
+Environment maps and floor materials are listed too (the catalog records no licence for them).
+
+Identical licence texts are stored once (``licenses``, keyed by the SHA-256 of the text) and objects
+refer to them by ``license_id``. Objects without a recorded licence are listed under
+``missing_license``; a scene composed before provenance was recorded lacks ``source`` as well.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Optional
+
+from mixcount.dataset.scene_writer import is_complete
+
+JSON_NAME = "ATTRIBUTION.json"
+MD_NAME = "ATTRIBUTION.md"
+DATASET_LICENSE_NOTE = (
+    "The MixCount paper publishes its dataset under CC BY-SA; DTC object models are licensed under a "
+    "variant of CC BY-SA (Digital Twin Catalog Dataset License Agreement). Check every licence below "
+    "before sharing this dataset."
+)
+
+
+def _scene_dirs(dataset_root: Path, scene_ids: Optional[Iterable[str]]) -> list[Path]:
+    scenes = Path(dataset_root) / "scenes"
+    if not scenes.is_dir():
+        return []
+    if scene_ids is not None:
+        wanted = sorted(set(scene_ids))
+        return [scenes / s for s in wanted if is_complete(scenes / s)]
+    return sorted(d for d in scenes.iterdir() if d.is_dir() and not d.name.startswith(".") and is_complete(d))
+
+
+def _license_id(text: str) -> str:
+    return "sha256:" + hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def collect_attribution(dataset_root: Path | str, scene_ids: Optional[Iterable[str]] = None) -> dict[str, Any]:
+    """The attribution document of the finished scenes of ``dataset_root`` (only ``scene_ids`` when given)."""
+    objects: dict[int, dict[str, Any]] = {}
+    licenses: dict[str, dict[str, Any]] = {}
+    environments: dict[str, dict[str, Any]] = {}
+    materials: dict[str, dict[str, Any]] = {}
+    dirs = _scene_dirs(Path(dataset_root), scene_ids)
+    for d in dirs:
+        spec = json.loads((d / "metadata.json").read_text(encoding="utf-8")).get("spec") or {}
+        roles: dict[int, set[str]] = {}
+        for c in spec.get("classes", []):
+            roles.setdefault(int(c["object_id"]), set()).add("counted")
+        for o in spec.get("distractors", []):
+            roles.setdefault(int(o["object_id"]), set()).add("distractor")
+        if spec.get("container"):
+            roles.setdefault(int(spec["container"]["object_id"]), set()).add("container")
+        for a in spec.get("assets", []):
+            oid = int(a["object_id"])
+            entry = objects.get(oid)
+            if entry is None:
+                text = a.get("license")
+                lid = None
+                if text:
+                    lid = _license_id(text)
+                    licenses.setdefault(lid, {"id": lid, "text": text, "objects": 0})
+                    licenses[lid]["objects"] += 1
+                entry = objects[oid] = {
+                    "object_id": oid, "name": a.get("name"), "category": a.get("category"),
+                    "source": a.get("source"), "source_id": a.get("source_id"), "license_id": lid,
+                    "content_hash": a.get("content_hash"), "roles": set(), "scenes": 0,
+                }
+            entry["roles"] |= roles.get(oid, set())
+            entry["scenes"] += 1
+        env = spec.get("environment") or {}
+        if env.get("path"):
+            e = environments.setdefault(env["path"], {"kind": env.get("kind"), "environment_id": env.get("environment_id"),
+                                                      "path": env["path"], "license": None, "scenes": 0})
+            e["scenes"] += 1
+        mat = (spec.get("floor") or {}).get("material") or {}
+        if mat.get("kind") == "pbr" or mat.get("material_id") is not None:
+            m = materials.setdefault(str(mat.get("name")), {"name": mat.get("name"), "material_id": mat.get("material_id"),
+                                                            "maps": mat.get("maps") or {}, "license": None, "scenes": 0})
+            m["scenes"] += 1
+    obj_list = []
+    for oid in sorted(objects):
+        o = dict(objects[oid])
+        o["roles"] = sorted(o["roles"])
+        obj_list.append(o)
+    return {
+        "note": DATASET_LICENSE_NOTE,
+        "scenes": len(dirs),
+        "objects": obj_list,
+        "licenses": [licenses[k] for k in sorted(licenses)],
+        "missing_license": [o["object_id"] for o in obj_list if o["license_id"] is None],
+        "environments": [environments[k] for k in sorted(environments)],
+        "materials": [materials[k] for k in sorted(materials)],
+    }
+
+
+def _cell(value: Any) -> str:
+    return "" if value is None else str(value).replace("|", "\\|").replace("\n", " ")
+
+
+def attribution_markdown(doc: Mapping[str, Any]) -> str:
+    """Human-readable ATTRIBUTION.md of :func:`collect_attribution`'s document."""
+    lines = ["# Attribution", "", doc["note"], "",
+             f"{len(doc['objects'])} catalog object(s) in {doc['scenes']} scene(s).", ""]
+    if doc["missing_license"]:
+        lines += [(f"**No licence was recorded at ingest for {len(doc['missing_license'])} object(s)** "
+                   f"(object ids {', '.join(map(str, doc['missing_license']))}): find their terms before sharing."), ""]
+    lines += ["## Objects", "", "| object id | name | category | source | source id | roles | scenes | licence |",
+              "|---|---|---|---|---|---|---|---|"]
+    short = {lic["id"]: f"L{k + 1}" for k, lic in enumerate(doc["licenses"])}
+    for o in doc["objects"]:
+        lines.append("| " + " | ".join(_cell(v) for v in (
+            o["object_id"], o["name"], o["category"], o["source"] or "(not recorded)", o["source_id"],
+            ", ".join(o["roles"]), o["scenes"], short.get(o["license_id"], "none recorded"))) + " |")
+    lines += ["", "## Licences", ""]
+    for lic in doc["licenses"]:
+        lines += [f"### {short[lic['id']]} ({lic['objects']} object(s), {lic['id']})", "", "```", lic["text"], "```", ""]
+    if doc["environments"] or doc["materials"]:
+        lines += ["## Environment maps and floor materials", "",
+                  ("The catalog records no licence for these; check their sources (Poly Haven and similar "
+                   "libraries publish CC0 assets)."), ""]
+        for e in doc["environments"]:
+            lines.append(f"- environment map `{e['path']}` ({e['scenes']} scene(s))")
+        for m in doc["materials"]:
+            lines.append(f"- floor material `{m['name']}` ({m['scenes']} scene(s))")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_attribution(dataset_root: Path | str, out_dir: Path | str,
+                      scene_ids: Optional[Iterable[str]] = None) -> dict[str, Any]:
+    """Write ATTRIBUTION.json and ATTRIBUTION.md into ``out_dir`` (atomic renames); returns the document."""
+    import os
+
+    doc = collect_attribution(dataset_root, scene_ids)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, text in ((JSON_NAME, json.dumps(doc, indent=1, ensure_ascii=False) + "\n"),
+                       (MD_NAME, attribution_markdown(doc))):
+        tmp = out / f".{name}.{os.getpid()}.tmp"
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, out / name)
+    return doc

@@ -1,0 +1,132 @@
+"""The export folder: atomic writes, resume, pruning and the manifest every exporter leaves.
+
+Resumable and idempotent: every file is written to a temporary name and renamed into place, so a file
+that exists is complete. A per-sample file (image, density map, shard) is skipped when it is newer than
+everything it was made from; the small index files (annotation JSON, split lists, label maps, README)
+are rewritten on every run. Files in the managed folders that the current run did not produce (left by
+an earlier export of other splits) are removed, so a rerun leaves exactly what a fresh run would.
+
+``mixcount_export.json`` records the format, source dataset, options and figures of the last run; an
+export folder of one format is never reused for another.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Iterable, Optional
+
+from mixcount.export.errors import ExportError
+
+MANIFEST = "mixcount_export.json"
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    try:
+        child.relative_to(parent)
+        return True
+    except ValueError:
+        return False
+
+
+class ExportFolder:
+    """Output folder of one export (format ``fmt``) of the dataset at ``dataset_root``."""
+
+    def __init__(self, out: Path | str, dataset_root: Path | str, fmt: str):
+        self.root = Path(out).resolve()
+        self.fmt = fmt
+        src = Path(dataset_root).resolve()
+        if _inside(self.root, src):
+            raise ExportError(f"--out {out} lies inside the dataset {dataset_root}: an export never writes into "
+                              "the dataset it reads; choose a folder outside it")
+        if self.root.exists() and not self.root.is_dir():
+            raise ExportError(f"--out {out} exists and is not a folder")
+        manifest = self.root / MANIFEST
+        if manifest.is_file():
+            try:
+                previous = json.loads(manifest.read_text(encoding="utf-8")).get("format")
+            except (OSError, ValueError):
+                previous = None
+            if previous not in (None, fmt):
+                raise ExportError(f"{out} holds a {previous!r} export; write the {fmt!r} export to another folder")
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.written = 0
+        self.skipped = 0
+
+    def path(self, rel: str | Path) -> Path:
+        p = self.root / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        return p
+
+    def _tmp(self, target: Path) -> Path:
+        return target.with_name(f".{target.name}.{os.getpid()}.tmp")
+
+    def write_bytes(self, rel: str | Path, data: bytes) -> Path:
+        target = self.path(rel)
+        tmp = self._tmp(target)
+        tmp.write_bytes(data)
+        os.replace(tmp, target)
+        return target
+
+    def write_text(self, rel: str | Path, text: str) -> Path:
+        return self.write_bytes(rel, text.encode("utf-8"))
+
+    def write_json(self, rel: str | Path, obj: Any, indent: Optional[int] = None) -> Path:
+        return self.write_text(rel, json.dumps(obj, indent=indent, ensure_ascii=False) + "\n")
+
+    def write_with(self, rel: str | Path, writer: Any) -> Path:
+        """Call ``writer(tmp_path)`` and rename the result into place (for PIL, numpy, parquet writers)."""
+        target = self.path(rel)
+        tmp = self._tmp(target)
+        try:
+            writer(tmp)
+            os.replace(tmp, target)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+        return target
+
+    def copy_file(self, src: Path, rel: str | Path) -> Path:
+        return self.write_with(rel, lambda tmp: shutil.copyfile(src, tmp))
+
+    def fresh(self, rel: str | Path, sources: Iterable[Path]) -> bool:
+        """True (and counted as up to date) when ``rel`` exists and is at least as new as every source."""
+        target = self.root / rel
+        if not target.is_file():
+            return False
+        mtime = target.stat().st_mtime
+        if all(Path(s).stat().st_mtime <= mtime for s in sources):
+            self.skipped += 1
+            return True
+        return False
+
+    def produced(self, n: int = 1) -> None:
+        """Count ``n`` per-sample files written by this run (the manifest reports written / up to date)."""
+        self.written += n
+
+    def prune(self, rel_dir: str, keep: Iterable[str], pattern: str = "*") -> int:
+        """Delete files of ``rel_dir`` matching ``pattern`` whose names are not in ``keep``; returns how many."""
+        folder = self.root / rel_dir
+        if not folder.is_dir():
+            return 0
+        keep_set = set(keep)
+        removed = 0
+        for p in folder.glob(pattern):
+            if p.is_file() and p.name not in keep_set:
+                p.unlink()
+                removed += 1
+        return removed
+
+    def finish(self, dataset_root: Path, options: dict[str, Any], figures: dict[str, Any]) -> dict[str, Any]:
+        """Write the manifest; returns it."""
+        from mixcount import __version__
+
+        manifest = {
+            "format": self.fmt, "dataset": str(Path(dataset_root).resolve()), "mixcount": __version__,
+            "options": options, "figures": figures,
+            "files": {"written": self.written, "up_to_date": self.skipped},
+        }
+        self.write_json(MANIFEST, manifest, indent=1)
+        return manifest

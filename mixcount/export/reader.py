@@ -1,0 +1,193 @@
+"""Read-only view of a composed dataset folder, shared by every exporter.
+
+The source of truth is ``OUT/annotations/instances_<split>.json`` (the merged COCO that ``compose``
+writes: images carry ``scene_id`` and their internal ``exemplars``, annotations ``is_distractor`` and
+``visibility``, categories the three caption tiers) plus the RGB files it names. Nothing here writes.
+
+Vocabulary used by the exporters:
+- an **image** is one COCO image (one scene and camera);
+- a **class** of an image is a category with at least one counted (non-distractor) annotation there;
+- a **sample** is one (image, class) pair, the unit FSC-147 style datasets label (one class per image).
+  Its count is the number of annotations of that category in the image, the count ``mixcount evaluate``
+  scores (the MixCount protocol), which equals the counted instances unless a distractor happens to be
+  the same catalog object.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Optional, Sequence
+
+from mixcount.export.errors import ExportError
+
+CAPTION_TIERS = ("short", "concise", "detailed")
+N_EXEMPLARS = 3
+_SPLIT_FILE = re.compile(r"^instances_(?P<split>.+)\.json$")
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+
+
+def check_tier(tier: str) -> str:
+    if tier not in CAPTION_TIERS:
+        raise ExportError(f"unknown caption tier {tier!r} (choose one of {', '.join(CAPTION_TIERS)})")
+    return tier
+
+
+def caption(category: Mapping[str, Any], tier: str) -> str:
+    """The category's caption at ``tier`` (short / concise / detailed); its name when the tier is missing."""
+    check_tier(tier)
+    text = category.get(tier) or category.get("name") or f"category {category['id']}"
+    return " ".join(str(text).split())  # one line, single spaces: class files are TAB/line separated
+
+
+@dataclass(frozen=True)
+class DatasetImage:
+    """One COCO image of a split with its annotations (file order) and categories by id."""
+
+    split: str
+    record: Mapping[str, Any]
+    annotations: Sequence[Mapping[str, Any]]
+    categories: Mapping[int, Mapping[str, Any]]
+    path: Path
+    _by_id: Mapping[int, Mapping[str, Any]] = field(repr=False, default_factory=dict)
+
+    @property
+    def id(self) -> int:
+        return int(self.record["id"])
+
+    @property
+    def width(self) -> int:
+        return int(self.record["width"])
+
+    @property
+    def height(self) -> int:
+        return int(self.record["height"])
+
+    @property
+    def scene_id(self) -> str:
+        return str(self.record.get("scene_id") or f"image_{self.id:06d}")
+
+    @property
+    def key(self) -> str:
+        """File-safe name unique across the dataset: the scene id, plus the RGB file's stem when a scene
+        has several cameras (``scenes/<id>/rgb.png`` -> ``<id>``; ``.../rgb_cam_1.png`` -> ``<id>_rgb_cam_1``)."""
+        stem = Path(str(self.record["file_name"])).stem
+        base = self.scene_id if stem == "rgb" else f"{self.scene_id}_{stem}"
+        return _UNSAFE.sub("_", base)
+
+    def classes(self) -> list[int]:
+        """Category ids with a counted annotation in this image, ascending."""
+        return sorted({int(a["category_id"]) for a in self.annotations if not a.get("is_distractor", False)})
+
+    def of_category(self, category_id: int) -> list[Mapping[str, Any]]:
+        """Every annotation of ``category_id`` in this image (distractors of that category included)."""
+        return [a for a in self.annotations if int(a["category_id"]) == category_id]
+
+    def count(self, category_id: int) -> int:
+        return len(self.of_category(category_id))
+
+    def exemplar_ranking(self, category_id: int) -> list[Mapping[str, Any]]:
+        """The image's internal exemplars of the class, best first (``images[].exemplars``); without that
+        record, counted annotations ranked by ``exemplar_score`` (ties by id)."""
+        for ex in self.record.get("exemplars") or []:
+            if int(ex["category_id"]) == category_id:
+                anns = [self._by_id[int(i)] for i in ex["annotation_ids"] if int(i) in self._by_id]
+                if anns:
+                    return anns
+        counted = [a for a in self.of_category(category_id) if not a.get("is_distractor", False)]
+        return sorted(counted or self.of_category(category_id),
+                      key=lambda a: (-float(a.get("exemplar_score", 0.0)), int(a["id"])))[:N_EXEMPLARS]
+
+    def exemplars(self, category_id: int, n: int = N_EXEMPLARS) -> list[Mapping[str, Any]]:
+        """Exactly ``n`` exemplar annotations of the class: the ranking, repeated in order when the class
+        has fewer than ``n`` instances (FSC-147 loaders and CountGD need three boxes)."""
+        ranked = self.exemplar_ranking(category_id)
+        if not ranked:
+            raise ExportError(f"image {self.id} ({self.scene_id}) has no annotation of category {category_id}")
+        return [ranked[k % len(ranked)] for k in range(n)]
+
+
+class ComposedDataset:
+    """A ``mixcount compose`` output folder, opened read-only."""
+
+    def __init__(self, root: Path | str):
+        self.root = Path(root)
+        ann_dir = self.root / "annotations"
+        if not self.root.is_dir():
+            raise ExportError(f"{self.root}: no such dataset folder")
+        files = {}
+        if ann_dir.is_dir():
+            for p in sorted(ann_dir.iterdir()):
+                m = _SPLIT_FILE.match(p.name)
+                if m and p.is_file():
+                    files[m.group("split")] = p
+        if not files:
+            raise ExportError(f"{self.root}: not a composed mixcount dataset (no annotations/instances_<split>.json; "
+                              "write one with `mixcount compose --out DIR`)")
+        self.annotation_files: dict[str, Path] = files
+        self._coco: dict[str, dict[str, Any]] = {}
+
+    @property
+    def splits(self) -> list[str]:
+        return sorted(self.annotation_files)
+
+    def select_splits(self, split: Optional[str]) -> list[str]:
+        """``[split]`` when given (checked), else every split of the dataset."""
+        if split is None:
+            return self.splits
+        if split not in self.annotation_files:
+            raise ExportError(f"{self.root}: no split {split!r} (the dataset has {', '.join(self.splits)})")
+        return [split]
+
+    def coco(self, split: str) -> dict[str, Any]:
+        if split not in self._coco:
+            path = self.annotation_files[split]
+            try:
+                doc = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                raise ExportError(f"{path}: cannot read the COCO file ({exc})") from None
+            for key in ("images", "annotations", "categories"):
+                if not isinstance(doc.get(key), list):
+                    raise ExportError(f"{path}: COCO key {key!r} is missing or not a list")
+            self._coco[split] = doc
+        return self._coco[split]
+
+    def categories(self, split: str) -> dict[int, Mapping[str, Any]]:
+        return {int(c["id"]): c for c in self.coco(split)["categories"]}
+
+    def images(self, split: str) -> Iterator[DatasetImage]:
+        """The split's images in id order, each with its annotations; a missing RGB file is an error."""
+        doc = self.coco(split)
+        cats = self.categories(split)
+        by_image: dict[int, list[Mapping[str, Any]]] = {}
+        by_id: dict[int, Mapping[str, Any]] = {}
+        for a in doc["annotations"]:
+            by_image.setdefault(int(a["image_id"]), []).append(a)
+            by_id[int(a["id"])] = a
+        for rec in sorted(doc["images"], key=lambda r: int(r["id"])):
+            path = self.root / str(rec["file_name"])
+            if not path.is_file():
+                raise ExportError(f"{path}: image of {self.annotation_files[split].name} image {rec['id']} is missing")
+            anns = by_image.get(int(rec["id"]), [])
+            yield DatasetImage(split, rec, anns, cats, path, {int(a["id"]): a for a in anns})
+
+    def samples(self, split: str) -> Iterator[tuple[DatasetImage, int]]:
+        """(image, class) pairs of the split: images in id order, classes ascending."""
+        for img in self.images(split):
+            for cid in img.classes():
+                yield img, cid
+
+    def count_samples(self, splits: Sequence[str]) -> int:
+        n = 0
+        for s in splits:
+            doc = self.coco(s)
+            n += len({(int(a["image_id"]), int(a["category_id"])) for a in doc["annotations"]
+                      if not a.get("is_distractor", False)})
+        return n
+
+    def scene_ids(self, splits: Sequence[str]) -> list[str]:
+        """Scene ids of the images of ``splits`` (what an export's attribution must cover)."""
+        return sorted({str(img.get("scene_id")) for s in splits for img in self.coco(s)["images"]
+                       if img.get("scene_id")})
