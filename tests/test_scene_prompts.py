@@ -13,9 +13,8 @@ import pytest
 from library_pool import library_pool
 
 from mixcount.captions.base import TIERS
-from mixcount.captions.text import normalise_caption
+from mixcount.scene.caption_text import normalise_caption
 from mixcount.config import load_config
-from mixcount.scene.config import SceneConfig
 from mixcount.scene.pool import ObjectRecord
 from mixcount.scene.sampler import sample_scene
 from mixcount.scene.spec import Captions, SceneSpec
@@ -26,7 +25,7 @@ SIZE_WORDS = {"small", "large", "big", "tiny", "little", "hand-sized", "very"}
 
 @pytest.fixture(scope="module")
 def split():
-    conf = SceneConfig.from_config(load_config([], ["scene.spawn_max_tries=1"]))
+    conf = load_config([], ["scene.spawn_max_tries=1"])
     pool = library_pool()
     return conf, pool, [sample_scene(seed, "train", conf, pool) for seed in range(N_SCENES)]
 

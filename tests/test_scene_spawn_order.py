@@ -22,7 +22,6 @@ from library_pool import library_pool
 from scipy import stats
 
 from mixcount.config import load_config
-from mixcount.scene.config import SceneConfig
 from mixcount.scene.sampler import sample_scene
 
 N_SCENES = 500
@@ -32,7 +31,7 @@ MEAN_MAX = 0.05
 
 @pytest.fixture(scope="module")
 def specs():
-    conf = SceneConfig.from_config(load_config([], ["scene.p_same_object_resized=0.0"]))
+    conf = load_config([], ["scene.p_same_object_resized=0.0"])
     pool = library_pool()
     return [sample_scene(seed, "train", conf, pool) for seed in range(N_SCENES)]
 

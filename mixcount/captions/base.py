@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render
+from mixcount.scene.spec import TIERS
 
-TIERS = ("short", "concise", "detailed")
 COLOUR_SOURCES = ("model", "render")
 
 # Word bounds every captioner's answer is checked against (inclusive). The stub aims inside the

@@ -25,7 +25,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from mixcount.captions.base import TIERS, Captioner, CaptionInput, CaptionResult
-from mixcount.captions.text import normalise_caption
+from mixcount.scene.caption_text import normalise_caption
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.decisions import accepted_ids
 from mixcount.catalog.grouping import connected_groups

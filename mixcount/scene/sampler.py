@@ -12,7 +12,7 @@ category not yet in the scene, with the configured probabilities; infeasible opt
 the rest renormalised.
 
 Unique prompts: no two objects of one scene (counted classes and distractors) share a caption at any
-tier (compared by :func:`~mixcount.captions.text.normalise_caption`), so every prompt names one class.
+tier (compared by :func:`~mixcount.scene.caption_text.normalise_caption`), so every prompt names one class.
 An object whose captions collide with one already in the scene is never drawn for it.
 
 Spawn order: the counted instances' class labels are shuffled before placement, so each spawn
@@ -26,8 +26,7 @@ from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
-from mixcount.captions.base import TIERS
-from mixcount.captions.text import normalise_caption, size_qualified
+from mixcount.scene.caption_text import normalise_caption, size_qualified
 from mixcount.errors import CompositionError
 from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import sample_environment, sample_floor_material
@@ -37,6 +36,7 @@ from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord
 if TYPE_CHECKING:
     from mixcount.config import Config
 from mixcount.scene.spec import (
+    TIERS,
     ROLE_COUNTED,
     ROLE_DISTRACTOR,
     AssetRef,

@@ -24,6 +24,9 @@ def _t(v: Any) -> tuple:
     return tuple(float(x) for x in v)
 
 
+TIERS = ("short", "concise", "detailed")  # the three caption tiers, shortest first
+
+
 @dataclass(frozen=True)
 class Captions:
     short: str

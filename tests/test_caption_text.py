@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from mixcount.captions.captioning import normalise_caption as catalog_normalise
-from mixcount.captions.text import normalise_caption, size_qualified
+from mixcount.scene.caption_text import normalise_caption, size_qualified
 
 
 @pytest.mark.parametrize(
