@@ -286,7 +286,8 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         """Every value as plain TOML-like data (recorded in dataset.json)."""
-        return _thaw(self.data)
+        thawed: dict[str, Any] = _thaw(self.data)
+        return thawed
 
     @cached_property
     def hash(self) -> str:

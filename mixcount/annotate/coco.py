@@ -20,6 +20,7 @@ from __future__ import annotations
 from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 QUALIFIER_CODE = {None: 0, "larger": 1, "smaller": 2}
 MAX_CATEGORY_ID = 65535
@@ -38,7 +39,7 @@ def category_id(object_id: int, size_qualifier: Optional[str] = None) -> int:
     return cid
 
 
-def mask_to_rle(mask: np.ndarray) -> dict[str, Any]:
+def mask_to_rle(mask: NDArray[Any]) -> dict[str, Any]:
     """COCO compressed RLE (counts as str) of a boolean (H, W) mask."""
     from pycocotools import mask as mask_util
 
@@ -47,7 +48,7 @@ def mask_to_rle(mask: np.ndarray) -> dict[str, Any]:
     return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"]}
 
 
-def bbox_of(mask: np.ndarray) -> list[float]:
+def bbox_of(mask: NDArray[Any]) -> list[float]:
     """[x, y, w, h] of the pixels of a boolean mask (pixel edges: a single pixel is 1 x 1)."""
     rows = np.nonzero(mask.any(axis=1))[0]
     cols = np.nonzero(mask.any(axis=0))[0]
@@ -68,21 +69,21 @@ def exemplar_score(visibility: float, area: float, ref_area: float, border: bool
     return round(v * size * (0.5 if border else 1.0), 6)
 
 
-def class_map(ids: np.ndarray, inst_to_category: Mapping[int, int]) -> np.ndarray:
+def class_map(ids: NDArray[Any], inst_to_category: Mapping[int, int]) -> NDArray[Any]:
     """uint16 map of the COCO category id of each pixel's object (0 = none)."""
     lut_size = int(max([int(ids.max()) if ids.size else 0] + list(inst_to_category))) + 1
     lut = np.zeros(lut_size, dtype=np.uint16)
     for inst, cat in inst_to_category.items():
         lut[int(inst)] = int(cat)
-    return lut[ids]
+    return np.asarray(lut[ids])
 
 
 KEYPOINT_NAMES = ["center"]  # one keypoint per annotation: its point (see mixcount.annotate.points)
 
 
-def build_scene_coco(ids: np.ndarray, objects: Sequence[Mapping[str, Any]], categories: Sequence[Mapping[str, Any]],
+def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], categories: Sequence[Mapping[str, Any]],
                      *, image_id: int, file_name: str, scene_id: str,
-                     amodal: Optional[Mapping[int, np.ndarray]] = None) -> dict[str, Any]:
+                     amodal: Optional[Mapping[int, NDArray[Any]]] = None) -> dict[str, Any]:
     """One scene's COCO dict.
 
     ``objects``: records with ``instance_id``, ``category_id``, ``role`` ("counted" | "distractor") and

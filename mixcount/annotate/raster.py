@@ -15,7 +15,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import NDArray
 
 # triangle bounding boxes up to this many pixels a side are filled in one vectorised batch per size
 _BUCKETS = (1, 2, 4, 8, 16, 32, 64)
@@ -32,28 +35,28 @@ class PinholeCamera:
     cy: float
     width: int
     height: int
-    cam_to_world: np.ndarray
+    cam_to_world: NDArray[Any]
     near: float = 1e-4
 
     @classmethod
     def from_physical(cls, focal_mm: float, sensor_width_mm: float, width: int, height: int,
-                      cam_to_world: np.ndarray, near: float = 1e-4) -> "PinholeCamera":
+                      cam_to_world: NDArray[Any], near: float = 1e-4) -> "PinholeCamera":
         """Horizontal sensor fit with square pixels (what the worker sets in Blender)."""
         fx = focal_mm / sensor_width_mm * width
         return cls(fx, fx, width / 2.0, height / 2.0, int(width), int(height),
                    np.asarray(cam_to_world, dtype=np.float64), near)
 
     @property
-    def K(self) -> np.ndarray:
+    def K(self) -> NDArray[Any]:
         """The OpenCV-style intrinsic matrix (x right, y down, z forward)."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def world_to_cam(self, points: np.ndarray) -> np.ndarray:
+    def world_to_cam(self, points: NDArray[Any]) -> NDArray[Any]:
         inv = np.linalg.inv(self.cam_to_world)
         pts = np.asarray(points, dtype=np.float64)
-        return pts @ inv[:3, :3].T + inv[:3, 3]
+        return np.asarray(pts @ inv[:3, :3].T + inv[:3, 3])
 
-    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def project(self, points: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
         """World points (N, 3) -> pixel coordinates (N, 2) (x = column, y = row) and depth (N,) along
         the viewing axis (positive in front of the camera)."""
         pc = self.world_to_cam(points)
@@ -64,7 +67,7 @@ class PinholeCamera:
         return np.stack([x, y], axis=1), depth
 
 
-def _fill_batch(mask: np.ndarray, tri: np.ndarray, x0: np.ndarray, y0: np.ndarray, b: int) -> None:
+def _fill_batch(mask: NDArray[Any], tri: NDArray[Any], x0: NDArray[Any], y0: NDArray[Any], b: int) -> None:
     """Mark pixels of a b x b window at (x0, y0) whose centres lie inside each triangle."""
     h, w = mask.shape
     d = np.arange(b)
@@ -72,8 +75,8 @@ def _fill_batch(mask: np.ndarray, tri: np.ndarray, x0: np.ndarray, y0: np.ndarra
     py = y0[:, None, None] + d[None, :, None] + 0.5  # (T, b, 1)
     a, bb, c = tri[:, 0], tri[:, 1], tri[:, 2]
 
-    def edge(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        return ((q[:, 0] - p[:, 0])[:, None, None] * (py - p[:, 1][:, None, None])
+    def edge(p: NDArray[Any], q: NDArray[Any]) -> NDArray[Any]:
+        return np.asarray((q[:, 0] - p[:, 0])[:, None, None] * (py - p[:, 1][:, None, None])
                 - (q[:, 1] - p[:, 1])[:, None, None] * (px - p[:, 0][:, None, None]))
 
     e0, e1, e2 = edge(a, bb), edge(bb, c), edge(c, a)
@@ -85,8 +88,8 @@ def _fill_batch(mask: np.ndarray, tri: np.ndarray, x0: np.ndarray, y0: np.ndarra
     mask[rows[ok], cols[ok]] = True
 
 
-def rasterize_triangles(points2d: np.ndarray, triangles: np.ndarray, shape: tuple[int, int],
-                        valid: np.ndarray | None = None) -> np.ndarray:
+def rasterize_triangles(points2d: NDArray[Any], triangles: NDArray[Any], shape: tuple[int, int],
+                        valid: NDArray[Any] | None = None) -> NDArray[Any]:
     """Boolean (H, W) mask of the union of 2-D triangles (pixel centres inside any triangle).
 
     ``points2d`` (V, 2) in pixels (x = column, y = row), ``triangles`` (T, 3) vertex indices,
@@ -130,7 +133,7 @@ def rasterize_triangles(points2d: np.ndarray, triangles: np.ndarray, shape: tupl
     return mask
 
 
-def silhouette(camera: PinholeCamera, vertices_world: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+def silhouette(camera: PinholeCamera, vertices_world: NDArray[Any], triangles: NDArray[Any]) -> NDArray[Any]:
     """The unoccluded mask of one mesh (world-space vertices) seen by ``camera``."""
     pts, depth = camera.project(vertices_world)
     return rasterize_triangles(pts, triangles, (camera.height, camera.width), valid=depth > camera.near)

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mixcount.evaluate.errors import GroundTruthError, PredictionError
 
@@ -171,7 +172,7 @@ def parse_predictions(doc: Any, source: str = "<memory>") -> list[PredictionRow]
         if not _is_int(img_id) or not _is_int(cat_id):
             raise PredictionError(f"{where}: needs integer 'image_id' and 'category_id'")
         extra = {k: v for k, v in row.items() if k not in ("image_id", "category_id", "count", "boxes", "points")}
-        rows.append(PredictionRow(img_id, cat_id, _row_count(row, where), extra))
+        rows.append(PredictionRow(int(img_id), int(cat_id), _row_count(row, where), extra))  # type: ignore[arg-type]
     return rows
 
 
@@ -205,7 +206,7 @@ class Scores:
         }
 
 
-def score_counts(y: Sequence[float] | np.ndarray, y_hat: Sequence[float] | np.ndarray) -> Scores:
+def score_counts(y: Sequence[float] | NDArray[Any], y_hat: Sequence[float] | NDArray[Any]) -> Scores:
     """MAE, RMSE, NAE and Acc10 of predicted counts ``y_hat`` against true counts ``y`` (see module doc)."""
     y_arr = np.asarray(y, dtype=np.float64)
     p_arr = np.asarray(y_hat, dtype=np.float64)

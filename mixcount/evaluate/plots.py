@@ -32,7 +32,7 @@ def _int_bar(ax: Any, hist: dict[str, list[int]], color: str, label: str | None 
         ax.text(0.5, 0.5, "no data", ha="center", va="center", transform=ax.transAxes)
 
 
-def _edge_bar(ax: Any, hist: dict[str, list], color: str, label: str | None = None, alpha: float = 1.0) -> None:
+def _edge_bar(ax: Any, hist: dict[str, list[Any]], color: str, label: str | None = None, alpha: float = 1.0) -> None:
     edges, counts = hist["edges"], hist["counts"]
     if sum(counts):
         widths = [b - a for a, b in zip(edges[:-1], edges[1:])]

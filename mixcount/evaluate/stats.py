@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mixcount.evaluate.errors import GroundTruthError
 from mixcount.evaluate.metrics import read_json
@@ -47,7 +48,7 @@ def find_annotation_files(dataset: Path) -> dict[str, Path]:
     return dict(sorted(found.items(), key=lambda kv: (order.get(kv[0], len(order)), kv[0])))
 
 
-def summarise(values: Sequence[float] | np.ndarray) -> dict[str, float | int | None]:
+def summarise(values: Sequence[float] | NDArray[Any]) -> dict[str, float | int | None]:
     """count, min, max, mean, median, p5 and p95 of ``values`` (None when empty)."""
     a = np.asarray(values, dtype=np.float64)
     if a.size == 0:
@@ -100,11 +101,11 @@ def compute_stats(dataset: str | Path) -> dict[str, Any]:
     vis_counted: list[float] = []
     vis_distractor: list[float] = []
     splits: dict[str, dict[str, int]] = {}
-    captions: dict[tuple, dict[str, Any]] = {}
+    captions: dict[tuple[Any, ...], dict[str, Any]] = {}
     for split, path in files.items():
         doc = _check_coco(read_json(path, GroundTruthError), path)
-        per_image: dict[Any, Counter] = {img.get("id"): Counter() for img in doc["images"]}
-        n_dist: Counter = Counter()
+        per_image: dict[Any, Counter[Any]] = {img.get("id"): Counter() for img in doc["images"]}
+        n_dist: Counter[Any] = Counter()
         for ann in doc["annotations"]:
             if ann.get("is_distractor", False):
                 n_dist[ann["image_id"]] += 1

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mixcount.scene.spec import EnvironmentSpec, MaterialSpec
 
@@ -65,13 +66,13 @@ def sample_pattern_params(rng: np.random.Generator, pattern: str) -> dict[str, A
     return params
 
 
-def _mix(a: Sequence[float], b: Sequence[float], t: np.ndarray) -> np.ndarray:
+def _mix(a: Sequence[float], b: Sequence[float], t: NDArray[Any]) -> NDArray[Any]:
     a_ = np.asarray(a, dtype=np.float64)
     b_ = np.asarray(b, dtype=np.float64)
-    return a_ * (1.0 - t[..., None]) + b_ * t[..., None]
+    return np.asarray(a_ * (1.0 - t[..., None]) + b_ * t[..., None])
 
 
-def _tileable_noise(rng: np.random.Generator, px: int, cells: int) -> np.ndarray:
+def _tileable_noise(rng: np.random.Generator, px: int, cells: int) -> NDArray[Any]:
     """Value noise on a periodic lattice (wraps at the image border): seamless by construction."""
     lattice = rng.random((cells, cells))
     coords = np.arange(px) * cells / px
@@ -84,10 +85,10 @@ def _tileable_noise(rng: np.random.Generator, px: int, cells: int) -> np.ndarray
     fy, fx = np.meshgrid(f, f, indexing="ij")
     top = lattice[y0, x0] * (1 - fx) + lattice[y0, x1] * fx
     bot = lattice[y1, x0] * (1 - fx) + lattice[y1, x1] * fx
-    return top * (1 - fy) + bot * fy
+    return np.asarray(top * (1 - fy) + bot * fy)
 
 
-def render_pattern(params: Mapping[str, Any], px: int) -> np.ndarray:
+def render_pattern(params: Mapping[str, Any], px: int) -> NDArray[Any]:
     """(px, px, 3) uint8 image of a procedural pattern; deterministic and seamless (periodic)."""
     rng = np.random.default_rng(int(params["seed"]))
     pattern = params["pattern"]

@@ -58,7 +58,7 @@ _ID_TOKEN = re.compile(r"^(?=.*\d)[A-Za-z0-9]{6,}$")  # catalogue ids such as B0
 
 
 def _words(name: str) -> list[str]:
-    words = []
+    words: list[str] = []
     for token in re.split(r"[_\-\s]+", name.strip()):
         if not token or _ID_TOKEN.match(token):
             continue

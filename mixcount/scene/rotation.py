@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import math
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import NDArray
 
 
-def quat_from_matrix(m: np.ndarray) -> tuple[float, float, float, float]:
+def quat_from_matrix(m: NDArray[Any]) -> tuple[float, float, float, float]:
     """Unit quaternion (w, x, y, z), w >= 0, of a 3x3 rotation matrix (Shepperd's method), rounded to 1e-9."""
     m = np.asarray(m, dtype=np.float64)
     t = float(np.trace(m))

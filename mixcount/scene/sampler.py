@@ -22,9 +22,10 @@ position gets a random class and class order never decides which class ends up o
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Optional, Sequence
+from typing import Any, TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mixcount.scene.caption_text import normalise_caption, size_qualified
 from mixcount.errors import CompositionError
@@ -71,7 +72,7 @@ def _yaw_quat(yaw: float) -> tuple[float, float, float, float]:
     return (round(math.cos(yaw / 2), _R), 0.0, 0.0, round(math.sin(yaw / 2), _R))
 
 
-def _random_quats(rng: np.random.Generator, n: int) -> np.ndarray:
+def _random_quats(rng: np.random.Generator, n: int) -> NDArray[Any]:
     """n uniformly random unit quaternions (w, x, y, z), w >= 0, rounded."""
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
@@ -93,7 +94,7 @@ def caption_keys(captions: Captions) -> frozenset[tuple[str, str]]:
     return frozenset((tier, normalise_caption(getattr(captions, tier))) for tier in TIERS)
 
 
-def look_at_rotation(position: np.ndarray, target: np.ndarray, roll_deg: float) -> np.ndarray:
+def look_at_rotation(position: NDArray[Any], target: NDArray[Any], roll_deg: float) -> NDArray[Any]:
     """Camera-to-world rotation: local -Z towards target, +Y up-ish, then ``roll_deg`` about the view axis."""
     f = target - position
     f = f / np.linalg.norm(f)
@@ -103,7 +104,7 @@ def look_at_rotation(position: np.ndarray, target: np.ndarray, roll_deg: float) 
     rot = np.stack([right, up, -f], axis=1)
     r = math.radians(roll_deg)
     rz = np.array([[math.cos(r), -math.sin(r), 0.0], [math.sin(r), math.cos(r), 0.0], [0.0, 0.0, 1.0]])
-    return rot @ rz
+    return np.asarray(rot @ rz)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -216,9 +217,9 @@ def _split_counts(rng: np.random.Generator, n: int, k: int) -> list[int]:
 # placement
 
 
-def _spawn_positions(rng: np.random.Generator, radii: np.ndarray, centre: np.ndarray, semi: tuple[float, float],
+def _spawn_positions(rng: np.random.Generator, radii: NDArray[Any], centre: NDArray[Any], semi: tuple[float, float],
                      yaw: float, z_range: tuple[float, float], tries: int, ellipse: bool,
-                     stack: bool = True) -> np.ndarray:
+                     stack: bool = True) -> NDArray[Any]:
     """Uniform points in the (rotated) ellipse or square, heights in z_range; each instance takes the
     first of ``tries`` candidates whose bounding sphere misses the ones placed so far, else the
     candidate with the most clearance, lifted (``stack``) above the spheres already in its column."""
@@ -375,7 +376,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         f = factors[i]
         objects.append(PlacedObject(
             instance_id=i + 1, role=ROLE_COUNTED, object_id=drafts[ci].obj.object_id, class_index=ci,
-            position=tuple(pos_r[i]), orientation=tuple(orients[i]), scale=(f, f, f),  # type: ignore[arg-type]
+            position=tuple(pos_r[i]), orientation=tuple(orients[i]), scale=(f, f, f),
             size_m=sizes_r[i],
         ))
 
@@ -418,7 +419,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     if container_obj is not None:
         container = ContainerSpec(
             instance_id=n + len(distractors) + 1, object_id=container_obj.object_id,
-            position=_vec((0.0, 0.0, extent[2] / 2)), orientation=_yaw_quat(yaw),  # type: ignore[index]
+            position=_vec((0.0, 0.0, extent[2] / 2)), orientation=_yaw_quat(yaw),
             scale=_vec(cont_scale), extent_m=_vec(extent),  # type: ignore[arg-type]
         )
         diag = float(np.linalg.norm(extent))

@@ -20,7 +20,7 @@ ROLE_CONTAINER = "container"
 ROLE_FLOOR = "floor"
 
 
-def _t(v: Any) -> tuple:
+def _t(v: Any) -> tuple[Any, ...]:
     return tuple(float(x) for x in v)
 
 
