@@ -154,14 +154,15 @@ def test_plain_folder_every_format(tmp_path, catalog):
     summary = ingest_paths(catalog, [lib], config=cfg(assume_units="cm", assume_up_axis="Y"), workers=2)
     assert (summary.new, summary.broken) == (7, 0), summary.broken_objects
     objs = objects_by_name(catalog)
-    assert set(objs) == {"mug_scaled", "model", "block_cm", "eraser", "can", "bottle", "figurine"}
+    # the glTF is the only model of its folder and its file name is generic: the folder names it
+    assert set(objs) == {"mug_scaled", "gltf", "block_cm", "eraser", "can", "bottle", "figurine"}
     assert all(o.source == "folder" and o.status == "active" for o in objs.values())
     # GLB: 2x scale and 90 degrees about glTF's Y... here about Z of the glTF frame, then Y-up -> Z-up
     assert objs["mug_scaled"].dims == pytest.approx((0.04, 0.06, 0.02), abs=1e-6)
     assert objs["mug_scaled"].category == "mug" and objs["mug_scaled"].textured
-    assert objs["model"].dims == pytest.approx((0.05, 0.07, 0.06), abs=1e-6)
-    assert objs["model"].category == "gltf"  # generic stem "model": the folder name is the category
-    assert objs["model"].textured
+    assert objs["gltf"].dims == pytest.approx((0.05, 0.07, 0.06), abs=1e-6)
+    assert objs["gltf"].category == "gltf"  # generic stem "model": the folder name is the category
+    assert objs["gltf"].textured
     assert objs["block_cm"].dims == pytest.approx((0.03, 0.05, 0.04), abs=1e-6)
     assert objs["block_cm"].source_units == "cm" and objs["block_cm"].textured
     assert objs["eraser"].dims == pytest.approx((0.01, 0.03, 0.02), abs=1e-6)
