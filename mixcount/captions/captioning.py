@@ -289,6 +289,8 @@ def dedupe_collisions(catalog: Catalog) -> int:
 
 def _accepted(session: Session) -> set[int]:
     latest: dict[int, ReviewDecision] = {}
-    for rd in session.scalars(select(ReviewDecision).order_by(ReviewDecision.decided_at, ReviewDecision.id)):
+    stmt = (select(ReviewDecision).where(ReviewDecision.decision.in_(("accept", "reject")))
+            .order_by(ReviewDecision.decided_at, ReviewDecision.id))
+    for rd in session.scalars(stmt):
         latest[rd.object_id] = rd
     return {oid for oid, rd in latest.items() if rd.decision == "accept"}

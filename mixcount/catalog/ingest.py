@@ -33,6 +33,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from mixcount.catalog import hashing, layouts
+from mixcount.catalog.containers import refresh_containers
 from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
 from mixcount.catalog.mesh import model_resources
 from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
@@ -66,6 +67,7 @@ class IngestSummary:
     broken: int = 0
     broken_objects: list[tuple[str, str]] = field(default_factory=list)  # (name, reason)
     layouts: dict[str, int] = field(default_factory=dict)  # objects found per layout
+    containers: int = 0  # objects of the catalog that are containers after this run
 
     @property
     def total(self) -> int:
@@ -75,6 +77,7 @@ class IngestSummary:
         return {
             "run_id": self.run_id, "total": self.total, "new": self.new, "unchanged": self.unchanged,
             "updated": self.updated, "broken": self.broken, "layouts": dict(sorted(self.layouts.items())),
+            "containers": self.containers,
             "broken_objects": [{"name": n, "reason": r} for n, r in self.broken_objects],
         }
 
@@ -349,6 +352,7 @@ def ingest_paths(
                 pending.append(prep)
             if pending:
                 _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar)
+            summary.containers = refresh_containers(session, config).containers
         status = "done"
     finally:
         bar.stop()

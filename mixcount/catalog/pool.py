@@ -46,7 +46,7 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
                 captions=caps.get(obj.id) or fallback_captions(obj.name, obj.category or ""),
                 split=obj_split, model_path=obj.model_path, content_hash=obj.content_hash or "",
                 collision_path=obj.collision_path, status=obj.status,
-                source_units=obj.source_units, source_up_axis=obj.source_up_axis,
+                source_units=obj.source_units, source_up_axis=obj.source_up_axis, container=bool(obj.container),
             )
         )
     return pool

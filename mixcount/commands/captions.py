@@ -55,6 +55,10 @@ def caption_cmd(
             colour_source=str(cfg["captions"]["colour_source"]),
             concurrency=int(cfg["captions"]["concurrency"]),
         )
+        from mixcount.catalog.containers import refresh_containers
+
+        with catalog.session() as session:  # captions may name containers ("a wooden tray")
+            refresh_containers(session, cfg)
     finally:
         catalog.close()
         close = getattr(cap, "close", None)

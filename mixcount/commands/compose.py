@@ -22,7 +22,7 @@ def plan_scenes(catalog: Any, config: Any, *, n: int, split: Optional[str] = Non
     """SceneSpecs for scenes ``seed .. seed+n-1`` of ``split`` (defaults from ``[compose]``)."""
     from mixcount.scene.config import SceneConfig
     from mixcount.catalog.pool import load_environments, load_materials, load_pool
-    from mixcount.scene.sampler import sample_scene
+    from mixcount.scene.sampler import container_warning, sample_scene
 
     sconf = SceneConfig.from_config(config)
     split = split or str(config["compose"]["split"])
@@ -36,6 +36,9 @@ def plan_scenes(catalog: Any, config: Any, *, n: int, split: Optional[str] = Non
             f"no active objects in split {split!r}: ingest, caption and split the catalog first "
             "(mixcount catalog ingest / caption / split)"
         )
+    warning = container_warning(pool, split, sconf)
+    if warning:
+        console.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
     return [sample_scene(base + k, split, sconf, pool, environments=envs, materials=mats) for k in range(n)]
 
 

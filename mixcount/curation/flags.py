@@ -104,9 +104,12 @@ def _label(obj: CatalogObject) -> str:
 
 
 def latest_decisions(session: Session) -> dict[int, ReviewDecision]:
-    """object id -> its latest review decision (by time, then insertion order)."""
+    """object id -> its latest accept/reject review decision (by time, then insertion order); container
+    decisions are :func:`mixcount.catalog.containers.latest_container_decisions`."""
     latest: dict[int, ReviewDecision] = {}
-    for rd in session.scalars(select(ReviewDecision).order_by(ReviewDecision.decided_at, ReviewDecision.id)):
+    stmt = (select(ReviewDecision).where(ReviewDecision.decision.in_(("accept", "reject")))
+            .order_by(ReviewDecision.decided_at, ReviewDecision.id))
+    for rd in session.scalars(stmt):
         latest[rd.object_id] = rd
     return latest
 

@@ -65,6 +65,8 @@ class SheetEntry:
     captions: dict[str, str] | None
     flags: list[SheetFlag] = field(default_factory=list)
     last_review: dict[str, str] | None = None
+    container: bool = False
+    container_reason: str | None = None
 
 
 def collect(session: Session, *, only: str = "all", category: str | None = None) -> list[SheetEntry]:
@@ -96,6 +98,7 @@ def collect(session: Session, *, only: str = "all", category: str | None = None)
             render=canonical_render_path(session, obj.id), captions=active_captions(session, obj), flags=sflags,
             last_review=({"decision": rd.decision, "reviewer": rd.reviewer, "at": rd.decided_at.isoformat() + "Z",
                           "note": rd.note} if rd is not None else None),
+            container=bool(obj.container), container_reason=obj.container_reason,
         ))
     return entries
 
@@ -246,6 +249,9 @@ def _card(e: SheetEntry, thumbs: dict[int, str], pair_thumbs: dict[int, str]) ->
         f"{error}{caps}{flags_html}"
         "<div class=\"review\"><button type=\"button\" class=\"accept\" data-decision=\"accept\">accept</button>"
         "<button type=\"button\" class=\"reject\" data-decision=\"reject\">reject</button>"
+        f"<label class=\"container\" title=\"{_e(e.container_reason or 'not a container')}\">"
+        f"<input class=\"container\" type=\"checkbox\" data-initial=\"{'true' if e.container else 'false'}\""
+        f"{' checked' if e.container else ''}> container</label>"
         "<input class=\"note\" type=\"text\" placeholder=\"note\"></div>"
         f"{last}</article>"
     )

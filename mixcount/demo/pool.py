@@ -32,6 +32,7 @@ def pool_from_demo_library(root: Path, *, split: str = "train") -> list[ObjectRe
         pool.append(ObjectRecord(
             object_id=k, name=folder, category=rec["category"], dims=tuple(float(v) for v in rec["dims_m"]),
             captions=caps, split=split, model_path=str(model.resolve()), content_hash=digest,
+            container=bool(rec["container"]),
         ))
     return pool
 

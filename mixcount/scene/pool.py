@@ -28,6 +28,7 @@ class ObjectRecord:
     status: str = "active"
     source_units: Optional[str] = None
     source_up_axis: Optional[str] = None
+    container: bool = False  # catalog objects.container: may be drawn as the scene's container
 
     @property
     def max_dim(self) -> float:
