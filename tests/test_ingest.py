@@ -67,12 +67,18 @@ def test_dtc_layout_facts_match_ground_truth(tmp_path, catalog):
     assert summary.total == truth["expected"]["total"]
     assert summary.new == truth["expected"]["active"]
     assert summary.broken == truth["expected"]["broken"] == 2
-    objs = objects_by_name(catalog)
+    with catalog.session() as s:  # by folder: a DTC folder's name, a plain folder's model's folder
+        objs = {o.source_id if o.source == "dtc" else Path(o.model_path).parent.name: o
+                for o in s.scalars(select(CatalogObject))}
     assert set(objs) == {o["folder"] for o in truth["objects"]}
     for entry in truth["objects"]:
         obj = objs[entry["folder"]]
-        assert obj.source == "dtc" and obj.source_id == entry["folder"]
-        assert obj.category == entry["category"]
+        assert obj.source == entry["source"] and obj.category == entry["category"]
+        if entry["source"] == "folder":  # another source: OBJ in cm read Y-up, named by its metadata.json
+            assert obj.status == "active" and obj.name == entry["name"] and obj.source_units == "cm"
+            assert obj.dims == pytest.approx(tuple(entry["dims_m"]), abs=2e-5) and obj.textured
+            continue
+        assert obj.source_id == entry["folder"]
         if entry["kind"] == "broken":
             assert obj.status == "broken" and obj.error
             continue
@@ -288,5 +294,7 @@ def test_killed_ingest_resumes_without_duplicates(tmp_path):
     with sqlite3.connect(db) as con:
         rows = con.execute("select source_id, status from objects").fetchall()
     assert len(rows) == total == len({r[0] for r in rows})
-    assert {r[0] for r in rows} == {o["folder"] for o in truth["objects"]}
+    # a DTC object's key is its folder, a plain folder object's the model file's path
+    assert {r[0] for r in rows} == {o["folder"] if o["source"] == "dtc" else str(lib.resolve() / o["model"])
+                                    for o in truth["objects"]}
     assert sum(r[1] == "broken" for r in rows) == truth["expected"]["broken"]

@@ -14,7 +14,8 @@ from __future__ import annotations
 import re
 import unicodedata
 
-DTC_NAME = re.compile(r"^(?P<category>[A-Za-z][A-Za-z0-9-]*)_(?P<id>[A-Za-z0-9]{6,})_(?P<variant>.+)$")
+# Category_ID_Variant; the id (B07Z5P84J2) has a digit, so "apple_granny_smith" is not taken for one
+DTC_NAME = re.compile(r"^(?P<category>[A-Za-z][A-Za-z0-9-]*)_(?P<id>(?=[A-Za-z]*\d)[A-Za-z0-9]{6,})_(?P<variant>.+)$")
 GENERIC_STEMS = {"model", "mesh", "scene", "object", "asset", "untitled", "export", "3d", "textured", "scan",
                  "3d-asset", "visual", "geometry", "final", "lod0", "lowpoly", "highpoly", "raw"}
 COLOUR_WORDS = {"black", "white", "grey", "gray", "red", "orange", "yellow", "green", "blue", "purple", "pink",
