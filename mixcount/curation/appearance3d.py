@@ -44,16 +44,28 @@ SKEW_MIN = 0.05  # |skewness| below this does not fix a sign
 
 @dataclass
 class SurfaceLook:
-    """Colour histogram and the principal-frame colour grids (one per candidate frame) of a model."""
+    """Colour histogram of a model's surface and, on demand, its principal-frame colour grids."""
 
     colour_hist: np.ndarray  # (HIST_BINS**3,) sums to 1
-    grids: np.ndarray  # (frames, GRID, GRID, GRID, 4): summed RGB in [0, 1] and counts, blurred
-    frames: int
-    symmetric_axes: int  # how many axes the shape alone left open (for the flag's reason)
-    points: np.ndarray  # centred samples, for the rotation search of shapes with open axes
+    points: np.ndarray  # centred samples
     colours: np.ndarray
     basis: np.ndarray  # principal axes (columns), moments descending
     tied: list[list[int]]  # groups of nearly equal principal moments (2 * EIGEN_TIE)
+    symmetric_axes: int  # how many axes the shape alone left open (EIGEN_TIE)
+    _grids: np.ndarray | None = None
+
+    @property
+    def grids(self) -> np.ndarray:
+        """(frames, GRID, GRID, GRID, 4): summed RGB and counts per cell, blurred; one per candidate
+        frame. Built the first time a pair needs them (most pairs differ in colour or shape first)."""
+        if self._grids is None:
+            frames, _ = principal_frames(self.points, self.colours)
+            self._grids = np.stack([colour_grid(self.points, self.colours, f) for f in frames])
+        return self._grids
+
+    @property
+    def frames(self) -> int:
+        return len(self.grids)
 
 
 # --------------------------------------------------------------------------- sampling
@@ -284,36 +296,28 @@ def principal_frames(points: np.ndarray, colours: np.ndarray) -> tuple[list[np.n
     return frames, open_axes
 
 
-def _blur(grid: np.ndarray) -> np.ndarray:
-    out = grid.copy()
-    for axis in range(3):
-        padded = np.pad(out, [(1, 1) if a == axis else (0, 0) for a in range(3)] + [(0, 0)], mode="edge")
-        sl = [slice(None)] * 4
-        acc = np.zeros_like(out)
-        for shift in range(3):
-            sl[axis] = slice(shift, shift + out.shape[axis])
-            acc += padded[tuple(sl)]
-        out = acc / 3.0
-    return out
-
-
 def colour_grid(points: np.ndarray, colours: np.ndarray, frame: np.ndarray, size: int = GRID) -> np.ndarray:
-    """Summed colour and count per cell of the frame-aligned bounding box (each axis scaled to 0..1)."""
+    """Summed colour and count per cell of the frame-aligned bounding box (each axis scaled to 0..1),
+    divided by the number of samples and box-blurred over 3x3x3 cells."""
+    from scipy.ndimage import uniform_filter
+
     q = (points - points.mean(axis=0)) @ frame
     lo, hi = q.min(axis=0), q.max(axis=0)
     u = (q - lo) / np.where(hi - lo > 0, hi - lo, 1.0)
     idx = np.clip((u * size).astype(int), 0, size - 1)
-    grid = np.zeros((size, size, size, 4))
-    np.add.at(grid, (idx[:, 0], idx[:, 1], idx[:, 2]), np.c_[colours, np.ones(len(colours))])
-    return _blur(grid / len(points))
+    flat = (idx[:, 0] * size + idx[:, 1]) * size + idx[:, 2]
+    cells = size ** 3
+    grid = np.stack([np.bincount(flat, weights=w, minlength=cells)
+                     for w in (colours[:, 0], colours[:, 1], colours[:, 2], np.ones(len(flat)))], axis=-1)
+    grid = grid.reshape(size, size, size, 4) / len(points)
+    return uniform_filter(grid, size=(3, 3, 3, 1), mode="nearest")
 
 
 def surface_look(points: np.ndarray, colours: np.ndarray) -> SurfaceLook:
-    frames, open_axes = principal_frames(points, colours)
-    grids = np.stack([colour_grid(points, colours, f) for f in frames])
     eig, basis = principal_axes(points)
-    return SurfaceLook(colour_histogram(colours), grids, len(frames), open_axes, points - points.mean(axis=0),
-                       colours, basis, [g for g in _tie_groups(eig, 2 * EIGEN_TIE) if len(g) > 1])
+    open_axes = sum(len(g) for g in _tie_groups(eig, EIGEN_TIE) if len(g) > 1)
+    return SurfaceLook(colour_histogram(colours), points - points.mean(axis=0), colours, basis,
+                       [g for g in _tie_groups(eig, 2 * EIGEN_TIE) if len(g) > 1], open_axes)
 
 
 def colour_distance(a: SurfaceLook, b: SurfaceLook) -> float:
