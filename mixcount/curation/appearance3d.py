@@ -14,13 +14,14 @@ happens to be oriented or scaled:
   rescaled or re-tessellated copy lands in the same frame. Where the shape leaves the frame open (equal
   principal moments: a can's cross-section, a ball, a cube), the colour decides it: the axes of the
   colour-weighted second moment, else the direction of the colour-weighted first moment. Signs come
-  from the shape's skewness, else from the colour's first moment. Whatever stays ambiguous (a sign, the
-  order of two nearly equal axes) is enumerated: the descriptor holds one grid per candidate frame.
-  Each grid is 6x6x6 cells of summed colour and sample count; distance = the count-weighted mean
-  absolute colour difference over cells either model covers (a cell only one covers counts as 1), after
-  a 3x3x3 box blur, minimised over the candidate frames of one side.
+  from the shape's skewness. Whatever stays ambiguous (a sign, the order of two nearly equal axes, which
+  colour moment decides) is enumerated: one grid per candidate frame. Each grid is 6x6x6 cells of summed
+  colour and sample count, box-blurred over 3x3x3 cells; distance = the count-weighted mean absolute
+  colour difference over cells either model covers (a cell only one covers counts 1, a cell both cover
+  at least by how unevenly they cover it), minimised over the candidate frames of one side. A pair still apart whose
+  shape leaves axes open gets a rotation search (:func:`layout_distance`).
 
-Samples are cached (``.npz`` per content hash); everything else is cheap to derive.
+Samples are cached (``.npz`` per content hash); grids are built only when a pair needs them.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ N_SAMPLES = 6000
 HIST_BINS = 6
 GRID = 6
 EIGEN_TIE = 0.10  # principal moments within 10 % of each other leave their axes to the colour
-MOMENT_MIN = 0.02  # a colour moment this weak (relative) does not fix an axis or a sign
+MOMENT_MIN = 0.02  # a colour first moment this weak (relative) gives no axis direction
 SKEW_MIN = 0.05  # |skewness| below this does not fix a sign
 
 
