@@ -307,6 +307,7 @@ class SideMetadata:
     def __init__(self, explicit: Iterable[Path] = ()) -> None:
         self._loaded: dict[Path, dict[str, dict[str, Any]]] = {}
         self._dir_files: dict[Path, list[Path]] = {}
+        self._side_dirs: dict[Path, list[Path]] = {}
         self.explicit = [Path(p).expanduser().resolve() for p in explicit]
         for p in self.explicit:
             if not p.is_file():
@@ -382,6 +383,11 @@ class SideMetadata:
             self._dir_files[folder] = files
         return self._dir_files[folder]
 
+    def _with_side_folders(self, folder: Path) -> list[Path]:
+        if folder not in self._side_dirs:
+            self._side_dirs[folder] = [folder] + [folder / n for n in SIDE_FOLDERS if (folder / n).is_dir()]
+        return self._side_dirs[folder]
+
     def lookup(self, uid: str, folder: Path, root: Path) -> tuple[dict[str, Any], Path] | None:
         """The record for ``uid`` from files in ``folder`` and above (up to ``root``), in a ``metadata/``
         or ``annotations/`` folder beside any of those, or in the explicit files; with its file."""
@@ -392,8 +398,7 @@ class SideMetadata:
             if cur == root or cur.parent == cur or root not in cur.parents:
                 break
             cur = cur.parent
-        dirs += [d / name for d in list(dirs) for name in SIDE_FOLDERS if (d / name).is_dir()]
-        files = list(self.explicit) + [f for d in dirs for f in self._side_files(d)]
+        files = list(self.explicit) + [f for d in dirs for side in self._with_side_folders(d) for f in self._side_files(side)]
         for path in files:
             rec = self._index(path).get(uid)
             if rec is not None:
