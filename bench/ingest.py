@@ -46,11 +46,11 @@ def densify(lib: Path, times: int) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--objects", type=int, default=200, help="about this many objects (whole libraries of 72)")
+    parser.add_argument("--objects", type=int, default=200, help="about this many objects (whole demo libraries of 79)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--subdivide", type=int, default=2, help="subdivide every part K times (x4^K faces)")
     args = parser.parse_args()
-    config = load_config(values={"ingest.workers": args.workers}).ingest
+    config = load_config(values={"ingest.workers": args.workers})
     with tempfile.TemporaryDirectory(prefix="mixcount-bench-") as tmp:
         root = Path(tmp)
         libs, total, seed = [], 0, 0

@@ -119,6 +119,8 @@ class IngestConfig:
     max_file_mb: float
     assume_units: str
     assume_up_axis: str
+    omniobject3d_units: str
+    omniobject3d_up_axis: str
 
 
 @dataclass(frozen=True)
@@ -127,6 +129,14 @@ class DemoConfig:
 
     seed: int
     n_objects: int
+
+
+@dataclass(frozen=True)
+class ContainersConfig:
+    """``[containers]``: which objects may hold the pile (mixcount/catalog/containers.py)."""
+
+    categories: tuple[str, ...]
+    keywords: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -159,16 +169,23 @@ class FilterConfig:
     geometry_edge_similarity: float
     appearance_phash: float
     appearance_colour: float
+    look_colour: float
+    look_layout: float
+    look_d2: float
+    look_proportions: float
     min_faces: int
+    min_area_ratio: float
     min_volume_m3: float
     max_aspect_ratio: float
-    max_nonmanifold_fraction: float
     min_render_coverage: float
     min_size_m: float
     max_size_m: float
     category_min_objects: int
     category_size_factor: float
     exclude_degenerate: bool
+    mesh_quality_min_fraction: float
+    exclude_mesh_quality: bool
+    mesh_quality_exclude_score: float
 
 
 @dataclass(frozen=True)
@@ -275,6 +292,7 @@ class Config:
     catalog: CatalogConfig
     ingest: IngestConfig
     demo: DemoConfig
+    containers: ContainersConfig
     render: RenderConfig
     filter: FilterConfig
     captions: CaptionsConfig
@@ -297,7 +315,7 @@ class Config:
 
 
 SECTIONS: dict[str, type] = {
-    "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "render": RenderConfig,
+    "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "containers": ContainersConfig, "render": RenderConfig,
     "filter": FilterConfig, "captions": CaptionsConfig, "split": SplitConfig, "scene": SceneConfig,
     "compose": ComposeConfig,
 }

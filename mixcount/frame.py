@@ -53,10 +53,12 @@ def source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str])
 
 def walk_geometry(scene: Any) -> Iterator[tuple[str, np.ndarray, Any]]:
     """(node name, 4x4 world transform, trimesh.Trimesh) for every triangle mesh of a trimesh Scene,
-    in sorted node order (deterministic: ingest and conversion see the parts in the same order)."""
+    in the file's node order (deterministic, and the same for ingest and conversion). Not sorted by
+    name: "part_10" would come before "part_2", and the face order feeds the stratified surface
+    sampling of the curation descriptors."""
     import trimesh
 
-    for node in sorted(scene.graph.nodes_geometry):
+    for node in scene.graph.nodes_geometry:
         transform, geom_name = scene.graph[node]
         geom = scene.geometry.get(geom_name)
         if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:

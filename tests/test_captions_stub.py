@@ -219,7 +219,7 @@ def test_demo_library_captions_are_distinct(tmp_path, catalog):
 
     root = tmp_path / "demo"
     truth = demo.generate_demo_library(root, seed=0, n_objects=40)
-    ingest.ingest_paths(catalog, [root], config=load_config(["quick"], ["ingest.workers=1"]).ingest)
+    ingest.ingest_paths(catalog, [root], config=load_config(["quick"], ["ingest.workers=1"]))
     summary = caption_catalog(catalog, StubCaptioner("stub-v1"), concurrency=2, colour_source="model", dedupe=False)
     assert summary.failed == 0 and summary.captioned >= 40 and summary.excluded == 0
     with catalog.session() as s:
@@ -232,7 +232,8 @@ def test_demo_library_captions_are_distinct(tmp_path, catalog):
         assert_bounds(cs.short, cs.concise, cs.detailed)
     by_folder = {Path(o.model_path).parent.name: o.id for o, _ in rows}
     pair = lambda entry: frozenset((by_folder[entry[0]], by_folder[entry[1]]))  # noqa: E731
-    same = {pair(e) for e in truth["exact_copies"]} | {pair(e) for e in truth["rescales"]}
+    same = {pair(e) for key in ("exact_copies", "rescales", "turned_rescales", "retessellated", "other_source")
+            for e in truth[key]}
     shorts = {o.id: normalise_caption(cs.short) for o, cs in rows}
     for e in truth["exact_copies"]:
         a, b = sorted(pair(e))

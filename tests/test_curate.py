@@ -31,7 +31,7 @@ def flags_of(catalog, oid):
 def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
     objs = library_catalog(catalog, tmp_path)
     ids = {k: o.id for k, o in objs.items()}
-    summary = run_filter(catalog, quick_config().filter)
+    summary = run_filter(catalog, quick_config())
     assert summary.ground_truth is None  # not a demo library
     assert summary.missing_renders == 0 and not summary.descriptor_failures
 
@@ -60,7 +60,7 @@ def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
 def test_filter_idempotent_review_outranks_and_foreign_state_kept(catalog, tmp_path):
     objs = library_catalog(catalog, tmp_path)
     ids = {k: o.id for k, o in objs.items()}
-    cfg = quick_config().filter
+    cfg = quick_config()
     first = run_filter(catalog, cfg)
     before = state(catalog)
     second = run_filter(catalog, cfg)

@@ -1,7 +1,9 @@
 """The whole curation on the generated demo library, through the CLI, with real bpy renders (64 px):
-every planted exact copy, recolour and rescale is flagged with the right pair, the broken files are
-flagged, at most 10 % of the clean objects carry a duplicate flag, and `filter` prints precision and
-recall against the generator's ground_truth.json. Also writes the contact sheet `make demo` writes."""
+every planted exact copy, recolour, rescale, turned-and-rescaled copy, re-tessellated copy and copy under
+another name and source is flagged with the right pair (recall and precision per trap kind), the broken
+files are flagged, at most 5 % of the clean objects carry a duplicate flag, the non-manifold tote stays
+active with a mesh_quality warning, and `filter` prints the figures against the generator's
+ground_truth.json. Also writes the contact sheet `make demo` writes."""
 
 from __future__ import annotations
 
@@ -11,7 +13,9 @@ import pytest
 from PIL import Image
 from sqlalchemy import select
 
-from mixcount.curation.flags import DUPLICATE_KINDS, evaluate_against_ground_truth
+from pathlib import Path
+
+from mixcount.curation.flags import DUPLICATE_KINDS, TRAP_KINDS, evaluate_against_ground_truth
 from mixcount.catalog.db import open_catalog
 from mixcount.demo.library import generate_demo_library
 from mixcount.catalog.models import CatalogObject, Flag
@@ -22,7 +26,7 @@ pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 def test_demo_library_precision_recall(tmp_path, capsys):
     truth = generate_demo_library(tmp_path / "demo", seed=0)
-    assert truth["exact_copies"] and truth["recolours"] and truth["rescales"] and truth["broken"]
+    assert all(truth[key] for key, _ in TRAP_KINDS) and truth["broken"] and truth["mesh_quality"]
     db = str(tmp_path / "catalog.db")
     base = ["--db", db, "--config", "configs/quick.toml", "--set", "render.resolution=64", "--set", "render.samples=2"]
     assert main(base + ["catalog", "ingest", str(tmp_path / "demo")]) == 0
@@ -35,16 +39,21 @@ def test_demo_library_precision_recall(tmp_path, capsys):
     gt = summary["ground_truth"]
 
     assert gt["recall"] == 1.0 and not gt["missed_pairs"]
+    for kind, row in gt["by_trap"].items():
+        assert row["planted"] >= 1 and row["recall"] == 1.0, (kind, row)
+        assert row["precision"] == 1.0, (kind, row)  # a copy is paired with its original only
     assert gt["broken_flagged"] == gt["broken_planted"] == len(truth["broken"])
-    assert gt["clean_flag_rate"] <= 0.10
-    assert gt["precision"] >= 0.7
+    assert gt["clean_flag_rate"] <= 0.05, gt["clean_flagged"]
+    assert gt["precision"] >= 0.8, gt["false_pairs"]
+    (tote,) = gt["mesh_quality_planted"]
+    assert tote["status"] == "active" and tote["mesh_quality"] > 0.3 and not tote["degenerate"]
 
     # the right pair, by folder name, for every trap; and one member of each pair is excluded
     catalog = open_catalog(db, data_dir="")
     try:
         with catalog.session() as s:
-            by_folder = {o.name: o for o in s.scalars(select(CatalogObject))}
-            for key in ("exact_copies", "recolours", "rescales"):
+            by_folder = {Path(o.model_path).parent.name: o for o in s.scalars(select(CatalogObject))}
+            for key, _ in TRAP_KINDS:
                 for original, twin, *_ in truth[key]:
                     a, b = by_folder[original], by_folder[twin]
                     kinds = set(s.scalars(select(Flag.kind).where(Flag.object_id == b.id, Flag.pair_object_id == a.id)))

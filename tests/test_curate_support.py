@@ -69,7 +69,7 @@ def put_render(catalog, object_id: int, img: Image.Image) -> Path:
 
 
 def ingest(catalog, root: Path) -> dict[str, CatalogObject]:
-    ingest_paths(catalog, [root], config=quick_config().ingest)
+    ingest_paths(catalog, [root], config=quick_config())
     with catalog.session() as s:
         return {Path(o.model_path).stem: o for o in s.scalars(select(CatalogObject))}
 

@@ -8,6 +8,7 @@ import struct
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 
 from mixcount.demo.library import CONTAINER_CATEGORIES, generate_demo_library
@@ -54,17 +55,22 @@ def test_full_library_layout_variety_and_traps(tmp_path):
     assert len({o["category"] for o in ordinary}) >= 10
     assert {o["category"] for o in containers} == set(CONTAINER_CATEGORIES)
     for o in objects:
-        assert DTC_NAME.match(o["folder"]), o["folder"]
         folder = root / o["folder"]
-        assert {p.name for p in folder.iterdir()} == {"3d-asset.glb", "metadata.json", "LICENSE", "preview.png"}
         meta = json.loads((folder / "metadata.json").read_text())
         assert meta["category"] == o["category"]
+        if o["source"] == "folder":  # another name and source: a plain folder with an OBJ in centimetres
+            assert o["kind"] == "other_source" and meta["units"] == "cm" and "up_axis" not in meta
+            assert {p.name for p in folder.iterdir()} >= {"mesh.obj", "mesh.mtl", "texture_0.png", "metadata.json", "LICENSE"}
+            continue
+        assert DTC_NAME.match(o["folder"]), o["folder"]
+        assert {p.name for p in folder.iterdir()} == {"3d-asset.glb", "metadata.json", "LICENSE", "preview.png"}
+        assert o["model"] == f"{o['folder']}/3d-asset.glb"
         if o["kind"] == "broken":
             continue
         size = max(o["dims_m"])
         if o["container"]:
             assert 0.20 <= max(o["dims_m"][:2]) <= 0.35 and o["dims_m"][2] < 0.1, o
-        elif o["kind"] != "rescale":
+        elif o["kind"] not in ("rescale", "turned"):
             assert 0.02 <= size <= 0.25, o
         doc = glb_json(folder / "3d-asset.glb")
         assert doc["materials"], o["folder"]
@@ -99,6 +105,34 @@ def test_full_library_layout_variety_and_traps(tmp_path):
     by = {o["folder"]: o for o in objects}
     for a, b, factor in truth["rescales"]:
         assert np.allclose(np.array(by[b]["dims_m"]), factor * np.array(by[a]["dims_m"]), atol=1e-5)
+
+    def loaded(entry) -> trimesh.Trimesh:
+        return trimesh.load(root / entry["model"], force="mesh")
+
+    def moments(mesh) -> np.ndarray:
+        v = mesh.vertices - mesh.vertices.mean(axis=0)
+        return np.sort(np.linalg.eigvalsh(v.T @ v / len(v)))
+
+    assert len(truth["turned_rescales"]) == len(truth["retessellated"]) == len(truth["other_source"]) == 2
+    for a, b, factor in truth["turned_rescales"]:  # turned over: other extents, same shape at factor x
+        ma, mb = loaded(by[a]), loaded(by[b])
+        assert np.allclose(moments(mb), factor ** 2 * moments(ma), rtol=1e-6)
+        assert len(ma.vertices) == len(mb.vertices)
+        assert not np.allclose(mb.vertices - mb.vertices.mean(axis=0), factor * (ma.vertices - ma.vertices.mean(axis=0)),
+                               atol=1e-4)  # turned, not only scaled
+    for a, b in truth["retessellated"]:  # every triangle split in four, the same surface
+        ma, mb = loaded(by[a]), loaded(by[b])
+        assert len(mb.faces) == 4 * len(ma.faces) and mb.area == pytest.approx(ma.area, rel=1e-6)  # float32 GLB
+        assert np.allclose(by[a]["dims_m"], by[b]["dims_m"], atol=1e-6)
+    for a, b in truth["other_source"]:  # OBJ in cm, 1.25x: area scales by 1.25^2 and 100^2
+        ma, mb = loaded(by[a]), loaded(by[b])
+        assert mb.area == pytest.approx(ma.area * 1.25 ** 2 * 1e4, rel=1e-4)
+    (tote,) = truth["mesh_quality"]
+    from mixcount.catalog.mesh import load_normalised
+    from mixcount.curation.descriptors import boundary_fraction, nonmanifold_fraction
+
+    mesh = load_normalised(root / by[tote]["model"]).mesh
+    assert nonmanifold_fraction(mesh.faces) > 0.05 and boundary_fraction(mesh.faces) > 0
     assert len(truth["broken"]) >= 2
     kinds = {b["expected_error"] for b in truth["broken"]}
     assert kinds == {"truncated GLB", "not a GLB file"}

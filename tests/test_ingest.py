@@ -27,7 +27,7 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 
 
 def cfg(**ingest):
-    return load_config([], [f"ingest.{k}={json.dumps(v)}" for k, v in ingest.items()]).ingest
+    return load_config([], [f"ingest.{k}={json.dumps(v)}" for k, v in ingest.items()])
 
 
 def objects_by_name(catalog) -> dict[str, CatalogObject]:
@@ -67,12 +67,18 @@ def test_dtc_layout_facts_match_ground_truth(tmp_path, catalog):
     assert summary.total == truth["expected"]["total"]
     assert summary.new == truth["expected"]["active"]
     assert summary.broken == truth["expected"]["broken"] == 2
-    objs = objects_by_name(catalog)
+    with catalog.session() as s:  # by folder: a DTC folder's name, a plain folder's model's folder
+        objs = {o.source_id if o.source == "dtc" else Path(o.model_path).parent.name: o
+                for o in s.scalars(select(CatalogObject))}
     assert set(objs) == {o["folder"] for o in truth["objects"]}
     for entry in truth["objects"]:
         obj = objs[entry["folder"]]
-        assert obj.source == "dtc" and obj.source_id == entry["folder"]
-        assert obj.category == entry["category"]
+        assert obj.source == entry["source"] and obj.category == entry["category"]
+        if entry["source"] == "folder":  # another source: OBJ in cm read Y-up, named by its metadata.json
+            assert obj.status == "active" and obj.name == entry["name"] and obj.source_units == "cm"
+            assert obj.dims == pytest.approx(tuple(entry["dims_m"]), abs=2e-5) and obj.textured
+            continue
+        assert obj.source_id == entry["folder"]
         if entry["kind"] == "broken":
             assert obj.status == "broken" and obj.error
             continue
@@ -154,14 +160,15 @@ def test_plain_folder_every_format(tmp_path, catalog):
     summary = ingest_paths(catalog, [lib], config=cfg(assume_units="cm", assume_up_axis="Y", workers=2))
     assert (summary.new, summary.broken) == (7, 0), summary.broken_objects
     objs = objects_by_name(catalog)
-    assert set(objs) == {"mug_scaled", "model", "block_cm", "eraser", "can", "bottle", "figurine"}
+    # the glTF is the only model of its folder and its file name is generic: the folder names it
+    assert set(objs) == {"mug_scaled", "gltf", "block_cm", "eraser", "can", "bottle", "figurine"}
     assert all(o.source == "folder" and o.status == "active" for o in objs.values())
     # GLB: 2x scale and 90 degrees about glTF's Y... here about Z of the glTF frame, then Y-up -> Z-up
     assert objs["mug_scaled"].dims == pytest.approx((0.04, 0.06, 0.02), abs=1e-6)
     assert objs["mug_scaled"].category == "mug" and objs["mug_scaled"].textured
-    assert objs["model"].dims == pytest.approx((0.05, 0.07, 0.06), abs=1e-6)
-    assert objs["model"].category == "gltf"  # generic stem "model": the folder name is the category
-    assert objs["model"].textured
+    assert objs["gltf"].dims == pytest.approx((0.05, 0.07, 0.06), abs=1e-6)
+    assert objs["gltf"].category == "gltf"  # generic stem "model": the folder name is the category
+    assert objs["gltf"].textured
     assert objs["block_cm"].dims == pytest.approx((0.03, 0.05, 0.04), abs=1e-6)
     assert objs["block_cm"].source_units == "cm" and objs["block_cm"].textured
     assert objs["eraser"].dims == pytest.approx((0.01, 0.03, 0.02), abs=1e-6)
@@ -287,5 +294,7 @@ def test_killed_ingest_resumes_without_duplicates(tmp_path):
     with sqlite3.connect(db) as con:
         rows = con.execute("select source_id, status from objects").fetchall()
     assert len(rows) == total == len({r[0] for r in rows})
-    assert {r[0] for r in rows} == {o["folder"] for o in truth["objects"]}
+    # a DTC object's key is its folder, a plain folder object's the model file's path
+    assert {r[0] for r in rows} == {o["folder"] if o["source"] == "dtc" else str(lib.resolve() / o["model"])
+                                    for o in truth["objects"]}
     assert sum(r[1] == "broken" for r in rows) == truth["expected"]["broken"]

@@ -114,7 +114,7 @@ def bad_library(tmp_path: Path) -> tuple[Path, dict[str, str]]:
 
 def test_every_bad_input_is_broken_with_a_specific_reason(bad_library, catalog):
     lib, expect = bad_library
-    config = load_config([], ["ingest.workers=2"]).ingest
+    config = load_config([], ["ingest.workers=2"])
     summary = ingest_paths(catalog, [lib], config=config)
     with catalog.session() as s:
         objs = s.scalars(select(CatalogObject)).all()

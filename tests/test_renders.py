@@ -47,7 +47,7 @@ def by_name(catalog) -> dict[str, CatalogObject]:
 def test_render_catalog_white_centred_resumable(tmp_path, catalog):
     lib = write_library(tmp_path / "lib")
     cfg = small_config()
-    ingest_paths(catalog, [lib], config=cfg.ingest)
+    ingest_paths(catalog, [lib], config=cfg)
     objs = by_name(catalog)
     assert len(objs) == 4
     vanishing = next(o for n, o in objs.items() if "vanishing" in n)

@@ -49,7 +49,7 @@ def browser():
 
 def test_review_page_round_trip(browser, catalog, tmp_path):
     objs = library_catalog(catalog, tmp_path)
-    run_filter(catalog, quick_config().filter)
+    run_filter(catalog, quick_config())
     cone, cyl = objs["cone"], objs["cyl"]
     add_captions(catalog, cone.id, CAPTION)
     page_path = Path(write_sheets(catalog, tmp_path / "sheet")["html"])
@@ -73,6 +73,8 @@ def test_review_page_round_trip(browser, catalog, tmp_path):
     page.click(f"#obj-{cyl.id} button.accept")
     page.click(f"#obj-{cyl.id} button.accept")  # a second click withdraws the decision
     assert page.text_content("#pending") == "1 decision"
+    page.check(f"#obj-{cyl.id} input.container")  # mark a container: a decision of its own
+    assert page.text_content("#pending") == "2 decisions"
     assert "pending-reject" in (page.get_attribute(f"#obj-{cone.id}", "class") or "")
     with page.expect_download() as info:
         page.click("#export")
@@ -85,14 +87,21 @@ def test_review_page_round_trip(browser, catalog, tmp_path):
 
     data = json.loads(out.read_text())
     assert data["format"] == FORMAT and data["reviewer"] == "tester"
-    assert len(data["decisions"]) == 1
-    decision = data["decisions"][0]
+    assert len(data["decisions"]) == 2
+    decision = next(d for d in data["decisions"] if d["id"] == cone.id)
     assert {k: decision[k] for k in ("id", "name", "decision", "note")} == {
         "id": cone.id, "name": cone.name, "decision": "reject", "note": "odd <b>cone</b>"}
-    assert decision["decided_at"].endswith("Z")
+    assert decision["decided_at"].endswith("Z") and "container" not in decision
+    marked = next(d for d in data["decisions"] if d["id"] == cyl.id)
+    assert marked["container"] is True and "decision" not in marked
 
+    with catalog.session() as s:
+        cyl_status = s.get(CatalogObject, cyl.id).status  # as the filter left it
     assert main(["--db", str(tmp_path / "catalog.db"), "catalog", "review", "import", str(out)]) == 0
     with catalog.session() as s:
         assert s.get(CatalogObject, cone.id).status == "excluded"
         row = s.query(ReviewDecision).filter_by(object_id=cone.id).one()
         assert (row.decision, row.reviewer, row.note) == ("reject", "tester", "odd <b>cone</b>")
+        container = s.get(CatalogObject, cyl.id)
+        assert container.container and container.container_reason.startswith("review: container by tester")
+        assert container.status == cyl_status  # a container setting is not an accept/reject

@@ -29,7 +29,7 @@ def rich_pool() -> list[ObjectRecord]:
         for j in range(6):
             dims = (0.25, 0.22, 0.03) if c in ("plate", "tray", "bowl") else (0.04 + 0.01 * j, 0.05, 0.03 + 0.004 * j)
             pool.append(ObjectRecord(oid, f"{c} {j}", c, dims, fallback_captions(f"{c} {j}", c), "train",
-                                     f"/lib/{oid}.glb", f"h{oid:05d}"))
+                                     f"/lib/{oid}.glb", f"h{oid:05d}", container=c in ("plate", "tray", "bowl")))
             oid += 1
     for j in range(5):  # other splits and excluded objects
         pool.append(ObjectRecord(oid, f"val {j}", "thing0", (0.05, 0.05, 0.05), fallback_captions("v", "thing0"),
@@ -137,7 +137,7 @@ def test_container_distractors_and_eligibility(samples):
         counted = {c.object_id for c in s.classes}
         ids = counted | {d.object_id for d in s.distractors}
         if s.container is not None:
-            assert by_id[s.container.object_id].category in conf.container_categories
+            assert by_id[s.container.object_id].container
             assert s.container.object_id not in ids
             ids.add(s.container.object_id)
         for oid in ids:

@@ -28,7 +28,7 @@ HOSTILE = "</script><script>window.pwned=1</script><img src=x onerror=\"window.p
 @pytest.fixture
 def curated(catalog, tmp_path):
     objs = library_catalog(catalog, tmp_path)
-    run_filter(catalog, quick_config().filter)
+    run_filter(catalog, quick_config())
     add_captions(catalog, objs["cone"].id, HOSTILE)
     return objs
 
@@ -124,7 +124,7 @@ def test_review_import_validates_records_and_survives_filter(catalog, curated, t
     again = import_decisions(catalog, good, reviewer="ana")
     assert (again.recorded, again.already_recorded, again.status_changes) == (0, 2, [])
 
-    run_filter(catalog, quick_config().filter)  # the person's word survives re-running the filter
+    run_filter(catalog, quick_config())  # the person's word survives re-running the filter
     with catalog.session() as s:
         assert s.get(CatalogObject, cone.id).status == "excluded"
         assert s.get(CatalogObject, cyl.id).status == "active"

@@ -89,7 +89,7 @@ def build_demo_catalog(root: Path, n_objects: int = 16):
 
     generate_demo_library(root / "lib", seed=0, n_objects=n_objects)
     cat = open_catalog(f"sqlite:///{root / 'catalog.db'}", data_dir="")
-    ingest_paths(cat, [root / "lib"], config=load_config(["quick"], ["ingest.workers=1"]).ingest)
+    ingest_paths(cat, [root / "lib"], config=load_config(["quick"], ["ingest.workers=1"]))
     with cat.session() as session:
         for obj in session.query(CatalogObject).filter_by(status="active").order_by(CatalogObject.id):
             session.add(Split(object_id=obj.id, split="train", method="random"))

@@ -1,4 +1,9 @@
-"""A person's review decisions: the latest one per object outranks every automatic flag."""
+"""A person's review decisions: the latest one per object and kind outranks every automatic rule.
+
+Two kinds of decision share the ``review_decisions`` table: keep or drop the object (``accept`` /
+``reject``, which outranks duplicate and quality flags) and whether it is a container (``container`` /
+``not_container``, which outranks the ``[containers]`` rules). Each kind has its own latest decision.
+"""
 
 from __future__ import annotations
 
@@ -9,11 +14,16 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog.models import ReviewDecision
 
+STATUS_DECISIONS = ("accept", "reject")
+CONTAINER_DECISIONS = {"container": True, "not_container": False}
 
-def latest_decisions(session: Session, object_ids: Optional[Iterable[int]] = None) -> dict[int, ReviewDecision]:
-    """object id -> its latest review decision (by decision time, then insertion order), optionally
-    only for ``object_ids``."""
-    query = select(ReviewDecision).order_by(ReviewDecision.decided_at, ReviewDecision.id)
+
+def latest_decisions(session: Session, object_ids: Optional[Iterable[int]] = None, *,
+                     kinds: Iterable[str] = STATUS_DECISIONS) -> dict[int, ReviewDecision]:
+    """object id -> its latest decision among ``kinds`` (by decision time, then insertion order),
+    optionally only for ``object_ids``."""
+    query = (select(ReviewDecision).where(ReviewDecision.decision.in_(list(kinds)))
+             .order_by(ReviewDecision.decided_at, ReviewDecision.id))
     if object_ids is not None:
         query = query.where(ReviewDecision.object_id.in_(list(object_ids)))
     latest: dict[int, ReviewDecision] = {}
@@ -22,6 +32,12 @@ def latest_decisions(session: Session, object_ids: Optional[Iterable[int]] = Non
     return latest
 
 
+def latest_container_decisions(session: Session,
+                               object_ids: Optional[Iterable[int]] = None) -> dict[int, ReviewDecision]:
+    """object id -> its latest ``container`` / ``not_container`` decision."""
+    return latest_decisions(session, object_ids, kinds=CONTAINER_DECISIONS)
+
+
 def accepted_ids(session: Session) -> set[int]:
-    """Objects whose latest decision is "accept"."""
+    """Objects whose latest keep/drop decision is "accept"."""
     return {oid for oid, rd in latest_decisions(session).items() if rd.decision == "accept"}

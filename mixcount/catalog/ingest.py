@@ -2,12 +2,15 @@
 
 Flow (see docs/ingest.md):
 
-1. **Discover** every object under the given paths: Digital Twin Catalog folders
-   (``Category_ID_Variant/3d-asset.glb`` + ``metadata.json`` + licence + previews) and plain model files.
-   Problems found here (unreadable folder, odd name, DTC folder without a model) become broken objects.
+1. **Discover** every object under the given paths in the library layouts of
+   :mod:`mixcount.catalog.layouts` (Digital Twin Catalog, Google Scanned Objects, Objaverse/ABO with side
+   metadata, OmniObject3D, plain folders), auto-detected per folder or forced with ``layout``. Problems
+   found here (unreadable folder, odd name, an object folder without a model) become broken objects.
+   Objects whose files a loader cannot find side by side (GSO textures) are staged: linked together
+   under ``data_dir/staged``.
 2. **Pre-check and hash** in this process, before any mesh work: file size limit, GLB header, missing
-   textures/buffers, then ``content_hash`` (model + resources) and ``ingest_hash`` (+ sidecars and the
-   settings that change facts). An object whose stored ``ingest_hash`` matches is *unchanged* and costs no
+   textures/buffers, then ``content_hash`` (model + resources) and ``ingest_hash`` (+ sidecars, the
+   identity read from metadata and the settings that change facts). An object whose stored ``ingest_hash`` matches is *unchanged* and costs no
    database write; one whose content hash matches but sidecars changed gets a metadata-only update.
 3. **Analyse** the rest in a process pool (:func:`mixcount.catalog.mesh.analyse_model`).
 4. **Commit each object on its own**, keyed by the unique (source, source_id): a killed run leaves whole
@@ -19,20 +22,21 @@ from __future__ import annotations
 
 import json
 import os
-import re
-import unicodedata
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable
 
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from mixcount.catalog import hashing
-from mixcount.catalog.mesh import MESH_EXTENSIONS, model_resources
+from mixcount.catalog import hashing, layouts
+from mixcount.catalog.containers import refresh_containers
+from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
+from mixcount.catalog.mesh import model_resources
+from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
     STATUS_BROKEN,
@@ -41,38 +45,15 @@ from mixcount.catalog.models import (
     IngestRun,
     utcnow,
 )
-from mixcount.config import IngestConfig
+from mixcount.config import Config, IngestConfig
 from mixcount.progress import ProgressReporter, as_reporter
-from mixcount.errors import CatalogError, IngestError
-
-DTC_MODEL = "3d-asset"
-DTC_NAME = re.compile(r"^(?P<category>[A-Za-z][A-Za-z0-9-]*)_(?P<id>[A-Za-z0-9]{6,})_(?P<variant>.+)$")
-LICENCE_NAMES = re.compile(r"^(licen[cs]e|copying)(\.[a-z]+)?$", re.IGNORECASE)
-SOURCE_DTC = "dtc"
-SOURCE_FOLDER = "folder"
+from mixcount.errors import IngestError
 
 # Fact columns copied from the analysis dict onto the row.
 FACT_FIELDS = (
     "source_units", "source_up_axis", "dim_x", "dim_y", "dim_z", "vertex_count", "face_count",
     "watertight", "volume", "area", "textured", "geometry_hash", "collision_path", "collision_face_count",
 )
-
-
-@dataclass
-class Candidate:
-    """One object found on disk, before hashing."""
-
-    source: str
-    source_id: str
-    name: str
-    category: str
-    model_path: Path | None = None
-    sidecars: dict[str, Path] = field(default_factory=dict)
-    metadata: dict[str, Any] = field(default_factory=dict)
-    license: str | None = None
-    units: str | None = None
-    up_axis: str | None = None
-    error: str | None = None  # a problem found during discovery: the object is broken
 
 
 @dataclass
@@ -85,6 +66,8 @@ class IngestSummary:
     updated: int = 0
     broken: int = 0
     broken_objects: list[tuple[str, str]] = field(default_factory=list)  # (name, reason)
+    layouts: dict[str, int] = field(default_factory=dict)  # objects found per layout
+    containers: int = 0  # objects of the catalog that are containers after this run
 
     @property
     def total(self) -> int:
@@ -93,208 +76,10 @@ class IngestSummary:
     def as_dict(self) -> dict[str, Any]:
         return {
             "run_id": self.run_id, "total": self.total, "new": self.new, "unchanged": self.unchanged,
-            "updated": self.updated, "broken": self.broken,
+            "updated": self.updated, "broken": self.broken, "layouts": dict(sorted(self.layouts.items())),
+            "containers": self.containers,
             "broken_objects": [{"name": n, "reason": r} for n, r in self.broken_objects],
         }
-
-
-# --------------------------------------------------------------------------- names
-
-
-def safe_text(text: str) -> str:
-    """A name that SQLite/JSON/one-line messages can carry: undecodable bytes (surrogate escapes)
-    become \\xNN and control characters their escape (\\n, \\x07); a stable mapping, so reruns match."""
-    text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
-    if any(unicodedata.category(c) == "Cc" for c in text):
-        text = "".join(c.encode("unicode_escape").decode() if unicodedata.category(c) == "Cc" else c for c in text)
-    return text
-
-
-def odd_name_reason(name: str) -> str | None:
-    """Why a file/folder name is unusable (control characters, undecodable bytes), or None."""
-    try:
-        name.encode("utf-8")
-    except UnicodeEncodeError:
-        return f"name is not valid UTF-8: {ascii(name)}"
-    bad = [c for c in name if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co", "Cn")]
-    if bad:
-        return f"name has control or invisible characters {ascii(''.join(sorted(set(bad))))}: {ascii(name)}"
-    if name.strip() != name or not name.strip():
-        return f"name has leading/trailing blanks: {ascii(name)}"
-    return None
-
-
-def singular(word: str) -> str:
-    """Lower-case singular category word: 'Markers' -> 'marker', 'Berries' -> 'berry'."""
-    w = word.strip().lower()
-    if len(w) > 4 and w.endswith("ies"):
-        return w[:-3] + "y"
-    if len(w) > 4 and re.search(r"(ches|shes|xes|sses|oes)$", w):
-        return w[:-2]
-    if len(w) > 3 and w.endswith("s") and not w.endswith(("ss", "us", "is")):
-        return w[:-1]
-    return w
-
-
-GENERIC_STEMS = {"model", "mesh", "scene", "object", "asset", "untitled", "export", "3d", "textured", "scan"}
-
-
-def _category_from_stem(stem: str, parent: str) -> str:
-    """Plain files: the file name's first word ('mug_02.glb' -> mug), else the folder's name."""
-    token = re.split(r"[_\-\s.]+", stem.strip())[0] if stem.strip() else ""
-    token = re.sub(r"\d+$", "", token)
-    if token.isalpha() and token.lower() not in GENERIC_STEMS:
-        return singular(token)
-    parent_token = re.sub(r"[^A-Za-z]", "", parent)
-    return singular(parent_token) if parent_token else "unknown"
-
-
-# --------------------------------------------------------------------------- discovery
-
-
-def _find_dtc_model(folder: Path) -> Path | None:
-    preferred = folder / f"{DTC_MODEL}.glb"
-    if preferred.is_file():
-        return preferred
-    for ext in MESH_EXTENSIONS:
-        candidate = folder / f"{DTC_MODEL}{ext}"
-        if candidate.is_file():
-            return candidate
-    return None
-
-
-def is_dtc_folder(folder: Path) -> bool:
-    """A DTC object folder: holds ``3d-asset.*`` or ``metadata.json``, or is named Category_ID_Variant
-    and holds no sub-folders (a library root named like that is walked instead)."""
-    if _find_dtc_model(folder) is not None or (folder / "metadata.json").is_file():
-        return True
-    if DTC_NAME.match(folder.name):
-        try:
-            return not any(entry.is_dir() for entry in os.scandir(folder))
-        except OSError:
-            return True
-    return False
-
-
-def _dtc_candidate(folder: Path) -> Candidate:
-    name = folder.name
-    source_id = safe_text(name)
-    match = DTC_NAME.match(name)
-    category = singular(match.group("category")) if match else _category_from_stem(name, folder.parent.name)
-    cand = Candidate(SOURCE_DTC, source_id, source_id, category)
-    reason = odd_name_reason(name)
-    if reason:
-        cand.error = reason
-        return cand
-    try:
-        entries = sorted(os.listdir(folder))
-    except OSError as exc:
-        cand.error = f"unreadable folder: {exc.strerror or exc}"
-        return cand
-    cand.model_path = _find_dtc_model(folder)
-    if cand.model_path is None:
-        cand.error = f"DTC folder has no {DTC_MODEL}.glb"
-        return cand
-    meta_path = folder / "metadata.json"
-    if meta_path.is_file():
-        cand.sidecars["metadata.json"] = meta_path
-        try:
-            meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            cand.error = f"metadata.json does not parse: {exc}"
-            return cand
-        if not isinstance(meta, dict):
-            cand.error = "metadata.json is not a JSON object"
-            return cand
-        cand.metadata = meta
-        if isinstance(meta.get("category"), str) and meta["category"].strip():
-            cand.category = singular(meta["category"])
-        cand.units = meta.get("units") if isinstance(meta.get("units"), str) else None
-        cand.up_axis = meta.get("up_axis") if isinstance(meta.get("up_axis"), str) else None
-    for entry in entries:
-        if LICENCE_NAMES.match(entry) and (folder / entry).is_file():
-            cand.sidecars[entry] = folder / entry
-            try:
-                cand.license = (folder / entry).read_text(encoding="utf-8", errors="replace")[:4000].strip()
-            except OSError as exc:
-                cand.error = f"unreadable licence file {entry}: {exc.strerror}"
-            break
-    return cand
-
-
-def _file_candidate(path: Path) -> Candidate:
-    source_id = safe_text(str(path))
-    name = safe_text(path.stem)
-    category = _category_from_stem(safe_text(path.stem), safe_text(path.parent.name))
-    cand = Candidate(SOURCE_FOLDER, source_id, name, category, path)
-    reason = odd_name_reason(path.name)
-    if reason:
-        cand.error = reason
-    elif path.suffix.lower() not in MESH_EXTENSIONS:
-        cand.error = f"unsupported file type {path.suffix or '(none)'}"
-    return cand
-
-
-def _broken_path_candidate(path: Path, exc: OSError) -> Candidate:
-    looks_dtc = bool(DTC_NAME.match(path.name))
-    source = SOURCE_DTC if looks_dtc else SOURCE_FOLDER
-    source_id = safe_text(path.name if looks_dtc else str(path))
-    category = singular(DTC_NAME.match(path.name).group("category")) if looks_dtc else "unknown"  # type: ignore[union-attr]
-    kind = "folder" if looks_dtc or not path.suffix else "path"
-    return Candidate(source, source_id, safe_text(path.name), category,
-                     error=f"unreadable {kind}: {exc.strerror or exc}")
-
-
-def _walk(folder: Path) -> Iterator[Candidate]:
-    try:
-        entries = sorted(os.scandir(folder), key=lambda e: e.name)
-    except OSError as exc:
-        yield _broken_path_candidate(folder, exc)
-        return
-    for entry in entries:
-        if entry.name.startswith("."):
-            continue
-        path = Path(entry.path)
-        try:
-            is_dir = entry.is_dir()
-            is_file = entry.is_file()
-            if not is_dir and not is_file and entry.is_symlink():
-                os.stat(path)  # raises for a dangling or looping link
-        except OSError as exc:
-            if DTC_NAME.match(entry.name) or path.suffix.lower() in MESH_EXTENSIONS:
-                yield _broken_path_candidate(path, exc)
-            continue
-        if is_dir:
-            if is_dtc_folder(path):
-                yield _dtc_candidate(path)
-            else:
-                yield from _walk(path)
-        elif is_file and path.suffix.lower() in MESH_EXTENSIONS:
-            yield _file_candidate(path)
-
-
-def discover(paths: Iterable[Path | str]) -> list[Candidate]:
-    """Every object under ``paths`` (sorted, duplicates removed); a missing path is a CatalogError."""
-    found: dict[tuple[str, str], Candidate] = {}
-    for raw in paths:
-        path = Path(raw).expanduser()
-        if not os.path.lexists(path):
-            raise CatalogError(f"path not found: {raw}")
-        path = path.resolve()
-        if path.is_dir():
-            items: Iterable[Candidate] = [_dtc_candidate(path)] if is_dtc_folder(path) else _walk(path)
-        elif path.is_file():
-            items = [_file_candidate(path)]
-        else:
-            try:
-                os.stat(path)
-                items = [Candidate(SOURCE_FOLDER, safe_text(str(path)), safe_text(path.name), "unknown",
-                                   error="not a regular file or folder")]
-            except OSError as exc:
-                items = [_broken_path_candidate(path, exc)]
-        for cand in items:
-            found.setdefault((cand.source, cand.source_id), cand)
-    return list(found.values())
 
 
 # --------------------------------------------------------------------------- hashing
@@ -341,9 +126,11 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> P
         files.update({f"res:{k}": v for k, v in resources.items()})
         prep.content_hash = hashing.files_hash(files)
         sidecar_hash = hashing.files_hash({f"side:{k}": v for k, v in cand.sidecars.items()})
+        identity_hash = hashing.json_hash([cand.layout, cand.name, cand.category, cand.license, cand.metadata])
         prep.settings_hash = hashing.json_hash([settings, cand.units, cand.up_axis])
         prep.ingest_hash = hashing.combine([
-            ("content", prep.content_hash), ("sidecars", sidecar_hash), ("settings", prep.settings_hash),
+            ("content", prep.content_hash), ("sidecars", sidecar_hash), ("identity", identity_hash),
+            ("settings", prep.settings_hash),
         ])
     except IngestError as exc:
         prep.error = exc.reason
@@ -383,11 +170,17 @@ def _existing_rows(session: Session, candidates: list[Candidate]) -> dict[tuple[
     return rows
 
 
+def _stored_path(path: Path) -> str:
+    """The model path as stored: absolute, but a staged link stays the link (its folder holds the
+    files the loaders need beside the model)."""
+    return os.path.abspath(path)
+
+
 def _apply_identity(obj: CatalogObject, prep: Prepared, run_id: int | None, ingest: dict[str, Any]) -> None:
     cand = prep.cand
     obj.name = cand.name
     obj.category = cand.category
-    obj.model_path = safe_text(str(cand.model_path.resolve())) if cand.model_path else ""
+    obj.model_path = safe_text(_stored_path(cand.model_path)) if cand.model_path else ""
     obj.license = cand.license
     obj.metadata_json = json.dumps({"metadata": cand.metadata, "ingest": ingest}, sort_keys=True, default=str)
     obj.ingest_run_id = run_id
@@ -409,7 +202,7 @@ def _store(
             if not is_new and obj.status == STATUS_BROKEN and obj.error == error:
                 session.rollback()
                 return "broken"
-            ingest = {"ingest_hash": prep.ingest_hash}
+            ingest = {"ingest_hash": prep.ingest_hash, "layout": cand.layout}
             _apply_identity(obj, prep, run_id, ingest)
             obj.content_hash = prep.content_hash
             obj.status = STATUS_BROKEN
@@ -419,6 +212,7 @@ def _store(
             assert facts is not None
             ingest = {
                 "ingest_hash": prep.ingest_hash,
+                "layout": cand.layout,
                 "settings_hash": prep.settings_hash,
                 "appearance": facts.get("appearance"),
                 "n_parts": facts.get("n_parts"),
@@ -480,20 +274,32 @@ def ingest_paths(
     catalog: Any,
     paths: Iterable[Path | str],
     *,
-    config: IngestConfig,
+    config: Config,
     progress: ProgressReporter | bool | None = None,
     strict: bool = False,
+    layout: str = "auto",
+    metadata_files: Iterable[Path | str] = (),
 ) -> IngestSummary:
     """Ingest every object under ``paths`` into ``catalog``; see the module docstring.
 
-    ``strict`` does not change what is stored; the CLI uses it to exit non-zero when anything is broken.
+    ``layout`` forces one library layout (``auto`` detects it per folder); ``metadata_files`` are side
+    metadata files (JSON/JSONL/CSV) searched for every model's id. ``strict`` does not change what is
+    stored; the CLI uses it to exit non-zero when anything is broken.
     """
     paths = list(paths)
-    candidates = discover(paths)
-    settings = settings_of(config)
-    max_bytes = config.max_file_mb * 2**20
-    n_workers = max(1, config.workers)
+    candidates = discover(paths, layout=layout, metadata_files=metadata_files)
+    ing = config.ingest
+    for cand in candidates:
+        if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
+            cand.units = cand.units or ing.omniobject3d_units
+            cand.up_axis = cand.up_axis or ing.omniobject3d_up_axis
+        layouts.stage(cand, catalog.data_dir / "staged")
+    settings = settings_of(ing)
+    max_bytes = ing.max_file_mb * 2**20
+    n_workers = max(1, ing.workers)
     summary = IngestSummary()
+    for cand in candidates:
+        summary.layouts[cand.layout] = summary.layouts.get(cand.layout, 0) + 1
     collision_dir = catalog.collision_dir
 
     with catalog.session() as session:
@@ -526,7 +332,7 @@ def ingest_paths(
                     continue
                 if existing is not None and existing.status != STATUS_BROKEN:
                     info = _ingest_info(existing)
-                    same_path = existing.model_path == str(cand.model_path.resolve())  # type: ignore[union-attr]
+                    same_path = existing.model_path == _stored_path(cand.model_path)  # type: ignore[arg-type]
                     if info.get("ingest_hash") == prep.ingest_hash and same_path:
                         count("unchanged", prep)
                         bar.advance()
@@ -544,6 +350,7 @@ def ingest_paths(
                 pending.append(prep)
             if pending:
                 _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar)
+            summary.containers = refresh_containers(session, config).containers
         status = "done"
     finally:
         bar.stop()

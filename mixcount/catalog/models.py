@@ -20,6 +20,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    false,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -91,6 +92,10 @@ class CatalogObject(Base):
     collision_face_count: Mapped[Optional[int]] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), default=STATUS_ACTIVE, index=True)
     error: Mapped[Optional[str]] = mapped_column(Text)
+    # a container (plate, tray, bowl, ...) scenes drop the counted objects into: set from the
+    # [containers] rules or a person's review (mixcount.catalog.containers), with the reason
+    container: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false(), index=True)
+    container_reason: Mapped[Optional[str]] = mapped_column(Text)
     ingest_run_id: Mapped[Optional[int]] = mapped_column(ForeignKey("ingest_runs.id"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow, onupdate=utcnow)
@@ -198,13 +203,14 @@ class Render(Base):
 
 
 class ReviewDecision(Base):
-    """A person's accept/reject of an object; the latest one outranks automatic flags."""
+    """A person's decision on an object: accept/reject (the latest outranks automatic flags) or
+    container/not_container (the latest outranks the container rules)."""
 
     __tablename__ = "review_decisions"
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     object_id: Mapped[int] = mapped_column(ForeignKey("objects.id", ondelete="CASCADE"), index=True)
-    decision: Mapped[str] = mapped_column(String(16))  # accept | reject
+    decision: Mapped[str] = mapped_column(String(16))  # accept | reject | container | not_container
     reviewer: Mapped[str] = mapped_column(String(128), default="")
     note: Mapped[str] = mapped_column(Text, default="")
     decided_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)

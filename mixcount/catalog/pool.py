@@ -56,7 +56,7 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
                 collision_path=obj.collision_path, status=obj.status,
                 source_units=obj.source_units, source_up_axis=obj.source_up_axis,
                 render_path=renders.get(int(obj.id)),
-                source=obj.source, source_id=obj.source_id, license=obj.license,
+                source=obj.source, source_id=obj.source_id, license=obj.license, container=bool(obj.container),
             )
         )
     return pool

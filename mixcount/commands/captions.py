@@ -44,7 +44,8 @@ def caption_cmd(
     from mixcount.captions.captioning import caption_catalog
 
     st = state(ctx)
-    conf = st.config(values={"captions.captioner": captioner}).captions
+    cfg = st.config(values={"captions.captioner": captioner})
+    conf = cfg.captions
     cap = make_captioner(conf.captioner, conf)
     logging.getLogger("httpx").setLevel(logging.WARNING)
     catalog = st.catalog()
@@ -53,6 +54,10 @@ def caption_cmd(
             catalog, cap, force=force, dedupe=dedupe, progress=RichProgress(),
             colour_source=conf.colour_source, concurrency=conf.concurrency,
         )
+        from mixcount.catalog.containers import refresh_containers
+
+        with catalog.session() as session:  # captions may name containers ("a wooden tray")
+            refresh_containers(session, cfg)
     finally:
         catalog.close()
         close = getattr(cap, "close", None)

@@ -21,7 +21,7 @@ from mixcount.errors import CompositionError
 def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
     """SceneSpecs for scenes ``compose.seed .. compose.seed+n-1`` of ``compose.split``."""
     from mixcount.catalog.pool import load_environments, load_materials, load_pool
-    from mixcount.scene.sampler import sample_scene
+    from mixcount.scene.sampler import container_warning, sample_scene
 
     split, base = config.compose.split, config.compose.seed
     with catalog.session() as session:
@@ -33,6 +33,9 @@ def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
             f"no active objects in split {split!r}: ingest, caption and split the catalog first "
             "(mixcount catalog ingest / caption / split)"
         )
+    warning = container_warning(pool, split, config.scene)
+    if warning:
+        console.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
     return [sample_scene(base + k, split, config, pool, environments=envs, materials=mats) for k in range(n)]
 
 
@@ -107,13 +110,13 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             "compose.split": split, "compose.seed": seed, "compose.workers": workers,
             "compose.resolution": resolution, "compose.samples": samples})
         catalog = st.catalog()
-        specs = plan_scenes(catalog, cfg, n=n)
         if dry_run:
+            specs = plan_scenes(catalog, cfg, n=n)
             _print_dry_run(specs)
             out.print(json.dumps([summarise(s) for s in specs], indent=2))
             return
         if stage_only:
-            paths = write_stages(specs, out_dir, catalog)
+            paths = write_stages(plan_scenes(catalog, cfg, n=n), out_dir, catalog)
             console.print(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}")
             out.print(json.dumps({"stages": [str(p) for p in paths]}, indent=2))
             return

@@ -51,7 +51,7 @@ def filter_cmd(
     st = state(ctx)
     catalog = st.catalog()
     try:
-        summary = run_filter(catalog, st.config().filter)
+        summary = run_filter(catalog, st.config())
     finally:
         catalog.close()
     flags = ", ".join(f"{n} {k}" for k, n in summary.flags.items())
@@ -117,6 +117,9 @@ def review_import_cmd(
         catalog.close()
     for c in summary.status_changes:
         console.print(f"#{c['id']} {escape(c['name'])}: {c['from']} -> {c['to']}", highlight=False, soft_wrap=True)
+    for c in summary.container_changes:
+        console.print(f"#{c['id']} {escape(c['name'])}: {'now' if c['container'] else 'no longer'} a container",
+                      highlight=False, soft_wrap=True)
     console.print(f"review: {summary.decisions} decisions by {escape(summary.reviewer)}: {summary.recorded} recorded, "
                   f"{summary.already_recorded} already recorded, {len(summary.status_changes)} status changes",
                   highlight=False, soft_wrap=True)

@@ -16,20 +16,30 @@ from mixcount.errors import CatalogError
 
 def ingest_cmd(
     ctx: typer.Context,
-    paths: list[Path] = typer.Argument(..., help="DTC library folders, object folders or model files."),
+    paths: list[Path] = typer.Argument(..., help="Library folders (any supported layout), object folders or model files."),
     workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Mesh-analysis processes [default: ingest.workers]."),
     strict: bool = typer.Option(False, "--strict", help="Exit non-zero when any object is broken."),
     json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+    layout: str = typer.Option(
+        "auto", "--layout",
+        help="Library layout: auto (detected per folder), dtc, gso (Google Scanned Objects), objaverse "
+             "(model files named by id + side metadata; also Amazon Berkeley Objects), omniobject3d, folder."),
+    metadata: list[Path] = typer.Option(
+        [], "--metadata",
+        help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
+             "licence; repeatable. Files beside the models and in the root's metadata/ folder are found anyway."),
 ) -> None:
     """Ingest 3D objects: mesh facts in metres/Z-up, hashes, collision meshes; idempotent and resumable."""
     from mixcount.catalog.ingest import discover, ingest_paths
 
     st = state(ctx)
     cfg = st.config(values={"ingest.workers": workers})
-    discover(paths)  # a missing PATH is an error before the database is touched
+    # a missing PATH, an unknown layout or a bad --metadata file is an error before the database is touched
+    discover(paths, layout=layout, metadata_files=metadata)
     catalog = st.catalog()
     try:
-        summary = ingest_paths(catalog, paths, config=cfg.ingest, progress=RichProgress(), strict=strict)
+        summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
+                               layout=layout, metadata_files=metadata)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)
@@ -38,9 +48,10 @@ def ingest_cmd(
         catalog.close()
     for name, reason in summary.broken_objects:
         console.print(f"[yellow]broken[/] {escape(name)}: {escape(reason)}", highlight=False, soft_wrap=True)
+    found = ", ".join(f"{n} {kind}" for kind, n in sorted(summary.layouts.items()))
     console.print(
         f"ingested {summary.total} objects: {summary.new} new, {summary.unchanged} unchanged, "
-        f"{summary.updated} updated, {summary.broken} broken",
+        f"{summary.updated} updated, {summary.broken} broken" + (f" (layouts: {found})" if found else ""),
         highlight=False,
         soft_wrap=True,
     )

@@ -4,13 +4,19 @@ File format (``mixcount-review-v1``, written by the sheet's export button)::
 
     {"format": "mixcount-review-v1", "reviewer": "ana", "exported_at": "2026-11-23T14:00:00.000Z",
      "decisions": [{"id": 12, "name": "Mug_B0CR7ZL940_Mint", "decision": "reject",
-                    "note": "same mug", "decided_at": "2026-11-23T13:59:41.120Z"}]}
+                    "note": "same mug", "decided_at": "2026-11-23T13:59:41.120Z"},
+                   {"id": 31, "name": "Serving_Board_03", "container": true,
+                    "decided_at": "2026-11-23T13:59:50.000Z"}]}
 
-The whole file is checked before anything is written (unknown ids, a name that does not match the id,
-unknown decisions are errors: a file from another catalog is refused). Each decision becomes a
-``review_decisions`` row (reviewer, time, note) and sets the status at once: accept -> active, reject ->
-excluded (a broken object stays broken). The latest decision per object outranks automatic flags and is
-re-applied by every ``catalog filter``. Importing the same file again adds nothing.
+An entry carries a ``decision`` (accept / reject), a ``container`` (true / false), or both. The whole
+file is checked before anything is written (unknown ids, a name that does not match the id, unknown
+decisions, a container that is not true/false are errors: a file from another catalog is refused).
+Each decision becomes a ``review_decisions`` row (reviewer, time, note; a container setting is stored as
+decision ``container`` / ``not_container``) and applies at once: accept -> active, reject -> excluded (a
+broken object stays broken); container sets ``objects.container`` with the review as its reason. The
+latest accept/reject per object outranks automatic flags and is re-applied by every ``catalog filter``;
+the latest container decision outranks the container rules
+(:mod:`mixcount.catalog.containers`). Importing the same file again adds nothing.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from sqlalchemy import select
 
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
-from mixcount.catalog.decisions import latest_decisions
+from mixcount.catalog.decisions import CONTAINER_DECISIONS, latest_container_decisions, latest_decisions
 from mixcount.errors import CatalogError
 
 FORMAT = "mixcount-review-v1"
@@ -41,6 +47,7 @@ class ReviewSummary:
     recorded: int = 0
     already_recorded: int = 0
     status_changes: list[dict[str, Any]] = field(default_factory=list)
+    container_changes: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -86,12 +93,18 @@ def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = Non
             if not isinstance(entry, dict):
                 problems.append(f"entry {k} is not an object")
                 continue
-            oid, decision = entry.get("id"), entry.get("decision")
+            oid, decision, container = entry.get("id"), entry.get("decision"), entry.get("container")
             if not isinstance(oid, int) or isinstance(oid, bool):
                 problems.append(f"entry {k}: id {oid!r} is not an integer")
                 continue
-            if decision not in DECISIONS:
+            if decision is None and container is None:
+                problems.append(f"entry {k}: neither a decision nor a container setting")
+                continue
+            if decision is not None and decision not in DECISIONS:
                 problems.append(f"entry {k}: decision {decision!r} is not accept or reject")
+                continue
+            if container is not None and not isinstance(container, bool):
+                problems.append(f"entry {k}: container {container!r} is not true or false")
                 continue
             obj = session.get(CatalogObject, oid)
             if obj is None:
@@ -105,7 +118,11 @@ def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = Non
             if not isinstance(note, str):
                 problems.append(f"entry {k}: note is not a string")
                 continue
-            planned.append((obj, decision, note[:4000], _parse_time(entry.get("decided_at")) or default_time))
+            when = _parse_time(entry.get("decided_at")) or default_time
+            if decision is not None:
+                planned.append((obj, decision, note[:4000], when))
+            if container is not None:
+                planned.append((obj, "container" if container else "not_container", note[:4000], when))
         if problems:
             shown = "; ".join(problems[:5]) + (f"; ... ({len(problems)} problems)" if len(problems) > 5 else "")
             raise CatalogError(f"decisions file {path} rejected, nothing applied: {shown}")
@@ -119,16 +136,23 @@ def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = Non
                 session.add(ReviewDecision(object_id=obj.id, decision=decision, reviewer=who, note=note, decided_at=when))
                 summary.recorded += 1
         session.flush()
-        # the latest decision per object sets its status (a file may hold older decisions than the DB)
+        # the latest decision per object and kind applies (a file may hold older decisions than the DB)
         touched = {o.id: o for o, *_ in planned}
-        newest = latest_decisions(session, touched)
+        newest_status = latest_decisions(session, touched)
+        newest_container = latest_container_decisions(session, touched)
         for obj in touched.values():
-            latest = newest.get(obj.id)
-            if latest is None or obj.status == STATUS_BROKEN:
-                continue
-            want = STATUS_ACTIVE if latest.decision == "accept" else STATUS_EXCLUDED
-            if obj.status != want:
-                summary.status_changes.append({"id": obj.id, "name": obj.name, "from": obj.status, "to": want})
-                obj.status = want
+            status = newest_status.get(obj.id)
+            if status is not None and obj.status != STATUS_BROKEN:
+                want = STATUS_ACTIVE if status.decision == "accept" else STATUS_EXCLUDED
+                if obj.status != want:
+                    summary.status_changes.append({"id": obj.id, "name": obj.name, "from": obj.status, "to": want})
+                    obj.status = want
+            marked = newest_container.get(obj.id)
+            if marked is not None:
+                value = CONTAINER_DECISIONS[marked.decision]
+                reason = f"review: {marked.decision} by {marked.reviewer or 'someone'} at {marked.decided_at.isoformat()}Z"
+                if bool(obj.container) != value:
+                    summary.container_changes.append({"id": obj.id, "name": obj.name, "container": value})
+                obj.container, obj.container_reason = value, reason
         session.commit()
     return summary

@@ -1,8 +1,9 @@
 """`catalog sheet`: PNG contact sheets and one self-contained HTML review page.
 
 * ``sheet_001.png`` ... : grids of canonical renders (``cols`` x ``rows`` per page) with id, name, the
-  short caption when there is one and the flags, framed in a colour per status (green active, orange
-  excluded, red broken). Meant to be read at a glance.
+  short caption when there is one and the flags (``MESH 0.35`` prints the mesh_quality score;
+  ``CONTAINER`` marks containers), framed in a colour per status (green active, orange excluded, red
+  broken). Meant to be read at a glance.
 * ``review.html``: every selected object as a card with its thumbnail (inline base64 JPEG), all three
   captions, each flag with its reason and, for pairings, both objects' thumbnails side by side, and
   accept / reject buttons; "export decisions" downloads a ``mixcount-review-v1`` JSON file that
@@ -40,8 +41,9 @@ STATUS_COLOURS = {"active": (46, 139, 87), "excluded": (224, 138, 0), "broken": 
 TEMPLATE = Path(__file__).with_name("sheet_template.html")
 FLAG_SHORT = {
     "exact_duplicate": "EXACT", "near_duplicate_geometry": "GEOM", "near_duplicate_appearance": "LOOK",
-    "degenerate": "DEGEN", "size_outlier": "SIZE", "caption_collision": "CAPTION",
+    "degenerate": "DEGEN", "size_outlier": "SIZE", "caption_collision": "CAPTION", "mesh_quality": "MESH",
 }
+SCORED = ("mesh_quality",)  # flags whose score the PNG sheet prints (a warning's severity)
 
 
 @dataclass
@@ -65,6 +67,8 @@ class SheetEntry:
     captions: dict[str, str] | None
     flags: list[SheetFlag] = field(default_factory=list)
     last_review: dict[str, str] | None = None
+    container: bool = False
+    container_reason: str | None = None
 
 
 def collect(session: Session, *, only: str = "all", category: str | None = None) -> list[SheetEntry]:
@@ -96,6 +100,7 @@ def collect(session: Session, *, only: str = "all", category: str | None = None)
             render=canonical_render_path(session, obj.id), captions=active_captions(session, obj), flags=sflags,
             last_review=({"decision": rd.decision, "reviewer": rd.reviewer, "at": rd.decided_at.isoformat() + "Z",
                           "note": rd.note} if rd is not None else None),
+            container=bool(obj.container), container_reason=obj.container_reason,
         ))
     return entries
 
@@ -146,10 +151,12 @@ def _fit(draw: ImageDraw.ImageDraw, text: str, font: Any, width: int) -> str:
     return text + "…"
 
 
-def _flag_line(flags: list[SheetFlag]) -> str:
-    parts = []
+def _flag_line(flags: list[SheetFlag], container: bool = False) -> str:
+    parts = ["CONTAINER"] if container else []
     for f in flags:
         tag = FLAG_SHORT.get(f.kind, f.kind.upper())
+        if f.kind in SCORED:
+            tag = f"{tag} {f.score:.2f}"
         parts.append(f"{tag}~#{f.pair}" if f.pair is not None else tag)
     return " ".join(dict.fromkeys(parts))
 
@@ -189,7 +196,7 @@ def write_png_sheets(entries: list[SheetEntry], out_dir: Path, *, cols: int = 6,
             d.text((tx, ty), _fit(d, f"#{e.id} {e.name}", f_name, tw), fill=(20, 20, 20), font=f_name)
             short = (e.captions or {}).get("short") or (e.error or "")
             d.text((tx, ty + 17), _fit(d, short, f_small, tw), fill=(70, 70, 70), font=f_small)
-            d.text((tx, ty + 32), _fit(d, _flag_line(e.flags), f_small, tw), fill=(170, 40, 30), font=f_small)
+            d.text((tx, ty + 32), _fit(d, _flag_line(e.flags, e.container), f_small, tw), fill=(170, 40, 30), font=f_small)
         path = out_dir / f"sheet_{k:03d}.png"
         sheet.save(path, optimize=True)
         paths.append(path)
@@ -246,6 +253,9 @@ def _card(e: SheetEntry, thumbs: dict[int, str], pair_thumbs: dict[int, str]) ->
         f"{error}{caps}{flags_html}"
         "<div class=\"review\"><button type=\"button\" class=\"accept\" data-decision=\"accept\">accept</button>"
         "<button type=\"button\" class=\"reject\" data-decision=\"reject\">reject</button>"
+        f"<label class=\"container\" title=\"{_e(e.container_reason or 'not a container')}\">"
+        f"<input class=\"container\" type=\"checkbox\" data-initial=\"{'true' if e.container else 'false'}\""
+        f"{' checked' if e.container else ''}> container</label>"
         "<input class=\"note\" type=\"text\" placeholder=\"note\"></div>"
         f"{last}</article>"
     )

@@ -9,11 +9,16 @@
   UVs; about two thirds carry a PNG image texture, the rest vertex colours with PBR factors;
 * 6 containers (plate, tray, bowl; 20-35 cm, open on top) for scenes to drop objects into;
 * traps for curation: exact copies under another name, the same shape recoloured, the same object
-  rescaled, and broken files (a truncated GLB, non-mesh bytes named ``3d-asset.glb``).
+  rescaled, the same object turned over and rescaled, the same object re-tessellated (every triangle
+  split in four), the same object under another name from another source (a plain folder holding an OBJ
+  in centimetres, 1.25x larger, stored Z-up but undeclared, so it is read lying on its side), broken
+  files (a truncated GLB, non-mesh bytes named ``3d-asset.glb``), and a clean object whose mesh is
+  non-manifold and open (a tote with a flat strap welded to its rim: usable, a ``mesh_quality`` warning).
 
 Geometry is built Z-up in metres and stored the glTF way (Y-up): each part's node carries the Z-up ->
 Y-up rotation and its placement, so ingest has to apply node transforms to measure it correctly.
-``ground_truth.json`` records the true Z-up dimensions for tests to compare.
+``ground_truth.json`` records, per object, its model file (``model``), the layout ingest reads it as
+(``source``) and the dimensions ingest should measure (``dims_m``, metres, Z-up as read).
 """
 
 from __future__ import annotations
@@ -682,6 +687,93 @@ def _recolour(parts: list[Part], hue_shift: float) -> list[Part]:
     return out
 
 
+def _baked(parts: list[Part], rotation: np.ndarray, scale: float) -> list[Part]:
+    """The parts turned by ``rotation`` (3x3, about the origin) and scaled, offsets baked in."""
+    out = []
+    for p in parts:
+        v = (p.vertices + np.asarray(p.offset)) @ rotation.T * scale
+        out.append(Part(v, p.faces, p.uv, image=p.image, colors=p.colors, roughness=p.roughness, metallic=p.metallic))
+    return out
+
+
+def rotation_xyz(degrees: tuple[float, float, float]) -> np.ndarray:
+    """Rotation matrix of extrinsic x, then y, then z turns (degrees)."""
+    rx, ry, rz = np.radians(degrees)
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return z @ y @ x
+
+
+def subdivide(parts: list[Part]) -> list[Part]:
+    """Every triangle split in four at its edge midpoints (positions, UVs and colours interpolated): the
+    same surface with another tessellation, as a re-meshed export of one scan."""
+    out = []
+    for p in parts:
+        f = p.faces
+        edges = np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        uniq, inv = np.unique(edges, axis=0, return_inverse=True)
+        mid = len(p.vertices) + inv.reshape(3, -1).T  # per face: midpoints of (0,1), (1,2), (2,0)
+        v = np.vstack([p.vertices, (p.vertices[uniq[:, 0]] + p.vertices[uniq[:, 1]]) / 2])
+        uv = np.vstack([p.uv, (p.uv[uniq[:, 0]] + p.uv[uniq[:, 1]]) / 2])
+        colors = None
+        if p.colors is not None:
+            c = p.colors.astype(np.int32)
+            colors = np.vstack([p.colors, ((c[uniq[:, 0]] + c[uniq[:, 1]]) // 2).astype(np.uint8)])
+        a, b, c3 = f[:, 0], f[:, 1], f[:, 2]
+        ab, bc, ca = mid[:, 0], mid[:, 1], mid[:, 2]
+        faces = np.vstack([np.c_[a, ab, ca], np.c_[ab, b, bc], np.c_[ca, bc, c3], np.c_[ab, bc, ca]])
+        out.append(Part(v, faces, uv, image=p.image, colors=colors, roughness=p.roughness, metallic=p.metallic,
+                        offset=p.offset))
+    return out
+
+
+def build_tote(rng: np.random.Generator) -> Spec:
+    """A canvas tote: an open box (no top face: a hole) with a flat seam flap along two vertical corners,
+    whose edges the walls already share, so those edges have three faces. Non-manifold and open, and
+    perfectly usable: it renders, and physics uses its convex hull."""
+    w, d, h = float(rng.uniform(0.17, 0.2)), 0.07, float(rng.uniform(0.2, 0.23))
+    v, f, uv = box((w, d, h))
+    top = [k for k in range(len(f)) if np.allclose(v[f[k], 2], h / 2)]
+    f = np.delete(f, top, axis=0)
+    for sx in (1, -1):
+        corner = [(sx * w / 2, -d / 2, -h / 2), (sx * w / 2, -d / 2, h / 2)]
+        flap = corner + [(sx * (w / 2 + 0.02), -d / 2 - 0.02, h / 2), (sx * (w / 2 + 0.02), -d / 2 - 0.02, -h / 2)]
+        base = len(v)
+        v = np.vstack([v, flap])
+        uv = np.vstack([uv, [[0.0, 0.0], [0.0, 1.0], [0.1, 1.0], [0.1, 0.0]]])
+        quad = [[base, base + 3, base + 2], [base, base + 2, base + 1]]
+        f = np.vstack([f, quad if sx > 0 else [q[::-1] for q in quad]])
+    img = tex_stripes([(60, 110, 70), (225, 215, 180)], 6, vertical=True)
+    return Spec("bag", "Tote", [Part(v, f, uv, image=img, roughness=0.9)], "a canvas tote bag with a seam flap")
+
+
+def export_obj(parts: list[Part], folder: Path, *, scale: float, stem: str = "mesh") -> None:
+    """Image-textured parts as one OBJ + MTL + PNG textures, Z-up coordinates times ``scale``."""
+    lines = [f"mtllib {stem}.mtl"]
+    mtl = []
+    offset = 0
+    for i, p in enumerate(parts):
+        v = (p.vertices + np.asarray(p.offset)) * scale
+        (folder / f"texture_{i}.png").write_bytes(_png(p.image))
+        mtl += [f"newmtl material_{i}", "Ka 1 1 1", "Kd 1 1 1", "Ks 0 0 0", f"map_Kd texture_{i}.png", ""]
+        lines.append(f"o part_{i}")
+        lines += [f"v {x:.7f} {y:.7f} {z:.7f}" for x, y, z in v]
+        lines += [f"vt {a:.6f} {b:.6f}" for a, b in p.uv]
+        lines.append(f"usemtl material_{i}")
+        lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in p.faces + offset + 1]
+        offset += len(v)
+    (folder / f"{stem}.obj").write_text("\n".join(lines) + "\n")
+    (folder / f"{stem}.mtl").write_text("\n".join(mtl))
+
+
+def _png(image: Image.Image | None) -> bytes:
+    buf = io.BytesIO()
+    (image or Image.new("RGB", (4, 4), (200, 200, 200))).convert("RGB").save(buf, format="PNG")
+    return buf.getvalue()
+
+
 def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None) -> dict[str, Any]:
     """Write the demo library under ``root`` (replacing a previous one) and return the ground truth.
 
@@ -691,7 +783,7 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
     root = Path(root)
     if root.exists():
         for child in root.iterdir():  # only what we would write: DTC folders and the ground truth
-            if child.is_dir() and (child / "metadata.json").exists() or child.name == "ground_truth.json":
+            if child.is_dir() and (child / "metadata.json").exists() or child.name == "ground_truth.json":  # DTC and plain
                 shutil.rmtree(child) if child.is_dir() else child.unlink()
     root.mkdir(parents=True, exist_ok=True)
     full = sum(n for _, _, n in BUILDERS)
@@ -725,7 +817,7 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
                 "object_id": name.split("_")[1], "variant": spec.variant, "generator": GENERATOR, "seed": seed}
         _write_object(root, name, data, meta, _preview(parts))
         entry = {"folder": name, "category": spec.category, "kind": kind, "container": spec.container,
-                 "dims_m": dims, "textured": True,
+                 "dims_m": dims, "textured": True, "model": f"{name}/3d-asset.glb", "source": "dtc",
                  "appearance": "image" if any(p.image is not None for p in parts) else "vertex_color",
                  "n_parts": len(parts), "of": of}
         entry.update(extra or {})
@@ -756,6 +848,39 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
         factor = 1.5 if t % 2 == 0 else 0.6
         twin = emit(spec, "rescale", scale=factor, of=name, extra={"scale": factor})
         rescales.append([name, twin, factor])
+    turned, retessellated, other_source = [], [], []
+    for t in range(n_traps):  # turned over (another up axis and heading) and rescaled
+        name, spec, data = bases[int(pick[(3 * n_traps + t) % len(bases)])]
+        angles, factor = [((90.0, 0.0, 37.0), 2.0), ((-60.0, 120.0, 15.0), 0.5)][t % 2]
+        twin = emit(spec, "turned", parts=_baked(spec.parts, rotation_xyz(angles), factor), of=name,
+                    extra={"scale": factor, "rotation_deg": list(angles)})
+        turned.append([name, twin, factor])
+    for t in range(n_traps):
+        name, spec, data = bases[int(pick[(4 * n_traps + t) % len(bases)])]
+        twin = emit(spec, "retessellated", parts=subdivide(spec.parts), of=name)
+        retessellated.append([name, twin])
+    # another name and source: a plain folder with an OBJ (image-textured objects only: OBJ carries no
+    # vertex colours everywhere), in centimetres, 1.25x the size, Z-up but read Y-up (undeclared)
+    textured_bases = [b for b in (bases[int(i)] for i in pick[5 * n_traps:]) if all(p.image is not None for p in b[1].parts)]
+    for t in range(min(n_traps, len(textured_bases))):
+        name, spec, data = textured_bases[t]
+        folder = f"{spec.category}-{spec.variant.lower()}-scan-{t + 1}"
+        path = root / folder
+        path.mkdir(parents=True, exist_ok=True)
+        export_obj(spec.parts, path, scale=1.25 * 100.0)
+        meta = {"name": f"{spec.variant} {spec.category} (scan)", "category": spec.category, "units": "cm",
+                "description": spec.description, "source": "another package", "generator": GENERATOR, "seed": seed}
+        (path / "metadata.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+        (path / "LICENSE").write_text(LICENSE_TEXT)
+        z_up = np.vstack([p.vertices + np.asarray(p.offset) for p in spec.parts]) * 1.25
+        read = z_up @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T  # read as Y-up: (x, y, z) -> (x, -z, y)
+        objects.append({"folder": folder, "category": spec.category, "kind": "other_source", "container": False,
+                        "dims_m": [round(float(x), 6) for x in np.ptp(read, axis=0)], "textured": True,
+                        "appearance": "image", "n_parts": len(spec.parts), "of": name, "model": f"{folder}/mesh.obj",
+                        "source": "folder", "name": meta["name"], "scale": 1.25, "units": "cm", "up_axis": "Y"})
+        other_source.append([name, folder])
+    tote = emit(build_tote(np.random.default_rng([seed, 4])), "mesh_quality")
+    mesh_quality = [tote]
 
     broken = []
     victim = built[0][2]
@@ -768,6 +893,7 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
                 "object_id": name.split("_")[1], "variant": variant, "generator": GENERATOR, "seed": seed}
         _write_object(root, name, payload, meta, _preview([Part(np.zeros((1, 3)), np.zeros((0, 3), int), np.zeros((1, 2)), colors=np.full((1, 4), 90, np.uint8))]))
         objects.append({"folder": name, "category": category, "kind": "broken", "container": False, "dims_m": None,
+                        "model": f"{name}/3d-asset.glb", "source": "dtc",
                         "textured": False, "appearance": None, "n_parts": 0, "of": None, "expected_error": reason})
         broken.append({"folder": name, "expected_error": reason})
 
@@ -777,7 +903,9 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
         "generator": GENERATOR, "seed": seed, "n_objects": n_objects,
         "objects": objects,
         "containers": [o["folder"] for o in objects if o["container"]],
-        "exact_copies": exact, "recolours": recolours, "rescales": rescales, "broken": broken,
+        "exact_copies": exact, "recolours": recolours, "rescales": rescales, "turned_rescales": turned,
+        "retessellated": retessellated, "other_source": other_source, "broken": broken,
+        "mesh_quality": mesh_quality,
         "categories": categories,
         "expected": {"total": len(objects), "active": len(objects) - n_broken, "broken": n_broken,
                      "image_textured": sum(o["appearance"] == "image" for o in objects),

@@ -25,13 +25,14 @@ def pool_from_demo_library(root: Path, *, split: str = "train") -> list[ObjectRe
         folder = rec["folder"]
         if folder in broken:
             continue
-        model = root / folder / "3d-asset.glb"
+        model = root / rec["model"]
         digest = hashlib.sha256(model.read_bytes()).hexdigest()
         name = folder.split("_")[-1].lower()
         caps = fallback_captions(f"{name} {rec['category']}", rec["category"])
         pool.append(ObjectRecord(
             object_id=k, name=folder, category=rec["category"], dims=tuple(float(v) for v in rec["dims_m"]),
             captions=caps, split=split, model_path=str(model.resolve()), content_hash=digest,
+            container=bool(rec["container"]), source_units=rec.get("units"), source_up_axis=rec.get("up_axis"),
         ))
     return pool
 

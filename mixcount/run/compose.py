@@ -36,6 +36,7 @@ class ComposeSummary:
     failures: list[dict[str, Any]] = field(default_factory=list)
     outcomes: list[dict[str, Any]] = field(default_factory=list)
     outputs: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -57,7 +58,7 @@ def compose_scenes(
     from mixcount.dataset.external_exemplars import copy_external_exemplars
     from mixcount.dataset.merge import finalize_dataset
     from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp, is_complete
-    from mixcount.scene.sampler import sample_scene, scene_id_for
+    from mixcount.scene.sampler import container_warning, sample_scene, scene_id_for
 
     comp = config.compose
     split, base, workers = comp.split, comp.seed, comp.workers
@@ -116,6 +117,10 @@ def compose_scenes(
         return None
 
     bar = as_reporter(progress)
+    warning = container_warning(pool, split, config.scene)
+    if warning:  # once per run, not once per scene
+        summary.warnings.append(warning)
+        bar.note(warning)
 
     def info() -> str:
         return f"failed {summary.failed}  regenerated {summary.empty + summary.rejected}"

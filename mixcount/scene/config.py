@@ -44,7 +44,6 @@ class SceneConfig:
     floor_patterns: tuple[str, ...]
     floor_texture_px: int
     procedural_floor_probability: float
-    container_categories: tuple[str, ...]
     no_container_probability: float
     container_scale_jitter: Range
     container_other_split_fallback: bool

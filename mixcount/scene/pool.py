@@ -32,6 +32,7 @@ class ObjectRecord:
     source: Optional[str] = None  # provenance for attribution: ingest source (dtc | folder) ...
     source_id: Optional[str] = None  # ... its stable key there ...
     license: Optional[str] = None  # ... and the licence text found at ingest
+    container: bool = False  # catalog objects.container: may be drawn as the scene's container
 
     @property
     def max_dim(self) -> float:

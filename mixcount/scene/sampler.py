@@ -278,6 +278,21 @@ def eligible_objects(pool: Sequence[ObjectRecord], split: str) -> list[ObjectRec
     )
 
 
+def container_warning(pool: Sequence[ObjectRecord], split: str, config: SceneConfig) -> Optional[str]:
+    """The one-line warning for a split without a container, or None when it has one (or never uses one)."""
+    if config.no_container_probability >= 1.0 or any(o.container for o in eligible_objects(pool, split)):
+        return None
+    others = [o for o in pool if o.container and o.status == "active" and min(o.dims) > 0]
+    if others and config.container_other_split_fallback:
+        fallback = f"containers are drawn from other splits ({len(others)} there, scene.container_other_split_fallback)"
+    else:
+        fallback = "scenes get no container"
+    return (f"no container in split {split!r}: {fallback}. An object is a container when its category is in "
+            "containers.categories or its name or caption has a word of containers.keywords (configs/default.toml "
+            "[containers]), or when a review marks it; set those keys and rerun `catalog filter`, or review "
+            "objects as containers")
+
+
 def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectRecord], *,
                  environments: Sequence[EnvironmentRecord] = (), materials: Sequence[MaterialRecord] = (),
                  scene_id: Optional[str] = None) -> SceneSpec:
@@ -290,7 +305,6 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     rng = np.random.default_rng(seed)
     s = config.scale
     in_split = eligible_objects(pool, split)
-    containers_cat = set(config.container_categories)
 
     environment = sample_environment(rng, config, environments)
 
@@ -307,10 +321,10 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     # container (never also a counted class or a distractor)
     container_obj: Optional[ObjectRecord] = None
     if rng.random() >= config.no_container_probability:
-        cands = [o for o in in_split if o.category in containers_cat]
+        cands = [o for o in in_split if o.container]
         if not cands and config.container_other_split_fallback:
-            cands = sorted((o for o in pool if o.status == "active" and o.category in containers_cat
-                            and min(o.dims) > 0), key=lambda o: o.object_id)
+            cands = sorted((o for o in pool if o.status == "active" and o.container and min(o.dims) > 0),
+                           key=lambda o: o.object_id)
         if cands:
             container_obj = cands[int(rng.integers(len(cands)))]
     cont_scale = np.array([_u(rng, config.container_scale_jitter) * s for _ in range(3)])

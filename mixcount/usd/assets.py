@@ -28,7 +28,7 @@ import numpy as np
 from mixcount.errors import CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
 
-CONVERTER_VERSION = 2  # bump when the converter output changes: cached assets are rebuilt
+CONVERTER_VERSION = 3  # bump when the converter output changes: cached assets are rebuilt
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 
 

@@ -1,0 +1,93 @@
+"""Names and categories of catalog objects: safe text, odd-name checks, and category words.
+
+Shared by the layout readers (:mod:`mixcount.catalog.layouts`) and ingest. Two category rules:
+
+* :func:`category_from_stem` for file stems and DTC-style names, which start with the noun
+  (``mug_02.glb`` -> mug, ``Markers_B07Z5P84J2_Peach`` -> marker);
+* :func:`category_from_name` for human names from metadata (``Red Ceramic Mug`` -> mug,
+  ``Threshold_Porcelain_Teapot_White`` -> teapot): English puts the noun last, so the last word that
+  is not a colour, a number, an id or a generic word.
+"""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+
+# Category_ID_Variant; the id (B07Z5P84J2) has a digit, so "apple_granny_smith" is not taken for one
+DTC_NAME = re.compile(r"^(?P<category>[A-Za-z][A-Za-z0-9-]*)_(?P<id>(?=[A-Za-z]*\d)[A-Za-z0-9]{6,})_(?P<variant>.+)$")
+GENERIC_STEMS = {"model", "mesh", "scene", "object", "asset", "untitled", "export", "3d", "textured", "scan",
+                 "3d-asset", "visual", "geometry", "final", "lod0", "lowpoly", "highpoly", "raw"}
+COLOUR_WORDS = {"black", "white", "grey", "gray", "red", "orange", "yellow", "green", "blue", "purple", "pink",
+                "brown", "tan", "beige", "gold", "golden", "silver", "navy", "teal", "lime", "olive", "maroon",
+                "magenta", "cyan", "violet", "cream", "clear", "multicolor", "multicolour", "dark", "light"}
+_ID_TOKEN = re.compile(r"^(?=.*\d)[A-Za-z0-9]{5,}$")  # catalogue ids such as B07Z5P84J2
+
+
+def safe_text(text: str) -> str:
+    """A name that SQLite/JSON/one-line messages can carry: undecodable bytes (surrogate escapes)
+    become \\xNN and control characters their escape (\\n, \\x07); a stable mapping, so reruns match."""
+    text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    if any(unicodedata.category(c) == "Cc" for c in text):
+        text = "".join(c.encode("unicode_escape").decode() if unicodedata.category(c) == "Cc" else c for c in text)
+    return text
+
+
+def odd_name_reason(name: str) -> str | None:
+    """Why a file/folder name is unusable (control characters, undecodable bytes), or None."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return f"name is not valid UTF-8: {ascii(name)}"
+    bad = [c for c in name if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co", "Cn")]
+    if bad:
+        return f"name has control or invisible characters {ascii(''.join(sorted(set(bad))))}: {ascii(name)}"
+    if name.strip() != name or not name.strip():
+        return f"name has leading/trailing blanks: {ascii(name)}"
+    return None
+
+
+def singular(word: str) -> str:
+    """Lower-case singular category word: 'Markers' -> 'marker', 'Berries' -> 'berry'."""
+    w = word.strip().lower()
+    if len(w) > 4 and w.endswith("ies"):
+        return w[:-3] + "y"
+    if len(w) > 4 and re.search(r"(ches|shes|xes|sses|oes)$", w):
+        return w[:-2]
+    if len(w) > 3 and w.endswith("s") and not w.endswith(("ss", "us", "is")):
+        return w[:-1]
+    return w
+
+
+def category_text(value: str) -> str:
+    """A category from metadata as stored: lower case, words separated by one space, singular."""
+    words = [w for w in re.split(r"[_\s]+", value.strip()) if w]
+    return singular(" ".join(words)) if words else ""
+
+
+def category_from_stem(stem: str, parent: str) -> str:
+    """Plain files: the file name's first word ('mug_02.glb' -> mug), else the folder's name."""
+    token = re.split(r"[_\-\s.]+", stem.strip())[0] if stem.strip() else ""
+    token = re.sub(r"\d+$", "", token)
+    if token.isalpha() and token.lower() not in GENERIC_STEMS:
+        return singular(token)
+    parent_token = re.sub(r"[^A-Za-z]", "", parent)
+    return singular(parent_token) if parent_token else "unknown"
+
+
+def words_of(name: str) -> list[str]:
+    """Lower-case words of a name: splits on separators and camelCase, drops ids and numbers."""
+    words: list[str] = []
+    for token in re.split(r"[_\-\s.,/()]+", name.strip()):
+        if not token or _ID_TOKEN.match(token):
+            continue
+        words.extend(w.lower() for w in re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+", token))
+    return words
+
+
+def category_from_name(name: str, fallback: str = "unknown") -> str:
+    """The noun of a human name: its last word that is no colour, generic word or id (singular)."""
+    for word in reversed(words_of(name)):
+        if len(word) > 2 and word not in COLOUR_WORDS and word not in GENERIC_STEMS:
+            return singular(word)
+    return fallback

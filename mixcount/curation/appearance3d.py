@@ -1,0 +1,407 @@
+"""Orientation-free, scale-free appearance of a model, measured on its surface (numpy; no renderer).
+
+A canonical render shows an object from one fixed camera, so the same scan stored lying on its side,
+turned, or with another up axis looks different there. This descriptor does not depend on how the model
+happens to be oriented or scaled:
+
+* **Surface samples**: ``N`` points drawn area-weighted from every part (node transforms applied), each
+  with its base colour: ``baseColorFactor x texture(uv) x COLOR_0`` for glTF materials, vertex or face
+  colours, or the material colour. Texture resolution, UV layout and tessellation do not matter; only the
+  colour that lies on the surface.
+* **Colour histogram**: a soft (trilinear) 6x6x6 RGB histogram of the samples; distance = total variation.
+* **Principal-frame colour layout** ("views aligned to the principal axes"): the samples are expressed in
+  their principal axes (PCA of positions) and scaled by the extent along each axis, so a rotated,
+  rescaled or re-tessellated copy lands in the same frame. Where the shape leaves the frame open (equal
+  principal moments: a can's cross-section, a ball, a cube), the colour decides it: the axes of the
+  colour-weighted second moment, else the direction of the colour-weighted first moment. Signs come
+  from the shape's skewness. Whatever stays ambiguous (a sign, the order of two nearly equal axes, which
+  colour moment decides) is enumerated: one grid per candidate frame. Each grid is 6x6x6 cells of summed
+  colour and sample count, box-blurred over 3x3x3 cells; distance = the count-weighted mean absolute
+  colour difference over cells either model covers (a cell only one covers counts 1, a cell both cover
+  at least by how unevenly they cover it), minimised over the candidate frames of one side. A pair still apart whose
+  shape leaves axes open gets a rotation search (:func:`layout_distance`).
+
+Samples are cached (``.npz`` per content hash); grids are built only when a pair needs them.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+APPEARANCE_VERSION = "look3d-v1"
+SEED = 20240611
+N_SAMPLES = 6000
+HIST_BINS = 6
+GRID = 6
+EIGEN_TIE = 0.10  # principal moments within 10 % of each other leave their axes to the colour
+MOMENT_MIN = 0.02  # a colour first moment this weak (relative) gives no axis direction
+SKEW_MIN = 0.05  # |skewness| below this does not fix a sign
+
+
+@dataclass
+class SurfaceLook:
+    """Colour histogram of a model's surface and, on demand, its principal-frame colour grids."""
+
+    colour_hist: np.ndarray  # (HIST_BINS**3,) sums to 1
+    points: np.ndarray  # centred samples
+    colours: np.ndarray
+    basis: np.ndarray  # principal axes (columns), moments descending
+    tied: list[list[int]]  # groups of nearly equal principal moments (2 * EIGEN_TIE)
+    symmetric_axes: int  # how many axes the shape alone left open (EIGEN_TIE)
+    _grids: np.ndarray | None = None
+
+    @property
+    def grids(self) -> np.ndarray:
+        """(frames, GRID, GRID, GRID, 4): summed RGB and counts per cell, blurred; one per candidate
+        frame. Built the first time a pair needs them (most pairs differ in colour or shape first)."""
+        if self._grids is None:
+            frames, _ = principal_frames(self.points, self.colours)
+            self._grids = np.stack([colour_grid(self.points, self.colours, f) for f in frames])
+        return self._grids
+
+    @property
+    def frames(self) -> int:
+        return len(self.grids)
+
+
+# --------------------------------------------------------------------------- sampling
+
+
+def _texture(visual: Any) -> np.ndarray | None:
+    material = getattr(visual, "material", None)
+    image = getattr(material, "baseColorTexture", None)
+    if image is None:
+        image = getattr(material, "image", None)
+    if image is None:
+        return None
+    return np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+
+
+def _factor(visual: Any) -> np.ndarray:
+    material = getattr(visual, "material", None)
+    factor = getattr(material, "baseColorFactor", None)
+    if factor is None:
+        factor = getattr(material, "main_color", None)
+    if factor is None:
+        return np.ones(3)
+    f = np.asarray(factor, dtype=np.float64)[:3]
+    return f / 255.0 if f.max() > 1.0 else f
+
+
+def _part_colours(geom: Any, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """Base colour (0..1) at barycentric points ``bary`` of ``faces`` of one trimesh geometry."""
+    import trimesh
+
+    n = len(faces)
+    visual = geom.visual
+    tri = np.asarray(geom.faces)[faces]
+    if isinstance(visual, trimesh.visual.TextureVisuals):
+        colour = np.tile(_factor(visual), (n, 1))
+        attrs = getattr(visual, "vertex_attributes", None)
+        vcol = attrs.get("color") if attrs is not None and "color" in attrs else None
+        if vcol is not None and len(vcol) == len(geom.vertices):
+            vc = np.asarray(vcol, dtype=np.float64)[:, :3]
+            vc = vc / 255.0 if vc.max() > 1.0 else vc
+            colour *= np.einsum("nk,nkc->nc", bary, vc[tri])
+        image = _texture(visual)
+        uv = getattr(visual, "uv", None)
+        if image is not None and uv is not None and len(uv) == len(geom.vertices):
+            pts = np.einsum("nk,nkd->nd", bary, np.asarray(uv, dtype=np.float64)[tri])
+            h, w = image.shape[:2]
+            x = np.mod(pts[:, 0], 1.0) * (w - 1)
+            y = (1.0 - np.mod(pts[:, 1], 1.0)) * (h - 1)  # trimesh flips glTF's V on load
+            colour *= image[y.round().astype(int), x.round().astype(int)]
+        return np.clip(colour, 0.0, 1.0)
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.defined:
+        if visual.kind == "face":
+            return np.asarray(visual.face_colors, dtype=np.float64)[faces, :3] / 255.0
+        vc = np.asarray(visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0
+        return np.einsum("nk,nkc->nc", bary, vc[tri])
+    return np.full((n, 3), 0.7)  # no colour information: a neutral grey
+
+
+def surface_samples(model_path: str | Path, *, n: int = N_SAMPLES, seed: int = SEED) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` area-weighted surface points (model units, any frame) and their base colours (0..1).
+
+    glTF/OBJ/PLY/STL through trimesh with node transforms; USD through the ingest loader, coloured grey
+    (USD shading networks are not read here)."""
+    import trimesh
+
+    path = Path(model_path)
+    rng = np.random.default_rng(seed)
+    if path.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+        from mixcount.catalog.mesh import load_normalised
+
+        mesh = load_normalised(path).mesh
+        geoms = [(mesh, np.eye(4))]
+    else:
+        scene = trimesh.load(str(path), force="scene", process=False)
+        geoms = []
+        for node in scene.graph.nodes_geometry:
+            transform, name = scene.graph[node]
+            geom = scene.geometry.get(name)
+            if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
+                geoms.append((geom, np.asarray(transform, dtype=np.float64)))
+    if not geoms:
+        raise ValueError("model has no faces")
+    areas, tris = [], []
+    for geom, transform in geoms:
+        v = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform)
+        t = v[np.asarray(geom.faces)]
+        tris.append(t)
+        areas.append(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1))
+    flat = np.concatenate(areas)
+    if not flat.sum() > 0:
+        raise ValueError("model has zero surface area")
+    cum = np.cumsum(flat) / flat.sum()  # stratified over the cumulative area, as the shape samples
+    which = np.searchsorted(cum, (np.arange(n) + rng.random(n)) / n).clip(0, len(flat) - 1)
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    bary = np.c_[1 - s, s * (1 - r2), s * r2]
+    offsets = np.cumsum([0] + [len(a) for a in areas])
+    points = np.empty((n, 3))
+    colours = np.empty((n, 3))
+    for k, (geom, _) in enumerate(geoms):
+        sel = np.nonzero((which >= offsets[k]) & (which < offsets[k + 1]))[0]
+        if not len(sel):
+            continue
+        local = which[sel] - offsets[k]
+        points[sel] = np.einsum("nk,nkd->nd", bary[sel], tris[k][local])
+        colours[sel] = _part_colours(geom, local, bary[sel])
+    return points, colours
+
+
+def load_samples(model_path: str, *, cache_dir: Path | None, key: str | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`surface_samples`, cached as ``cache_dir/<key>_<version>.npz``."""
+    cache = cache_dir / f"{key}_{APPEARANCE_VERSION}.npz" if cache_dir is not None and key else None
+    if cache is not None and cache.is_file():
+        try:
+            with np.load(cache) as data:
+                return data["points"].astype(np.float64), data["colours"].astype(np.float64)
+        except (OSError, ValueError, KeyError):
+            pass
+    points, colours = surface_samples(model_path)
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cache.with_name(cache.stem + ".tmp.npz")
+        np.savez_compressed(tmp, points=points.astype(np.float32), colours=colours.astype(np.float32))
+        tmp.replace(cache)
+    return points, colours
+
+
+# --------------------------------------------------------------------------- the descriptor
+
+
+def colour_histogram(colours: np.ndarray, bins: int = HIST_BINS) -> np.ndarray:
+    """Soft (trilinear) RGB histogram, normalised: a colour near a bin edge splits between bins."""
+    x = np.clip(colours, 0.0, 1.0) * (bins - 1)
+    lo = np.floor(x).astype(int).clip(0, bins - 2)
+    frac = x - lo
+    hist = np.zeros(bins ** 3)
+    for corner in itertools.product((0, 1), repeat=3):
+        c = np.asarray(corner)
+        w = np.prod(np.where(c == 1, frac, 1.0 - frac), axis=1)
+        idx = ((lo + c) * np.array([bins * bins, bins, 1])).sum(axis=1)
+        np.add.at(hist, idx, w)
+    return hist / max(hist.sum(), 1e-12)
+
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _colour_weight(colours: np.ndarray) -> np.ndarray:
+    """One signed number per sample: its colour along the main direction of colour variation,
+    oriented to correlate positively with brightness; scaled to a mean magnitude of 1."""
+    c = colours - colours.mean(axis=0)
+    if not np.any(np.abs(c) > 1e-9):
+        return np.zeros(len(colours))
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    axis = vt[0]
+    lum = float(axis @ LUMA)
+    if lum < -1e-6 or (abs(lum) <= 1e-6 and axis.sum() < 0):
+        axis = -axis
+    w = c @ axis
+    return w / (float(np.abs(w).mean()) or 1.0)
+
+
+def _tie_groups(eig: np.ndarray, tol: float) -> list[list[int]]:
+    """Indices of eigenvalues (descending) grouped where neighbours are within ``tol`` (relative)."""
+    groups = [[0]]
+    for i in range(1, len(eig)):
+        prev = eig[groups[-1][-1]]
+        if prev > 0 and (prev - eig[i]) / prev < tol:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    return groups
+
+
+def _complete(d: np.ndarray) -> np.ndarray:
+    """An orthonormal basis whose first column is ``d`` (the rest in a fixed, deterministic way)."""
+    k = len(d)
+    rest = np.linalg.svd(np.eye(k) - np.outer(d, d))[0][:, : k - 1]
+    return np.c_[d, rest]
+
+
+def _subspace_candidates(q: np.ndarray, w: np.ndarray, basis: np.ndarray) -> list[np.ndarray]:
+    """Orientations of a (nearly) tied eigen-subspace to try: as the shape gives it (both orders when
+    two-dimensional), by the colour-weighted second moment, by the colour-weighted first moment."""
+    out = [basis]
+    if basis.shape[1] == 2:
+        out.append(basis[:, ::-1])
+    proj = q @ basis
+    scale = float(np.sqrt((proj ** 2).mean())) or 1.0
+    m2 = (proj * w[:, None]).T @ proj / len(q) / scale ** 2
+    vals, vecs = np.linalg.eigh(m2)
+    out.append(basis @ vecs[:, np.argsort(vals)[::-1]])
+    first = (proj * w[:, None]).mean(axis=0) / scale
+    if np.linalg.norm(first) > MOMENT_MIN:
+        out.append(basis @ _complete(first / np.linalg.norm(first)))
+    return out
+
+
+def principal_axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal second moments (descending) and axes (columns) of a point set."""
+    q = points - points.mean(axis=0)
+    eig, vec = np.linalg.eigh(q.T @ q / len(q))
+    order = np.argsort(eig)[::-1]
+    return eig[order], vec[:, order]
+
+
+def principal_frames(points: np.ndarray, colours: np.ndarray) -> tuple[list[np.ndarray], int]:
+    """Candidate principal frames (3x3, columns = axes) of a coloured point set, and how many axes the
+    shape alone left open (principal moments within EIGEN_TIE)."""
+    q = points - points.mean(axis=0)
+    eig, vec = principal_axes(points)
+    w = _colour_weight(colours)
+    open_axes = sum(len(g) for g in _tie_groups(eig, EIGEN_TIE) if len(g) > 1)
+    # near ties (up to twice the tolerance) are enumerated, so two copies on either side of it still meet
+    groups = _tie_groups(eig, 2 * EIGEN_TIE)
+    options = [_subspace_candidates(q, w, vec[:, g]) if len(g) > 1 else [vec[:, g]] for g in groups]
+    frames = []
+    for choice in itertools.product(*options):
+        basis = np.concatenate(choice, axis=1)
+        signs = []
+        for i in range(3):
+            p = q @ basis[:, i]
+            sd = float(p.std()) or 1.0
+            skew = float((p ** 3).mean()) / sd ** 3
+            signs.append((1 if skew > 0 else -1,) if abs(skew) > SKEW_MIN else (1, -1))
+        for combo in itertools.product(*signs):
+            frames.append(basis * np.asarray(combo))
+    return frames, open_axes
+
+
+def colour_grid(points: np.ndarray, colours: np.ndarray, frame: np.ndarray, size: int = GRID) -> np.ndarray:
+    """Summed colour and count per cell of the frame-aligned bounding box (each axis scaled to 0..1),
+    divided by the number of samples and box-blurred over 3x3x3 cells."""
+    from scipy.ndimage import uniform_filter
+
+    q = (points - points.mean(axis=0)) @ frame
+    lo, hi = q.min(axis=0), q.max(axis=0)
+    u = (q - lo) / np.where(hi - lo > 0, hi - lo, 1.0)
+    idx = np.clip((u * size).astype(int), 0, size - 1)
+    flat = (idx[:, 0] * size + idx[:, 1]) * size + idx[:, 2]
+    cells = size ** 3
+    grid = np.stack([np.bincount(flat, weights=w, minlength=cells)
+                     for w in (colours[:, 0], colours[:, 1], colours[:, 2], np.ones(len(flat)))], axis=-1)
+    grid = grid.reshape(size, size, size, 4) / len(points)
+    return uniform_filter(grid, size=(3, 3, 3, 1), mode="nearest")
+
+
+def surface_look(points: np.ndarray, colours: np.ndarray) -> SurfaceLook:
+    eig, basis = principal_axes(points)
+    open_axes = sum(len(g) for g in _tie_groups(eig, EIGEN_TIE) if len(g) > 1)
+    return SurfaceLook(colour_histogram(colours), points - points.mean(axis=0), colours, basis,
+                       [g for g in _tie_groups(eig, 2 * EIGEN_TIE) if len(g) > 1], open_axes)
+
+
+def colour_distance(a: SurfaceLook, b: SurfaceLook) -> float:
+    """Total variation distance of the colour histograms, in [0, 1]."""
+    return float(0.5 * np.abs(a.colour_hist - b.colour_hist).sum())
+
+
+def _grid_distance(ga: np.ndarray, gb: np.ndarray) -> float:
+    ca, cb = ga[..., 3], gb[..., 3]
+    eps = 1e-4 * max(ca.max(), cb.max())
+    both = (ca > eps) & (cb > eps)
+    either = (ca > eps) | (cb > eps)
+    ma = ga[..., :3] / np.maximum(ca, 1e-12)[..., None]
+    mb = gb[..., :3] / np.maximum(cb, 1e-12)[..., None]
+    diff = np.where(both, np.abs(ma - mb).mean(axis=-1), 1.0)
+    weight = np.where(either, np.minimum(ca + cb, 2 * max(ca.max(), cb.max())), 0.0)
+    # a cell covered by one side only counts by how much that side has there
+    occupancy = np.abs(ca - cb) / np.maximum(ca + cb, 1e-12)
+    diff = np.where(both, np.maximum(diff, occupancy), diff)
+    return float((diff * weight).sum() / max(weight.sum(), 1e-12))
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+
+
+def _search_frames(look: SurfaceLook) -> list[np.ndarray]:
+    """Frames to search when the shape leaves axes open: turns about the distinct axis in 10-degree
+    steps (both ways up) for two tied moments; a fixed set of 600 rotations for three."""
+    from scipy.spatial.transform import Rotation
+
+    basis = look.basis
+    if any(len(g) == 3 for g in look.tied):
+        return [basis @ r for r in Rotation.random(600, random_state=SEED).as_matrix()]
+    if look.tied:
+        g = look.tied[0]
+        k = next(i for i in range(3) if i not in g)
+        flips = [np.eye(3)]
+        flip = np.eye(3)
+        flip[k, k] = -1
+        flip[g[0], g[0]] = -1
+        flips.append(flip)
+        out = []
+        for f in flips:
+            for step in range(36):
+                out.append(_rotation(basis[:, k], np.radians(10.0 * step)) @ basis @ f)
+        return out
+    return []
+
+
+def _refine(a: np.ndarray, b: SurfaceLook, frame: np.ndarray, best: float) -> float:
+    """Local search around ``frame``: small turns about each axis, halving the step (4 rounds)."""
+    step = np.radians(8.0)
+    for _ in range(4):
+        improved = True
+        while improved:
+            improved = False
+            for axis in np.eye(3):
+                for sign in (1, -1):
+                    cand = _rotation(frame @ axis, sign * step) @ frame
+                    d = _grid_distance(a, colour_grid(b.points, b.colours, cand))
+                    if d < best - 1e-6:
+                        best, frame, improved = d, cand, True
+        step /= 2
+    return best
+
+
+def layout_distance(a: SurfaceLook, b: SurfaceLook, *, search_above: float | None = None) -> float:
+    """Principal-frame colour layout distance in [0, 1]: the best match of ``a``'s first frame with
+    any of ``b``'s candidate frames, and of ``b``'s first with ``a``'s (symmetric).
+
+    With ``search_above``, a distance still above it for a shape whose principal moments tie (a can's
+    cross-section, a cube, a ball: the axes are not defined by the shape) starts a rotation search of
+    ``b`` against ``a``'s first frame, then a local refinement of the best turn."""
+    best = min(_grid_distance(a.grids[0], g) for g in b.grids)
+    best = min(best, min(_grid_distance(b.grids[0], g) for g in a.grids))
+    if search_above is None or best <= search_above or not b.tied:
+        return best
+    frames = _search_frames(b)
+    scores = [_grid_distance(a.grids[0], colour_grid(b.points, b.colours, f)) for f in frames]
+    k = int(np.argmin(scores))
+    if scores[k] < best:
+        best = scores[k]
+    return min(best, _refine(a.grids[0], b, frames[k], scores[k]))

@@ -1,0 +1,135 @@
+"""Curation on capture-like inputs, real files in a real SQLite catalog, no renders needed:
+
+* duplicates that survive changes of scale, orientation / up axis, tessellation and source are flagged
+  with their pair by the orientation-free rule, while different objects of one shape family (two balls,
+  two mugs, two cans) stay apart;
+* "degenerate means unusable": a clean non-manifold, open object stays active with a scored
+  ``mesh_quality`` warning; a single-sided plane is degenerate; self-intersections inside one part are
+  measured, parts that overlap each other are not;
+* the surface-appearance descriptor's known answers (rotation, scale, tessellation, cubes)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from sqlalchemy import select
+
+from mixcount.catalog.ingest import ingest_paths
+from mixcount.catalog.models import CatalogObject, Flag
+from mixcount.curation import appearance3d as A
+from mixcount.curation import descriptors as D
+from mixcount.curation.flags import mesh_quality_score, run_filter
+from mixcount.demo import library as L
+from test_curate_support import quick_config
+
+
+def write(root, folder, parts):
+    path = root / folder
+    path.mkdir(parents=True)
+    (path / "model.glb").write_bytes(L.export_glb(parts))
+
+
+def capture_library(root):
+    """Originals, their transformed copies, and same-family objects that must stay apart."""
+    can = L.build_can(0, np.random.default_rng(1))
+    ball = L.build_ball(0, np.random.default_rng(2))  # tennis
+    die = L.build_die(0, np.random.default_rng(3))  # a cube: principal axes left to the colour
+    write(root, "can", can.parts)
+    write(root, "can_turned", L._baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 2.0))  # other up axis, 2x
+    write(root, "ball", ball.parts)
+    write(root, "ball_retessellated", L.subdivide(ball.parts))
+    write(root, "die", die.parts)
+    write(root, "die_turned_retessellated", L.subdivide(L._baked(die.parts, L.rotation_xyz((0.0, 90.0, 45.0)), 0.7)))
+    other = root / "can_scan"
+    other.mkdir()
+    L.export_obj(can.parts, other, scale=125.0)  # centimetres, 1.25x, Z-up read as Y-up
+    (other / "metadata.json").write_text(json.dumps({"name": "cola can scan", "category": "can", "units": "cm"}))
+    # the same shape families, other objects
+    write(root, "can_other", L.build_can(3, np.random.default_rng(4)).parts)  # beans, same shape family
+    write(root, "ball_golf", L.build_ball(1, np.random.default_rng(5)).parts)
+    write(root, "ball_soccer", L.build_ball(4, np.random.default_rng(6)).parts)
+    write(root, "mug_white", L.build_mug(0, np.random.default_rng(7)).parts)
+    write(root, "mug_navy", L.build_mug(1, np.random.default_rng(8)).parts)
+    write(root, "tote", L.build_tote(np.random.default_rng(9)).parts)  # non-manifold and open, usable
+    plane = trimesh.Trimesh(vertices=[[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0], [0, 0.1, 0]], faces=[[0, 1, 2], [0, 2, 3]])
+    (root / "sheet").mkdir()
+    plane.export(root / "sheet" / "model.glb")
+    return root
+
+
+def test_duplicates_survive_transforms_and_families_stay_apart(catalog, tmp_path):
+    lib = capture_library(tmp_path / "lib")
+    summary = ingest_paths(catalog, [lib], config=quick_config("ingest.workers=2"))
+    assert summary.broken == 0, summary.broken_objects
+    result = run_filter(catalog, quick_config())
+    assert not result.descriptor_failures
+    with catalog.session() as s:
+        folder = {o.id: Path(o.model_path).parent.name for o in s.scalars(select(CatalogObject))}
+        status = {folder[o.id]: o.status for o in s.scalars(select(CatalogObject))}
+        flags = s.scalars(select(Flag)).all()
+    pairs = {frozenset((folder[f.object_id], folder[f.pair_object_id])): f for f in flags if f.pair_object_id}
+    expected = {frozenset(p) for p in (("can", "can_turned"), ("can", "can_scan"), ("can_turned", "can_scan"),
+                                       ("ball", "ball_retessellated"), ("die", "die_turned_retessellated"))}
+    assert set(pairs) == expected, sorted(sorted(p) for p in pairs)
+    for pair in expected:
+        assert pairs[pair].kind in ("near_duplicate_appearance", "near_duplicate_geometry"), pair
+    assert "same surface colours and layout from every side" in pairs[frozenset(("can", "can_turned"))].reason
+    # one object kept per group
+    for group in (("can", "can_turned", "can_scan"), ("ball", "ball_retessellated"), ("die", "die_turned_retessellated")):
+        assert sorted(status[g] for g in group).count("active") == 1, group
+    quality = {(folder[f.object_id], f.kind): f for f in flags if f.pair_object_id is None}
+    tote = quality[("tote", "mesh_quality")]
+    assert status["tote"] == "active" and ("tote", "degenerate") not in quality
+    assert 0.3 < tote.score <= 1.0 and "non-manifold edges" in tote.reason and "open edges" in tote.reason
+    assert ("sheet", "degenerate") in quality and "flat beyond repair" in quality[("sheet", "degenerate")].reason
+    assert status["sheet"] == "excluded"
+
+    # exclude_mesh_quality excludes the tote (score over the bar); the default never does
+    run_filter(catalog, quick_config("filter.exclude_mesh_quality=true", "filter.mesh_quality_exclude_score=0.3"))
+    with catalog.session() as s:
+        assert {folder[o.id]: o.status for o in s.scalars(select(CatalogObject))}["tote"] == "excluded"
+    run_filter(catalog, quick_config())
+    with catalog.session() as s:
+        assert {folder[o.id]: o.status for o in s.scalars(select(CatalogObject))}["tote"] == "active"
+
+
+def test_mesh_quality_facts():
+    box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    assert D.boundary_fraction(box.faces) == 0.0 and D.self_intersection_fraction(box.vertices, box.faces) == 0.0
+    open_box = box.faces[2:]  # one face of the box missing: a hole
+    assert D.boundary_fraction(open_box) == pytest.approx(4 / 17)  # the 4 rim edges of 17 (diagonal gone)
+    # two boxes pushed into each other: an assembly, not a self-intersection
+    both = trimesh.util.concatenate([box, box.copy().apply_translation([0.05, 0.0, 0.0])])
+    assert D.self_intersection_fraction(both.vertices, both.faces) == 0.0
+    # one connected part folded through itself: the crossing faces are counted
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    v = np.array(ball.vertices)
+    v[v[:, 2] > 0.01, 2] -= 0.08  # push the upper cap down through the lower half
+    folded = trimesh.Trimesh(v, ball.faces, process=False)
+    assert 0 < D.self_intersection_fraction(folded.vertices, folded.faces) < 1
+    assert mesh_quality_score(0.0) == 0.0 and mesh_quality_score(0.001) == pytest.approx(0.1003, abs=1e-3)
+    assert mesh_quality_score(0.01) == pytest.approx(0.3471, abs=1e-3) and mesh_quality_score(1.0) == 1.0
+
+
+def test_surface_look_known_answers(tmp_path):
+    can = L.build_can(0, np.random.default_rng(1))
+    other = L.build_can(3, np.random.default_rng(4))
+
+    def look(parts, name):
+        path = tmp_path / f"{name}.glb"
+        path.write_bytes(L.export_glb(parts))
+        return A.surface_look(*A.surface_samples(path))
+
+    base = look(can.parts, "a")
+    turned = look(L._baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 3.0), "b")
+    finer = look(L.subdivide(can.parts), "c")
+    beans = look(other.parts, "d")
+    assert A.colour_distance(base, turned) < 1e-9 and A.layout_distance(base, turned) < 1e-6  # same samples, turned
+    assert A.colour_distance(base, finer) < 0.02 and A.layout_distance(base, finer, search_above=0.06) < 0.04
+    assert A.colour_distance(base, beans) > 0.3 and A.layout_distance(base, beans, search_above=0.06) > 0.1
+    hist = A.colour_histogram(np.array([[0.1, 0.5, 0.9]] * 10))
+    assert hist.sum() == pytest.approx(1.0) and (hist > 0).sum() == 8  # soft: a colour between bins splits
