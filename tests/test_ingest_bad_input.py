@@ -1,4 +1,4 @@
-"""Every bad input of issue 2: the object is `broken` with a specific reason and the batch goes on;
+"""Every bad input: the object is `broken` with a specific reason and the batch goes on;
 a missing PATH or an unwritable database is a one-line error with a non-zero exit."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""2,000 sampled scene specs against the configured distributions (issue 5, "Must show").
+"""2,000 sampled scene specs against the configured distributions.
 
 Tolerances are about 4 standard errors of each statistic for 2,000 scenes, so a correct sampler
 fails with probability well below 1e-3 while a wrong parameter (a range off by 10 %, a probability

@@ -68,20 +68,11 @@ class CaptionSummary:
 
 
 def render_path_for(session: Session, object_id: int) -> Path | None:
-    """The canonical render of an object (area B's helper when present, else the renders table)."""
-    try:
-        from mixcount.curation.renders import canonical_render_path  # type: ignore[import-not-found]
-    except ImportError:
-        canonical_render_path = None
-    if canonical_render_path is not None:
-        found = canonical_render_path(session, object_id)
-        return Path(found) if found else None
-    row = session.scalar(
-        select(Render).where(Render.object_id == object_id, Render.view == "canonical", Render.error.is_(None))
-    )
-    if row is None or not row.path or not Path(row.path).is_file():
-        return None
-    return Path(row.path)
+    """The canonical render of an object, if one was made (``catalog render``)."""
+    from mixcount.curation.renders import canonical_render_path
+
+    found = canonical_render_path(session, object_id)
+    return Path(found) if found else None
 
 
 def response_hash(raw: str) -> str:

@@ -1,4 +1,4 @@
-"""CLI: `catalog render`, `catalog filter`, `catalog sheet`, `catalog review import` (issue 3)."""
+"""CLI: `catalog render`, `catalog filter`, `catalog sheet`, `catalog review import`."""
 
 from __future__ import annotations
 
