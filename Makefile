@@ -9,7 +9,7 @@ DEMO_OUT := out/demo
 MIX := $(VENV)/bin/mixcount --db $(DEMO_DB)
 DEMO_SCENES ?= 4
 
-.PHONY: setup test demo browser clean-demo bench
+.PHONY: setup test test-fast lint demo browser clean-demo bench
 
 setup: $(STAMP)
 
@@ -23,8 +23,17 @@ $(STAMP): pyproject.toml
 browser:
 	@command -v chromium >/dev/null 2>&1 || (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null)
 
-test: $(STAMP) browser
+# ruff and mypy (strict on scene/, annotate/, evaluate/, config.py; see pyproject.toml), then every test.
+lint: $(STAMP)
+	$(VENV)/bin/ruff check mixcount tests bench
+	$(VENV)/bin/mypy
+
+test: $(STAMP) browser lint
 	$(PY) -m pytest -q
+
+# Engine-free tests only (no bpy, Ray, browser or slow statistics): about a minute.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not blender and not ray and not browser and not slow"
 
 demo: $(STAMP)
 	$(MIX) demo-library catalog/demo

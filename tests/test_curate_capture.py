@@ -26,6 +26,8 @@ from mixcount.curation.flags import mesh_quality_score, run_filter
 from mixcount.demo import library as L
 from test_curate_support import quick_config
 
+pytestmark = pytest.mark.slow  # capture-sized meshes through ingest and filter: not in the fast tier
+
 
 def write(root, folder, parts):
     path = root / folder

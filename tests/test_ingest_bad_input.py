@@ -141,6 +141,7 @@ def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
                           text=True, timeout=timeout, env=env)
 
 
+@pytest.mark.slow
 def test_cli_exit_codes_for_bad_inputs(bad_library, tmp_path):
     lib, expect = bad_library
     db = str(tmp_path / "cli.db")

@@ -19,6 +19,8 @@ from mixcount.scene.sampler import sample_scene
 
 N_SCENES = 2000
 
+pytestmark = pytest.mark.slow  # 2,000 sampled specs: not in the fast tier
+
 
 def rich_pool() -> list[ObjectRecord]:
     """10 ordinary categories x 6 objects + containers, all in train, plus noise that must never be drawn."""
