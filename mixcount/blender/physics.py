@@ -1,7 +1,8 @@
 """Rigid-body settling with Blender's Bullet world, and the checks that the result holds (bpy).
 
 Setup follows the stage's UsdPhysics schema: instances with RigidBodyAPI are active bodies with a
-convex-hull shape; the container (static, ``approximation = none``) is a passive triangle-mesh collider;
+convex-hull shape (of their collision proxy when the asset has one: a hidden object of <= 128 vertices
+that the scene job moves in their place, see docs/performance.md); the container (static, ``approximation = none``) is a passive triangle-mesh collider;
 the floor is a passive convex hull (it is a box or a cylinder, and a hull does not let thin floors tunnel
 like a triangle mesh can). Frames, substeps and solver iterations come from the PhysicsScene prim's
 customData. After stepping the frames the evaluated world matrices are read back, the rigid-body world is
@@ -47,8 +48,11 @@ def _add_body(obj: Any, body: Body) -> None:
 
 
 def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
-             gravity: float) -> dict[str, np.ndarray]:
-    """Run the simulation for ``frames`` frames; returns the settled 4x4 world matrix per active body."""
+             gravity: float, speeds: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """Run the simulation for ``frames`` frames; returns the settled 4x4 world matrix per active body.
+
+    ``speeds`` (when given) receives each active body's speed over the last frame, m/s: a body at rest
+    moves by (almost) nothing between the last two frames."""
     import bpy
 
     if scene.rigidbody_world is None:
@@ -68,11 +72,21 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     for body in bodies:
         _add_body(body.obj, body)
     scene.frame_set(1)
+    before: dict[str, np.ndarray] = {}
     for f in range(2, int(frames) + 2):
         scene.frame_set(f)
+        if f == int(frames) and speeds is not None:
+            dg = bpy.context.evaluated_depsgraph_get()
+            before = {b.obj.name: np.array(b.obj.evaluated_get(dg).matrix_world.translation)
+                      for b in bodies if b.kind == "active"}
     depsgraph = bpy.context.evaluated_depsgraph_get()
     settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
                for b in bodies if b.kind == "active"}
+    if speeds is not None:
+        fps = scene.render.fps / scene.render.fps_base
+        for name, m in settled.items():
+            if name in before:
+                speeds[name] = float(np.linalg.norm(m[:3, 3] - before[name]) * fps)
     # freeze: drop the simulation and keep the settled poses as plain transforms
     for body in bodies:
         with bpy.context.temp_override(object=body.obj, active_object=body.obj, selected_objects=[body.obj]):

@@ -82,6 +82,23 @@ class AssetCache:
         self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.hulls: dict[str, np.ndarray] = {}
         self.flipped_normals: dict[str, bool] = {}
+        self.proxies: dict[str, Any] = {}
+
+    def proxy(self, path: Path, prim: Any) -> Any:
+        """The collision proxy mesh of an asset (read from the instance's ``Proxy`` prim), one per asset."""
+        import bpy
+        from pxr import UsdGeom
+
+        key = str(path)
+        if key not in self.proxies:
+            mesh = UsdGeom.Mesh(prim)
+            pts = np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64)
+            idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64).reshape(-1, 3)
+            data = bpy.data.meshes.new(f"proxy_{Path(key).stem[:16]}")
+            data.from_pydata(pts.tolist(), [], idx.tolist())
+            data.use_fake_user = True
+            self.proxies[key] = data
+        return self.proxies[key]
 
     def mesh(self, path: Path) -> Any:
         import bpy
@@ -284,6 +301,7 @@ class SceneState:
     objects: list[ObjectResult]  # counted objects and distractors, in stage order
     blender_objects: dict[str, Any]  # prim path -> bpy object (removed from the scene when dropped)
     diagnostics: list[dict[str, Any]] = field(default_factory=list)
+    proxies: dict[str, Any] = field(default_factory=dict)  # render object name -> its hidden collision proxy
 
     def kept(self, role: Optional[str] = None) -> list[int]:
         return [i for i, o in enumerate(self.objects) if o.kept and (role is None or o.role == role)]
@@ -373,9 +391,21 @@ def _add_instances(state: SceneState, stage: Any) -> None:
             else:
                 state.bodies.append(Body(obj, "passive", "MESH"))
             continue
-        approx = str(prim.GetAttribute("physics:approximation").Get() or state.spec.physics.collision_shape)
         kind = "active" if prim.HasAPI(UsdPhysics.RigidBodyAPI) else "passive"
-        state.bodies.append(Body(obj, kind, SHAPES[approx]))
+        proxy_prim = stage.GetPrimAtPath(f"{ids.path}/Proxy")
+        if (proxy_prim and proxy_prim.HasAPI(UsdPhysics.CollisionAPI)
+                and UsdPhysics.CollisionAPI(proxy_prim).GetCollisionEnabledAttr().Get() is not False):
+            # collide through the convex proxy: a hidden object that the simulation moves; settle()
+            # copies its pose onto the render object
+            pobj = bpy.data.objects.new(prim.GetName() + "_proxy", state.cache.proxy(asset, proxy_prim))
+            scene.collection.objects.link(pobj)
+            pobj.matrix_world = mathutils.Matrix(m.tolist())
+            pobj.hide_render = True
+            state.proxies[obj.name] = pobj
+            state.bodies.append(Body(pobj, kind, "CONVEX_HULL"))
+        else:
+            approx = str(prim.GetAttribute("physics:approximation").Get() or state.spec.physics.collision_shape)
+            state.bodies.append(Body(obj, kind, SHAPES[approx]))
         size = prim.GetCustomDataByKey("mixcount:size_m")
         state.objects.append(ObjectResult(
             name=prim.GetName(), path=ids.path, role=ids.role, instance_id=ids.instance_id,
@@ -388,9 +418,26 @@ def settle(state: SceneState) -> dict[str, np.ndarray]:
     """Rigid-body simulation with exactly the stage's physics values; settled matrix per active body."""
     from mixcount.blender.physics import simulate
 
+    import bpy
+    import mathutils
+
     ph = state.spec.physics
-    return simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
-                    iterations=ph.solver_iterations, gravity=ph.gravity)
+    speeds: dict[str, float] = {}
+    settled = simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
+                       iterations=ph.solver_iterations, gravity=ph.gravity, speeds=speeds)
+    names = {pobj.name: name for name, pobj in state.proxies.items()}
+    state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies),
+                              "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(speeds.items())}})
+    proxy_objs = set(state.proxies.values())
+    state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]
+    for name, pobj in state.proxies.items():  # proxy pose -> render object; the proxies are done
+        mat = settled.pop(pobj.name, None)
+        if mat is not None:
+            settled[name] = mat
+            bpy.data.objects[name].matrix_world = mathutils.Matrix(mat.tolist())
+        bpy.data.objects.remove(pobj, do_unlink=True)
+    state.proxies.clear()
+    return settled
 
 
 def check_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:

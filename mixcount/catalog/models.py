@@ -89,6 +89,8 @@ class CatalogObject(Base):
     textured: Mapped[Optional[bool]] = mapped_column(Boolean)
     collision_path: Mapped[Optional[str]] = mapped_column(Text)
     collision_face_count: Mapped[Optional[int]] = mapped_column(Integer)
+    proxy_path: Mapped[Optional[str]] = mapped_column(Text)  # convex collision proxy (mixcount.catalog.proxies)
+    proxy_vertex_count: Mapped[Optional[int]] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), default=STATUS_ACTIVE, index=True)
     error: Mapped[Optional[str]] = mapped_column(Text)
     ingest_run_id: Mapped[Optional[int]] = mapped_column(ForeignKey("ingest_runs.id"))

@@ -407,7 +407,7 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
     assets = tuple(
         AssetRef(object_id=o.object_id, name=o.name, category=o.category, model_path=o.model_path,
                  content_hash=o.content_hash, dims_m=_vec(o.dims), collision_path=o.collision_path,
-                 source_units=o.source_units, source_up_axis=o.source_up_axis)
+                 proxy_path=o.proxy_path, source_units=o.source_units, source_up_axis=o.source_up_axis)
         for _, o in sorted(used_objs.items())
     )
     return SceneSpec(
@@ -417,7 +417,7 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         cameras=tuple(cameras),
         physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
                             config.collision_shape, config.gravity, config.settle_below_floor_fraction,
-                            config.settle_penetration_fraction),
+                            config.settle_penetration_fraction, bool(config.collision_proxies)),
         render=RenderSpec(config.resolution, config.samples, config.denoise, config.visibility_threshold),
         assets=assets,
     )
