@@ -15,9 +15,9 @@ between them is a pure function of :mod:`mixcount.blender.decisions`. What descr
 :class:`~mixcount.blender.contract.SceneRequest` adds run-time settings (threads, oracle).
 
 Writes into ``out_dir``: ``rgb.png``, ``ids.npy`` (int32 instance ids of counted objects and distractors,
-0 elsewhere), ``depth.npy`` (float32 planar depth in metres along the optical axis, 0 = no surface),
-``normal.npy`` (float32 unit normals in camera space: x right, y up, z towards the viewer; 0 = none) and
-``worker.json`` (the :class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
+0 elsewhere), the requested depth pass (planar depth in metres along the optical axis, 0 = no surface) and
+normal pass (unit normals in camera space: x right, y up, z towards the viewer; 0 = none) in the formats
+of :mod:`mixcount.dataset.passes` (a ``passes`` diagnostic records them), and ``worker.json`` (the :class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
 (no counted object survived: the caller regenerates from the next seed) or "rejected".
 """
 
@@ -535,12 +535,22 @@ def final_status(state: SceneState) -> str:
     return status
 
 
-def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: PinholeCamera) -> None:
-    """ids.npy (kept objects only), normal.npy (camera space) and depth.npy (planar metres)."""
+def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: PinholeCamera,
+                 req: SceneRequest) -> dict[str, Any]:
+    """ids.npy (kept objects only; the scene writer turns it into instance/class PNGs and annotations),
+    and the requested depth (planar metres) and normal (camera space) passes in their compact formats
+    (:mod:`mixcount.dataset.passes`); returns the written passes' records."""
+    from mixcount.dataset.passes import write_depth, write_normals
+
     keep = [state.objects[i].instance_id for i in state.kept()]
     np.save(state.out_dir / "ids.npy", D.instance_map(id_passes["index"], keep))
-    np.save(state.out_dir / "normal.npy", D.camera_normals(id_passes["normal"], camera.cam_to_world, id_passes["depth"]))
-    np.save(state.out_dir / "depth.npy", D.planar_depth(id_passes["depth"]))
+    written: dict[str, Any] = {}
+    if "normal" in req.passes:
+        normals = D.camera_normals(id_passes["normal"], camera.cam_to_world, id_passes["depth"])
+        written["normal"] = write_normals(state.out_dir, normals, req.normal_format)
+    if "depth" in req.passes:
+        written["depth"] = write_depth(state.out_dir, D.planar_depth(id_passes["depth"]), req.depth_format)
+    return written
 
 
 def render_rgb(state: SceneState) -> None:
@@ -601,7 +611,7 @@ def run_scene(req: SceneRequest) -> SceneResult:
     status = final_status(state)
     if status == STATUS_OK:
         with timer.stage("write_passes"):
-            write_passes(state, id_passes, camera)
+            state.diagnostics.append({"kind": "passes", "passes": write_passes(state, id_passes, camera, req)})
         with timer.stage("rgb"):
             render_rgb(state)
         if req.oracle:

@@ -35,6 +35,9 @@ class SceneTask:
     oracle: bool = False  # also run the one-render-per-object reference (tests, benchmarks)
     captions: dict[int, dict[str, str]] = field(default_factory=dict)  # distractor captions by object id
     keep_failed: bool = False
+    passes: tuple[str, ...] = ("instance", "class", "depth", "normal")  # besides rgb (compose --passes)
+    depth_format: str = "png16"  # mixcount.dataset.passes formats
+    normal_format: str = "png8"
 
 
 @dataclass
@@ -72,7 +75,8 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
         timings["stage"] = round(time.perf_counter() - t, 4)
         t = time.perf_counter()
         request = SceneRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=task.threads,
-                               oracle=task.oracle)
+                               oracle=task.oracle, passes=tuple(task.passes), depth_format=task.depth_format,
+                               normal_format=task.normal_format)
         result = worker.render_scene(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
         status = result.status
@@ -86,7 +90,7 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
                                 time.perf_counter() - t0, error=f"scene {status}", timings=timings)
         t = time.perf_counter()
         timings["total"] = 0.0
-        meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings)
+        meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings, passes=task.passes)
         timings["annotate"] = round(time.perf_counter() - t, 4)
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])
