@@ -152,7 +152,8 @@ def test_depth_normals_and_settled_poses(composed) -> None:
         assert surf.mean() > 0.5
         norms = np.linalg.norm(normal[surf], axis=1)
         assert np.median(np.abs(norms - 1.0)) < 1e-3
-        assert np.abs(depth[surf] / meta["passes"]["depth"]["unit_m"] - np.rint(depth[surf] / meta["passes"]["depth"]["unit_m"])).max() < 1e-3
+        steps = depth[surf] / meta["passes"]["depth"]["unit_m"]  # 16-bit PNG: whole steps of the stored unit
+        assert np.abs(steps - np.rint(steps)).max() < 0.01
         assert np.median(normal[surf][:, 2]) > 0  # camera space: surfaces face the camera (+z)
         dist = np.linalg.norm(np.array(meta["camera"]["cam_to_world"])[:3, 3])
         assert 0.2 * dist < np.median(depth[surf]) < 3.0 * dist

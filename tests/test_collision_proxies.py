@@ -118,7 +118,7 @@ def test_usd_asset_holds_guide_proxy_with_collision(proxy_library, tmp_path: Pat
 def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, tmp_path: Path) -> None:
     """Same seeds, proxies on and off: no more settle drops, nothing sinks, nothing interpenetrates beyond
     the worker's checks, and bodies are at rest at the end."""
-    from mixcount.blender.decisions import INTERPENETRATION, BELOW_FLOOR, FLUNG_OUT, UNSTABLE
+    from mixcount.blender.decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
     from mixcount.blender.worker import BlenderWorker
     from mixcount.run.scene_task import SceneTask, run_scene_task
 

@@ -416,10 +416,10 @@ def _add_instances(state: SceneState, stage: Any) -> None:
 
 def settle(state: SceneState) -> dict[str, np.ndarray]:
     """Rigid-body simulation with exactly the stage's physics values; settled matrix per active body."""
-    from mixcount.blender.physics import simulate
-
     import bpy
     import mathutils
+
+    from mixcount.blender.physics import simulate
 
     ph = state.spec.physics
     speeds: dict[str, float] = {}
