@@ -83,6 +83,7 @@ class AssetCache:
         self.hulls: dict[str, np.ndarray] = {}
         self.flipped_normals: dict[str, bool] = {}
         self.proxies: dict[str, Any] = {}
+        self.proxy_points: dict[str, np.ndarray] = {}
 
     def proxy(self, path: Path, prim: Any) -> Any:
         """The collision proxy mesh of an asset (read from the instance's ``Proxy`` prim), one per asset."""
@@ -98,6 +99,7 @@ class AssetCache:
             data.from_pydata(pts.tolist(), [], idx.tolist())
             data.use_fake_user = True
             self.proxies[key] = data
+            self.proxy_points[key] = pts
         return self.proxies[key]
 
     def mesh(self, path: Path) -> Any:
@@ -143,8 +145,8 @@ class AssetCache:
         from mixcount.blender.decisions import hull_equations
 
         key = str(path)
-        if key not in self.hulls:
-            self.hulls[key] = hull_equations(self.arrays[key][0])
+        if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= 128 points)
+            self.hulls[key] = hull_equations(self.proxy_points.get(key, self.arrays[key][0]))
         return self.hulls[key]
 
 
@@ -423,10 +425,12 @@ def settle(state: SceneState) -> dict[str, np.ndarray]:
 
     ph = state.spec.physics
     speeds: dict[str, float] = {}
+    stats: dict[str, Any] = {}
     settled = simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
-                       iterations=ph.solver_iterations, gravity=ph.gravity, speeds=speeds)
+                       iterations=ph.solver_iterations, gravity=ph.gravity, rest_speed=ph.rest_speed,
+                       speeds=speeds, stats=stats)
     names = {pobj.name: name for name, pobj in state.proxies.items()}
-    state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies),
+    state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies), "frames_run": stats["frames_run"],
                               "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(speeds.items())}})
     proxy_objs = set(state.proxies.values())
     state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]

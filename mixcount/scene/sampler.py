@@ -417,7 +417,8 @@ def sample_scene(seed: int, split: str, config: SceneConfig, pool: Sequence[Obje
         cameras=tuple(cameras),
         physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
                             config.collision_shape, config.gravity, config.settle_below_floor_fraction,
-                            config.settle_penetration_fraction, bool(config.collision_proxies)),
+                            config.settle_penetration_fraction, bool(config.collision_proxies),
+                            round(float(config.physics_rest_speed) * s, 6)),
         render=RenderSpec(config.resolution, config.samples, config.denoise, config.visibility_threshold),
         assets=assets,
     )

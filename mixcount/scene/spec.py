@@ -282,6 +282,7 @@ class PhysicsSpec:
     settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.blender.decisions)
     settle_penetration_fraction: float
     collision_proxies: bool = True  # counted objects / distractors collide through their convex proxy
+    rest_speed: float = 0.0  # m/s: stop the simulation once every body is slower (0 = all frames)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -290,7 +291,8 @@ class PhysicsSpec:
     def from_dict(cls, d: Mapping[str, Any]) -> "PhysicsSpec":
         return cls(int(d["frames"]), int(d["substeps"]), int(d["solver_iterations"]),
                    str(d["collision_shape"]), float(d["gravity"]), float(d["settle_below_floor_fraction"]),
-                   float(d["settle_penetration_fraction"]), bool(d.get("collision_proxies", True)))
+                   float(d["settle_penetration_fraction"]), bool(d.get("collision_proxies", True)),
+                   float(d.get("rest_speed", 0.0)))
 
 
 @dataclass(frozen=True)
