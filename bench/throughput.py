@@ -202,19 +202,19 @@ def _paper(args: Any) -> int:
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-paper-"))
     pool_name = args.pool or "heavy"
     cfg = load_config([], [f"compose.resolution={resolution}", f"compose.samples={samples}",
-                           f"compose.render_threads={max(1, cores // workers)}"])
+                           f"compose.render_threads={max(1, cores // workers)}", "compose.scene_timeout_s=14400"])
     pool = load_pool(pool_name, work)
     budget = int(cfg["ingest"]["proxy_max_vertices"])
     sconf = SceneConfig.from_config(cfg)
     used: set[int] = set()
-    for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):  # only the objects scenes use
+    for s in range(int(cfg["compose"]["seed"]), int(cfg["compose"]["seed"]) + 2 * args.scenes + 2):  # only the objects scenes use
         used |= {a.object_id for a in sample_scene(s, "train", sconf, pool).assets}
     import dataclasses
 
     pool = [dataclasses.replace(o, proxy_path=_proxy_for(Path(o.model_path), o.content_hash, work / "proxies", budget))
             if o.object_id in used else o for o in pool]
     t = time.perf_counter()
-    for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):
+    for s in range(int(cfg["compose"]["seed"]), int(cfg["compose"]["seed"]) + 2 * args.scenes + 2):
         convert_scene_assets(sample_scene(s, "train", sconf, pool), work / "assets")  # warm the asset cache
     prep = time.perf_counter() - t
     ex = LocalExecutor(workers, log_dir=work / "logs", recycle_after=0)
