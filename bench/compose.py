@@ -1,86 +1,126 @@
-"""Benchmark one composed scene at the paper's settings and print seconds per stage as a JSON line.
+"""Benchmark composed scenes per pool and size: seconds per stage, physics share, whole / RGB, bytes.
 
-    .venv/bin/python bench/compose.py                      # 1024 px, 32 spp, ~100 objects (minutes)
-    .venv/bin/python bench/compose.py --resolution 256 --samples 8 --objects 60   # quick look
-    .venv/bin/python bench/compose.py --oracle             # also time the paper's one-render-per-object method
+    .venv/bin/python bench/compose.py                                   # paper settings: 1024 px, 32 spp,
+                                                                        # light + heavy pool, 30/100/200 objects
+    .venv/bin/python bench/compose.py --resolution 256 --samples 8 --sizes 30 --pools heavy   # quick look
+    .venv/bin/python bench/compose.py --no-proxies                      # collide through full-mesh hulls
+    .venv/bin/python bench/compose.py --oracle                          # also the one-render-per-object method
 
-The scene comes from a generated demo library (no catalog needed); asset conversion is done before the
-clock starts (it is cached per asset in a real run). ``whole_over_rgb`` = whole scene time (stage
-writing, worker: import, physics, checks, silhouettes, id passes, RGB; annotation and writing) divided by
-the RGB render alone. Target: <= 1.25.
+Pools (bench/pools.py): ``light`` = the generated demo library; ``heavy`` = the same objects subdivided to
+>= 200k faces, textures kept (a real capture's size). Asset conversion, proxy building and the bpy start-up
+happen before the clock starts (all cached or one-off in a real run). Per scene: ``whole`` = stage writing
++ worker (import, physics, checks, silhouettes, id passes, passes, RGB) + annotation and writing;
+``whole_over_rgb`` = whole / RGB render (target <= 1.15 on the heavy pool at paper settings);
+``physics_share`` = physics / whole (target <= 0.05); ``bytes`` = the finished scene folder (target
+<= 4 MB at 1024 px). A side-by-side table goes to stderr, one JSON line to stdout.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", type=int, default=1024)
     ap.add_argument("--samples", type=int, default=32)
-    ap.add_argument("--objects", type=int, default=100)
+    ap.add_argument("--sizes", default="30,100,200", help="objects per scene, comma-separated")
+    ap.add_argument("--objects", type=int, default=None, help="one size only (same as --sizes N)")
+    ap.add_argument("--pools", default="light,heavy", help="light, heavy or both")
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--threads", type=int, default=0, help="Cycles threads (0 = all cores)")
+    ap.add_argument("--min-faces", type=int, default=200_000, help="faces per object of the heavy pool")
+    ap.add_argument("--no-proxies", action="store_true", help="collide through the full meshes' hulls")
     ap.add_argument("--oracle", action="store_true", help="also run the one-render-per-object reference")
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
+    from pools import load_pool, scene_bytes, with_proxies
+
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
-    from mixcount.run.compose import render_threads
-    from mixcount.demo.pool import ensure_demo_pool
-    from mixcount.run.scene_task import SceneTask, run_scene_task
+    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-"))
-    pool = ensure_demo_pool(work / "demo")
-    cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
-                           f"scene.n_objects=[{args.objects},{args.objects}]", f"scene.physics_frames={args.frames}",
-                           f"compose.render_threads={args.threads}"])
-    spec = sample_scene(args.seed, "train", cfg, pool)
-    assets = work / "assets"
-    convert_scene_assets(spec, assets)
-    threads = render_threads(cfg, workers=1) if args.threads else 0  # 0: Blender's automatic choice
-    out = work / "out"
+    sizes = [args.objects] if args.objects else [int(s) for s in args.sizes.split(",") if s.strip()]
+    pools = [p.strip() for p in args.pools.split(",") if p.strip()]
+    threads = args.threads or os.cpu_count() or 1
+    rows = []
     with BlenderWorker(name="bench", log_dir=work) as worker:
         worker.request({"op": "ping"}, timeout=300)  # start-up is not part of a scene
-        outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=3600,
-                                           threads=threads, oracle=args.oracle), worker)
-    if outcome.status != "written":
-        print(json.dumps({"status": outcome.status, "error": outcome.error}))
-        return 1
-    meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
-    t = meta["timings"]
-    stages = {k.split(".", 1)[1]: v for k, v in t.items() if k.startswith("worker.")}
-    oracle_s = stages.pop("oracle", None)
-    whole = t["total"] - (oracle_s or 0.0)
-    rgb = stages["rgb"]
-    kept = [o for o in meta["objects"] if o["status"] == "kept"]
-    result = {
-        "bench": "compose", "resolution": args.resolution, "samples": args.samples, "objects_spawned": spec.n_counted,
-        "counted_kept": meta["n_counted"], "distractors_kept": meta["n_distractors"], "dropped": meta["n_dropped"],
-        "seconds": {"stage_usd": t["stage"], **stages, "annotate_write": t["annotate"], "whole": round(whole, 3)},
-        "whole_over_rgb": round(whole / rgb, 3),
-    }
-    if oracle_s is not None:
-        ious = [o["oracle_iou"] for o in kept if o["oracle_iou"] is not None]
-        result["oracle"] = {"seconds": oracle_s, "renders": len(ious), "min_iou": round(min(ious), 5) if ious else None,
-                            "mean_iou": round(sum(ious) / len(ious), 5) if ious else None,
-                            "paper_method_over_rgb": round((whole + oracle_s - stages["silhouettes"]) / rgb, 3)}
-    result["out"] = str(outcome.path)
-    print(json.dumps(result))
+        for pool_name in pools:
+            pool = load_pool(pool_name, work, min_faces=args.min_faces)
+            for n in sizes:
+                cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
+                                       f"scene.n_objects=[{n},{n}]", f"scene.physics_frames={args.frames}",
+                                       f"compose.render_threads={threads}",
+                                       f"scene.collision_proxies={str(not args.no_proxies).lower()}"])
+                spec = sample_scene(args.seed, "train", cfg, pool)
+                if not args.no_proxies:
+                    spec = with_proxies(spec, work / "proxies", cfg.ingest.proxy_max_vertices)
+                convert_scene_assets(spec, work / "assets")
+                out = work / f"out_{pool_name}_{n}{'_noproxy' if args.no_proxies else ''}"
+                outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(work / "assets"),
+                                                   timeout_s=7200, threads=threads, oracle=args.oracle), worker)
+                if outcome.status != WRITTEN:
+                    rows.append({"pool": pool_name, "objects": n, "status": outcome.status, "error": outcome.error})
+                    print(json.dumps(rows[-1]), file=sys.stderr)
+                    continue
+                meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
+                t = meta["timings"]
+                stages = {k.split(".", 1)[1]: v for k, v in t.items() if k.startswith("worker.")}
+                oracle_s = stages.pop("oracle", None)
+                whole = t["total"] - (oracle_s or 0.0)
+                faces = {a["object_id"]: a for a in meta["spec"]["assets"]}
+                row = {"pool": pool_name, "objects": n, "counted_kept": meta["n_counted"],
+                       "distractors_kept": meta["n_distractors"], "dropped": meta["n_dropped"],
+                       "seconds": {"stage_usd": t["stage"], **stages, "annotate_write": t["annotate"],
+                                   "whole": round(whole, 3)},
+                       "whole_over_rgb": round(whole / stages["rgb"], 3),
+                       "physics_share": round(stages["physics"] / whole, 4),
+                       "bytes": scene_bytes(Path(outcome.path)), "assets": len(faces), "out": str(outcome.path)}
+                if oracle_s is not None:
+                    row["oracle_s"] = oracle_s
+                rows.append(row)
+                print(f"{pool_name:6s} n={n:4d}  physics {stages['physics']:7.2f} s  rgb {stages['rgb']:7.2f} s  "
+                      f"whole {whole:7.2f} s  whole/rgb {row['whole_over_rgb']:.3f}  physics share "
+                      f"{row['physics_share']:.3f}  {row['bytes']['total'] / 1e6:.2f} MB", file=sys.stderr)
+    ok = [r for r in rows if "seconds" in r]
+    print("\n" + _table(ok, sizes, pools), file=sys.stderr)
+    heavy = [r for r in ok if r["pool"] == "heavy"]
+    print(json.dumps({"bench": "compose", "resolution": args.resolution, "samples": args.samples,
+                      "frames": args.frames, "threads": threads, "cpu_count": os.cpu_count(),
+                      "proxies": not args.no_proxies, "scenes": rows,
+                      "heavy_targets_met": bool(heavy) and all(r["whole_over_rgb"] <= 1.15 and r["physics_share"] <= 0.05
+                                                                for r in heavy)}))
     return 0
+
+
+def _table(rows: list[dict], sizes: list[int], pools: list[str]) -> str:
+    """Pools side by side: one line per size, physics s / whole-over-RGB / physics share / MB per pool."""
+    head = "objects | " + " | ".join(f"{p}: physics s, whole/rgb, physics %, MB" for p in pools)
+    lines = [head, "-" * len(head)]
+    by = {(r["pool"], r["objects"]): r for r in rows}
+    for n in sizes:
+        cells = []
+        for p in pools:
+            r = by.get((p, n))
+            cells.append("-" if r is None else f"{r['seconds']['physics']:.2f}, {r['whole_over_rgb']:.3f}, "
+                                               f"{100 * r['physics_share']:.1f} %, {r['bytes']['total'] / 1e6:.2f}")
+        lines.append(f"{n:7d} | " + " | ".join(cells))
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,15 @@
-"""Scenes per hour and core-seconds per scene at quick settings: local executor vs Ray on a local cluster.
+"""Scenes per hour and core-seconds per scene at quick settings: local executor vs Ray on a local cluster;
+with ``--paper``, scenes per hour and core-minutes per scene at the paper's settings on the heavy pool.
 
     .venv/bin/python bench/throughput.py                       # 8 scenes, 2 workers, configs/quick.toml
     .venv/bin/python bench/throughput.py --scenes 4 --resolution 96 --samples 2   # quicker
     .venv/bin/python bench/throughput.py --memory 40 --resolution 64 --samples 1  # worker RSS per scene
+    .venv/bin/python bench/throughput.py --paper --scenes 3     # 1024 px, 32 spp, default scene config
+                                                                # (30-200 objects), heavy pool, proxies
+
+``--paper``: one local worker using every core (``--workers`` slots share them), default config (not
+quick), the capture-like heavy pool (bench/pools.py) with collision proxies; ``core_min_per_scene`` =
+cores x wall / scenes, next to the paper's 2 min per scene on 12 cores (about 24 core-minutes).
 
 Both executors compose the SAME seeds (scene_000000 ...) from a generated demo library into separate
 folders, with the same number of slots (``--workers``, one CPU each). Asset conversion is done before the
@@ -116,8 +123,12 @@ def main() -> int:
                          "recycling (--recycle-after)")
     ap.add_argument("--recycle-after", type=int, default=10)
     ap.add_argument("--work", type=Path, default=None)
+    ap.add_argument("--paper", action="store_true", help="paper settings on the heavy pool (see above)")
+    ap.add_argument("--pool", choices=("light", "heavy"), default=None, help="--paper pool (default heavy)")
     args = ap.parse_args()
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private 127.0.0.1 cluster
+    if args.paper:
+        return _paper(args)
 
     from mixcount.config import load_config
     from mixcount.demo.pool import ensure_demo_pool
@@ -160,6 +171,75 @@ def main() -> int:
     if len(runs) == 2:
         result["annotations_equal"] = _annotations(work / "local", "train") == _annotations(work / "ray", "train")
         result["ray_over_local_wall"] = round(runs[1]["wall_s"] / runs[0]["wall_s"], 3)
+    print(json.dumps(result))
+    return 0
+
+
+PAPER_CORE_MIN = 24.0  # MixCount: about 2 minutes per scene on 12 CPU cores
+
+
+def _paper(args: Any) -> int:
+    """Scenes per hour and core-minutes per scene at paper settings on the heavy pool."""
+    import sys as _sys
+
+    _sys.path.insert(0, str(ROOT / "bench"))
+    from pools import load_pool
+
+    from mixcount.config import load_config
+    from mixcount.demo.pool import _proxy_for
+    from mixcount.run.local import LocalExecutor
+    from mixcount.scene.sampler import sample_scene
+    from mixcount.usd.stage import convert_scene_assets
+
+    argv = " ".join(_sys.argv)
+    resolution = args.resolution if "--resolution" in argv else 1024
+    samples = args.samples if "--samples" in argv else 32
+    workers = args.workers if "--workers" in argv else 1
+    cores = os.cpu_count() or 1
+    work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-paper-"))
+    pool_name = args.pool or "heavy"
+    cfg = load_config([], [f"compose.resolution={resolution}", f"compose.samples={samples}",
+                           f"compose.render_threads={max(1, cores // workers)}", "compose.scene_timeout_s=14400"])
+    pool = load_pool(pool_name, work)
+    budget = cfg.ingest.proxy_max_vertices
+    sconf = cfg
+    used: set[int] = set()
+    for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):  # only the objects scenes use
+        used |= {a.object_id for a in sample_scene(s, "train", sconf, pool).assets}
+    import dataclasses
+
+    pool = [dataclasses.replace(o, proxy_path=_proxy_for(Path(o.model_path), o.content_hash, work / "proxies", budget))
+            if o.object_id in used else o for o in pool]
+    t = time.perf_counter()
+    for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):
+        convert_scene_assets(sample_scene(s, "train", sconf, pool), work / "assets")  # warm the asset cache
+    prep = time.perf_counter() - t
+    ex = LocalExecutor(workers, log_dir=work / "logs", recycle_after=0)
+    try:
+        for w in ex.workers:
+            w.request({"op": "ping"}, timeout=300)  # bpy start-up is once per worker, not per scene
+        run = _run("local", ex, pool=pool, cfg=cfg, out=work / "paper", assets=work / "assets", n=args.scenes,
+                   pids=lambda: [w.pid for w in ex.workers])
+    finally:
+        ex.close()
+    scenes = max(1, run["written"])
+    wall = run["wall_s"]
+    metas = [json.loads(p.read_text()) for p in sorted((work / "paper" / "scenes").glob("scene_*/metadata.json"))]
+    phys = [m["timings"].get("worker.physics", 0.0) for m in metas]
+    rgb = [m["timings"].get("worker.rgb", 0.0) for m in metas]
+    total = [m["timings"].get("total", 0.0) for m in metas]
+    result = {
+        "bench": "throughput-paper", "pool": pool_name, "resolution": resolution, "samples": samples,
+        "scenes": run["written"], "workers": workers, "cores": cores, "wall_s": wall,
+        "scenes_per_hour": round(3600 * run["written"] / wall, 2),
+        "core_min_per_scene": round(cores * wall / scenes / 60, 2),
+        "cpu_min_per_scene": round(run["cpu_s_per_scene"] / 60, 2) if run["cpu_s_per_scene"] else None,
+        "paper_core_min_per_scene": PAPER_CORE_MIN,
+        "objects_per_scene": [len(m["objects"]) for m in metas],
+        "physics_share": round(sum(phys) / max(sum(total), 1e-9), 4),
+        "whole_over_rgb": round(sum(total) / max(sum(rgb), 1e-9), 3),
+        "asset_prep_s": round(prep, 1), "failed": run["failed"], "regenerated": run["regenerated"],
+    }
     print(json.dumps(result))
     return 0
 

@@ -121,6 +121,7 @@ class IngestConfig:
     assume_up_axis: str
     omniobject3d_units: str
     omniobject3d_up_axis: str
+    proxy_max_vertices: int
 
 
 @dataclass(frozen=True)
@@ -258,6 +259,10 @@ class ComposeConfig:
     scene_timeout_s: float
     max_attempts_factor: float
     preview_scenes: int
+    passes: tuple[str, ...]
+    depth_format: str
+    normal_format: str
+    merge: bool
 
     def validate(self) -> None:
         if self.split not in ("train", "val", "test"):

@@ -83,7 +83,7 @@ def test_compose_writes_n_complete_scenes(composed) -> None:
     dirs = _scenes(out)
     assert len(dirs) == 2
     for d in dirs:
-        for name in ("rgb.png", "instance.png", "class.png", "depth.npy", "normal.npy", "scene.usda",
+        for name in ("rgb.png", "instance.png", "class.png", "depth.png", "normal.png", "scene.usda",
                      "settled.usda", "coco.json", "metadata.json"):
             assert (d / name).is_file(), name
         meta = json.loads((d / "metadata.json").read_text())
@@ -242,14 +242,19 @@ def test_depth_normals_and_settled_poses(composed) -> None:
     for d in _scenes(out):
         meta = json.loads((d / "metadata.json").read_text())
         h, w = meta["image"]["height"], meta["image"]["width"]
-        depth = np.load(d / "depth.npy")
-        normal = np.load(d / "normal.npy")
+        from mixcount.dataset import read_depth, read_normals
+
+        assert meta["passes"]["depth"]["format"] == "png16" and meta["files"]["normal"] == "normal.png"
+        depth = read_depth(d / meta["files"]["depth"])
+        normal = read_normals(d)
         assert depth.shape == (h, w) and depth.dtype == np.float32
         assert normal.shape == (h, w, 3) and normal.dtype == np.float32
         surf = depth > 0
         assert surf.mean() > 0.5
         norms = np.linalg.norm(normal[surf], axis=1)
         assert np.median(np.abs(norms - 1.0)) < 1e-3
+        steps = depth[surf] / meta["passes"]["depth"]["unit_m"]  # 16-bit PNG: whole steps of the stored unit
+        assert np.abs(steps - np.rint(steps)).max() < 0.01
         assert np.median(normal[surf][:, 2]) > 0  # camera space: surfaces face the camera (+z)
         dist = np.linalg.norm(np.array(meta["camera"]["cam_to_world"])[:3, 3])
         assert 0.2 * dist < np.median(depth[surf]) < 3.0 * dist
@@ -378,3 +383,23 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
     again = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2,
                            progress=False)
     assert again.skipped == 2 and again.written == 2
+    assert summary.outputs["dataset"] and again.outputs == {}  # nothing new: the resumed call does not re-merge
+
+
+def test_compose_passes_choose_the_written_files(library, tmp_path: Path) -> None:
+    from mixcount.dataset import read_depth
+    from mixcount.run.compose import compose_scenes
+
+    pool, assets = library
+    out = tmp_path / "out"
+    summary = compose_scenes(pool=pool, config=_config("compose.resolution=64", "compose.depth_format='exr32'"),
+                             out_dir=out, assets_dir=assets, n=1, seed=1, progress=False, passes="depth")
+    assert summary.written == 1
+    d = _scenes(out)[0]
+    assert (d / "depth.exr").is_file() and (d / "rgb.png").is_file() and (d / "coco.json").is_file()
+    for name in ("normal.png", "normal.npy", "instance.png", "class.png", "depth.png", "depth.npy"):
+        assert not (d / name).exists(), name
+    meta = json.loads((d / "metadata.json").read_text())
+    assert set(meta["passes"]) == {"depth"} and meta["files"]["depth"] == "depth.exr"
+    depth = read_depth(d)
+    assert depth.shape == (64, 64) and depth.dtype == np.float32 and (depth > 0).mean() > 0.5

@@ -51,8 +51,13 @@ for prim in stage.Traverse():
         counts[str(ci)] = counts.get(str(ci), 0) + 1
     if role in ("counted", "distractor"):
         meshes = [p for p in Usd.PrimRange(prim) if p.IsA(UsdGeom.Mesh)]
-        physics.append(bool(meshes) and prim.HasAPI(UsdPhysics.RigidBodyAPI) and prim.HasAPI(UsdPhysics.CollisionAPI)
-                       and UsdPhysics.MeshCollisionAPI(prim).GetApproximationAttr().Get() == "convexHull")
+        # the collider: the asset's convex proxy (a guide child) when the catalog has one, else the prim
+        proxy = stage.GetPrimAtPath(prim.GetPath().AppendChild("Proxy"))
+        collider = proxy if proxy and UsdPhysics.CollisionAPI(proxy).GetCollisionEnabledAttr().Get() else prim
+        physics.append(bool(meshes) and prim.HasAPI(UsdPhysics.RigidBodyAPI)
+                       and collider.HasAPI(UsdPhysics.CollisionAPI)
+                       and UsdPhysics.MeshCollisionAPI(collider).GetApproximationAttr().Get() == "convexHull"
+                       and (collider == prim or UsdGeom.Imageable(proxy).ComputePurpose() == "guide"))
 container = stage.GetPrimAtPath("/World/Container")
 coll = stage.GetPrimAtPath("/World/Container/Collision")
 cams = [UsdGeom.Camera(p) for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]

@@ -40,14 +40,23 @@ class SceneRequest:
     out_dir: str
     threads: int  # Cycles threads (0 = Blender's automatic choice)
     oracle: bool  # also run the one-render-per-object reference and write oracle_masks.npz
+    # which of depth / normal to write and how (mixcount.dataset.passes); the id map is always written
+    passes: tuple[str, ...] = ("instance", "class", "depth", "normal")
+    depth_format: str = "png16"
+    normal_format: str = "png8"
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        d = asdict(self)
+        d["passes"] = list(self.passes)
+        return d
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneRequest":
+        extra = {k: d[k] for k in ("depth_format", "normal_format") if k in d}
+        if "passes" in d:
+            extra["passes"] = tuple(d["passes"])
         return cls(stage=str(d["stage"]), out_dir=str(d["out_dir"]), threads=int(d["threads"]),
-                   oracle=bool(d["oracle"]))
+                   oracle=bool(d["oracle"]), **extra)
 
 
 @dataclass(frozen=True)

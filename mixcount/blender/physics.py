@@ -1,7 +1,8 @@
 """Rigid-body settling with Blender's Bullet world, and the checks that the result holds (bpy).
 
 Setup follows the stage's UsdPhysics schema: instances with RigidBodyAPI are active bodies with a
-convex-hull shape; the container (static, ``approximation = none``) is a passive triangle-mesh collider;
+convex-hull shape (of their collision proxy when the asset has one: a hidden object of <= 128 vertices
+that the scene job moves in their place, see docs/performance.md); the container (static, ``approximation = none``) is a passive triangle-mesh collider;
 the floor is a passive convex hull (it is a box or a cylinder, and a hull does not let thin floors tunnel
 like a triangle mesh can). Frames, substeps and solver iterations come from the PhysicsScene prim's
 customData. After stepping the frames the evaluated world matrices are read back, the rigid-body world is
@@ -46,9 +47,23 @@ def _add_body(obj: Any, body: Body) -> None:
         rb.use_deactivation = True
 
 
+REST_WINDOW = 10  # frames between rest checks
+REST_WINDOWS = 2  # consecutive calm windows before the simulation stops early
+REST_ROLLING = 0.05  # fraction of bodies still allowed to move then: balls rolling away over the floor
+REST_ROLLING_MIN = 2  # ... and at least this many (they are mostly dropped as outside the frame)
+
+
 def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
-             gravity: float) -> dict[str, np.ndarray]:
-    """Run the simulation for ``frames`` frames; returns the settled 4x4 world matrix per active body."""
+             gravity: float, rest_speed: float = 0.0, speeds: dict[str, float] | None = None,
+             stats: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
+    """Run the simulation for at most ``frames`` frames; returns the settled 4x4 world matrix per active body.
+
+    Every :data:`REST_WINDOW` frames the active bodies' mean speeds over the window are measured; with
+    ``rest_speed`` > 0 the run stops once all bodies but :data:`REST_ROLLING` of them, at least 2 (objects rolling
+    away over the floor, which Bullet's damping stops only slowly) have been slower than it (m/s) for
+    :data:`REST_WINDOWS` windows in a row (bodies fallen under z = 0 are not waited for): a settled pile
+    costs no further frames. ``speeds`` (when
+    given) receives each body's speed over the last window, ``stats`` the frames actually simulated."""
     import bpy
 
     if scene.rigidbody_world is None:
@@ -68,8 +83,34 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     for body in bodies:
         _add_body(body.obj, body)
     scene.frame_set(1)
+    fps = scene.render.fps / scene.render.fps_base
+    active = [b.obj for b in bodies if b.kind == "active"]
+
+    def positions() -> np.ndarray:
+        dg = bpy.context.evaluated_depsgraph_get()
+        return np.array([o.evaluated_get(dg).matrix_world.translation for o in active], dtype=np.float64)
+
+    last, last_f, calm, ran = positions(), 1, 0, int(frames)
+    window_speed = np.zeros(len(active))
     for f in range(2, int(frames) + 2):
         scene.frame_set(f)
+        if (f - 1) % REST_WINDOW and f != int(frames) + 1:
+            continue
+        now = positions()
+        window_speed = np.linalg.norm(now - last, axis=1) * fps / max(1, f - last_f) if len(active) else window_speed
+        last, last_f = now, f
+        # a body whose centre fell under the floor's top (z = 0) is dropped as below_floor anyway and
+        # may fall forever: it does not hold the rest of the pile up
+        on_floor = window_speed[now[:, 2] >= 0.0] if len(active) else window_speed
+        moving = int((on_floor >= rest_speed).sum())
+        calm = calm + 1 if rest_speed > 0 and moving <= max(REST_ROLLING_MIN, REST_ROLLING * len(on_floor)) else 0
+        if calm >= REST_WINDOWS:
+            ran = f - 1
+            break
+    if speeds is not None:
+        speeds.update({o.name: float(v) for o, v in zip(active, window_speed)})
+    if stats is not None:
+        stats["frames_run"] = ran
     depsgraph = bpy.context.evaluated_depsgraph_get()
     settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
                for b in bodies if b.kind == "active"}

@@ -15,10 +15,11 @@ between them is a pure function of :mod:`mixcount.blender.decisions`. What descr
 :class:`~mixcount.blender.contract.SceneRequest` adds run-time settings (threads, oracle).
 
 Writes into ``out_dir``: ``rgb.png``, ``ids.npy`` (int32 instance ids of counted objects and distractors,
-0 elsewhere), ``depth.npy`` (float32 planar depth in metres along the optical axis, 0 = no surface),
-``normal.npy`` (float32 unit normals in camera space: x right, y up, z towards the viewer; 0 = none),
-``amodal.npz`` (each kept object's amodal mask, see :func:`write_amodal_masks`) and
-``worker.json`` (the :class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
+0 elsewhere), the requested depth pass (planar depth in metres along the optical axis, 0 = no surface) and
+normal pass (unit normals in camera space: x right, y up, z towards the viewer; 0 = none) in the formats
+of :mod:`mixcount.dataset.passes` (a ``passes`` diagnostic records them), ``amodal.npz`` (each kept
+object's amodal mask, see :func:`write_amodal_masks`) and ``worker.json`` (the
+:class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
 (no counted object survived: the caller regenerates from the next seed) or "rejected".
 """
 
@@ -83,6 +84,25 @@ class AssetCache:
         self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.hulls: dict[str, np.ndarray] = {}
         self.flipped_normals: dict[str, bool] = {}
+        self.proxies: dict[str, Any] = {}
+        self.proxy_points: dict[str, np.ndarray] = {}
+
+    def proxy(self, path: Path, prim: Any) -> Any:
+        """The collision proxy mesh of an asset (read from the instance's ``Proxy`` prim), one per asset."""
+        import bpy
+        from pxr import UsdGeom
+
+        key = str(path)
+        if key not in self.proxies:
+            mesh = UsdGeom.Mesh(prim)
+            pts = np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64)
+            idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64).reshape(-1, 3)
+            data = bpy.data.meshes.new(f"proxy_{Path(key).stem[:16]}")
+            data.from_pydata(pts.tolist(), [], idx.tolist())
+            data.use_fake_user = True
+            self.proxies[key] = data
+            self.proxy_points[key] = pts
+        return self.proxies[key]
 
     def mesh(self, path: Path) -> Any:
         import bpy
@@ -127,8 +147,8 @@ class AssetCache:
         from mixcount.blender.decisions import hull_equations
 
         key = str(path)
-        if key not in self.hulls:
-            self.hulls[key] = hull_equations(self.arrays[key][0])
+        if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= 128 points)
+            self.hulls[key] = hull_equations(self.proxy_points.get(key, self.arrays[key][0]))
         return self.hulls[key]
 
 
@@ -285,6 +305,7 @@ class SceneState:
     objects: list[ObjectResult]  # counted objects and distractors, in stage order
     blender_objects: dict[str, Any]  # prim path -> bpy object (removed from the scene when dropped)
     diagnostics: list[dict[str, Any]] = field(default_factory=list)
+    proxies: dict[str, Any] = field(default_factory=dict)  # render object name -> its hidden collision proxy
 
     def kept(self, role: Optional[str] = None) -> list[int]:
         return [i for i, o in enumerate(self.objects) if o.kept and (role is None or o.role == role)]
@@ -374,9 +395,21 @@ def _add_instances(state: SceneState, stage: Any) -> None:
             else:
                 state.bodies.append(Body(obj, "passive", "MESH"))
             continue
-        approx = str(prim.GetAttribute("physics:approximation").Get() or state.spec.physics.collision_shape)
         kind = "active" if prim.HasAPI(UsdPhysics.RigidBodyAPI) else "passive"
-        state.bodies.append(Body(obj, kind, SHAPES[approx]))
+        proxy_prim = stage.GetPrimAtPath(f"{ids.path}/Proxy")
+        if (proxy_prim and proxy_prim.HasAPI(UsdPhysics.CollisionAPI)
+                and UsdPhysics.CollisionAPI(proxy_prim).GetCollisionEnabledAttr().Get() is not False):
+            # collide through the convex proxy: a hidden object that the simulation moves; settle()
+            # copies its pose onto the render object
+            pobj = bpy.data.objects.new(prim.GetName() + "_proxy", state.cache.proxy(asset, proxy_prim))
+            scene.collection.objects.link(pobj)
+            pobj.matrix_world = mathutils.Matrix(m.tolist())
+            pobj.hide_render = True
+            state.proxies[obj.name] = pobj
+            state.bodies.append(Body(pobj, kind, "CONVEX_HULL"))
+        else:
+            approx = str(prim.GetAttribute("physics:approximation").Get() or state.spec.physics.collision_shape)
+            state.bodies.append(Body(obj, kind, SHAPES[approx]))
         size = prim.GetCustomDataByKey("mixcount:size_m")
         state.objects.append(ObjectResult(
             name=prim.GetName(), path=ids.path, role=ids.role, instance_id=ids.instance_id,
@@ -387,11 +420,30 @@ def _add_instances(state: SceneState, stage: Any) -> None:
 
 def settle(state: SceneState) -> dict[str, np.ndarray]:
     """Rigid-body simulation with exactly the stage's physics values; settled matrix per active body."""
+    import bpy
+    import mathutils
+
     from mixcount.blender.physics import simulate
 
     ph = state.spec.physics
-    return simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
-                    iterations=ph.solver_iterations, gravity=ph.gravity)
+    speeds: dict[str, float] = {}
+    stats: dict[str, Any] = {}
+    settled = simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
+                       iterations=ph.solver_iterations, gravity=ph.gravity, rest_speed=ph.rest_speed,
+                       speeds=speeds, stats=stats)
+    names = {pobj.name: name for name, pobj in state.proxies.items()}
+    state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies), "frames_run": stats["frames_run"],
+                              "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(speeds.items())}})
+    proxy_objs = set(state.proxies.values())
+    state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]
+    for name, pobj in state.proxies.items():  # proxy pose -> render object; the proxies are done
+        mat = settled.pop(pobj.name, None)
+        if mat is not None:
+            settled[name] = mat
+            bpy.data.objects[name].matrix_world = mathutils.Matrix(mat.tolist())
+        bpy.data.objects.remove(pobj, do_unlink=True)
+    state.proxies.clear()
+    return settled
 
 
 def check_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:
@@ -506,12 +558,22 @@ def write_amodal_masks(state: SceneState, masks: dict[int, np.ndarray], id_passe
     np.savez_compressed(state.out_dir / "amodal.npz", shape=np.array(index.shape[:2]), **save)
 
 
-def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: PinholeCamera) -> None:
-    """ids.npy (kept objects only), normal.npy (camera space) and depth.npy (planar metres)."""
+def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: PinholeCamera,
+                 req: SceneRequest) -> dict[str, Any]:
+    """ids.npy (kept objects only; the scene writer turns it into instance/class PNGs and annotations),
+    and the requested depth (planar metres) and normal (camera space) passes in their compact formats
+    (:mod:`mixcount.dataset.passes`); returns the written passes' records."""
+    from mixcount.dataset.passes import write_depth, write_normals
+
     keep = [state.objects[i].instance_id for i in state.kept()]
     np.save(state.out_dir / "ids.npy", D.instance_map(id_passes["index"], keep))
-    np.save(state.out_dir / "normal.npy", D.camera_normals(id_passes["normal"], camera.cam_to_world, id_passes["depth"]))
-    np.save(state.out_dir / "depth.npy", D.planar_depth(id_passes["depth"]))
+    written: dict[str, Any] = {}
+    if "normal" in req.passes:
+        normals = D.camera_normals(id_passes["normal"], camera.cam_to_world, id_passes["depth"])
+        written["normal"] = write_normals(state.out_dir, normals, req.normal_format)
+    if "depth" in req.passes:
+        written["depth"] = write_depth(state.out_dir, D.planar_depth(id_passes["depth"]), req.depth_format)
+    return written
 
 
 def render_rgb(state: SceneState) -> None:
@@ -572,7 +634,7 @@ def run_scene(req: SceneRequest) -> SceneResult:
     status = final_status(state)
     if status == STATUS_OK:
         with timer.stage("write_passes"):
-            write_passes(state, id_passes, camera)
+            state.diagnostics.append({"kind": "passes", "passes": write_passes(state, id_passes, camera, req)})
             write_amodal_masks(state, masks, id_passes)
         with timer.stage("rgb"):
             render_rgb(state)

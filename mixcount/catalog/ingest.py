@@ -53,6 +53,7 @@ from mixcount.errors import IngestError
 FACT_FIELDS = (
     "source_units", "source_up_axis", "dim_x", "dim_y", "dim_z", "vertex_count", "face_count",
     "watertight", "volume", "area", "textured", "geometry_hash", "collision_path", "collision_face_count",
+    "proxy_path", "proxy_vertex_count",
 )
 
 
@@ -103,6 +104,12 @@ def settings_of(config: IngestConfig) -> dict[str, Any]:
         "assume_up_axis": config.assume_up_axis,
         "analysis_version": 1,  # bump when mesh.py measures differently
     }
+
+
+def proxy_budget(config: IngestConfig) -> int:
+    """Vertex budget of collision proxies. Not part of the ingest hash: a changed budget only rebuilds
+    proxies from the stored collision meshes (:func:`refresh_proxy`), never re-analyses a model."""
+    return config.proxy_max_vertices
 
 
 def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> Prepared:
@@ -235,6 +242,24 @@ def _store(
     raise AssertionError("unreachable")
 
 
+def refresh_proxy(session: Session, obj: CatalogObject, collision_dir: Path, max_vertices: int) -> bool:
+    """Build the collision proxy of an already-ingested object from its stored collision mesh when it has
+    none (a catalog from before proxies) or one of another budget; updates the row in place (same id,
+    no re-analysis). Returns whether it wrote. A failure leaves the row without proxy: the compositor
+    then collides through the full mesh's hull, as before proxies existed."""
+    from mixcount.catalog.proxies import is_current, proxy_from_collision
+
+    if is_current(obj.proxy_path, max_vertices) or not obj.collision_path or not obj.geometry_hash:
+        return False
+    try:
+        facts = proxy_from_collision(obj.collision_path, obj.geometry_hash, collision_dir, max_vertices)
+    except IngestError:
+        return False
+    obj.proxy_path, obj.proxy_vertex_count = facts.path, facts.vertex_count
+    session.commit()
+    return True
+
+
 def _facts_of(obj: CatalogObject) -> dict[str, Any]:
     facts = {key: getattr(obj, key) for key in FACT_FIELDS}
     info = _ingest_info(obj)
@@ -253,6 +278,7 @@ def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict
         "face_budget": settings["collision_face_budget"],
         "units": (cand.units or settings["assume_units"]),
         "up_axis": (cand.up_axis or settings["assume_up_axis"]),
+        "proxy_max_vertices": settings["proxy_max_vertices"],
     }
 
 
@@ -295,6 +321,7 @@ def ingest_paths(
             cand.up_axis = cand.up_axis or ing.omniobject3d_up_axis
         layouts.stage(cand, catalog.data_dir / "staged")
     settings = settings_of(ing)
+    max_vertices = proxy_budget(ing)
     max_bytes = ing.max_file_mb * 2**20
     n_workers = max(1, ing.workers)
     summary = IngestSummary()
@@ -334,6 +361,7 @@ def ingest_paths(
                     info = _ingest_info(existing)
                     same_path = existing.model_path == _stored_path(cand.model_path)  # type: ignore[arg-type]
                     if info.get("ingest_hash") == prep.ingest_hash and same_path:
+                        refresh_proxy(session, existing, collision_dir, max_vertices)
                         count("unchanged", prep)
                         bar.advance()
                         continue
@@ -344,12 +372,14 @@ def ingest_paths(
                         and Path(existing.collision_path or "").is_file()
                     ):
                         # only sidecars or the location changed: keep the measured facts
+                        refresh_proxy(session, existing, collision_dir, max_vertices)
                         count(_store(session, prep, _facts_of(existing), None, summary.run_id), prep)
                         bar.advance()
                         continue
                 pending.append(prep)
             if pending:
-                _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar)
+                _analyse_all(session, pending, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
+                             n_workers, summary, count, bar)
             summary.containers = refresh_containers(session, config).containers
         status = "done"
     finally:

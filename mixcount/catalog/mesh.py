@@ -1,4 +1,5 @@
-"""Mesh analysis for ingest: load, normalise to metres and Z-up, measure, hash, build a collision mesh.
+"""Mesh analysis for ingest: load, normalise to metres and Z-up, measure, hash, build a collision mesh
+and its convex collision proxy (:mod:`mixcount.catalog.proxies`).
 
 Everything here runs in ingest worker processes: :func:`analyse_model` takes plain arguments and returns
 a plain dict, and every failure is an :class:`~mixcount.errors.IngestError` whose ``reason`` becomes the
@@ -57,6 +58,8 @@ class MeshFacts:
     n_parts: int
     collision_path: str
     collision_face_count: int
+    proxy_path: str
+    proxy_vertex_count: int
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -396,6 +399,7 @@ def analyse_model(
     face_budget: int,
     units: str,
     up_axis: str,
+    proxy_max_vertices: int,
 ) -> dict[str, Any]:
     """Worker entry point: all facts of one model as a plain dict (raises IngestError)."""
     path = Path(model_path)
@@ -407,6 +411,9 @@ def analyse_model(
     volume = float(abs(mesh.volume)) if watertight else None
     collision = Path(collision_dir) / f"{ghash[:32]}_{int(face_budget)}.ply"
     collision_faces = build_collision_mesh(mesh, collision, int(face_budget))
+    from mixcount.catalog.proxies import proxy_from_collision
+
+    proxy = proxy_from_collision(collision, ghash, Path(collision_dir), int(proxy_max_vertices))
     facts = MeshFacts(
         source_units=norm.source_units,
         source_up_axis=norm.source_up_axis,
@@ -424,5 +431,7 @@ def analyse_model(
         n_parts=norm.n_parts,
         collision_path=str(collision.resolve()),
         collision_face_count=collision_faces,
+        proxy_path=proxy.path,
+        proxy_vertex_count=proxy.vertex_count,
     )
     return facts.as_dict()

@@ -90,6 +90,8 @@ class CatalogObject(Base):
     textured: Mapped[Optional[bool]] = mapped_column(Boolean)
     collision_path: Mapped[Optional[str]] = mapped_column(Text)
     collision_face_count: Mapped[Optional[int]] = mapped_column(Integer)
+    proxy_path: Mapped[Optional[str]] = mapped_column(Text)  # convex collision proxy (mixcount.catalog.proxies)
+    proxy_vertex_count: Mapped[Optional[int]] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), default=STATUS_ACTIVE, index=True)
     error: Mapped[Optional[str]] = mapped_column(Text)
     # a container (plate, tray, bowl, ...) scenes drop the counted objects into: set from the

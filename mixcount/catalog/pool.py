@@ -53,7 +53,7 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
                 object_id=int(obj.id), name=obj.name, category=(obj.category or "").lower(), dims=dims,
                 captions=caps.get(obj.id) or fallback_captions(obj.name, obj.category or ""),
                 split=obj_split, model_path=obj.model_path, content_hash=obj.content_hash or "",
-                collision_path=obj.collision_path, status=obj.status,
+                collision_path=obj.collision_path, status=obj.status, proxy_path=obj.proxy_path,
                 source_units=obj.source_units, source_up_axis=obj.source_up_axis,
                 render_path=renders.get(int(obj.id)),
                 source=obj.source, source_id=obj.source_id, license=obj.license, container=bool(obj.container),

@@ -86,6 +86,8 @@ def object_record(session: Session, obj: CatalogObject, *, detail: bool = False)
         "appearance": ingest.get("appearance"),
         "collision_path": obj.collision_path,
         "collision_face_count": obj.collision_face_count,
+        "proxy_path": obj.proxy_path,
+        "proxy_vertex_count": obj.proxy_vertex_count,
         "license": obj.license,
         "container": bool(obj.container),
         "container_reason": obj.container_reason,

@@ -1,5 +1,5 @@
-"""``mixcount compose`` (plan, USD stages; the Blender run is added by the rendering area) and
-``mixcount catalog ingest-env`` / ``ingest-materials``.
+"""``mixcount compose`` (plan, USD stages, render), ``mixcount merge`` (dataset files from the finished
+scenes) and ``mixcount catalog ingest-env`` / ``ingest-materials``.
 
 ``plan_scenes`` is the one place that turns (catalog, config, n) into SceneSpecs; the
 dry run prints them, ``--stage-only`` writes ``OUT/scenes/<scene_id>/scene.usda`` for each.
@@ -101,6 +101,8 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         config_file: Optional[Path] = typer.Option(None, "--config", help="Extra config file (after the global --config files)."),
         executor_kind: str = typer.Option("local", "--executor", help="local (bpy worker processes here) or ray (one task per scene on a Ray cluster)."),
         address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor ray (default: start a local cluster)."),
+        passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes written besides rgb.png: instance, class, depth, normal (default: config compose.passes, all four)."),
+        no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
         st = state(ctx)
@@ -136,7 +138,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             summary = compose_scenes(pool=pool, config=cfg, out_dir=out_dir.resolve(),
                                      assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n,
                                      environments=tuple(envs), materials=tuple(mats), executor=executor,
-                                     progress=RichProgress())
+                                     progress=RichProgress(), passes=passes, merge=False if no_merge else None)
         finally:
             if executor is not None:
                 executor.close()
@@ -146,6 +148,26 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         out.print(json.dumps({k: v for k, v in summary.to_dict().items() if k != "outcomes"}, indent=2))
         if summary.written < n:
             raise CompositionError(f"only {summary.written} of {n} scenes could be written (see failures above)")
+
+    @app.command("merge")
+    def merge(
+        ctx: typer.Context,
+        out_dir: Path = typer.Argument(Path("out"), help="Compose output folder (OUT/scenes/<scene_id>/...)."),
+    ) -> None:
+        """Merge the finished scenes of OUT into annotations/instances_<split>.json, dataset.json and
+        preview.png (one streaming pass; unchanged scenes' summaries come from the merge index)."""
+        import time
+
+        from mixcount.dataset.merge import finalize_dataset
+
+        if not (out_dir / "scenes").is_dir():
+            raise CompositionError(f"{out_dir} holds no scenes/ folder: nothing to merge")
+        cfg = state(ctx).config()
+        t0 = time.perf_counter()
+        res = finalize_dataset(out_dir.resolve(), config=cfg.to_dict(), config_hash=cfg.hash,
+                               preview_scenes=cfg.compose.preview_scenes)
+        console.print(f"merged in {time.perf_counter() - t0:.1f} s: {res['dataset']}")
+        out.print(json.dumps(res, indent=2))
 
     @catalog_app.command("ingest-env")
     def ingest_env(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="HDR/EXR files or folders.")) -> None:

@@ -1,22 +1,41 @@
 """Dataset-level outputs from the finished scene folders (no bpy): merged COCO per split,
-``OUT/dataset.json``, the ``OUT/preview.png`` grid and ``OUT/ATTRIBUTION.json`` / ``.md``.
+``OUT/dataset.json``, the ``OUT/preview.png`` grid and ``OUT/ATTRIBUTION.json`` / ``.md``, built in ONE
+streaming pass.
 
 Merging renumbers images (1.. in scene-id order) and annotations (1.. in image order) so the merged file
 is a valid COCO set; category ids need no renumbering (they are deterministic, see
-:mod:`mixcount.annotate.coco`). The scene id and the per-scene instance id stay on every record.
+:mod:`mixcount.annotate.coco`). The scene id and the per-scene instance id stay on every record; every
+other field of a scene's images, annotations and categories passes through unchanged.
+
+Scaling (58,000 scenes, see docs/performance.md):
+
+* one pass over the scene folders in scene-id order; each scene's ``coco.json`` is read once, and its
+  images / annotations are written straight to per-split temporary files that are concatenated into
+  ``annotations/instances_<split>.json`` at the end: memory holds one scene, the categories and a few
+  counters, never the whole dataset;
+* the summary numbers of a scene (split, counts, timings) come from ``annotations/.merge_index.jsonl``,
+  a sorted index keyed by each ``metadata.json``'s size and modification time: ``metadata.json`` is
+  parsed once per scene ever, and a resumed run re-reads only the scenes that changed. The index is read
+  alongside the sorted folder listing (a merge join), so it is not held in memory either.
+
+``mixcount merge OUT`` runs this on its own; ``compose`` runs it at its end when it wrote scenes.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
-
-import numpy as np
+from typing import Any, Iterator, Optional, TextIO
 
 from mixcount.dataset.attribution import JSON_NAME, write_attribution
 from mixcount.dataset.scene_writer import is_complete
+
+INDEX_NAME = ".merge_index.jsonl"
+RECORD_KEYS = ("scene_id", "seed", "split", "n_counted", "n_distractors", "counts", "timings")
 
 
 def complete_scenes(out_dir: Path) -> list[Path]:
@@ -32,113 +51,220 @@ def _write_json(path: Path, obj: Any, indent: Optional[int] = None) -> None:
     os.replace(tmp, path)
 
 
-def merge_annotations(out_dir: Path) -> dict[str, Path]:
-    """Write ``OUT/annotations/instances_<split>.json`` for every split present; returns split -> path."""
+# ------------------------------------------------------------------------------------ the scene index
+
+
+def _read_index(path: Path) -> Iterator[dict[str, Any]]:
+    if not path.is_file():
+        return
+    with open(path) as fh:
+        for line in fh:
+            try:
+                yield json.loads(line)
+            except ValueError:
+                continue  # a torn last line of a killed merge: that scene is simply re-read
+
+
+def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None) -> Iterator[tuple[Path, dict[str, Any]]]:
+    """(folder, summary record) of every complete scene in scene-id order, from the index where a
+    scene's metadata.json is unchanged (same size and mtime), else from metadata.json; each record is
+    also written to ``index_out`` (the new index)."""
     out_dir = Path(out_dir)
-    by_split: dict[str, list[Path]] = {}
-    for d in complete_scenes(out_dir):
-        meta = json.loads((d / "metadata.json").read_text())
-        by_split.setdefault(meta["split"], []).append(d)
-    (out_dir / "annotations").mkdir(parents=True, exist_ok=True)
-    written = {}
-    for split, dirs in sorted(by_split.items()):
-        images, anns, cats = [], [], {}
-        ann_id = 1
-        for image_id, d in enumerate(dirs, start=1):
-            coco = json.loads((d / "coco.json").read_text())
-            old_to_new = {}
-            for a in coco["annotations"]:
-                b = dict(a)
-                old_to_new[a["id"]] = ann_id
-                b["id"], b["image_id"] = ann_id, image_id
-                b["scene_id"] = d.name
-                anns.append(b)
-                ann_id += 1
-            img = dict(coco["images"][0])
-            img["id"] = image_id
-            img["exemplars"] = [{"category_id": e["category_id"],
-                                 "annotation_ids": [old_to_new[i] for i in e["annotation_ids"]]}
-                                for e in img.get("exemplars", [])]
-            images.append(img)
-            for c in coco["categories"]:
-                cats.setdefault(c["id"], c)
-        path = out_dir / "annotations" / f"instances_{split}.json"
-        _write_json(path, {
-            "info": {"description": f"mixcount {split}", "version": "1"},
-            "images": images, "annotations": anns, "categories": [cats[k] for k in sorted(cats)],
-        })
-        written[split] = path
-    return written
+    scenes = out_dir / "scenes"
+    if not scenes.is_dir():
+        return
+    names = sorted(e.name for e in os.scandir(scenes) if e.is_dir() and not e.name.startswith("."))
+    cached = _read_index(out_dir / "annotations" / INDEX_NAME)
+    head = next(cached, None)
+    for name in names:
+        while head is not None and str(head.get("scene_id", "")) < name:
+            head = next(cached, None)
+        meta_path = scenes / name / "metadata.json"
+        try:
+            st = meta_path.stat()
+        except OSError:
+            continue
+        key = [st.st_mtime_ns, st.st_size]
+        if head is not None and head.get("scene_id") == name and head.get("key") == key:
+            rec = head
+        else:
+            try:
+                meta = json.loads(meta_path.read_text())
+            except (OSError, ValueError):
+                continue
+            if not meta.get("complete"):
+                continue
+            rec = {k: meta.get(k) for k in RECORD_KEYS}
+            rec["scene_id"], rec["key"] = name, key
+            rec["timings"] = {k: float(v) for k, v in (rec.get("timings") or {}).items()
+                              if isinstance(v, (int, float))}
+        if index_out is not None:
+            index_out.write(json.dumps(rec, separators=(",", ":")) + "\n")
+        yield scenes / name, rec
 
 
-def write_preview(out_dir: Path, *, max_scenes: int = 16, cell: int = 256, columns: int = 4) -> Optional[Path]:
-    """A grid of the first ``max_scenes`` finished scenes with their counted totals."""
+# ------------------------------------------------------------------------------------ one split's COCO
+
+
+@dataclass
+class _SplitWriter:
+    """Streams one split's images and annotations into temporary files; keeps counters and categories."""
+
+    split: str
+    tmp: Path
+    images: int = 0
+    annotations: int = 0
+    categories: dict[int, dict[str, Any]] = field(default_factory=dict)
+    scenes: int = 0
+    counted: int = 0
+    distractors: int = 0
+    category_ids: set[str] = field(default_factory=set)
+    count_sum: int = 0
+    count_n: int = 0
+    count_min: Optional[int] = None
+    count_max: Optional[int] = None
+
+    def __post_init__(self) -> None:
+        self.img_fh = open(self.tmp / f"{self.split}.images", "w")
+        self.ann_fh = open(self.tmp / f"{self.split}.annotations", "w")
+
+    def add(self, scene_dir: Path, rec: dict[str, Any]) -> None:
+        coco = json.loads((scene_dir / "coco.json").read_text())
+        self.images += 1
+        image_id = self.images
+        old_to_new = {}
+        for a in coco["annotations"]:
+            self.annotations += 1
+            b = dict(a)
+            old_to_new[a["id"]] = self.annotations
+            b["id"], b["image_id"] = self.annotations, image_id
+            b["scene_id"] = scene_dir.name
+            self.ann_fh.write(("," if self.annotations > 1 else "") + json.dumps(b))
+        img = dict(coco["images"][0])
+        img["id"] = image_id
+        img["exemplars"] = [{**e, "annotation_ids": [old_to_new[i] for i in e["annotation_ids"]]}
+                            for e in img.get("exemplars", [])]
+        self.img_fh.write(("," if image_id > 1 else "") + json.dumps(img))
+        for c in coco["categories"]:
+            self.categories.setdefault(c["id"], c)
+        self.scenes += 1
+        self.counted += int(rec.get("n_counted") or 0)
+        self.distractors += int(rec.get("n_distractors") or 0)
+        counts = rec.get("counts") or {}
+        self.category_ids.update(counts)
+        for v in counts.values():
+            v = int(v)
+            self.count_sum += v
+            self.count_n += 1
+            self.count_min = v if self.count_min is None else min(self.count_min, v)
+            self.count_max = v if self.count_max is None else max(self.count_max, v)
+
+    def finish(self, out_dir: Path) -> Path:
+        """Concatenate header, images, annotations and categories into the split's COCO file."""
+        self.img_fh.close()
+        self.ann_fh.close()
+        path = out_dir / "annotations" / f"instances_{self.split}.json"
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        info = json.dumps({"description": f"mixcount {self.split}", "version": "1"})
+        with open(tmp, "w") as out:
+            out.write('{"info": ' + info + ', "images": [')
+            with open(self.tmp / f"{self.split}.images") as fh:
+                shutil.copyfileobj(fh, out, 1 << 20)
+            out.write('], "annotations": [')
+            with open(self.tmp / f"{self.split}.annotations") as fh:
+                shutil.copyfileobj(fh, out, 1 << 20)
+            out.write('], "categories": ' + json.dumps([self.categories[k] for k in sorted(self.categories)]) + "}")
+        os.replace(tmp, path)
+        return path
+
+    def summary(self) -> dict[str, Any]:
+        n = max(1, self.count_n)
+        return {"scenes": self.scenes, "counted_objects": self.counted, "distractors": self.distractors,
+                "categories": len(self.category_ids), "class_count_mean": round(self.count_sum / n, 3),
+                "class_count_min": int(self.count_min or 0), "class_count_max": int(self.count_max or 0),
+                "annotations": f"annotations/instances_{self.split}.json"}
+
+
+# ------------------------------------------------------------------------------------ preview, the pass
+
+
+def write_preview(out_dir: Path, scenes: list[tuple[Path, int]], *, cell: int = 256,
+                  columns: int = 4) -> Optional[Path]:
+    """A grid of the given (scene folder, counted total) pairs."""
     from PIL import Image, ImageDraw
 
-    dirs = complete_scenes(out_dir)[:max_scenes]
-    if not dirs:
+    if not scenes:
         return None
-    cols = min(columns, len(dirs))
-    rows = (len(dirs) + cols - 1) // cols
+    cols = min(columns, len(scenes))
+    rows = (len(scenes) + cols - 1) // cols
     grid = Image.new("RGB", (cols * cell, rows * cell), (255, 255, 255))
     draw = ImageDraw.Draw(grid)
-    for k, d in enumerate(dirs):
-        im = Image.open(d / "rgb.png").convert("RGB").resize((cell, cell), Image.BILINEAR)
+    for k, (d, n_counted) in enumerate(scenes):
+        with Image.open(d / "rgb.png") as src:
+            im = src.convert("RGB").resize((cell, cell), Image.BILINEAR)
         x, y = (k % cols) * cell, (k // cols) * cell
         grid.paste(im, (x, y))
-        meta = json.loads((d / "metadata.json").read_text())
-        label = f"{d.name}  n={meta['n_counted']}"
         draw.rectangle([x, y, x + cell, y + 14], fill=(0, 0, 0))
-        draw.text((x + 3, y + 1), label, fill=(255, 255, 255))
+        draw.text((x + 3, y + 1), f"{d.name}  n={n_counted}", fill=(255, 255, 255))
     path = Path(out_dir) / "preview.png"
     grid.save(path)
     return path
 
 
-def write_dataset_summary(out_dir: Path, *, config: Optional[dict[str, Any]] = None, config_hash: str = "",
-                          run: Optional[dict[str, Any]] = None) -> Path:
-    """``OUT/dataset.json``: config, counts, per-split numbers and mean timings of the finished scenes."""
-    out_dir = Path(out_dir)
-    splits: dict[str, dict[str, Any]] = {}
-    timings: dict[str, list[float]] = {}
-    scenes = []
-    for d in complete_scenes(out_dir):
-        meta = json.loads((d / "metadata.json").read_text())
-        s = splits.setdefault(meta["split"], {"scenes": 0, "counted": 0, "distractors": 0, "categories": set(),
-                                              "counts": []})
-        s["scenes"] += 1
-        s["counted"] += meta["n_counted"]
-        s["distractors"] += meta["n_distractors"]
-        s["categories"].update(meta["counts"])
-        s["counts"].extend(meta["counts"].values())
-        for k, v in meta.get("timings", {}).items():
-            timings.setdefault(k, []).append(float(v))
-        scenes.append({"scene_id": meta["scene_id"], "seed": meta["seed"], "split": meta["split"],
-                       "n_counted": meta["n_counted"], "counts": meta["counts"]})
-    per_split = {}
-    for name, s in sorted(splits.items()):
-        counts = np.array(s["counts"] or [0])
-        per_split[name] = {"scenes": s["scenes"], "counted_objects": s["counted"], "distractors": s["distractors"],
-                           "categories": len(s["categories"]), "class_count_mean": round(float(counts.mean()), 3),
-                           "class_count_min": int(counts.min()), "class_count_max": int(counts.max()),
-                           "annotations": f"annotations/instances_{name}.json"}
-    summary = {
-        "config_hash": config_hash, "config": config or {},
-        "counts": {"scenes": len(scenes), "counted_objects": sum(s["n_counted"] for s in scenes)},
-        "splits": per_split,
-        "timings_mean_s": {k: round(float(np.mean(v)), 4) for k, v in sorted(timings.items())},
-        "scenes": scenes, "preview": "preview.png", "run": run or {},
-    }
-    path = out_dir / "dataset.json"
-    _write_json(path, summary, indent=1)
-    return path
-
-
 def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, config_hash: str = "",
-                     run: Optional[dict[str, Any]] = None, preview_scenes: int) -> dict[str, Any]:
-    ann = merge_annotations(out_dir)
-    preview = write_preview(out_dir, max_scenes=preview_scenes)
-    summary = write_dataset_summary(out_dir, config=config, config_hash=config_hash, run=run)
-    write_attribution(out_dir, out_dir)  # ATTRIBUTION.json / .md: every object shown, its source and licence
-    return {"annotations": {k: str(v) for k, v in ann.items()}, "preview": str(preview) if preview else None,
-            "dataset": str(summary), "attribution": str(Path(out_dir) / JSON_NAME)}
+                     run: Optional[dict[str, Any]] = None, preview_scenes: int = 16) -> dict[str, Any]:
+    """Merged COCO per split, ``dataset.json`` and ``preview.png`` in one pass (see the module docstring)."""
+    out_dir = Path(out_dir)
+    ann_dir = out_dir / "annotations"
+    ann_dir.mkdir(parents=True, exist_ok=True)
+    index_path = ann_dir / INDEX_NAME
+    index_tmp = ann_dir / f".{INDEX_NAME}.{os.getpid()}.tmp"
+    splits: dict[str, _SplitWriter] = {}
+    timing_sum: dict[str, float] = {}
+    timing_n: dict[str, int] = {}
+    preview: list[tuple[Path, int]] = []
+    n_scenes = n_counted = 0
+    with tempfile.TemporaryDirectory(prefix=".merge-", dir=ann_dir) as tmpdir:
+        tmp = Path(tmpdir)
+        scenes_fh = open(tmp / "scenes.json", "w")
+        try:
+            with open(index_tmp, "w") as index_out:
+                for d, rec in scan_scenes(out_dir, index_out):
+                    split = str(rec.get("split"))
+                    if split not in splits:
+                        splits[split] = _SplitWriter(split, tmp)
+                    splits[split].add(d, rec)
+                    for k, v in rec.get("timings", {}).items():
+                        timing_sum[k] = timing_sum.get(k, 0.0) + float(v)
+                        timing_n[k] = timing_n.get(k, 0) + 1
+                    entry = {"scene_id": rec["scene_id"], "seed": rec.get("seed"), "split": split,
+                             "n_counted": rec.get("n_counted"), "counts": rec.get("counts")}
+                    scenes_fh.write(("," if n_scenes else "") + "\n  " + json.dumps(entry))
+                    n_scenes += 1
+                    n_counted += int(rec.get("n_counted") or 0)
+                    if len(preview) < preview_scenes:
+                        preview.append((d, int(rec.get("n_counted") or 0)))
+            os.replace(index_tmp, index_path)
+        finally:
+            scenes_fh.close()
+            index_tmp.unlink(missing_ok=True)
+        written = {name: w.finish(out_dir) for name, w in sorted(splits.items())}
+        head = {
+            "config_hash": config_hash, "config": config or {},
+            "counts": {"scenes": n_scenes, "counted_objects": n_counted},
+            "splits": {name: w.summary() for name, w in sorted(splits.items())},
+            "timings_mean_s": {k: round(timing_sum[k] / timing_n[k], 4) for k in sorted(timing_sum)},
+            "preview": "preview.png", "run": run or {},
+        }
+        path = out_dir / "dataset.json"
+        part = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(part, "w") as out:
+            text = json.dumps(head, indent=1)
+            out.write(text[:-2] + ',\n "scenes": [')  # the head without its closing brace, then the list
+            with open(tmp / "scenes.json") as fh:
+                shutil.copyfileobj(fh, out, 1 << 20)
+            out.write("\n ]\n}\n")
+        os.replace(part, path)
+    preview_path = write_preview(out_dir, preview)
+    return {"annotations": {k: str(v) for k, v in written.items()},
+            "preview": str(preview_path) if preview_path else None, "dataset": str(path)}

@@ -187,12 +187,14 @@ def read_amodal_masks(path: Path) -> Optional[dict[int, np.ndarray]]:
 
 def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions: Mapping[int, Mapping[str, str]],
                    timings: dict[str, float], extra: Optional[dict[str, Any]] = None,
-                   external_exemplars: Optional[Mapping[int, str]] = None) -> dict[str, Any]:
+                   external_exemplars: Optional[Mapping[int, str]] = None,
+                   passes: Sequence[str] = ("instance", "class", "depth", "normal")) -> dict[str, Any]:
     """Turn the worker's raw outputs in ``tmp`` and its SceneResult into the scene's files; returns
     metadata.json's dict (its ``objects`` are the ObjectResult fields plus category, box, point, amodal
     box, pose; its ``ground_truth`` the evaluation pairs of this image, distractors included)."""
     ids = np.load(tmp / "ids.npy")
     amodal = read_amodal_masks(tmp / "amodal.npz")
+    pass_files = next((dict(d["passes"]) for d in worker.diagnostics if d.get("kind") == "passes"), {})
     cats, class_cat = scene_categories(spec, captions, external_exemplars)
     objects = []
     for rec in worker.objects:
@@ -200,8 +202,10 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         objects.append({**rec.to_dict(), "category_id": cid})
     kept = [r for r in objects if r["status"] == KEPT]
     inst_cat = {int(r["instance_id"]): int(r["category_id"]) for r in kept}
-    _png16(ids.astype(np.uint16), tmp / "instance.png")
-    _png16(class_map(ids, inst_cat), tmp / "class.png")
+    if "instance" in passes:
+        _png16(ids.astype(np.uint16), tmp / "instance.png")
+    if "class" in passes:
+        _png16(class_map(ids, inst_cat), tmp / "class.png")
     coco = build_scene_coco(ids, kept, cats, image_id=1, file_name=f"scenes/{spec.scene_id}/rgb.png",
                             scene_id=spec.scene_id, amodal=amodal)
     by_inst = {a["id"]: a for a in coco["annotations"]}
@@ -239,13 +243,16 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         "diagnostics": list(worker.diagnostics),
         "timings": {**timings, **{f"worker.{k}": v for k, v in worker.timings.items()}},
         "spec": spec.to_dict(),
-        "files": {"rgb": "rgb.png", "instance": "instance.png", "class": "class.png", "depth": "depth.npy",
-                  "normal": "normal.npy", "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json"},
+        "files": {"rgb": "rgb.png", **{p: f"{p}.png" for p in ("instance", "class") if p in passes},
+                  **{k: v["file"] for k, v in pass_files.items()},
+                  "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json"},
+        "passes": pass_files,
         "conventions": {
             "instance.png": "uint16 instance id of counted objects and distractors; 0 = floor, container, background",
             "class.png": "uint16 COCO category id (4 * object_id + q; q 0 none, 1 larger, 2 smaller); 0 = none",
-            "depth.npy": "float32 planar depth along the optical axis, metres; 0 = no surface",
-            "normal.npy": "float32 unit normals in camera space (x right, y up, z toward the camera); 0 = none",
+            "depth": "planar depth along the optical axis, metres; 0 = no surface (mixcount.dataset.read_depth)",
+            "normal": "unit normals in camera space (x right, y up, z toward the camera); 0 = none "
+                      "(mixcount.dataset.read_normals)",
         },
         **(extra or {}),
         "complete": True,

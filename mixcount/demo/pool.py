@@ -1,22 +1,43 @@
-"""A sampler pool straight from a generated demo library, without a catalog database.
+"""Sampler pools straight from a generated demo library, without a catalog database.
 
-Tests and ``bench/compose.py`` need realistic scenes (textured GLBs, a container) but not the whole
+Tests and the benchmarks need realistic scenes (textured GLBs, a container) but not the whole
 ingest / caption / split chain: :func:`pool_from_demo_library` reads the library's
 ``ground_truth.json`` (true Z-up dimensions) and returns :class:`~mixcount.scene.pool.ObjectRecord`
-s, every working object in one split, ids in folder order.
+s, every working object in one split, ids in folder order. With ``proxy_dir`` every object also gets
+its convex collision proxy (:mod:`mixcount.catalog.proxies`), as ingest would build it.
+
+:func:`heavy_demo_library` turns the light demo library into a capture-like one: every model is
+subdivided (midpoint, 1 -> 4 triangles, UVs and vertex colours interpolated, textures and materials
+kept) until it has at least ``min_faces`` faces, the size of a real photogrammetry capture.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
 
 from mixcount.scene.pool import ObjectRecord, fallback_captions
 
 
-def pool_from_demo_library(root: Path, *, split: str = "train") -> list[ObjectRecord]:
-    """ObjectRecords for every non-broken object of the demo library at ``root``."""
+def _proxy_for(model: Path, digest: str, proxy_dir: Path, max_vertices: int) -> str:
+    from mixcount.catalog.mesh import load_normalised
+    from mixcount.catalog.proxies import build_proxy, proxy_name
+
+    out = proxy_dir / proxy_name(digest, max_vertices)
+    if not out.is_file():
+        build_proxy(np.asarray(load_normalised(model).mesh.vertices), out, max_vertices)
+    return str(out.resolve())
+
+
+def pool_from_demo_library(root: Path, *, split: str = "train", proxy_dir: Optional[Path] = None,
+                           proxy_max_vertices: int = 128) -> list[ObjectRecord]:
+    """ObjectRecords for every non-broken object of the demo library at ``root`` (with collision proxies
+    in ``proxy_dir`` when given)."""
     root = Path(root)
     truth = json.loads((root / "ground_truth.json").read_text())
     broken = {b["folder"] for b in truth.get("broken", [])}
@@ -29,15 +50,17 @@ def pool_from_demo_library(root: Path, *, split: str = "train") -> list[ObjectRe
         digest = hashlib.sha256(model.read_bytes()).hexdigest()
         name = folder.split("_")[-1].lower()
         caps = fallback_captions(f"{name} {rec['category']}", rec["category"])
+        proxy = _proxy_for(model, digest, Path(proxy_dir), proxy_max_vertices) if proxy_dir is not None else None
         pool.append(ObjectRecord(
             object_id=k, name=folder, category=rec["category"], dims=tuple(float(v) for v in rec["dims_m"]),
-            captions=caps, split=split, model_path=str(model.resolve()), content_hash=digest,
+            captions=caps, split=split, model_path=str(model.resolve()), content_hash=digest, proxy_path=proxy,
             container=bool(rec["container"]), source_units=rec.get("units"), source_up_axis=rec.get("up_axis"),
         ))
     return pool
 
 
-def ensure_demo_pool(root: Path, *, seed: int = 0, split: str = "train") -> list[ObjectRecord]:
+def ensure_demo_pool(root: Path, *, seed: int = 0, split: str = "train", proxy_dir: Optional[Path] = None,
+                     proxy_max_vertices: int = 128) -> list[ObjectRecord]:
     """Generate the demo library at ``root`` unless it is already there, then return its pool.
 
     The benchmarks reuse a library across runs with ``--work DIR``; generating it is deterministic.
@@ -47,4 +70,78 @@ def ensure_demo_pool(root: Path, *, seed: int = 0, split: str = "train") -> list
     root = Path(root)
     if not (root / "ground_truth.json").exists():
         generate_demo_library(root, seed=seed)
-    return pool_from_demo_library(root, split=split)
+    return pool_from_demo_library(root, split=split, proxy_dir=proxy_dir, proxy_max_vertices=proxy_max_vertices)
+
+
+def _subdivided(geom: Any, min_faces: int) -> Any:
+    """One trimesh geometry midpoint-subdivided until it has >= ``min_faces`` faces, visuals kept."""
+    import trimesh
+    from trimesh.remesh import subdivide
+
+    visual = geom.visual
+    uv = getattr(visual, "uv", None)
+    uv = np.asarray(uv, dtype=np.float64) if uv is not None and len(uv) == len(geom.vertices) else None
+    colours = None
+    if visual.kind == "vertex":
+        colours = np.asarray(visual.vertex_colors, dtype=np.float64)
+    elif getattr(visual, "vertex_attributes", None) is not None and "color" in visual.vertex_attributes:
+        colours = np.asarray(visual.vertex_attributes["color"], dtype=np.float64)
+    attrs = [np.asarray(geom.vertices, dtype=np.float64)] + [a for a in (uv, colours) if a is not None]
+    stacked, faces = np.hstack(attrs), np.asarray(geom.faces)
+    while len(faces) < min_faces:
+        stacked, faces = subdivide(stacked, faces)
+    verts = stacked[:, :3]
+    col = 3
+    if uv is not None:
+        uv, col = stacked[:, col:col + 2], col + 2
+    if colours is not None:
+        colours = np.clip(np.round(stacked[:, col:col + colours.shape[1]]), 0, 255).astype(np.uint8)
+    if uv is not None:
+        new_visual: Any = trimesh.visual.TextureVisuals(uv=uv, material=visual.material)
+        if colours is not None:
+            new_visual.vertex_attributes["color"] = colours
+    elif colours is not None:
+        new_visual = trimesh.visual.ColorVisuals(vertex_colors=colours)
+    else:
+        new_visual = visual.copy() if visual.kind == "texture" else None
+    return trimesh.Trimesh(vertices=verts, faces=faces, visual=new_visual, process=False)
+
+
+def heavy_demo_library(light_root: Path, heavy_root: Path, *, min_faces: int = 200_000) -> Path:
+    """Copy the demo library at ``light_root`` to ``heavy_root`` with every model subdivided to at least
+    ``min_faces`` faces (kept if already there); broken traps are copied as they are. Returns heavy_root."""
+    import trimesh
+
+    light_root, heavy_root = Path(light_root), Path(heavy_root)
+    if (heavy_root / "ground_truth.json").exists():
+        return heavy_root
+    truth = json.loads((light_root / "ground_truth.json").read_text())
+    broken = {b["folder"] for b in truth.get("broken", [])}
+    heavy_root.mkdir(parents=True, exist_ok=True)
+    for folder in sorted(d.name for d in light_root.iterdir() if d.is_dir()):
+        src, dst = light_root / folder, heavy_root / folder
+        if dst.exists():
+            shutil.rmtree(dst)
+        shutil.copytree(src, dst)
+        if folder in broken or not (src / "3d-asset.glb").is_file():
+            continue
+        scene = trimesh.load(str(src / "3d-asset.glb"), force="scene", process=False)
+        total = sum(len(g.faces) for g in scene.geometry.values()) or 1
+        for name, geom in list(scene.geometry.items()):
+            share = max(1, int(np.ceil(min_faces * len(geom.faces) / total)))
+            scene.geometry[name] = _subdivided(geom, share)
+        (dst / "3d-asset.glb").write_bytes(scene.export(file_type="glb"))
+    shutil.copy2(light_root / "ground_truth.json", heavy_root / "ground_truth.json")
+    return heavy_root
+
+
+def ensure_heavy_demo_pool(work: Path, *, split: str = "train", min_faces: int = 200_000,
+                           proxy_dir: Optional[Path] = None, proxy_max_vertices: int = 128) -> list[ObjectRecord]:
+    """The capture-like pool under ``work/heavy`` (built from ``work/demo`` once), for the benchmarks."""
+    from mixcount.demo.library import generate_demo_library
+
+    light = Path(work) / "demo"
+    if not (light / "ground_truth.json").exists():
+        generate_demo_library(light, seed=0)
+    heavy = heavy_demo_library(light, Path(work) / f"heavy{min_faces // 1000}k", min_faces=min_faces)
+    return pool_from_demo_library(heavy, split=split, proxy_dir=proxy_dir, proxy_max_vertices=proxy_max_vertices)

@@ -6,7 +6,9 @@ or failed the final visibility re-check is recorded under ``OUT/scenes/.rejected
 drawn (the paper's "regenerate"); errors and timeouts are reported and retried by a rerun. ``n`` counts
 written scenes. The canonical render of every object a scene uses is copied to ``OUT/exemplars/external/``
 (:mod:`mixcount.dataset.external_exemplars`) before its task runs. At the end the COCO files are merged
-and dataset.json / preview.png rewritten from every complete scene in OUT.
+and dataset.json / preview.png / ATTRIBUTION rewritten from every complete scene in OUT, in one streaming
+pass (:mod:`mixcount.dataset.merge`), when the call wrote a scene or the dataset files are missing, and
+``compose.merge`` (or ``merge``) is on; ``mixcount merge`` does it on its own.
 """
 
 from __future__ import annotations
@@ -50,7 +52,8 @@ def render_threads(config: Config, workers: int) -> int:
 def compose_scenes(
     *, pool: list[Any], config: Config, out_dir: Path, assets_dir: Path, n: int, executor: Any = None,
     environments: tuple = (), materials: tuple = (), progress: ProgressReporter | bool | None = None, oracle: bool = False,
-    on_outcome: Optional[Callable[[SceneOutcome], None]] = None,
+    on_outcome: Optional[Callable[[SceneOutcome], None]] = None, passes: Optional[str | list[str]] = None,
+    merge: Optional[bool] = None,
 ) -> ComposeSummary:
     """Render until ``n`` scenes of ``compose.split`` are complete in ``out_dir`` (see module docstring).
 
@@ -73,6 +76,16 @@ def compose_scenes(
     threads = render_threads(config, workers)
     timeout = comp.scene_timeout_s
     max_attempts = int(math.ceil(n * comp.max_attempts_factor)) + 4
+    from mixcount.dataset.passes import DEPTH_FORMATS, NORMAL_FORMATS, parse_passes
+
+    try:
+        chosen = parse_passes(comp.passes if passes is None else passes)
+    except ValueError as exc:
+        raise CompositionError(str(exc)) from None
+    depth_format, normal_format = comp.depth_format, comp.normal_format
+    if depth_format not in DEPTH_FORMATS or normal_format not in NORMAL_FORMATS:
+        raise CompositionError(f"compose.depth_format must be one of {', '.join(DEPTH_FORMATS)} and "
+                               f"compose.normal_format one of {', '.join(NORMAL_FORMATS)}")
 
     summary = ComposeSummary(requested=n)
     t0 = time.perf_counter()
@@ -113,7 +126,8 @@ def compose_scenes(
             return SceneTask(spec=spec, out_dir=str(out_dir), assets_dir=str(assets_dir), timeout_s=timeout,
                              threads=threads, oracle=oracle, captions={k: v for k, v in captions.items()
                                                             if k in {d.object_id for d in spec.distractors}},
-                             external_exemplars={k: external[k] for k in sorted(used) if k in external})
+                             external_exemplars={k: external[k] for k in sorted(used) if k in external},
+                             passes=chosen, depth_format=depth_format, normal_format=normal_format)
         return None
 
     bar = as_reporter(progress)
@@ -164,12 +178,22 @@ def compose_scenes(
     summary.seconds = round(time.perf_counter() - t0, 3)
     if summary.written < n:
         bar.note(f"only {summary.written} of {n} scenes written after {attempts} attempts")
-    summary.outputs = finalize_dataset(
-        out_dir, config=config.to_dict(), config_hash=config.hash,
-        run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
-        preview_scenes=comp.preview_scenes,
-    )
+    if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
+        summary.outputs = finalize_dataset(
+            out_dir, config=config.to_dict(), config_hash=config.hash,
+            run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
+            preview_scenes=comp.preview_scenes,
+        )
     return summary
+
+
+def merge_is_stale(out_dir: Path) -> bool:
+    """Whether a scene folder appeared since dataset.json was written (a folder renamed into ``scenes/``
+    updates its modification time), or dataset.json is missing."""
+    try:
+        return (Path(out_dir) / "scenes").stat().st_mtime_ns > (Path(out_dir) / "dataset.json").stat().st_mtime_ns
+    except OSError:
+        return True
 
 
 def _scene_split(scene_dir: Path) -> Optional[str]:

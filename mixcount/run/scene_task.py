@@ -36,6 +36,9 @@ class SceneTask:
     captions: dict[int, dict[str, str]] = field(default_factory=dict)  # distractor captions by object id
     external_exemplars: dict[int, str] = field(default_factory=dict)  # object id -> render copy, relative to OUT
     keep_failed: bool = False
+    passes: tuple[str, ...] = ("instance", "class", "depth", "normal")  # besides rgb (compose --passes)
+    depth_format: str = "png16"  # mixcount.dataset.passes formats
+    normal_format: str = "png8"
 
 
 @dataclass
@@ -73,7 +76,8 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
         timings["stage"] = round(time.perf_counter() - t, 4)
         t = time.perf_counter()
         request = SceneRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=task.threads,
-                               oracle=task.oracle)
+                               oracle=task.oracle, passes=tuple(task.passes), depth_format=task.depth_format,
+                               normal_format=task.normal_format)
         result = worker.render_scene(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
         status = result.status
@@ -88,7 +92,7 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
         t = time.perf_counter()
         timings["total"] = 0.0
         meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings,
-                              external_exemplars=task.external_exemplars)
+                              external_exemplars=task.external_exemplars, passes=task.passes)
         timings["annotate"] = round(time.perf_counter() - t, 4)
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])

@@ -76,6 +76,8 @@ class SceneConfig:
     gravity: float
     settle_below_floor_fraction: float
     settle_penetration_fraction: float
+    collision_proxies: bool
+    physics_rest_speed: float
     n_cameras: int
     camera_elevation_deg: Range
     camera_roll_deg: Range

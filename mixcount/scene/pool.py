@@ -26,6 +26,7 @@ class ObjectRecord:
     content_hash: str
     collision_path: Optional[str] = None
     status: str = "active"
+    proxy_path: Optional[str] = None
     source_units: Optional[str] = None
     source_up_axis: Optional[str] = None
     render_path: Optional[str] = None  # canonical white-background render (the external exemplar), if any

@@ -467,8 +467,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     assets = tuple(
         AssetRef(object_id=o.object_id, name=o.name, category=o.category, model_path=o.model_path,
                  content_hash=o.content_hash, dims_m=_vec(o.dims), collision_path=o.collision_path,
-                 source_units=o.source_units, source_up_axis=o.source_up_axis, source=o.source,
-                 source_id=o.source_id, license=o.license)
+                 proxy_path=o.proxy_path, source_units=o.source_units, source_up_axis=o.source_up_axis,
+                 source=o.source, source_id=o.source_id, license=o.license)
         for _, o in sorted(used_objs.items())
     )
     return SceneSpec(
@@ -478,7 +478,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         cameras=tuple(cameras),
         physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
                             config.collision_shape, config.gravity, config.settle_below_floor_fraction,
-                            config.settle_penetration_fraction),
+                            config.settle_penetration_fraction, bool(config.collision_proxies),
+                            round(float(config.physics_rest_speed) * s, 6)),
         render=RenderSpec(compose.resolution, compose.samples, compose.denoise, compose.visibility_threshold),
         assets=assets,
     )

@@ -52,6 +52,7 @@ class AssetRef:
     content_hash: str
     dims_m: Vec3
     collision_path: Optional[str] = None
+    proxy_path: Optional[str] = None  # convex collision proxy (catalog/proxies.py)
     source_units: Optional[str] = None  # only meaningful for OBJ/PLY/STL (formats without units)
     source_up_axis: Optional[str] = None
     source: Optional[str] = None  # provenance (ATTRIBUTION.json): ingest source, its key, licence text
@@ -68,7 +69,7 @@ class AssetRef:
         return cls(
             object_id=int(d["object_id"]), name=str(d["name"]), category=str(d["category"]),
             model_path=str(d["model_path"]), content_hash=str(d["content_hash"]), dims_m=_t(d["dims_m"]),
-            collision_path=d.get("collision_path"), source_units=d.get("source_units"),
+            collision_path=d.get("collision_path"), proxy_path=d.get("proxy_path"), source_units=d.get("source_units"),
             source_up_axis=d.get("source_up_axis"), source=d.get("source"), source_id=d.get("source_id"),
             license=d.get("license"),
         )
@@ -287,6 +288,8 @@ class PhysicsSpec:
     gravity: float
     settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.blender.decisions)
     settle_penetration_fraction: float
+    collision_proxies: bool = True  # counted objects / distractors collide through their convex proxy
+    rest_speed: float = 0.0  # m/s: stop the simulation once every body is slower (0 = all frames)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -295,7 +298,8 @@ class PhysicsSpec:
     def from_dict(cls, d: Mapping[str, Any]) -> "PhysicsSpec":
         return cls(int(d["frames"]), int(d["substeps"]), int(d["solver_iterations"]),
                    str(d["collision_shape"]), float(d["gravity"]), float(d["settle_below_floor_fraction"]),
-                   float(d["settle_penetration_fraction"]))
+                   float(d["settle_penetration_fraction"]), bool(d.get("collision_proxies", True)),
+                   float(d.get("rest_speed", 0.0)))
 
 
 @dataclass(frozen=True)

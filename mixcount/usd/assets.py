@@ -5,6 +5,11 @@ component, metres, Z-up, origin at the bounding-box centre) and its textures in
 ``<content_hash>_tex/`` referenced by relative paths, so the pair can be moved together.
 ``<content_hash>_collision.usdc`` holds the decimated collision mesh in the same frame.
 
+When the object has a convex collision proxy (:mod:`mixcount.catalog.proxies`), the asset also holds it as
+``/Asset/Proxy``: a Mesh with ``purpose = guide`` (never rendered; Blender's USD importer skips guide
+prims unless asked) and ``UsdPhysics.CollisionAPI`` + ``MeshCollisionAPI`` (approximation
+``convexHull``), the collider of every instance of the asset.
+
 Geometry comes from trimesh (GLB/GLTF/OBJ/PLY/STL): every node of the scene graph is placed by its
 world transform, scaled to metres and turned Z-up exactly as ingest does (glTF Y-up: (x, y, z) ->
 (x, -z, y)), so the asset's size equals the catalog's dims. Materials become UsdPreviewSurface with
@@ -30,6 +35,7 @@ from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_
 
 CONVERTER_VERSION = 3  # bump when the converter output changes: cached assets are rebuilt
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
+PROXY_PRIM = "/Asset/Proxy"  # the collision proxy inside an asset (prim name "Proxy" under each instance)
 
 
 @dataclass(frozen=True)
@@ -37,6 +43,7 @@ class AssetPaths:
     visual: Path
     collision: Optional[Path]
     center: tuple[float, float, float]  # bbox centre of the normalised model, subtracted in the asset
+    has_proxy: bool = False  # the asset holds a collision proxy at PROXY_PRIM
 
 
 def asset_key(content_hash: str, model_path: str) -> str:
@@ -275,13 +282,17 @@ def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path], re
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _is_current(path: Path) -> bool:
+def _is_current(path: Path, proxy: Optional[str] = None) -> bool:
+    """Converted by this converter version (and, for a visual asset, with the proxy asked for)."""
     if not path.exists():
         return False
     from pxr import Sdf
 
     layer = Sdf.Layer.FindOrOpen(str(path))
-    return bool(layer) and layer.customLayerData.get("mixcount", {}).get("converter_version") == CONVERTER_VERSION
+    data = layer.customLayerData.get("mixcount", {}) if layer else {}
+    if data.get("converter_version") != CONVERTER_VERSION:
+        return False
+    return proxy is None or data.get("proxy", "") == proxy
 
 
 def _start_stage(path: Path, key: str, source: str, center: np.ndarray) -> tuple[Any, Any]:
@@ -302,24 +313,26 @@ def _start_stage(path: Path, key: str, source: str, center: np.ndarray) -> tuple
 
 def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = "", units: Optional[str] = None,
                   up_axis: Optional[str] = None, collision_path: Optional[str] = None,
-                  textured: bool = True, force: bool = False) -> AssetPaths:
-    """Convert one model to ``out_dir/<hash>.usdc`` (+ textures, + collision) unless already cached."""
+                  proxy_path: Optional[str] = None, textured: bool = True, force: bool = False) -> AssetPaths:
+    """Convert one model to ``out_dir/<hash>.usdc`` (+ textures, + collision, + proxy prim) unless cached."""
     model = Path(model_path)
     key = asset_key(content_hash, str(model))
     visual = out_dir / f"{key}.usdc"
     tex_dir = out_dir / f"{key}_tex"
     coll = out_dir / f"{key}_collision.usdc" if collision_path else None
-    if not force and _is_current(visual) and (coll is None or _is_current(coll)):
+    proxy = Path(proxy_path) if proxy_path and Path(proxy_path).is_file() else None
+    proxy_tag = str(proxy.resolve()) if proxy is not None else ""
+    if not force and _is_current(visual, proxy_tag) and (coll is None or _is_current(coll)):
         from pxr import Sdf
 
         c = Sdf.Layer.FindOrOpen(str(visual)).customLayerData.get("mixcount", {}).get("center_m", (0.0, 0.0, 0.0))
-        return AssetPaths(visual, coll, tuple(float(v) for v in c))  # type: ignore[arg-type]
+        return AssetPaths(visual, coll, tuple(float(v) for v in c), proxy is not None)  # type: ignore[arg-type]
     if not model.is_file():
         raise CompositionError(f"model file {model} of asset {key[:12]} does not exist")
     scale, _units, up = source_frame(model, units, up_axis)
     if model.suffix.lower() in USD_EXTENSIONS:
         center = _usd_center(model)
-        _write_layer_atomically(lambda p, _t: _wrap_usd(p, key, model, center), visual, None)
+        _write_layer_atomically(lambda p, _t: _wrap_usd(p, key, model, center, proxy), visual, None)
     else:
         parts = _load_parts(model, scale, up)
         allpts = np.vstack([p.points for p in parts])
@@ -337,12 +350,34 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
                     mat = _define_material(stage, f"/Asset/Looks/mat_{i:03d}", part.material, tdir,  # type: ignore[arg-type]
                                            tex_dir.name, i, textured and part.uv is not None)
                     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+            if proxy is not None:
+                _define_proxy(stage, proxy, center)
             stage.GetRootLayer().Save()
 
         _write_layer_atomically(build, visual, tex_dir, replace_textures=force)
     if coll is not None and collision_path:
         _write_layer_atomically(lambda p, _t: _write_collision(p, key, Path(collision_path), center), coll, None)
-    return AssetPaths(visual, coll, (float(center[0]), float(center[1]), float(center[2])))
+    return AssetPaths(visual, coll, (float(center[0]), float(center[1]), float(center[2])), proxy is not None)
+
+
+def _define_proxy(stage: Any, ply: Path, center: np.ndarray) -> None:
+    """The convex collision proxy (metres, Z-up, same frame as the model) as a guide Mesh with UsdPhysics
+    collision (approximation convexHull); the layer records its source so a changed proxy reconverts."""
+    from pxr import UsdGeom, UsdPhysics
+
+    from mixcount.catalog.proxies import read_proxy
+
+    verts, faces = read_proxy(ply)
+    mesh = _define_mesh(stage, PROXY_PRIM, _Part(verts, faces, None, None, None, None), center)
+    mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)
+    UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
+    UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
+    layer = stage.GetRootLayer()
+    data = dict(layer.customLayerData)
+    mc = dict(data.get("mixcount", {}))
+    mc["proxy"] = str(ply.resolve())
+    data["mixcount"] = mc
+    layer.customLayerData = data
 
 
 def _write_collision(path: Path, key: str, ply: Path, center: np.ndarray) -> None:
@@ -374,7 +409,7 @@ def _usd_center(model: Path) -> np.ndarray:
     return (corners.min(0) + corners.max(0)) / 2
 
 
-def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray) -> None:
+def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray, proxy: Optional[Path] = None) -> None:
     """A USD source stays as it is: reference it under a transform to metres, Z-up and centred."""
     from pxr import Gf, Usd, UsdGeom
 
@@ -388,4 +423,6 @@ def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray) -> None:
     m[:3, 3] = -center
     src_xf.AddTransformOp().Set(Gf.Matrix4d(m.T.tolist()))  # USD matrices are row-vector (transposed)
     src_xf.GetPrim().GetReferences().AddReference(str(model.resolve()))
+    if proxy is not None:
+        _define_proxy(stage, proxy, center)
     stage.GetRootLayer().Save()

@@ -142,7 +142,11 @@ def _asset_ref(paths: AssetPaths) -> str:
     return str(paths.visual.resolve())
 
 
-def _add_instance(stage: Any, path: str, obj: PlacedObject, asset: AssetPaths, approximation: str) -> Any:
+def _add_instance(stage: Any, path: str, obj: PlacedObject, asset: AssetPaths, approximation: str,
+                  proxies: bool = True) -> Any:
+    """An instance prim: a rigid body referencing its asset. When the asset holds a collision proxy, the
+    proxy child (``<path>/Proxy``, purpose guide) is the collider; with ``proxies`` off its collision is
+    disabled and the instance collides by ``approximation`` of its render mesh (the hull of every vertex)."""
     from pxr import UsdGeom, UsdPhysics
 
     xf = UsdGeom.Xform.Define(stage, path)
@@ -152,6 +156,11 @@ def _add_instance(stage: Any, path: str, obj: PlacedObject, asset: AssetPaths, a
     prim.SetCustomDataByKey("mixcount:size_m", float(obj.size_m))
     _set_pose(xf, obj.position, obj.orientation, obj.scale)
     UsdPhysics.RigidBodyAPI.Apply(prim)
+    if asset.has_proxy:
+        proxy = UsdPhysics.CollisionAPI(stage.OverridePrim(f"{path}/Proxy"))
+        proxy.CreateCollisionEnabledAttr(bool(proxies))
+        if proxies:
+            return prim
     UsdPhysics.CollisionAPI.Apply(prim)
     UsdPhysics.MeshCollisionAPI.Apply(prim).CreateApproximationAttr(approximation)
     return prim
@@ -292,13 +301,15 @@ def _write_cameras(stage: Any, spec: SceneSpec) -> None:
 
 
 def convert_scene_assets(spec: SceneSpec, assets_dir: Path) -> dict[int, AssetPaths]:
-    """Convert (or find cached) every asset the scene uses; the container also gets its collision."""
+    """Convert (or find cached) every asset the scene uses (with its collision proxy when the catalog has
+    one); the container also gets its decimated collision mesh."""
     container_id = spec.container.object_id if spec.container else None
     out: dict[int, AssetPaths] = {}
     for a in spec.assets:
         out[a.object_id] = convert_asset(
             a.model_path, assets_dir, content_hash=a.content_hash, units=a.source_units,
             up_axis=a.source_up_axis, collision_path=a.collision_path if a.object_id == container_id else None,
+            proxy_path=a.proxy_path,
         )
     return out
 
@@ -363,11 +374,12 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
             UsdPhysics.CollisionAPI.Apply(prim)
             UsdPhysics.MeshCollisionAPI.Apply(prim).CreateApproximationAttr(UsdPhysics.Tokens.none)
 
-    approx = spec.physics.collision_shape
+    approx, proxies = spec.physics.collision_shape, spec.physics.collision_proxies
     for obj in spec.objects:
-        _add_instance(stage, f"/World/Objects/obj_{obj.instance_id:04d}", obj, assets[obj.object_id], approx)
+        _add_instance(stage, f"/World/Objects/obj_{obj.instance_id:04d}", obj, assets[obj.object_id], approx,
+                      proxies)
     for k, obj in enumerate(spec.distractors, start=1):
-        _add_instance(stage, f"/World/Distractors/dist_{k:02d}", obj, assets[obj.object_id], approx)
+        _add_instance(stage, f"/World/Distractors/dist_{k:02d}", obj, assets[obj.object_id], approx, proxies)
 
     _write_cameras(stage, spec)
     _write_lights(stage, spec)

@@ -1,0 +1,47 @@
+"""Benchmark pools: the light demo library and its capture-like heavy copy, with collision proxies.
+
+``light``: the generated demo library (a few thousand faces per object). ``heavy``: the same objects
+midpoint-subdivided to >= 200k faces each, textures kept (:func:`mixcount.demo.pool.heavy_demo_library`),
+the size of a real photogrammetry capture. Proxies (``ingest.proxy_max_vertices``) are built only for the
+assets a scene uses, as ingest would have stored them; ``proxies=False`` leaves them out (the hull of the
+full render mesh, as before proxies existed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+POOLS = ("light", "heavy")
+
+
+def load_pool(name: str, work: Path, *, min_faces: int = 200_000) -> list[Any]:
+    from mixcount.demo.pool import ensure_demo_pool, ensure_heavy_demo_pool
+
+    if name == "light":
+        return ensure_demo_pool(work / "demo")
+    if name == "heavy":
+        return ensure_heavy_demo_pool(work, min_faces=min_faces)
+    raise SystemExit(f"unknown pool {name!r}: choose from {', '.join(POOLS)}")
+
+
+def with_proxies(spec: Any, proxy_dir: Path, max_vertices: int) -> Any:
+    """``spec`` with every asset's collision proxy (built once per model into ``proxy_dir``)."""
+    from mixcount.demo.pool import _proxy_for
+
+    assets = tuple(dataclasses.replace(a, proxy_path=_proxy_for(Path(a.model_path), a.content_hash, proxy_dir,
+                                                                max_vertices))
+                   for a in spec.assets)
+    return dataclasses.replace(spec, assets=assets)
+
+
+def scene_bytes(scene_dir: Path) -> dict[str, int]:
+    """Bytes per file of a finished scene folder (exemplar crops summed), and the total."""
+    sizes: dict[str, int] = {}
+    for p in sorted(Path(scene_dir).rglob("*")):
+        if p.is_file():
+            key = "exemplars/" if p.parent.name == "exemplars" else p.name
+            sizes[key] = sizes.get(key, 0) + p.stat().st_size
+    sizes["total"] = sum(sizes.values())
+    return sizes

@@ -1,0 +1,153 @@
+"""Collision proxies: the bounded convex hull (pure), its place in the catalog (alembic-migrated SQLite,
+re-ingest of an old catalog), in the USD asset (guide prim with UsdPhysics collision) and in Blender's
+settling: the same seeds settled through the proxies and through the full meshes' hulls, compared.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import PROJECT_ROOT
+
+
+def test_convex_proxy_bounds_vertices_and_reports_its_gap() -> None:
+    import trimesh
+
+    from mixcount.catalog.proxies import convex_proxy
+
+    sphere = trimesh.creation.icosphere(subdivisions=5)  # 10242 vertices, all on the hull
+    for budget in (16, 64, 128):
+        p = convex_proxy(sphere.vertices, budget)
+        mesh = trimesh.Trimesh(p.vertices, p.faces, process=False)
+        assert 4 <= len(p.vertices) <= budget
+        assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0  # outward, closed
+        # an inner approximation: every proxy vertex is an input vertex, the gap is what it reports
+        assert np.abs(np.linalg.norm(p.vertices, axis=1) - 1.0).max() < 1e-9
+        assert 0 < p.error_m < (0.35 if budget == 16 else 0.1)
+    fine, coarse = convex_proxy(sphere.vertices, 128), convex_proxy(sphere.vertices, 16)
+    assert fine.error_m < coarse.error_m
+    box = trimesh.creation.box((0.3, 0.1, 0.002))  # a flat object stays a (thin) hull, exactly
+    p = convex_proxy(np.vstack([box.vertices, box.sample(500, seed=1)]), 64)
+    assert len(p.vertices) == 8 and p.error_m < 1e-9
+
+
+def test_ingest_stores_proxy_and_reingest_fills_an_old_catalog(tmp_path: Path, catalog) -> None:
+    from sqlalchemy import select
+
+    from mixcount.catalog.ingest import ingest_paths
+    from mixcount.catalog.models import CatalogObject
+    from mixcount.catalog.proxies import read_proxy
+    from mixcount.config import load_config
+    from mixcount.demo.library import generate_demo_library
+
+    generate_demo_library(tmp_path / "lib", seed=0, n_objects=3)
+    cfg = load_config([], ["ingest.proxy_max_vertices=48", "ingest.workers=1"])
+    cat = catalog
+    ingest_paths(cat, [tmp_path / "lib"], config=cfg)
+    with cat.session() as s:
+        objs = [o for o in s.scalars(select(CatalogObject)) if o.status != "broken"]
+        assert objs
+        for o in objs:
+            verts, faces = read_proxy(Path(o.proxy_path))
+            assert o.proxy_vertex_count == len(verts) <= 48 and len(faces) >= 4
+            # the proxy sits in the collision mesh's frame: same bounding box within its gap
+            coll = read_proxy(Path(o.collision_path))[0]
+            assert np.allclose(verts.max(0), coll.max(0), atol=0.05 * max(o.dims))
+        ids = {o.id for o in objs}
+        for o in objs:  # a catalog from before proxies: no proxy recorded
+            o.proxy_path, o.proxy_vertex_count = None, None
+        s.commit()
+    summary = ingest_paths(cat, [tmp_path / "lib"], config=load_config([], ["ingest.proxy_max_vertices=32", "ingest.workers=1"]))
+    assert summary.new == 0
+    with cat.session() as s:
+        objs = [o for o in s.scalars(select(CatalogObject)) if o.status != "broken"]
+        assert {o.id for o in objs} == ids  # filled in place, no duplicates
+        assert all(o.proxy_path.endswith("_hull32.ply") and o.proxy_vertex_count <= 32 for o in objs)
+
+
+@pytest.fixture(scope="module")
+def proxy_library(tmp_path_factory: pytest.TempPathFactory):
+    from mixcount.demo.library import generate_demo_library
+    from mixcount.demo.pool import pool_from_demo_library
+
+    root = tmp_path_factory.mktemp("plib")
+    generate_demo_library(root / "demo", seed=0, n_objects=8)
+    return pool_from_demo_library(root / "demo", proxy_dir=root / "proxies", proxy_max_vertices=64), root
+
+
+def _spec(pool, seed: int, proxies: bool):
+    from mixcount.config import load_config
+    from mixcount.scene.config import SceneConfig
+    from mixcount.scene.sampler import sample_scene
+
+    cfg = load_config([PROJECT_ROOT / "configs" / "quick.toml"],
+                      ["scene.n_objects=[16,16]", "scene.physics_frames=200", f"scene.collision_proxies={str(proxies).lower()}",
+                       "compose.resolution=64", "compose.samples=1"])
+    return sample_scene(seed, "train", cfg, pool)
+
+
+def test_usd_asset_holds_guide_proxy_with_collision(proxy_library, tmp_path: Path) -> None:
+    from pxr import Usd, UsdGeom, UsdPhysics
+
+    from mixcount.usd.stage import write_stage
+
+    pool, root = proxy_library
+    for proxies in (True, False):
+        spec = _spec(pool, 5, proxies)
+        stage_path = write_stage(spec, tmp_path, assets_dir=root / "assets", scene_dir=tmp_path / str(proxies))
+        stage = Usd.Stage.Open(str(stage_path))
+        prim = stage.GetPrimAtPath("/World/Objects/obj_0001")
+        proxy = stage.GetPrimAtPath("/World/Objects/obj_0001/Proxy")
+        assert proxy and proxy.IsA(UsdGeom.Mesh)
+        assert UsdGeom.Imageable(proxy).ComputePurpose() == UsdGeom.Tokens.guide
+        assert proxy.HasAPI(UsdPhysics.CollisionAPI) and proxy.HasAPI(UsdPhysics.MeshCollisionAPI)
+        assert UsdPhysics.MeshCollisionAPI(proxy).GetApproximationAttr().Get() == "convexHull"
+        assert len(UsdGeom.Mesh(proxy).GetPointsAttr().Get()) <= 64
+        assert UsdPhysics.CollisionAPI(proxy).GetCollisionEnabledAttr().Get() is proxies
+        assert prim.HasAPI(UsdPhysics.RigidBodyAPI)
+        assert prim.HasAPI(UsdPhysics.CollisionAPI) is (not proxies)  # one collider per body
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, tmp_path: Path) -> None:
+    """Same seeds, proxies on and off: no more settle drops, nothing sinks, nothing interpenetrates beyond
+    the worker's checks, and bodies are at rest at the end."""
+    from mixcount.blender.decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
+    from mixcount.blender.worker import BlenderWorker
+    from mixcount.run.scene_task import SceneTask, run_scene_task
+
+    pool, root = proxy_library
+    settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
+    results: dict[bool, list[dict]] = {True: [], False: []}
+    with BlenderWorker(name="proxy-test", log_dir=tmp_path) as worker:
+        for seed in (11, 12):
+            for proxies in (False, True):
+                spec = _spec(pool, seed, proxies)
+                task = SceneTask(spec=spec, out_dir=str(tmp_path / f"p{int(proxies)}"), assets_dir=str(root / "assets"),
+                                 timeout_s=600, threads=2)
+                outcome = run_scene_task(task, worker)
+                assert outcome.status == "written", outcome.error
+                results[proxies].append(json.loads((Path(outcome.path) / "metadata.json").read_text()))
+    moving = {True: 0, False: 0}
+    for proxies, metas in results.items():
+        for meta in metas:
+            rest = next(d for d in meta["diagnostics"] if d["kind"] == "rest")
+            assert (rest["proxies"] > 0) is proxies
+            kept = {o["name"]: o for o in meta["objects"] if o["status"] == "kept"}
+            for o in kept.values():
+                assert o["min_z"] >= -0.02 * o["size_m"], (proxies, o["name"], o["min_z"])  # no sinking
+            speeds = [rest["speed_m_s"][name] for name in kept]
+            assert np.median(speeds) < 0.05, (proxies, speeds)  # the pile is at rest ...
+            moving[proxies] += sum(v > 0.1 for v in speeds)  # ... but for a body still rolling here and there
+
+    def drops(metas: list[dict]) -> int:
+        return sum(1 for m in metas for o in m["objects"] if o.get("reason") in settle_reasons)
+
+    assert drops(results[True]) <= drops(results[False]) + 1
+    assert moving[True] <= moving[False] + 1
+    assert all(m["physics"]["frames"] == 200 for m in results[True])
