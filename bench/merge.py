@@ -33,7 +33,7 @@ MERGE = (
     "from pathlib import Path\n"
     "from mixcount.dataset.merge import finalize_dataset\n"
     "t = time.perf_counter()\n"
-    "finalize_dataset(Path(sys.argv[1]), config={}, config_hash='bench')\n"
+    "finalize_dataset(Path(sys.argv[1]), config={}, config_hash='bench', preview_scenes=16)\n"
     "print(json.dumps({'seconds': round(time.perf_counter() - t, 3),"
     " 'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}))\n"
 )

@@ -46,10 +46,14 @@ NOT_CONFIG_PARAMS = {
     ("mixcount/demo/pool.py", "seed"),  # fixture pool for tests and benchmarks: a fixed generator seed
     ("mixcount/demo/pool.py", "split"),  # ... and the split label it gives every object
     ("mixcount/evaluate/metrics.py", "split"),  # which ground-truth COCO file to score against
+    ("mixcount/demo/pool.py", "min_faces"),  # faces of a heavy benchmark model, not the degenerate threshold
+    ("bench/pools.py", "min_faces"),  # ... the same
 }
 # ``.get(key, default)`` on data that is not configuration but shares a key's name (checked by hand).
 NOT_CONFIG_GETS = {
     ("mixcount/catalog/layouts.py", "categories"),  # the ``categories`` field of a GSO metadata.pbtxt
+    ("mixcount/scene/spec.py", "collision_proxies"),  # a stage written before proxies existed: none
+    ("mixcount/scene/spec.py", "rest_speed"),  # ... and before early stopping: all frames
 }
 
 

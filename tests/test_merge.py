@@ -63,7 +63,7 @@ def test_resumed_merge_reads_only_changed_metadata(tmp_path: Path) -> None:
     from mixcount.dataset.merge import finalize_dataset
 
     dirs = [_scene(tmp_path, k, "train", n_ann=2) for k in range(3)]
-    finalize_dataset(tmp_path)
+    finalize_dataset(tmp_path, preview_scenes=4)
     # unchanged size and mtime: the index answers and the (now unparsable) metadata.json is not read
     meta = dirs[1] / "metadata.json"
     st = meta.stat()
@@ -74,7 +74,7 @@ def test_resumed_merge_reads_only_changed_metadata(tmp_path: Path) -> None:
     changed["n_counted"] = 7
     (dirs[2] / "metadata.json").write_text(json.dumps(changed))
     _scene(tmp_path, 3, "train", n_ann=1)
-    res = finalize_dataset(tmp_path)
+    res = finalize_dataset(tmp_path, preview_scenes=4)
     summary = json.loads(Path(res["dataset"]).read_text())
     assert summary["counts"] == {"scenes": 4, "counted_objects": 2 + 2 + 7 + 1}
     index = (tmp_path / "annotations" / ".merge_index.jsonl").read_text().splitlines()

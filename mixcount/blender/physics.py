@@ -54,7 +54,7 @@ REST_ROLLING_MIN = 2  # ... and at least this many (they are mostly dropped as o
 
 
 def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
-             gravity: float, rest_speed: float = 0.0, speeds: dict[str, float] | None = None,
+             gravity: float, rest_speed: float, speeds: dict[str, float] | None = None,
              stats: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
     """Run the simulation for at most ``frames`` frames; returns the settled 4x4 world matrix per active body.
 

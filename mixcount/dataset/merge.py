@@ -212,7 +212,7 @@ def write_preview(out_dir: Path, scenes: list[tuple[Path, int]], *, cell: int = 
 
 
 def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, config_hash: str = "",
-                     run: Optional[dict[str, Any]] = None, preview_scenes: int = 16) -> dict[str, Any]:
+                     run: Optional[dict[str, Any]] = None, preview_scenes: int) -> dict[str, Any]:
     """Merged COCO per split, ``dataset.json`` and ``preview.png`` in one pass (see the module docstring)."""
     out_dir = Path(out_dir)
     ann_dir = out_dir / "annotations"

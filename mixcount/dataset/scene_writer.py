@@ -188,7 +188,7 @@ def read_amodal_masks(path: Path) -> Optional[dict[int, np.ndarray]]:
 def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions: Mapping[int, Mapping[str, str]],
                    timings: dict[str, float], extra: Optional[dict[str, Any]] = None,
                    external_exemplars: Optional[Mapping[int, str]] = None,
-                   passes: Sequence[str] = ("instance", "class", "depth", "normal")) -> dict[str, Any]:
+                   passes: Sequence[str]) -> dict[str, Any]:
     """Turn the worker's raw outputs in ``tmp`` and its SceneResult into the scene's files; returns
     metadata.json's dict (its ``objects`` are the ObjectResult fields plus category, box, point, amodal
     box, pose; its ``ground_truth`` the evaluation pairs of this image, distractors included)."""

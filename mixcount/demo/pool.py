@@ -35,9 +35,14 @@ def _proxy_for(model: Path, digest: str, proxy_dir: Path, max_vertices: int) -> 
 
 
 def pool_from_demo_library(root: Path, *, split: str = "train", proxy_dir: Optional[Path] = None,
-                           proxy_max_vertices: int = 128) -> list[ObjectRecord]:
+                           proxy_max_vertices: Optional[int] = None) -> list[ObjectRecord]:
     """ObjectRecords for every non-broken object of the demo library at ``root`` (with collision proxies
-    in ``proxy_dir`` when given)."""
+    in ``proxy_dir`` when given, of at most ``proxy_max_vertices``: ``ingest.proxy_max_vertices`` of
+    configs/default.toml when None)."""
+    if proxy_max_vertices is None:
+        from mixcount.config import load_config
+
+        proxy_max_vertices = load_config().ingest.proxy_max_vertices
     root = Path(root)
     truth = json.loads((root / "ground_truth.json").read_text())
     broken = {b["folder"] for b in truth.get("broken", [])}
@@ -60,7 +65,7 @@ def pool_from_demo_library(root: Path, *, split: str = "train", proxy_dir: Optio
 
 
 def ensure_demo_pool(root: Path, *, seed: int = 0, split: str = "train", proxy_dir: Optional[Path] = None,
-                     proxy_max_vertices: int = 128) -> list[ObjectRecord]:
+                     proxy_max_vertices: Optional[int] = None) -> list[ObjectRecord]:
     """Generate the demo library at ``root`` unless it is already there, then return its pool.
 
     The benchmarks reuse a library across runs with ``--work DIR``; generating it is deterministic.
@@ -136,7 +141,7 @@ def heavy_demo_library(light_root: Path, heavy_root: Path, *, min_faces: int = 2
 
 
 def ensure_heavy_demo_pool(work: Path, *, split: str = "train", min_faces: int = 200_000,
-                           proxy_dir: Optional[Path] = None, proxy_max_vertices: int = 128) -> list[ObjectRecord]:
+                           proxy_dir: Optional[Path] = None, proxy_max_vertices: Optional[int] = None) -> list[ObjectRecord]:
     """The capture-like pool under ``work/heavy`` (built from ``work/demo`` once), for the benchmarks."""
     from mixcount.demo.library import generate_demo_library
 
