@@ -5,7 +5,7 @@
     .venv/bin/python bench/merge.py                                             # composes a small scene first
 
 Each fabricated scene is the real scene under a new id (``scene_<k:06d>``): ``coco.json`` and
-``metadata.json`` rewritten with that id (so every scene is parsed for real), ``rgb.png`` hard-linked (the
+``metadata.json`` rewritten with that id (text replacement; every scene is parsed for real by the merge), ``rgb.png`` hard-linked (the
 preview reads it); the other pass files are not needed by the merge and are left out. Every merge runs in
 a fresh Python process (``mixcount.dataset.merge.finalize_dataset``), timed, with its peak RSS from
 ``getrusage``: ``cold`` = the first merge (every metadata.json parsed, index built), ``warm`` = a second
@@ -51,9 +51,7 @@ def fabricate(scene: Path, out: Path, n: int, start: int = 0) -> None:
         d = scenes / new
         d.mkdir(exist_ok=True)
         (d / "coco.json").write_text(coco.replace(sid, new))
-        m = json.loads(meta.replace(sid, new))
-        m["seed"] = k
-        (d / "metadata.json").write_text(json.dumps(m, indent=1))
+        (d / "metadata.json").write_text(meta.replace(sid, new))  # text as written, new id (seed kept)
         os.link(scene / "rgb.png", d / "rgb.png")
 
 

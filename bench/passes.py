@@ -46,7 +46,14 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
-    from mixcount.dataset.passes import DEPTH_FORMATS, NORMAL_FORMATS, read_depth, read_normals, write_depth, write_normals
+    from mixcount.dataset.passes import (
+        DEPTH_FORMATS,
+        NORMAL_FORMATS,
+        read_depth,
+        read_normals,
+        write_depth,
+        write_normals,
+    )
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-passes-"))
     scene = args.scene or _compose_npy(work, args.resolution, args.samples, args.objects)
