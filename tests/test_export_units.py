@@ -104,7 +104,7 @@ def _write_scene(root: Path, sid: str, ids: np.ndarray, objects: list[dict], cat
 def synthetic(tmp_path: Path) -> Path:
     """Two scenes (train, test): class 40 with 2 instances, class 44 (same category) with 1, class 80 with
     4 (another category) and a distractor of category 12; one asset lacks a licence."""
-    from mixcount.dataset.merge import merge_annotations
+    from mixcount.dataset.merge import finalize_dataset
 
     ids = np.zeros((60, 80), np.uint16)
     boxes = {1: (2, 2), 2: (20, 2), 3: (40, 2), 4: (2, 30), 5: (20, 30), 6: (40, 30), 7: (60, 30), 8: (60, 2)}
@@ -129,7 +129,7 @@ def synthetic(tmp_path: Path) -> Path:
     root = tmp_path / "ds"
     _write_scene(root, "scene_000000", ids, objects, cats, "train", assets)
     _write_scene(root, "scene_000001", ids, objects, cats, "test", assets)
-    merge_annotations(root)
+    finalize_dataset(root, preview_scenes=0)
     return root
 
 

@@ -44,63 +44,102 @@ def _license_id(text: str) -> str:
     return "sha256:" + hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
-def collect_attribution(dataset_root: Path | str, scene_ids: Optional[Iterable[str]] = None) -> dict[str, Any]:
-    """The attribution document of the finished scenes of ``dataset_root`` (only ``scene_ids`` when given)."""
-    objects: dict[int, dict[str, Any]] = {}
-    licenses: dict[str, dict[str, Any]] = {}
-    environments: dict[str, dict[str, Any]] = {}
-    materials: dict[str, dict[str, Any]] = {}
-    dirs = _scene_dirs(Path(dataset_root), scene_ids)
-    for d in dirs:
-        spec = json.loads((d / "metadata.json").read_text(encoding="utf-8")).get("spec") or {}
-        roles: dict[int, set[str]] = {}
-        for c in spec.get("classes", []):
-            roles.setdefault(int(c["object_id"]), set()).add("counted")
-        for o in spec.get("distractors", []):
-            roles.setdefault(int(o["object_id"]), set()).add("distractor")
-        if spec.get("container"):
-            roles.setdefault(int(spec["container"]["object_id"]), set()).add("container")
-        for a in spec.get("assets", []):
-            oid = int(a["object_id"])
-            entry = objects.get(oid)
+def attribution_extract(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """What attribution needs of one scene spec, small enough for the merge index (no licence texts):
+    each object's roles, the environment map and the floor material."""
+    roles: dict[int, set[str]] = {}
+    for c in spec.get("classes", []):
+        roles.setdefault(int(c["object_id"]), set()).add("counted")
+    for o in spec.get("distractors", []):
+        roles.setdefault(int(o["object_id"]), set()).add("distractor")
+    if spec.get("container"):
+        roles.setdefault(int(spec["container"]["object_id"]), set()).add("container")
+    for a in spec.get("assets", []):
+        roles.setdefault(int(a["object_id"]), set())
+    env = spec.get("environment") or {}
+    mat = (spec.get("floor") or {}).get("material") or {}
+    return {
+        "roles": {str(k): sorted(v) for k, v in sorted(roles.items())},
+        "environment": ({"kind": env.get("kind"), "environment_id": env.get("environment_id"), "path": env["path"]}
+                        if env.get("path") else None),
+        "material": ({"name": mat.get("name"), "material_id": mat.get("material_id"), "maps": mat.get("maps") or {}}
+                     if mat.get("kind") == "pbr" or mat.get("material_id") is not None else None),
+    }
+
+
+class AttributionCollector:
+    """Builds the attribution document one scene at a time (memory grows with the objects, not the scenes).
+
+    ``add(scene_dir, extract)`` takes :func:`attribution_extract` of a scene; an object seen for the first
+    time has its source and licence read from that scene's ``metadata.json`` (once per object)."""
+
+    def __init__(self) -> None:
+        self.objects: dict[int, dict[str, Any]] = {}
+        self.licenses: dict[str, dict[str, Any]] = {}
+        self.environments: dict[str, dict[str, Any]] = {}
+        self.materials: dict[str, dict[str, Any]] = {}
+        self.scenes = 0
+
+    def _assets_of(self, scene_dir: Path) -> dict[int, Mapping[str, Any]]:
+        spec = json.loads((Path(scene_dir) / "metadata.json").read_text(encoding="utf-8")).get("spec") or {}
+        return {int(a["object_id"]): a for a in spec.get("assets", [])}
+
+    def add(self, scene_dir: Path, extract: Mapping[str, Any]) -> None:
+        self.scenes += 1
+        assets: Optional[dict[int, Mapping[str, Any]]] = None
+        for key, roles in extract.get("roles", {}).items():
+            oid = int(key)
+            entry = self.objects.get(oid)
             if entry is None:
+                if assets is None:
+                    assets = self._assets_of(scene_dir)
+                a = assets.get(oid, {})
                 text = a.get("license")
                 lid = None
                 if text:
                     lid = _license_id(text)
-                    licenses.setdefault(lid, {"id": lid, "text": text, "objects": 0})
-                    licenses[lid]["objects"] += 1
-                entry = objects[oid] = {
+                    self.licenses.setdefault(lid, {"id": lid, "text": text, "objects": 0})
+                    self.licenses[lid]["objects"] += 1
+                entry = self.objects[oid] = {
                     "object_id": oid, "name": a.get("name"), "category": a.get("category"),
                     "source": a.get("source"), "source_id": a.get("source_id"), "license_id": lid,
                     "content_hash": a.get("content_hash"), "roles": set(), "scenes": 0,
                 }
-            entry["roles"] |= roles.get(oid, set())
+            entry["roles"] |= set(roles)
             entry["scenes"] += 1
-        env = spec.get("environment") or {}
-        if env.get("path"):
-            e = environments.setdefault(env["path"], {"kind": env.get("kind"), "environment_id": env.get("environment_id"),
-                                                      "path": env["path"], "license": None, "scenes": 0})
+        env = extract.get("environment")
+        if env:
+            e = self.environments.setdefault(env["path"], {**env, "license": None, "scenes": 0})
             e["scenes"] += 1
-        mat = (spec.get("floor") or {}).get("material") or {}
-        if mat.get("kind") == "pbr" or mat.get("material_id") is not None:
-            m = materials.setdefault(str(mat.get("name")), {"name": mat.get("name"), "material_id": mat.get("material_id"),
-                                                            "maps": mat.get("maps") or {}, "license": None, "scenes": 0})
+        mat = extract.get("material")
+        if mat:
+            m = self.materials.setdefault(str(mat.get("name")), {**mat, "license": None, "scenes": 0})
             m["scenes"] += 1
-    obj_list = []
-    for oid in sorted(objects):
-        o = dict(objects[oid])
-        o["roles"] = sorted(o["roles"])
-        obj_list.append(o)
-    return {
-        "note": DATASET_LICENSE_NOTE,
-        "scenes": len(dirs),
-        "objects": obj_list,
-        "licenses": [licenses[k] for k in sorted(licenses)],
-        "missing_license": [o["object_id"] for o in obj_list if o["license_id"] is None],
-        "environments": [environments[k] for k in sorted(environments)],
-        "materials": [materials[k] for k in sorted(materials)],
-    }
+
+    def document(self) -> dict[str, Any]:
+        obj_list = []
+        for oid in sorted(self.objects):
+            o = dict(self.objects[oid])
+            o["roles"] = sorted(o["roles"])
+            obj_list.append(o)
+        return {
+            "note": DATASET_LICENSE_NOTE,
+            "scenes": self.scenes,
+            "objects": obj_list,
+            "licenses": [self.licenses[k] for k in sorted(self.licenses)],
+            "missing_license": [o["object_id"] for o in obj_list if o["license_id"] is None],
+            "environments": [self.environments[k] for k in sorted(self.environments)],
+            "materials": [self.materials[k] for k in sorted(self.materials)],
+        }
+
+
+def collect_attribution(dataset_root: Path | str, scene_ids: Optional[Iterable[str]] = None) -> dict[str, Any]:
+    """The attribution document of the finished scenes of ``dataset_root`` (only ``scene_ids`` when given)."""
+    collector = AttributionCollector()
+    for d in _scene_dirs(Path(dataset_root), scene_ids):
+        spec = json.loads((d / "metadata.json").read_text(encoding="utf-8")).get("spec") or {}
+        collector.add(d, attribution_extract(spec))
+    return collector.document()
 
 
 def _cell(value: Any) -> str:
@@ -136,12 +175,10 @@ def attribution_markdown(doc: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_attribution(dataset_root: Path | str, out_dir: Path | str,
-                      scene_ids: Optional[Iterable[str]] = None) -> dict[str, Any]:
-    """Write ATTRIBUTION.json and ATTRIBUTION.md into ``out_dir`` (atomic renames); returns the document."""
+def write_attribution_document(doc: Mapping[str, Any], out_dir: Path | str) -> None:
+    """Write ``doc`` as ATTRIBUTION.json and ATTRIBUTION.md into ``out_dir`` (atomic renames)."""
     import os
 
-    doc = collect_attribution(dataset_root, scene_ids)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for name, text in ((JSON_NAME, json.dumps(doc, indent=1, ensure_ascii=False) + "\n"),
@@ -149,4 +186,11 @@ def write_attribution(dataset_root: Path | str, out_dir: Path | str,
         tmp = out / f".{name}.{os.getpid()}.tmp"
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, out / name)
+
+
+def write_attribution(dataset_root: Path | str, out_dir: Path | str,
+                      scene_ids: Optional[Iterable[str]] = None) -> dict[str, Any]:
+    """Write ATTRIBUTION.json and ATTRIBUTION.md of ``dataset_root``'s scenes into ``out_dir``; returns the document."""
+    doc = collect_attribution(dataset_root, scene_ids)
+    write_attribution_document(doc, out_dir)
     return doc

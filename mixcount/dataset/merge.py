@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Optional, TextIO
 
-from mixcount.dataset.attribution import JSON_NAME, write_attribution
+from mixcount.dataset.attribution import JSON_NAME, AttributionCollector, attribution_extract, write_attribution_document
 from mixcount.dataset.scene_writer import is_complete
 
 INDEX_NAME = ".merge_index.jsonl"
@@ -85,7 +85,7 @@ def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None) -> Iterator[t
         except OSError:
             continue
         key = [st.st_mtime_ns, st.st_size]
-        if head is not None and head.get("scene_id") == name and head.get("key") == key:
+        if head is not None and head.get("scene_id") == name and head.get("key") == key and "attribution" in head:
             rec = head
         else:
             try:
@@ -96,6 +96,7 @@ def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None) -> Iterator[t
                 continue
             rec = {k: meta.get(k) for k in RECORD_KEYS}
             rec["scene_id"], rec["key"] = name, key
+            rec["attribution"] = attribution_extract(meta.get("spec") or {})
             rec["timings"] = {k: float(v) for k, v in (rec.get("timings") or {}).items()
                               if isinstance(v, (int, float))}
         if index_out is not None:
@@ -146,7 +147,9 @@ class _SplitWriter:
                             for e in img.get("exemplars", [])]
         self.img_fh.write(("," if image_id > 1 else "") + json.dumps(img))
         for c in coco["categories"]:
-            self.categories.setdefault(c["id"], c)
+            known = self.categories.setdefault(c["id"], c)
+            if known is not c and known.get("external_exemplar") is None and c.get("external_exemplar"):
+                self.categories[c["id"]] = c  # a scene composed after the render was made names it
         self.scenes += 1
         self.counted += int(rec.get("n_counted") or 0)
         self.distractors += int(rec.get("n_distractors") or 0)
@@ -224,12 +227,14 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
     timing_n: dict[str, int] = {}
     preview: list[tuple[Path, int]] = []
     n_scenes = n_counted = 0
+    attribution = AttributionCollector()
     with tempfile.TemporaryDirectory(prefix=".merge-", dir=ann_dir) as tmpdir:
         tmp = Path(tmpdir)
         scenes_fh = open(tmp / "scenes.json", "w")
         try:
             with open(index_tmp, "w") as index_out:
                 for d, rec in scan_scenes(out_dir, index_out):
+                    attribution.add(d, rec["attribution"])
                     split = str(rec.get("split"))
                     if split not in splits:
                         splits[split] = _SplitWriter(split, tmp)
@@ -266,5 +271,7 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
             out.write("\n ]\n}\n")
         os.replace(part, path)
     preview_path = write_preview(out_dir, preview)
+    write_attribution_document(attribution.document(), out_dir)  # every object shown, its source and licence
     return {"annotations": {k: str(v) for k, v in written.items()},
-            "preview": str(preview_path) if preview_path else None, "dataset": str(path)}
+            "preview": str(preview_path) if preview_path else None, "dataset": str(path),
+            "attribution": str(out_dir / JSON_NAME)}
