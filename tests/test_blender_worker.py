@@ -393,7 +393,7 @@ def test_compose_passes_choose_the_written_files(library, tmp_path: Path) -> Non
     pool, assets = library
     out = tmp_path / "out"
     summary = compose_scenes(pool=pool, config=_config("compose.resolution=64", "compose.depth_format='exr32'"),
-                             out_dir=out, assets_dir=assets, n=1, seed=1, progress=False, passes="depth")
+                             out_dir=out, assets_dir=assets, n=1, progress=False, passes="depth")
     assert summary.written == 1
     d = _scenes(out)[0]
     assert (d / "depth.exr").is_file() and (d / "rgb.png").is_file() and (d / "coco.json").is_file()
