@@ -23,9 +23,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mixcount.catalog.db import open_catalog  # noqa: E402
-from mixcount.demo.library import generate_demo_library  # noqa: E402
 from mixcount.catalog.ingest import ingest_paths  # noqa: E402
 from mixcount.config import load_config  # noqa: E402
+from mixcount.demo.library import generate_demo_library  # noqa: E402
 
 
 def densify(lib: Path, times: int) -> None:

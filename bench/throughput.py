@@ -99,7 +99,7 @@ def _memory(args: Any, *, pool: list[Any], cfg: Any, assets: Path, work: Path) -
             t0 = time.perf_counter()
             summary = compose_scenes(pool=pool, config=cfg, out_dir=work / f"mem_{label}", assets_dir=assets,
                                      n=args.memory, executor=ex, progress=False,
-                                     on_outcome=lambda _o: rss.append(_rss_mb(ex.workers[0].pid)))
+                                     on_outcome=lambda _o, rss=rss, ex=ex: rss.append(_rss_mb(ex.workers[0].pid)))
             wall = time.perf_counter() - t0
         finally:
             ex.close()

@@ -33,8 +33,9 @@ def composed_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     library -> real ingest -> real compose of 2 scenes of the train split at 96 px (configs/quick.toml,
     16-24 objects drawn per scene so that classes keep a few visible instances; seeds 5 and 6 give two
     classes in each image and a visible distractor)."""
-    from mixcount.cli import main
     from test_usd_stage import build_demo_catalog
+
+    from mixcount.cli import main
 
     root = tmp_path_factory.mktemp("composed_dataset")
     build_demo_catalog(root, n_objects=12).close()

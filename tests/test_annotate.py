@@ -8,8 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mixcount.annotate.coco import (bbox_of, build_scene_coco, category_id, class_map, counts_per_category,
-                                    exemplar_score, mask_to_rle)
+from mixcount.annotate.coco import (
+    bbox_of,
+    build_scene_coco,
+    category_id,
+    class_map,
+    counts_per_category,
+    exemplar_score,
+    mask_to_rle,
+)
 from mixcount.annotate.raster import PinholeCamera, rasterize_triangles, silhouette
 
 

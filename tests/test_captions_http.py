@@ -9,8 +9,8 @@ import logging
 import re
 import threading
 import time
-from email.utils import format_datetime
 from datetime import datetime, timedelta, timezone
+from email.utils import format_datetime
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ import pytest
 from PIL import Image
 from sqlalchemy import select
 
+from mixcount.captions.captioning import caption_catalog
 from mixcount.captions.http import (
     HttpCaptioner,
     endpoint_url,
@@ -28,9 +29,8 @@ from mixcount.captions.http import (
     parse_retry_after,
     quota_exhausted,
 )
-from mixcount.captions.captioning import caption_catalog
-from mixcount.config import load_config
 from mixcount.catalog.models import CaptionFailure, CaptionSet, CatalogObject, Render
+from mixcount.config import load_config
 
 pytestmark = pytest.mark.network
 
@@ -227,7 +227,7 @@ def test_http_captioner_against_loopback_server(provider, server, catalog, tmp_p
         cap = HttpCaptioner(conf, client, sleep=sleeps.append, rng=np.random.default_rng(0))
         summary = caption_catalog(catalog, cap, concurrency=conf.concurrency, colour_source="model")
 
-    for cat, (attempts, ok) in EXPECTED.items():
+    for cat, (attempts, _ok) in EXPECTED.items():
         assert server.attempts(provider, cat) == attempts, (cat, server.attempts(provider, cat))
     assert summary.captioned == sum(ok for _, ok in EXPECTED.values())
     assert summary.failed == sum(not ok for _, ok in EXPECTED.values())

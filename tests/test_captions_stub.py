@@ -13,9 +13,9 @@ from PIL import Image
 from sqlalchemy import select
 
 from mixcount.captions.base import STUB_WORD_BOUNDS, CaptionInput, name_tokens
+from mixcount.captions.captioning import caption_catalog, normalise_caption
 from mixcount.captions.colours import colours_from_model, colours_from_render, name_rgb
 from mixcount.captions.stub import StubCaptioner, size_class
-from mixcount.captions.captioning import caption_catalog, normalise_caption
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, Render
 from mixcount.cli import main
 
@@ -213,9 +213,9 @@ def test_demo_library_captions_are_distinct(tmp_path, catalog):
     """All tiers within bounds; < 5 % of distinct objects share a caption before dedupe. The generator's
     planted exact copies and rescaled copies are the same object (a duplicate group for curation): they
     may collide, and exact copies must; recoloured twins must not."""
-    from mixcount.demo import library as demo
     from mixcount.catalog import ingest
     from mixcount.config import load_config
+    from mixcount.demo import library as demo
 
     root = tmp_path / "demo"
     truth = demo.generate_demo_library(root, seed=0, n_objects=40)

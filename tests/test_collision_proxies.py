@@ -81,7 +81,6 @@ def proxy_library(tmp_path_factory: pytest.TempPathFactory):
 
 def _spec(pool, seed: int, proxies: bool):
     from mixcount.config import load_config
-    from mixcount.scene.config import SceneConfig
     from mixcount.scene.sampler import sample_scene
 
     cfg = load_config([PROJECT_ROOT / "configs" / "quick.toml"],

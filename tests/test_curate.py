@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 from sqlalchemy import select
+from test_curate_support import library_catalog, quick_config
 
+from mixcount.catalog.models import CatalogObject, Flag, ReviewDecision
 from mixcount.curation import descriptors as D
 from mixcount.curation.flags import EXCLUDED_MARK, FILTER_KINDS, run_filter
-from mixcount.catalog.models import CatalogObject, Flag, ReviewDecision
-from test_curate_support import library_catalog, quick_config
 
 
 def state(catalog):

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import trimesh
 from sqlalchemy import select
+from test_curate_support import quick_config
 
 from mixcount.catalog.ingest import ingest_paths
 from mixcount.catalog.models import CatalogObject, Flag
@@ -24,7 +25,6 @@ from mixcount.curation import appearance3d as A
 from mixcount.curation import descriptors as D
 from mixcount.curation.flags import mesh_quality_score, run_filter
 from mixcount.demo import library as L
-from test_curate_support import quick_config
 
 pytestmark = pytest.mark.slow  # capture-sized meshes through ingest and filter: not in the fast tier
 

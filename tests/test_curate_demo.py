@@ -8,18 +8,17 @@ ground_truth.json. Also writes the contact sheet `make demo` writes."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from PIL import Image
 from sqlalchemy import select
 
-from pathlib import Path
-
-from mixcount.curation.flags import DUPLICATE_KINDS, TRAP_KINDS, evaluate_against_ground_truth
 from mixcount.catalog.db import open_catalog
-from mixcount.demo.library import generate_demo_library
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.cli import main
+from mixcount.curation.flags import DUPLICATE_KINDS, TRAP_KINDS, evaluate_against_ground_truth
+from mixcount.demo.library import generate_demo_library
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from mixcount.demo.library import CONTAINER_CATEGORIES, generate_demo_library
 from mixcount.catalog.ingest import DTC_NAME
+from mixcount.demo.library import CONTAINER_CATEGORIES, generate_demo_library
 
 
 def tree_digest(root: Path) -> dict[str, str]:
@@ -145,7 +145,7 @@ def test_same_seed_same_bytes_and_small_libraries(tmp_path):
     b = generate_demo_library(tmp_path / "b", seed=7, n_objects=8)
     assert a == b
     assert tree_digest(tmp_path / "a") == tree_digest(tmp_path / "b")
-    c = generate_demo_library(tmp_path / "c", seed=8, n_objects=8)
+    generate_demo_library(tmp_path / "c", seed=8, n_objects=8)
     assert tree_digest(tmp_path / "c") != tree_digest(tmp_path / "a")
     ordinary = [o for o in a["objects"] if o["kind"] == "object"]
     assert len(ordinary) == 8 and len({o["category"] for o in ordinary}) == 8  # round-robin over categories

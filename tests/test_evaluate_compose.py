@@ -23,8 +23,9 @@ pytestmark = [pytest.mark.blender, pytest.mark.slow]
 @pytest.fixture(scope="module")
 def composed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Two scenes of the test split at 96 px (configs/quick.toml), from a small real demo catalog."""
-    from mixcount.catalog.models import Split
     from test_usd_stage import build_demo_catalog
+
+    from mixcount.catalog.models import Split
 
     root = tmp_path_factory.mktemp("eval_compose")
     cat = build_demo_catalog(root, n_objects=12)  # every active object lands in train ...

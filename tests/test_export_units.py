@@ -21,7 +21,6 @@ from mixcount.export.outputs import ExportFolder
 from mixcount.export.points import decode_mask, object_point
 from mixcount.export.reader import ComposedDataset
 
-
 # ------------------------------------------------------------------------------------------- points
 
 

@@ -18,10 +18,10 @@ import trimesh
 from PIL import Image
 from sqlalchemy import func, select
 
-from mixcount.demo.library import generate_demo_library
 from mixcount.catalog.ingest import ingest_paths
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, IngestRun, ReviewDecision, Split
 from mixcount.config import load_config
+from mixcount.demo.library import generate_demo_library
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 

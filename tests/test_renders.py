@@ -14,8 +14,8 @@ from sqlalchemy import select
 
 from mixcount.catalog.ingest import ingest_paths
 from mixcount.catalog.models import CatalogObject, Render
-from mixcount.curation.renders import canonical_render_path, mask_path_for, render_catalog
 from mixcount.config import load_config
+from mixcount.curation.renders import canonical_render_path, mask_path_for, render_catalog
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 

@@ -10,13 +10,13 @@ import shutil
 from pathlib import Path
 
 import pytest
+from test_curate_support import add_captions, library_catalog, quick_config
 
-from mixcount.curation.flags import run_filter
 from mixcount.catalog.models import CatalogObject, ReviewDecision
+from mixcount.cli import main
+from mixcount.curation.flags import run_filter
 from mixcount.curation.review import FORMAT
 from mixcount.curation.sheets import write_sheets
-from mixcount.cli import main
-from test_curate_support import add_captions, library_catalog, quick_config
 
 pytestmark = [pytest.mark.browser]
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 
 import pytest
+from test_usd_stage import build_demo_catalog
 
 from mixcount.cli import main
-from test_usd_stage import build_demo_catalog
 
 
 @pytest.fixture(scope="module")

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from test_scene_distributions import rich_pool
 
 from mixcount.catalog.environments import classify_maps, is_environment_map
+from mixcount.catalog.pool import load_environments, load_materials
 from mixcount.config import load_config
 from mixcount.scene.environments import PATTERNS, render_pattern, sample_pattern_params
-from mixcount.catalog.pool import load_environments, load_materials
 from mixcount.scene.sampler import sample_scene
-from test_scene_distributions import rich_pool
 
 
 def write_hdr(path: Path, w: int = 8, h: int = 4) -> Path:

@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 import pytest
+from test_scene_distributions import rich_pool
 
 from mixcount.config import Config, load_config
 from mixcount.errors import CompositionError, ConfigError
 from mixcount.scene.pool import ObjectRecord
 from mixcount.scene.sampler import qualify, sample_scene
 from mixcount.scene.spec import Captions, SceneSpec
-from test_scene_distributions import rich_pool
 
 
 def quat_rotate(q, v):

@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from PIL import Image
 from sqlalchemy import select
+from test_curate_support import add_captions, library_catalog, quick_config
 
-from mixcount.curation.flags import run_filter
 from mixcount.catalog.models import CatalogObject, ReviewDecision
+from mixcount.cli import main
+from mixcount.curation.flags import run_filter
 from mixcount.curation.review import FORMAT, import_decisions
 from mixcount.curation.sheets import STATUS_COLOURS, collect, safe_json, write_sheets
-from mixcount.cli import main
 from mixcount.errors import CatalogError
-from test_curate_support import add_captions, library_catalog, quick_config
 
 HOSTILE = "</script><script>window.pwned=1</script><img src=x onerror=\"window.pwned=2\"> & \u2028 'q'"
 

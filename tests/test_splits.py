@@ -10,8 +10,8 @@ from sqlalchemy import select
 
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, Split
 from mixcount.catalog.splits import FscTable, assign_splits, check_splits, normalise, singular
-from mixcount.config import load_config
 from mixcount.cli import main
+from mixcount.config import load_config
 
 TABLE = FscTable.load()
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from mixcount.config import load_config
 from mixcount.catalog.pool import load_pool
+from mixcount.config import load_config
 from mixcount.scene.sampler import sample_scene
 from mixcount.usd.stage import write_stage
 
@@ -88,9 +88,9 @@ print(json.dumps({
 def build_demo_catalog(root: Path, n_objects: int = 16):
     """Demo library -> real ingest -> every active object in train. Returns the open catalog."""
     from mixcount.catalog.db import open_catalog
-    from mixcount.demo.library import generate_demo_library
     from mixcount.catalog.ingest import ingest_paths
     from mixcount.catalog.models import CatalogObject, Split
+    from mixcount.demo.library import generate_demo_library
 
     generate_demo_library(root / "lib", seed=0, n_objects=n_objects)
     cat = open_catalog(f"sqlite:///{root / 'catalog.db'}", data_dir="")
@@ -161,9 +161,9 @@ def test_same_seed_byte_identical_different_seed_different(demo):
 
 def test_stage_without_container_and_with_hdri(demo, tmp_path):
     from pxr import Usd, UsdLux
+    from test_scene_environments import write_hdr
 
     from mixcount.scene.pool import EnvironmentRecord
-    from test_scene_environments import write_hdr
 
     root, cat, pool, _conf = demo
     hdr = write_hdr(tmp_path / "sky.hdr")

@@ -14,7 +14,6 @@ Camera space is Blender's / USD's: x right, y up, the camera looks down -z.
 from __future__ import annotations
 
 from dataclasses import dataclass
-
 from typing import Any
 
 import numpy as np

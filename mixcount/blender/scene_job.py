@@ -26,8 +26,8 @@ object's amodal mask, see :func:`write_amodal_masks`) and ``worker.json`` (the
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
@@ -36,6 +36,7 @@ from mixcount.annotate.raster import PinholeCamera
 from mixcount.blender import decisions as D
 from mixcount.blender.contract import DROPPED, STATUS_OK, ObjectResult, SceneRequest, SceneResult
 from mixcount.scene.spec import SceneSpec
+
 
 class Timer:
     def __init__(self) -> None:

@@ -5,6 +5,6 @@ or Gemini endpoint through httpx) both follow the :class:`~mixcount.captions.bas
 Submodules are imported lazily by callers so ``import mixcount.captions`` stays light.
 """
 
-from mixcount.captions.base import TIERS, CaptionInput, Captioner, CaptionResult
+from mixcount.captions.base import TIERS, Captioner, CaptionInput, CaptionResult
 
 __all__ = ["TIERS", "CaptionInput", "Captioner", "CaptionResult"]

@@ -25,7 +25,6 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from mixcount.captions.base import TIERS, Captioner, CaptionInput, CaptionResult
-from mixcount.scene.caption_text import normalise_caption
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.decisions import accepted_ids
 from mixcount.catalog.grouping import connected_groups
@@ -36,11 +35,10 @@ from mixcount.catalog.models import (
     CaptionSet,
     CatalogObject,
     Flag,
-    Render,
-    ReviewDecision,
 )
 from mixcount.errors import CaptionError
 from mixcount.progress import ProgressReporter, as_reporter
+from mixcount.scene.caption_text import normalise_caption
 
 log = logging.getLogger("mixcount.captions.captioning")
 

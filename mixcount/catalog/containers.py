@@ -24,7 +24,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from mixcount.catalog.decisions import CONTAINER_DECISIONS, latest_container_decisions
-from mixcount.catalog.models import CaptionSet, CatalogObject, ReviewDecision
+from mixcount.catalog.models import CaptionSet, CatalogObject
 from mixcount.catalog.naming import singular, words_of
 from mixcount.config import Config
 

@@ -15,8 +15,8 @@ from sqlalchemy.engine import Engine, make_url
 from sqlalchemy.exc import OperationalError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from mixcount.resources import data_dir
 from mixcount.errors import CatalogError
+from mixcount.resources import data_dir
 
 MIGRATIONS_DIR = data_dir("migrations")
 DEFAULT_DB_PATH = Path("catalog") / "catalog.db"

@@ -36,7 +36,6 @@ from mixcount.catalog import hashing, layouts
 from mixcount.catalog.containers import refresh_containers
 from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
 from mixcount.catalog.mesh import model_resources
-from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
     STATUS_BROKEN,
@@ -45,9 +44,10 @@ from mixcount.catalog.models import (
     IngestRun,
     utcnow,
 )
+from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
 from mixcount.config import Config, IngestConfig
-from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.errors import IngestError
+from mixcount.progress import ProgressReporter, as_reporter
 
 # Fact columns copied from the analysis dict onto the row.
 FACT_FIELDS = (

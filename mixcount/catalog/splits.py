@@ -31,8 +31,8 @@ import numpy as np
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
-from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.db import Catalog
+from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Flag, Split
 from mixcount.config import SplitConfig
 from mixcount.errors import CatalogError

@@ -48,21 +48,20 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from mixcount.catalog.containers import refresh_containers
-from mixcount.catalog.grouping import connected_groups
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
 from mixcount.catalog.db import Catalog
+from mixcount.catalog.decisions import latest_decisions
+from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
     STATUS_BROKEN,
     STATUS_EXCLUDED,
     CatalogObject,
     Flag,
-    ReviewDecision,
 )
-from mixcount.curation.renders import canonical_render_path, mask_path_for
-from mixcount.catalog.decisions import latest_decisions
 from mixcount.config import Config, FilterConfig
+from mixcount.curation import appearance3d as A
+from mixcount.curation import descriptors as D
+from mixcount.curation.renders import canonical_render_path, mask_path_for
 
 EXACT = "exact_duplicate"
 NEAR_GEOMETRY = "near_duplicate_geometry"

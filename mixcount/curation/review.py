@@ -31,8 +31,8 @@ from typing import Any
 from sqlalchemy import select
 
 from mixcount.catalog.db import Catalog
-from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
 from mixcount.catalog.decisions import CONTAINER_DECISIONS, latest_container_decisions, latest_decisions
+from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
 from mixcount.errors import CatalogError
 
 FORMAT = "mixcount-review-v1"

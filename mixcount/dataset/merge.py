@@ -31,7 +31,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Optional, TextIO
 
-from mixcount.dataset.attribution import JSON_NAME, AttributionCollector, attribution_extract, write_attribution_document
+from mixcount.dataset.attribution import (
+    JSON_NAME,
+    AttributionCollector,
+    attribution_extract,
+    write_attribution_document,
+)
 from mixcount.dataset.scene_writer import is_complete
 
 INDEX_NAME = ".merge_index.jsonl"

@@ -825,7 +825,7 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
         built.append((name, spec, data))
         return name
 
-    for i, (cat, fn, k) in enumerate(order):
+    for i, (_cat, fn, k) in enumerate(order):
         spec = fn(k, np.random.default_rng([seed, 1, i]))
         emit(spec, "object")
     for k in range(n_containers):

@@ -21,9 +21,9 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from mixcount.config import Config
-from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 from mixcount.errors import CompositionError
 from mixcount.progress import ProgressReporter, as_reporter
+from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 
 
 @dataclass

@@ -34,8 +34,8 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
 from mixcount.errors import MixcountError
+from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
 
 #: seconds a call may run beyond its task's ``timeout_s`` before the driver gives up on the actor
 CALL_GRACE_S = 120.0

@@ -22,24 +22,24 @@ position gets a random class and class order never decides which class ends up o
 from __future__ import annotations
 
 import math
-from typing import Any, TYPE_CHECKING, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mixcount.scene.caption_text import normalise_caption, size_qualified
 from mixcount.errors import CompositionError
+from mixcount.scene.caption_text import normalise_caption, size_qualified
 from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import sample_environment, sample_floor_material
-from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord
+from mixcount.scene.rotation import quat_from_matrix
 
 if TYPE_CHECKING:
     from mixcount.config import Config
 from mixcount.scene.spec import (
-    TIERS,
     ROLE_COUNTED,
     ROLE_DISTRACTOR,
+    TIERS,
     AssetRef,
     CameraSpec,
     Captions,

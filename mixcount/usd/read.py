@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 
-
 @dataclass(frozen=True)
 class PrimIds:
     path: str

@@ -123,7 +123,7 @@ def _set_ids(prim: Any, role: str, object_id: int, class_index: int, instance_id
     values = (("role", role, Sdf.ValueTypeNames.String), ("object_id", int(object_id), Sdf.ValueTypeNames.Int),
               ("class_index", int(class_index), Sdf.ValueTypeNames.Int),
               ("instance_id", int(instance_id), Sdf.ValueTypeNames.Int))
-    for key, value, vtype in values:
+    for key, value, _vtype in values:
         prim.SetCustomDataByKey(f"mixcount:{key}", value)
     for key, value, vtype in values:
         prim.CreateAttribute(f"userProperties:mixcount:{key}", vtype, custom=True).Set(value)
@@ -196,7 +196,7 @@ def _bind_floor_material(stage: Any, spec: SceneSpec, scene_dir: Path) -> None:
             surf.GetInput("diffuseColor").DisconnectSource()
             surf.GetInput("diffuseColor").Set(Gf.Vec3f(0.5, 0.5, 0.5))
         st_out = UsdShade.Shader(stage.GetPrimAtPath(f"{shader_root}/StReader")).GetOutput("result")
-        for key, inp, space, out, typ in (("roughness", "roughness", "raw", "r", Sdf.ValueTypeNames.Float),
+        for key, _inp, space, out, typ in (("roughness", "roughness", "raw", "r", Sdf.ValueTypeNames.Float),
                                           ("normal", "normal", "raw", "rgb", Sdf.ValueTypeNames.Float3)):
             if not maps.get(key):
                 continue
@@ -320,7 +320,7 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
 
     ``catalog`` supplies ``usd_assets_dir`` for the converted assets (``assets_dir`` overrides it).
     """
-    from pxr import Sdf, Usd, UsdGeom, UsdPhysics
+    from pxr import Usd, UsdGeom, UsdPhysics
 
     if assets_dir is None:
         if catalog is None:
