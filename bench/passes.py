@@ -4,7 +4,7 @@
     .venv/bin/python bench/passes.py --resolution 1024 --samples 32    # composes one (npy formats) first
 
 Reads the exact float32 passes (``depth.npy``, ``normal.npy``; compose with ``compose.depth_format="npy"``
-and ``compose.normal_format="npy"``), writes them in every format of :mod:`mixcount.dataset.passes`,
+and ``compose.normal_format="npy"``), writes them in every format of :mod:`mixcount.annotate.passes`,
 reads them back with ``read_depth`` / ``read_normals`` and prints bytes, max / mean depth error (metres
 and relative) and max / mean angular normal error (degrees, over surface pixels). One JSON line.
 """
@@ -46,7 +46,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
-    from mixcount.dataset.passes import (
+    from mixcount.annotate.passes import (
         DEPTH_FORMATS,
         NORMAL_FORMATS,
         read_depth,

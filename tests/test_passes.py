@@ -31,8 +31,8 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("fmt", ["png16", "exr32", "npy"])
 def test_depth_round_trip(tmp_path: Path, fmt: str) -> None:
+    from mixcount.annotate.passes import write_depth
     from mixcount.dataset import read_depth
-    from mixcount.dataset.passes import write_depth
 
     depth, _ = _scene_like()
     rec = write_depth(tmp_path, depth, fmt)
@@ -49,8 +49,8 @@ def test_depth_round_trip(tmp_path: Path, fmt: str) -> None:
 
 
 def test_depth_unit_follows_the_farthest_surface(tmp_path: Path) -> None:
+    from mixcount.annotate.passes import depth_unit, write_depth
     from mixcount.dataset import read_depth
-    from mixcount.dataset.passes import depth_unit, write_depth
 
     assert depth_unit(6.0) == 1e-4 and depth_unit(100.0) == 2e-3
     with pytest.raises(ValueError, match="exr32"):
@@ -62,8 +62,8 @@ def test_depth_unit_follows_the_farthest_surface(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("fmt,max_deg", [("png8", 0.5), ("exr16", 0.05), ("npy", 1e-3)])
 def test_normals_round_trip(tmp_path: Path, fmt: str, max_deg: float) -> None:
+    from mixcount.annotate.passes import write_normals
     from mixcount.dataset import read_normals
-    from mixcount.dataset.passes import write_normals
 
     _, normals = _scene_like()
     rec = write_normals(tmp_path, normals, fmt)
@@ -86,7 +86,7 @@ def test_old_npy_scene_folder_loads(tmp_path: Path) -> None:
 
 
 def test_parse_passes() -> None:
-    from mixcount.dataset.passes import parse_passes
+    from mixcount.annotate.passes import parse_passes
 
     assert parse_passes("normal, depth") == ("depth", "normal")
     assert parse_passes(["instance", "class", "depth", "normal"]) == ("instance", "class", "depth", "normal")

@@ -40,7 +40,7 @@ class SceneRequest:
     out_dir: str
     threads: int  # Cycles threads (0 = Blender's automatic choice)
     oracle: bool  # also run the one-render-per-object reference and write oracle_masks.npz
-    # which of depth / normal to write and how (mixcount.dataset.passes); the id map is always written
+    # which of depth / normal to write and how (mixcount.annotate.passes); the id map is always written
     passes: tuple[str, ...] = ("instance", "class", "depth", "normal")
     depth_format: str = "png16"
     normal_format: str = "png8"

@@ -17,7 +17,7 @@ between them is a pure function of :mod:`mixcount.blender.decisions`. What descr
 Writes into ``out_dir``: ``rgb.png``, ``ids.npy`` (int32 instance ids of counted objects and distractors,
 0 elsewhere), the requested depth pass (planar depth in metres along the optical axis, 0 = no surface) and
 normal pass (unit normals in camera space: x right, y up, z towards the viewer; 0 = none) in the formats
-of :mod:`mixcount.dataset.passes` (a ``passes`` diagnostic records them), ``amodal.npz`` (each kept
+of :mod:`mixcount.annotate.passes` (a ``passes`` diagnostic records them), ``amodal.npz`` (each kept
 object's amodal mask, see :func:`write_amodal_masks`) and ``worker.json`` (the
 :class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
 (no counted object survived: the caller regenerates from the next seed) or "rejected".
@@ -563,8 +563,8 @@ def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: Pi
                  req: SceneRequest) -> dict[str, Any]:
     """ids.npy (kept objects only; the scene writer turns it into instance/class PNGs and annotations),
     and the requested depth (planar metres) and normal (camera space) passes in their compact formats
-    (:mod:`mixcount.dataset.passes`); returns the written passes' records."""
-    from mixcount.dataset.passes import write_depth, write_normals
+    (:mod:`mixcount.annotate.passes`); returns the written passes' records."""
+    from mixcount.annotate.passes import write_depth, write_normals
 
     keep = [state.objects[i].instance_id for i in state.kept()]
     np.save(state.out_dir / "ids.npy", D.instance_map(id_passes["index"], keep))

@@ -76,7 +76,7 @@ def compose_scenes(
     threads = render_threads(config, workers)
     timeout = comp.scene_timeout_s
     max_attempts = int(math.ceil(n * comp.max_attempts_factor)) + 4
-    from mixcount.dataset.passes import DEPTH_FORMATS, NORMAL_FORMATS, parse_passes
+    from mixcount.annotate.passes import DEPTH_FORMATS, NORMAL_FORMATS, parse_passes
 
     try:
         chosen = parse_passes(comp.passes if passes is None else passes)

@@ -37,7 +37,7 @@ class SceneTask:
     external_exemplars: dict[int, str] = field(default_factory=dict)  # object id -> render copy, relative to OUT
     keep_failed: bool = False
     passes: tuple[str, ...] = ("instance", "class", "depth", "normal")  # besides rgb (compose --passes)
-    depth_format: str = "png16"  # mixcount.dataset.passes formats
+    depth_format: str = "png16"  # mixcount.annotate.passes formats
     normal_format: str = "png8"
 
 

@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
+from numpy.typing import NDArray
 
 DEPTH_FORMATS = {"png16": "depth.png", "exr32": "depth.exr", "npy": "depth.npy"}
 NORMAL_FORMATS = {"png8": "normal.png", "exr16": "normal.exr", "npy": "normal.npy"}
@@ -56,21 +57,21 @@ def _atomic(path: Path, write) -> None:  # type: ignore[no-untyped-def]
     os.replace(tmp, path)
 
 
-def _write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+def _write_exr(path: Path, channels: dict[str, NDArray[Any]]) -> None:
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     _atomic(path, lambda p: OpenEXR.File(header, channels).write(str(p)))
 
 
-def _read_exr(path: Path) -> dict[str, np.ndarray]:
+def _read_exr(path: Path) -> dict[str, NDArray[Any]]:
     import OpenEXR
 
     with OpenEXR.File(str(path), separate_channels=True) as f:
         return {name: np.array(ch.pixels) for name, ch in f.channels().items()}
 
 
-def write_depth(folder: Path, depth: np.ndarray, fmt: str = "png16") -> dict[str, object]:
+def write_depth(folder: Path, depth: NDArray[Any], fmt: str = "png16") -> dict[str, object]:
     """Write planar depth (H, W) metres, 0 = none, into ``folder``; returns its metadata record."""
     from PIL import Image
     from PIL.PngImagePlugin import PngInfo
@@ -93,7 +94,7 @@ def write_depth(folder: Path, depth: np.ndarray, fmt: str = "png16") -> dict[str
     return {"file": name, "format": "png16", "unit_m": unit, "max_error_m": unit / 2}
 
 
-def write_normals(folder: Path, normals: np.ndarray, fmt: str = "png8") -> dict[str, object]:
+def write_normals(folder: Path, normals: NDArray[Any], fmt: str = "png8") -> dict[str, object]:
     """Write camera-space unit normals (H, W, 3), 0 = none, into ``folder``; returns its metadata record."""
     from PIL import Image
 
@@ -124,12 +125,12 @@ def _find(path: Path, names: dict[str, str]) -> Path:
     return path
 
 
-def read_depth(path: str | Path, unit_m: Optional[float] = None) -> np.ndarray:
+def read_depth(path: str | Path, unit_m: Optional[float] = None) -> NDArray[Any]:
     """Planar depth in metres, float32 (H, W), 0 = no surface, from depth.png / depth.exr / depth.npy
     (or a scene folder holding one). ``unit_m`` overrides the PNG's stored unit."""
     p = _find(Path(path), DEPTH_FORMATS)
     if p.suffix == ".npy":
-        return np.load(p).astype(np.float32)
+        return np.asarray(np.load(p), dtype=np.float32)
     if p.suffix == ".exr":
         ch = _read_exr(p)
         return np.asarray(ch["Z"] if "Z" in ch else next(iter(ch.values())), dtype=np.float32)
@@ -143,12 +144,12 @@ def read_depth(path: str | Path, unit_m: Optional[float] = None) -> np.ndarray:
     return (q * np.float32(unit_m)).astype(np.float32)
 
 
-def read_normals(path: str | Path) -> np.ndarray:
+def read_normals(path: str | Path) -> NDArray[Any]:
     """Camera-space unit normals, float32 (H, W, 3), 0 = no surface, from normal.png / normal.exr /
     normal.npy (or a scene folder holding one)."""
     p = _find(Path(path), NORMAL_FORMATS)
     if p.suffix == ".npy":
-        return np.load(p).astype(np.float32)
+        return np.asarray(np.load(p), dtype=np.float32)
     if p.suffix == ".exr":
         ch = _read_exr(p)
         return np.stack([np.asarray(ch[c], dtype=np.float32) for c in ("R", "G", "B")], axis=-1)
