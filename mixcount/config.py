@@ -269,6 +269,10 @@ class ComposeConfig:
             raise ConfigError(f"compose.split must be train, val or test, got {self.split!r}")
         if self.workers < 1 or self.resolution < 1 or self.samples < 1:
             raise ConfigError("compose.workers, compose.resolution and compose.samples must be >= 1")
+        known = ("instance", "class", "depth", "normal")
+        unknown = [p for p in self.passes if p not in known]
+        if unknown:
+            raise ConfigError(f"compose.passes: unknown pass(es) {', '.join(unknown)}; expected some of {', '.join(known)}")
 
 
 def _tuples(value: Any) -> Any:

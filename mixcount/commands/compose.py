@@ -110,7 +110,9 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         # the one build of the configuration, so dataset.json records what was run.
         cfg = st.config(files=[config_file] if config_file is not None else [], values={
             "compose.split": split, "compose.seed": seed, "compose.workers": workers,
-            "compose.resolution": resolution, "compose.samples": samples})
+            "compose.resolution": resolution, "compose.samples": samples,
+            "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()],
+            "compose.merge": False if no_merge else None})
         catalog = st.catalog()
         if dry_run:
             specs = plan_scenes(catalog, cfg, n=n)
@@ -138,7 +140,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             summary = compose_scenes(pool=pool, config=cfg, out_dir=out_dir.resolve(),
                                      assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n,
                                      environments=tuple(envs), materials=tuple(mats), executor=executor,
-                                     progress=RichProgress(), passes=passes, merge=False if no_merge else None)
+                                     progress=RichProgress())
         finally:
             if executor is not None:
                 executor.close()
