@@ -20,6 +20,7 @@ def demo_library_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the ground truth's counts as JSON on stdout."),
 ) -> None:
     """Generate the demo library: everyday objects, containers and curation traps, plus ground_truth.json."""
+    from mixcount.curation.flags import TRAP_KINDS
     from mixcount.demo.library import generate_demo_library
 
     demo = state(ctx).config(values={"demo.seed": seed, "demo.n_objects": n}).demo
@@ -28,9 +29,9 @@ def demo_library_cmd(
     exp = truth["expected"]
     console.print(
         f"demo library in {path}: {exp['total']} folders ({exp['active']} good, {exp['broken']} broken) in "
-        f"{len(truth['categories'])} categories; traps: {len(truth['exact_copies'])} exact copies, "
-        f"{len(truth['recolours'])} recolours, {len(truth['rescales'])} rescales "
-        f"[{time.perf_counter() - t0:.1f} s]",
+        f"{len(truth['categories'])} categories; traps: "
+        + ", ".join(f"{len(truth.get(key, []))} {kind}" for key, kind in TRAP_KINDS)
+        + f", {len(truth.get('mesh_quality', []))} mesh_quality [{time.perf_counter() - t0:.1f} s]",
         highlight=False,
         soft_wrap=True,
     )
