@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
+
 # Hue bins (degrees, lower bound inclusive) for saturated colours; brightness variants are in _refine.
 _HUES: tuple[tuple[float, str], ...] = (
     (0.0, "red"),
@@ -176,38 +178,6 @@ def colours_from_render(path: Path) -> ColourSummary:
     return summarise(render_pixels(path), source="render")
 
 
-def _texture_image(visual) -> np.ndarray | None:  # type: ignore[no-untyped-def]
-    material = getattr(visual, "material", None)
-    image = getattr(material, "baseColorTexture", None)
-    if image is None:
-        image = getattr(material, "image", None)
-    if image is None:
-        return None
-    return np.asarray(image.convert("RGB"))
-
-
-def _base_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
-    material = getattr(visual, "material", None)
-    factor = getattr(material, "baseColorFactor", None)
-    if factor is None:
-        main = getattr(material, "main_color", None)
-        factor = main if main is not None else [255, 255, 255, 255]
-    f = np.asarray(factor, dtype=float)[:3]
-    return f / 255.0 if f.max() > 1.0 else f
-
-
-def _vertex_colour_attribute(visual, n_vertices: int) -> np.ndarray | None:  # type: ignore[no-untyped-def]
-    """COLOR_0 as floats in [0, 1] (n x 3), or None."""
-    attrs = getattr(visual, "vertex_attributes", None)
-    if attrs is None or "color" not in attrs:
-        return None
-    col = np.asarray(attrs["color"])
-    if col.ndim != 2 or len(col) != n_vertices or col.shape[1] < 3:
-        return None
-    col = col[:, :3].astype(float)
-    return col / 255.0 if col.max() > 1.0 else col
-
-
 def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarray:  # type: ignore[no-untyped-def]
     """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8)."""
     import trimesh
@@ -221,11 +191,11 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     if isinstance(visual, trimesh.visual.TextureVisuals):
         # glTF base colour = baseColorFactor x texture(uv) x COLOR_0; trimesh keeps COLOR_0 of a
         # primitive that also has a material in visual.vertex_attributes["color"].
-        colour = np.tile(_base_factor(visual) * 255.0, (count, 1))
-        vcol = _vertex_colour_attribute(visual, len(mesh.vertices))
+        colour = np.tile(base_colour_factor(visual) * 255.0, (count, 1))
+        vcol = material_vertex_colours(visual, len(mesh.vertices))
         if vcol is not None:
             colour *= vcol[mesh.faces[faces]].mean(axis=1)
-        image = _texture_image(visual)
+        image = base_colour_texture(visual)
         uv = getattr(visual, "uv", None)
         if image is not None and uv is not None and len(uv) == len(mesh.vertices):
             bary = rng.dirichlet((1.0, 1.0, 1.0), size=count)

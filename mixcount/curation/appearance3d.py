@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
+
 APPEARANCE_VERSION = "look3d-v1"
 SEED = 20240611
 N_SAMPLES = 6000
@@ -72,27 +74,6 @@ class SurfaceLook:
 # --------------------------------------------------------------------------- sampling
 
 
-def _texture(visual: Any) -> np.ndarray | None:
-    material = getattr(visual, "material", None)
-    image = getattr(material, "baseColorTexture", None)
-    if image is None:
-        image = getattr(material, "image", None)
-    if image is None:
-        return None
-    return np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
-
-
-def _factor(visual: Any) -> np.ndarray:
-    material = getattr(visual, "material", None)
-    factor = getattr(material, "baseColorFactor", None)
-    if factor is None:
-        factor = getattr(material, "main_color", None)
-    if factor is None:
-        return np.ones(3)
-    f = np.asarray(factor, dtype=np.float64)[:3]
-    return f / 255.0 if f.max() > 1.0 else f
-
-
 def _part_colours(geom: Any, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
     """Base colour (0..1) at barycentric points ``bary`` of ``faces`` of one trimesh geometry."""
     import trimesh
@@ -101,14 +82,12 @@ def _part_colours(geom: Any, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
     visual = geom.visual
     tri = np.asarray(geom.faces)[faces]
     if isinstance(visual, trimesh.visual.TextureVisuals):
-        colour = np.tile(_factor(visual), (n, 1))
-        attrs = getattr(visual, "vertex_attributes", None)
-        vcol = attrs.get("color") if attrs is not None and "color" in attrs else None
-        if vcol is not None and len(vcol) == len(geom.vertices):
-            vc = np.asarray(vcol, dtype=np.float64)[:, :3]
-            vc = vc / 255.0 if vc.max() > 1.0 else vc
+        colour = np.tile(base_colour_factor(visual), (n, 1))
+        vc = material_vertex_colours(visual, len(geom.vertices))
+        if vc is not None:
             colour *= np.einsum("nk,nkc->nc", bary, vc[tri])
-        image = _texture(visual)
+        texture = base_colour_texture(visual)
+        image = None if texture is None else texture.astype(np.float64) / 255.0
         uv = getattr(visual, "uv", None)
         if image is not None and uv is not None and len(uv) == len(geom.vertices):
             pts = np.einsum("nk,nkd->nd", bary, np.asarray(uv, dtype=np.float64)[tri])

@@ -31,12 +31,16 @@ from typing import Any
 from sqlalchemy import select
 
 from mixcount.catalog.db import Catalog
-from mixcount.catalog.decisions import CONTAINER_DECISIONS, latest_container_decisions, latest_decisions
+from mixcount.catalog.decisions import (
+    CONTAINER_DECISIONS,
+    STATUS_DECISIONS,
+    latest_container_decisions,
+    latest_decisions,
+)
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
 from mixcount.errors import CatalogError
 
 FORMAT = "mixcount-review-v1"
-DECISIONS = ("accept", "reject")
 
 
 @dataclass
@@ -100,7 +104,7 @@ def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = Non
             if decision is None and container is None:
                 problems.append(f"entry {k}: neither a decision nor a container setting")
                 continue
-            if decision is not None and decision not in DECISIONS:
+            if decision is not None and decision not in STATUS_DECISIONS:
                 problems.append(f"entry {k}: decision {decision!r} is not accept or reject")
                 continue
             if container is not None and not isinstance(container, bool):

@@ -70,8 +70,9 @@ def attribution_extract(spec: Mapping[str, Any]) -> dict[str, Any]:
 class AttributionCollector:
     """Builds the attribution document one scene at a time (memory grows with the objects, not the scenes).
 
-    ``add(scene_dir, extract)`` takes :func:`attribution_extract` of a scene; an object seen for the first
-    time has its source and licence read from that scene's ``metadata.json`` (once per object)."""
+    ``add(scene_dir, extract, spec)`` takes :func:`attribution_extract` of a scene; an object seen for the
+    first time has its source and licence taken from the scene's spec: ``spec`` when the caller has it
+    parsed already, else read from the scene's ``metadata.json`` (once per object)."""
 
     def __init__(self) -> None:
         self.objects: dict[int, dict[str, Any]] = {}
@@ -84,9 +85,11 @@ class AttributionCollector:
         spec = json.loads((Path(scene_dir) / "metadata.json").read_text(encoding="utf-8")).get("spec") or {}
         return {int(a["object_id"]): a for a in spec.get("assets", [])}
 
-    def add(self, scene_dir: Path, extract: Mapping[str, Any]) -> None:
+    def add(self, scene_dir: Path, extract: Mapping[str, Any], spec: Optional[Mapping[str, Any]] = None) -> None:
         self.scenes += 1
         assets: Optional[dict[int, Mapping[str, Any]]] = None
+        if spec is not None:
+            assets = {int(a["object_id"]): a for a in spec.get("assets", [])}
         for key, roles in extract.get("roles", {}).items():
             oid = int(key)
             entry = self.objects.get(oid)
@@ -138,7 +141,7 @@ def collect_attribution(dataset_root: Path | str, scene_ids: Optional[Iterable[s
     collector = AttributionCollector()
     for d in _scene_dirs(Path(dataset_root), scene_ids):
         spec = json.loads((d / "metadata.json").read_text(encoding="utf-8")).get("spec") or {}
-        collector.add(d, attribution_extract(spec))
+        collector.add(d, attribution_extract(spec), spec)
     return collector.document()
 
 

@@ -70,10 +70,12 @@ def _read_index(path: Path) -> Iterator[dict[str, Any]]:
                 continue  # a torn last line of a killed merge: that scene is simply re-read
 
 
-def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None) -> Iterator[tuple[Path, dict[str, Any]]]:
-    """(folder, summary record) of every complete scene in scene-id order, from the index where a
-    scene's metadata.json is unchanged (same size and mtime), else from metadata.json; each record is
-    also written to ``index_out`` (the new index)."""
+def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None
+                ) -> Iterator[tuple[Path, dict[str, Any], Optional[dict[str, Any]]]]:
+    """(folder, summary record, spec) of every complete scene in scene-id order. The record comes from
+    the index where a scene's metadata.json is unchanged (same size and mtime; ``spec`` is then None),
+    else from metadata.json (``spec`` is its parsed spec, so nobody reads the file again); each record
+    is also written to ``index_out`` (the new index)."""
     out_dir = Path(out_dir)
     scenes = out_dir / "scenes"
     if not scenes.is_dir():
@@ -90,6 +92,7 @@ def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None) -> Iterator[t
         except OSError:
             continue
         key = [st.st_mtime_ns, st.st_size]
+        spec: Optional[dict[str, Any]] = None
         if head is not None and head.get("scene_id") == name and head.get("key") == key and "attribution" in head:
             rec = head
         else:
@@ -101,12 +104,13 @@ def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None) -> Iterator[t
                 continue
             rec = {k: meta.get(k) for k in RECORD_KEYS}
             rec["scene_id"], rec["key"] = name, key
-            rec["attribution"] = attribution_extract(meta.get("spec") or {})
+            spec = meta.get("spec") or {}
+            rec["attribution"] = attribution_extract(spec)
             rec["timings"] = {k: float(v) for k, v in (rec.get("timings") or {}).items()
                               if isinstance(v, (int, float))}
         if index_out is not None:
             index_out.write(json.dumps(rec, separators=(",", ":")) + "\n")
-        yield scenes / name, rec
+        yield scenes / name, rec, spec
 
 
 # ------------------------------------------------------------------------------------ one split's COCO
@@ -238,8 +242,8 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
         scenes_fh = open(tmp / "scenes.json", "w")
         try:
             with open(index_tmp, "w") as index_out:
-                for d, rec in scan_scenes(out_dir, index_out):
-                    attribution.add(d, rec["attribution"])
+                for d, rec, spec in scan_scenes(out_dir, index_out):
+                    attribution.add(d, rec["attribution"], spec)
                     split = str(rec.get("split"))
                     if split not in splits:
                         splits[split] = _SplitWriter(split, tmp)

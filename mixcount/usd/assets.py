@@ -30,6 +30,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from mixcount.catalog.materials import material_vertex_colours
 from mixcount.errors import CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
 
@@ -101,19 +102,6 @@ def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarr
     return None, None, "vertex"
 
 
-def _material_vertex_colors(geom: Any, n: int) -> Optional[np.ndarray]:
-    """Per-vertex colours stored beside a material (trimesh keeps glTF COLOR_0 there), 0..1 RGB."""
-    attrs = getattr(geom.visual, "vertex_attributes", None)
-    if attrs is None or "color" not in attrs:
-        return None
-    col = np.asarray(attrs["color"], dtype=np.float64)
-    if col.ndim != 2 or len(col) != n or col.shape[1] < 3:
-        return None
-    if col.max() > 1.0:
-        col = col / 255.0
-    return col[:, :3]
-
-
 def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
     import trimesh
 
@@ -137,7 +125,7 @@ def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
             normals = None
         mat, colors, interp = _material_of(geom)
         if mat is not None and colors is None:
-            colors = _material_vertex_colors(geom, len(pts))
+            colors = material_vertex_colours(geom.visual, len(pts))
             if colors is not None:
                 mat["vertex_color"] = True  # glTF COLOR_0 under a material: base = factor x colour
         if mat is None and colors is not None:  # plain vertex/face colours: a material that reads them
