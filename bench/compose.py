@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -42,6 +43,8 @@ def main() -> int:
     ap.add_argument("--min-faces", type=int, default=200_000, help="faces per object of the heavy pool")
     ap.add_argument("--no-proxies", action="store_true", help="collide through the full meshes' hulls")
     ap.add_argument("--oracle", action="store_true", help="also run the one-render-per-object reference")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="extra config override (repeatable), e.g. --set scene.physics_substeps=2")
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
@@ -66,12 +69,15 @@ def main() -> int:
                 cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
                                        f"scene.n_objects=[{n},{n}]", f"scene.physics_frames={args.frames}",
                                        f"compose.render_threads={threads}",
-                                       f"scene.collision_proxies={str(not args.no_proxies).lower()}"])
+                                       f"scene.collision_proxies={str(not args.no_proxies).lower()}",
+                                       *args.set])
                 spec = sample_scene(args.seed, "train", cfg, pool)
                 if not args.no_proxies:
                     spec = with_proxies(spec, work / "proxies", cfg.ingest.proxy_max_vertices)
                 convert_scene_assets(spec, work / "assets")
-                out = work / f"out_{pool_name}_{n}{'_noproxy' if args.no_proxies else ''}"
+                out = work / (f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
+                              f"{'_noproxy' if args.no_proxies else ''}{'_set' if args.set else ''}")
+                shutil.rmtree(out, ignore_errors=True)  # a finished scene would be skipped, not measured
                 outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(work / "assets"),
                                                    timeout_s=7200, threads=threads, oracle=args.oracle), worker)
                 if outcome.status != WRITTEN:

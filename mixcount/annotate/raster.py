@@ -99,19 +99,26 @@ def rasterize_triangles(points2d: NDArray[Any], triangles: NDArray[Any], shape: 
     tris = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     if len(tris) == 0:
         return mask
-    if valid is not None:
-        tris = tris[np.all(np.asarray(valid)[tris], axis=1)]
-    tri = np.asarray(points2d, dtype=np.float64)[tris]  # (T, 3, 2)
-    lo = tri.min(axis=1)
-    hi = tri.max(axis=1)
-    x0 = np.ceil(lo[:, 0] - 0.5).astype(np.int64)
-    x1 = np.floor(hi[:, 0] - 0.5).astype(np.int64)
-    y0 = np.ceil(lo[:, 1] - 0.5).astype(np.int64)
-    y1 = np.floor(hi[:, 1] - 0.5).astype(np.int64)
-    x0c, y0c = np.maximum(x0, 0), np.maximum(y0, 0)
-    x1c, y1c = np.minimum(x1, w - 1), np.minimum(y1, h - 1)
-    keep = (x1c >= x0c) & (y1c >= y0c)
-    tri, x0c, y0c, x1c, y1c = tri[keep], x0c[keep], y0c[keep], x1c[keep], y1c[keep]
+    if valid is not None and not np.all(valid):
+        v = np.asarray(valid)
+        tris = tris[v[tris[:, 0]] & v[tris[:, 1]] & v[tris[:, 2]]]
+    pts = np.asarray(points2d, dtype=np.float64)
+    # per-corner coordinate columns: element-wise min/max over three arrays is ~10x faster than a
+    # reduction over a length-3 axis, and a dense capture has most triangles between pixel centres,
+    # so they are culled here before any (T, 3, 2) array is gathered
+    xs = [pts[tris[:, k], 0] for k in range(3)]
+    ys = [pts[tris[:, k], 1] for k in range(3)]
+    x0 = np.ceil(np.minimum(np.minimum(xs[0], xs[1]), xs[2]) - 0.5).astype(np.int64)
+    x1 = np.floor(np.maximum(np.maximum(xs[0], xs[1]), xs[2]) - 0.5).astype(np.int64)
+    y0 = np.ceil(np.minimum(np.minimum(ys[0], ys[1]), ys[2]) - 0.5).astype(np.int64)
+    y1 = np.floor(np.maximum(np.maximum(ys[0], ys[1]), ys[2]) - 0.5).astype(np.int64)
+    np.maximum(x0, 0, out=x0)
+    np.maximum(y0, 0, out=y0)
+    np.minimum(x1, w - 1, out=x1)
+    np.minimum(y1, h - 1, out=y1)
+    keep = np.nonzero((x1 >= x0) & (y1 >= y0))[0]
+    tri = pts[tris[keep]]  # (K, 3, 2): only triangles that contain a pixel centre's candidate window
+    x0c, y0c, x1c, y1c = x0[keep], y0[keep], x1[keep], y1[keep]
     size = np.maximum(x1c - x0c, y1c - y0c) + 1
     done = np.zeros(len(tri), dtype=bool)
     for b in _BUCKETS:

@@ -27,24 +27,37 @@ class Body:
     shape: str  # Blender collision shape
 
 
-def _add_body(obj: Any, body: Body) -> None:
+def _add_bodies(scene: Any, bodies: list[Body]) -> None:
+    """Every body into the rigid-body world, without an operator per body.
+
+    ``bpy.ops.rigidbody.object_add`` (like every operator called from Python) updates the view layer
+    before and after it runs: ~20 ms each with 400 objects in the scene, i.e. 12 s of a 200-object
+    scene's physics spent only on adding bodies. Linking the objects into the world's collection and
+    updating once makes Blender create their rigid-body settings (type ACTIVE) in one pass.
+    """
     import bpy
 
-    with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj],
-                                   selected_editable_objects=[obj]):
-        bpy.ops.rigidbody.object_add(type="ACTIVE" if body.kind == "active" else "PASSIVE")
-    rb = obj.rigid_body
-    rb.collision_shape = body.shape
-    rb.mesh_source = "BASE"
-    rb.friction = 0.6
-    rb.restitution = 0.0
-    rb.use_margin = True
-    rb.collision_margin = 0.0 if body.shape == "MESH" else 0.04
-    if body.kind == "active":
-        rb.mass = 1.0
-        rb.linear_damping = 0.1
-        rb.angular_damping = 0.2
-        rb.use_deactivation = True
+    coll = scene.rigidbody_world.collection
+    for body in bodies:
+        if body.obj.name not in coll.objects:
+            coll.objects.link(body.obj)
+    bpy.context.view_layer.update()
+    for body in bodies:
+        rb = body.obj.rigid_body
+        if rb is None:
+            raise RuntimeError(f"Blender created no rigid body for {body.obj.name}")
+        rb.type = "ACTIVE" if body.kind == "active" else "PASSIVE"
+        rb.collision_shape = body.shape
+        rb.mesh_source = "BASE"
+        rb.friction = 0.6
+        rb.restitution = 0.0
+        rb.use_margin = True
+        rb.collision_margin = 0.0 if body.shape == "MESH" else 0.04
+        if body.kind == "active":
+            rb.mass = 1.0
+            rb.linear_damping = 0.1
+            rb.angular_damping = 0.2
+            rb.use_deactivation = True
 
 
 REST_WINDOW = 10  # frames between rest checks
@@ -80,8 +93,7 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     scene.use_gravity = True
     scene.frame_start = 1
     scene.frame_end = int(frames) + 1
-    for body in bodies:
-        _add_body(body.obj, body)
+    _add_bodies(scene, bodies)
     scene.frame_set(1)
     fps = scene.render.fps / scene.render.fps_base
     active = [b.obj for b in bodies if b.kind == "active"]
@@ -114,10 +126,8 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     depsgraph = bpy.context.evaluated_depsgraph_get()
     settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
                for b in bodies if b.kind == "active"}
-    # freeze: drop the simulation and keep the settled poses as plain transforms
-    for body in bodies:
-        with bpy.context.temp_override(object=body.obj, active_object=body.obj, selected_objects=[body.obj]):
-            bpy.ops.rigidbody.object_remove()
+    # freeze: drop the simulation (one operator, not one per body) and keep the settled poses as plain
+    # transforms; the bodies keep inert rigid-body settings, which nothing reads without a world
     with bpy.context.temp_override(scene=scene):
         bpy.ops.rigidbody.world_remove()
     scene.frame_set(1)

@@ -109,6 +109,7 @@ class AssetCache:
         import bpy
 
         from mixcount.blender.visibility import mesh_arrays
+        from mixcount.usd.read import normals_against_winding
 
         key = str(path)
         if key in self.meshes:
@@ -134,7 +135,9 @@ class AssetCache:
                 bpy.ops.object.join()
         mesh = parts[0].data
         mesh.name = f"asset_{Path(key).stem[:16]}"
-        self.flipped_normals[key] = fix_inverted_normals(mesh)
+        self.flipped_normals[key] = normals_against_winding(key)
+        if self.flipped_normals[key]:
+            drop_authored_normals(mesh)
         mesh.use_fake_user = True
         for o in list(bpy.data.objects):
             if o in before:
@@ -153,31 +156,19 @@ class AssetCache:
         return self.hulls[key]
 
 
-def fix_inverted_normals(mesh: Any) -> bool:
-    """Drop authored (custom) normals that point against the face winding on most corners.
+def drop_authored_normals(mesh: Any) -> None:
+    """Replace authored (custom) normals that point against the face winding by Blender's own.
 
-    A shading normal facing away from the geometric one renders black in Cycles; assets converted with
-    inverted normals (seen with mixcount.usd.assets v1 on glTF sources) are repaired here: the custom
-    normals are removed, faces shaded smooth and edges sharper than 30 degrees kept sharp.
+    A shading normal facing away from the geometric one renders black in Cycles. Whether an asset's
+    normals do is decided from its USD arrays (:func:`mixcount.usd.read.normals_against_winding`); here
+    the custom normals are removed, faces shaded smooth and edges sharper than 30 degrees kept sharp.
     """
     import math
 
-    if "custom_normal" not in mesh.attributes or len(mesh.polygons) == 0:
-        return False
-    n = len(mesh.loops)
-    corner = np.empty(n * 3, dtype=np.float64)
-    mesh.corner_normals.foreach_get("vector", corner)
-    poly = np.empty(len(mesh.polygons) * 3, dtype=np.float64)
-    mesh.polygons.foreach_get("normal", poly)
-    loop_poly = np.repeat(np.arange(len(mesh.polygons)),
-                          [p.loop_total for p in mesh.polygons])
-    dots = (corner.reshape(-1, 3) * poly.reshape(-1, 3)[loop_poly]).sum(1)
-    if float(np.mean(dots < 0)) <= 0.5:
-        return False
-    mesh.attributes.remove(mesh.attributes["custom_normal"])
+    if "custom_normal" in mesh.attributes:
+        mesh.attributes.remove(mesh.attributes["custom_normal"])
     mesh.shade_smooth()
     mesh.set_sharp_from_angle(angle=math.radians(30.0))
-    return True
 
 
 def _import_floor(stage_path: Path) -> Any:

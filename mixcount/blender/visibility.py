@@ -18,12 +18,19 @@ from mixcount.annotate.raster import PinholeCamera, silhouette
 
 def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
     """Local vertices (V, 3) and triangles (T, 3) of a Blender mesh datablock."""
-    mesh.calc_loop_triangles()
-    verts = np.empty(len(mesh.vertices) * 3, dtype=np.float64)
-    mesh.vertices.foreach_get("co", verts)
-    tris = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int64)
-    mesh.loop_triangles.foreach_get("vertices", tris)
-    return verts.reshape(-1, 3), tris.reshape(-1, 3)
+    # attribute arrays of Blender's own element types are copied as memory (position ~0.001 s, corners
+    # ~0.01 s on a 786k-face capture; loop_triangles' "vertices" took 0.17 s). A mesh whose corners are
+    # three per face is all triangles, stored face after face: its corners are the triangles.
+    verts = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
+    mesh.attributes["position"].data.foreach_get("vector", verts)
+    if len(mesh.loops) == 3 * len(mesh.polygons):
+        tris = np.empty(len(mesh.loops), dtype=np.int32)
+        mesh.attributes[".corner_vert"].data.foreach_get("value", tris)
+    else:
+        mesh.calc_loop_triangles()
+        tris = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
+        mesh.loop_triangles.foreach_get("vertices", tris)
+    return verts.reshape(-1, 3).astype(np.float64), tris.reshape(-1, 3).astype(np.int64)
 
 
 def world_vertices(local: np.ndarray, matrix_world: np.ndarray) -> np.ndarray:
