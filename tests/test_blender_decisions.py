@@ -137,3 +137,36 @@ def test_contract_and_decisions_import_no_engine() -> None:
     code = ("import sys, mixcount, mixcount.blender, mixcount.blender.contract, mixcount.blender.decisions; "
             "assert 'bpy' not in sys.modules and 'pxr' not in sys.modules, sorted(m for m in sys.modules if m in ('bpy', 'pxr'))")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_floor_collider_keeps_the_top_and_outline_and_goes_deep() -> None:
+    from mixcount.usd.stage import floor_mesh
+
+    pts, _counts, _idx, _st = floor_mesh("cylinder", 3.0, 3.0, 0.5, 1.0)
+    pts = np.asarray(pts, dtype=np.float64)
+    lift = np.eye(4)
+    lift[:3, 3] = [0.2, -0.1, 0.0]
+    deep = D.deepen_below_top(pts, lift, 5.0)
+    assert deep is not None
+    top = pts[:, 2] >= -1e-9
+    np.testing.assert_allclose(deep[top], pts[top] + [0.2, -0.1, 0.0])  # top face untouched (moved with the floor)
+    np.testing.assert_allclose(deep[~top, 2], -5.0)  # the bottom rim 5 m under the top
+    np.testing.assert_allclose(deep[~top, :2], pts[~top, :2] + [0.2, -0.1])  # same outline
+    assert D.deepen_below_top(pts, np.eye(4), 0.5) is None  # already that deep: the floor itself collides
+    assert D.deepen_below_top(pts, np.eye(4), 0.0) is None
+
+
+def test_world_bounds_equal_the_transformed_vertices_bounds() -> None:
+    rng = np.random.default_rng(4)
+    local = rng.normal(size=(5000, 3))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    m = np.eye(4)
+    m[:3, :3] = q * 1.7
+    m[:3, 3] = [3.0, -2.0, 0.5]
+    world = local @ m[:3, :3].T + m[:3, 3]
+    lo, hi = D.world_bounds(np.ascontiguousarray(local.T), m)
+    np.testing.assert_allclose(lo, world.min(0), atol=1e-12)
+    np.testing.assert_allclose(hi, world.max(0), atol=1e-12)
+    m[0, 3] = np.nan
+    lo, hi = D.world_bounds(np.ascontiguousarray(local.T), m)
+    assert np.isnan(lo).all() and np.isnan(hi).all()

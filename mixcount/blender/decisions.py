@@ -50,6 +50,40 @@ def settle_verdict(matrix_world: np.ndarray, min_z: float, size_m: float, *, flo
     return FLUNG_OUT if outside else None
 
 
+def world_bounds(local_columns: np.ndarray, matrix_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-space AABB (lo, hi) of a mesh whose local vertices are the columns of ``local_columns``
+    (3, V); NaN bounds when the matrix is not finite (a body the simulation blew up).
+
+    Rotating the columns and reducing each row reads memory in order: on a 400k-vertex capture ~5x
+    faster than reducing an (V, 3) array over its first axis, which the settle checks did per body.
+    """
+    m = np.asarray(matrix_world, dtype=np.float64)
+    if not np.isfinite(m).all() or local_columns.shape[1] == 0:
+        nan = np.full(3, np.nan)
+        return nan, nan.copy()
+    w = m[:3, :3] @ local_columns
+    return w.min(axis=1) + m[:3, 3], w.max(axis=1) + m[:3, 3]
+
+
+def deepen_below_top(local_vertices: np.ndarray, matrix_world: np.ndarray, depth: float) -> Optional[np.ndarray]:
+    """World vertices of a floor slab with every vertex under its top face moved to ``depth`` metres
+    under the top (the floor collider); None when the slab is already that deep (or ``depth`` <= 0).
+
+    Vertices within 1e-6 m of the highest one form the top face and stay; the rest (the slab's bottom
+    rim) go down, so outline and top are unchanged and the convex hull becomes a deep solid.
+    """
+    m = np.asarray(matrix_world, dtype=np.float64)
+    world = np.asarray(local_vertices, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+    if depth <= 0 or len(world) == 0:
+        return None
+    top = float(world[:, 2].max())
+    below = world[:, 2] < top - 1e-6
+    if not below.any() or float(world[below, 2].min()) <= top - depth:
+        return None
+    world[below, 2] = top - depth
+    return world
+
+
 def hull_equations(local_vertices: np.ndarray) -> np.ndarray:
     """Half-space equations (n, d) of the convex hull: inside where n.x + d <= 0."""
     from scipy.spatial import ConvexHull

@@ -83,6 +83,7 @@ class AssetCache:
     def __init__(self) -> None:
         self.meshes: dict[str, Any] = {}
         self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.columns: dict[str, np.ndarray] = {}  # local vertices as (3, V): rows reduce fast
         self.hulls: dict[str, np.ndarray] = {}
         self.flipped_normals: dict[str, bool] = {}
         self.proxies: dict[str, Any] = {}
@@ -145,6 +146,7 @@ class AssetCache:
             bpy.data.objects.remove(o, do_unlink=True)
         self.meshes[key] = mesh
         self.arrays[key] = mesh_arrays(mesh)
+        self.columns[key] = np.ascontiguousarray(self.arrays[key][0].T)
         return mesh
 
     def hull(self, path: Path) -> np.ndarray:
@@ -197,6 +199,33 @@ def _import_floor(stage_path: Path) -> Any:
     # would be averaged with the side faces (a 45-degree tilt at the rim); a box/cylinder floor is flat
     floor.data.shade_flat()
     return floor
+
+
+def _floor_collider(scene: Any, floor: Any, depth: float) -> Any:
+    """The floor as physics sees it: a hidden copy whose bottom lies ``depth`` metres under its top.
+
+    The rendered floor is a thin slab (box or cylinder); with the paper's 2 substeps a body dropped from
+    1.5·s falls ~0.35 m per Bullet step and can pass through it between two steps. The collider keeps
+    the floor's outline and top face (so the pile rests exactly where it renders) but is a deep solid:
+    a body that reaches it is pushed back up. ``depth`` <= the floor's own thickness: the floor itself.
+    """
+    import bpy
+    import mathutils
+
+    data = floor.data.copy()
+    co = np.empty(len(data.vertices) * 3, dtype=np.float32)
+    data.attributes["position"].data.foreach_get("vector", co)
+    world = D.deepen_below_top(co.reshape(-1, 3).astype(np.float64), np.array(floor.matrix_world), depth)
+    if world is None:
+        bpy.data.meshes.remove(data)
+        return floor
+    data.vertices.foreach_set("co", world.astype(np.float32).ravel())
+    data.update()
+    obj = bpy.data.objects.new("Floor_collider", data)
+    scene.collection.objects.link(obj)
+    obj.matrix_world = mathutils.Matrix.Identity(4)
+    obj.hide_render = True
+    return obj
 
 
 def _build_camera(scene: Any, prim: Any) -> Any:
@@ -364,7 +393,8 @@ def _add_instances(state: SceneState, stage: Any) -> None:
     for ids in labelled_prims(stage):
         prim = stage.GetPrimAtPath(ids.path)
         if ids.role == "floor":
-            state.bodies.append(Body(floor, "passive", "CONVEX_HULL"))
+            collider = _floor_collider(scene, floor, state.spec.physics.floor_collider_depth)
+            state.bodies.append(Body(collider, "passive", "CONVEX_HULL"))
             continue
         asset = _reference_path(prim, stage_dir)
         if asset is None:
@@ -440,24 +470,21 @@ def settle(state: SceneState) -> dict[str, np.ndarray]:
 
 def check_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:
     """Record settled poses; drop unstable / below-floor / flung-out bodies, then deep interpenetrations."""
-    from mixcount.blender.visibility import world_vertices
-
     ph, floor = state.spec.physics, state.spec.floor
     live: list[int] = []
     bodies: list[D.SettledBody] = []
     for i, o in enumerate(state.objects):
         obj = state.blender_objects[o.path]
         mat = settled.get(obj.name, np.array(obj.matrix_world))
-        local, _ = state.cache.arrays[o.asset]
-        wv = world_vertices(local, mat)
-        min_z = float(wv[:, 2].min()) if np.isfinite(wv).all() else float("nan")
+        lo, hi = D.world_bounds(state.cache.columns[o.asset], mat)
+        min_z = float(lo[2])
         state.update(i, matrix_world=tuple(tuple(float(v) for v in row) for row in mat), min_z=min_z)
         reason = D.settle_verdict(mat, min_z, o.size_m, floor_shape=floor.shape,
                                   half_extent=(float(floor.half_extent[0]), float(floor.half_extent[1])),
                                   below_floor_fraction=ph.settle_below_floor_fraction)
         if reason is None:
             live.append(i)
-            bodies.append(D.SettledBody(mat, wv.min(0), wv.max(0), state.cache.hull(o.asset), o.size_m))
+            bodies.append(D.SettledBody(mat, lo, hi, state.cache.hull(o.asset), o.size_m))
         elif reason == D.BELOW_FLOOR:
             state.drop(i, reason, "settle", min_z=min_z)
         elif reason == D.FLUNG_OUT:

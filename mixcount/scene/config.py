@@ -78,6 +78,7 @@ class SceneConfig:
     settle_penetration_fraction: float
     collision_proxies: bool
     physics_rest_speed: float
+    physics_floor_collider_depth: float
     n_cameras: int
     camera_elevation_deg: Range
     camera_roll_deg: Range

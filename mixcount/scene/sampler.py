@@ -479,7 +479,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
                             config.collision_shape, config.gravity, config.settle_below_floor_fraction,
                             config.settle_penetration_fraction, bool(config.collision_proxies),
-                            round(float(config.physics_rest_speed) * s, 6)),
+                            round(float(config.physics_rest_speed) * s, 6),
+                            round(float(config.physics_floor_collider_depth) * s, 6)),
         render=RenderSpec(compose.resolution, compose.samples, compose.denoise, compose.visibility_threshold),
         assets=assets,
     )

@@ -290,6 +290,7 @@ class PhysicsSpec:
     settle_penetration_fraction: float
     collision_proxies: bool = True  # counted objects / distractors collide through their convex proxy
     rest_speed: float = 0.0  # m/s: stop the simulation once every body is slower (0 = all frames)
+    floor_collider_depth: float = 0.0  # m below the floor's top that the floor collides (0 = its thickness)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -299,7 +300,7 @@ class PhysicsSpec:
         return cls(int(d["frames"]), int(d["substeps"]), int(d["solver_iterations"]),
                    str(d["collision_shape"]), float(d["gravity"]), float(d["settle_below_floor_fraction"]),
                    float(d["settle_penetration_fraction"]), bool(d.get("collision_proxies", True)),
-                   float(d.get("rest_speed", 0.0)))
+                   float(d.get("rest_speed", 0.0)), float(d.get("floor_collider_depth", 0.0)))
 
 
 @dataclass(frozen=True)
