@@ -170,3 +170,20 @@ def test_world_bounds_equal_the_transformed_vertices_bounds() -> None:
     m[0, 3] = np.nan
     lo, hi = D.world_bounds(np.ascontiguousarray(local.T), m)
     assert np.isnan(lo).all() and np.isnan(hi).all()
+
+
+def test_changed_region_is_the_box_of_the_dropped_objects_and_paste_keeps_the_rest() -> None:
+    index = np.zeros((6, 8), dtype=np.int32)
+    index[1:3, 2:4] = 5
+    index[4, 6] = 5
+    index[0:2, 0:2] = 7
+    assert D.changed_region(index, [5]) == (1, 2, 4, 6)
+    assert D.changed_region(index, [9]) is None  # never seen: removing it changes no pixel
+    before = {"index": index, "depth": np.full((6, 8), 2.0, dtype=np.float32)}
+    after = {"index": np.full((6, 8), 3, dtype=np.int32), "depth": np.full((6, 8), 9.0, dtype=np.float32)}
+    pasted = D.paste_region(before, after, (1, 2, 4, 6))
+    assert (pasted["index"][1:5, 2:7] == 3).all() and (pasted["depth"][1:5, 2:7] == 9.0).all()
+    outside = np.ones((6, 8), dtype=bool)
+    outside[1:5, 2:7] = False
+    assert (pasted["index"][outside] == index[outside]).all() and (pasted["depth"][outside] == 2.0).all()
+    assert before["index"][1, 2] == 5  # the earlier passes are not modified in place

@@ -290,6 +290,26 @@ def test_depth_normals_and_settled_poses(composed) -> None:
                                    "origin_outside_frame", "occluded")
 
 
+def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """The visibility loop re-renders only where dropped objects were seen: pasted into the earlier id
+    pass, that region must give exactly the full render's ids, depth and normals."""
+    from mixcount.blender.worker import BlenderWorker
+
+    out, _summary, _pool = composed
+    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "border_check"
+    with BlenderWorker(name="border", log_dir=tmp_path) as w:
+        for scene in _scenes(out):
+            r = w.request({"op": "border_check", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / scene.name),
+                           "drop": 2}, timeout=300)
+            assert r["ok"], r
+            row0, col0, row1, col1 = r["region"]
+            assert 0 < (row1 - row0 + 1) * (col1 - col0 + 1) < 128 * 128  # a part of the image, not all of it
+            assert r["dropped_px"] > 0 and r["changed_px"] > 0  # the dropped objects were seen and are gone
+            assert r["dropped_still_seen"] == 0
+            assert r["equal"] == {"index": True, "depth": True, "normal": True}, r
+
+
 def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from mixcount.blender.contract import SceneRequest
     from mixcount.blender.worker import BlenderWorker

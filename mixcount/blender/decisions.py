@@ -165,6 +165,31 @@ class Visibility(NamedTuple):
     visibility: float
 
 
+def changed_region(index: np.ndarray, dropped_ids: Sequence[int]) -> Optional[tuple[int, int, int, int]]:
+    """The pixels an id pass changes once ``dropped_ids`` leave the scene: the inclusive bounding box
+    (row0, col0, row1, col1) of the pixels they were seen at, or None when none was seen (then nothing
+    changes). The id pass records only the first surface along each pixel-centre ray (no bounces), so
+    removing an object changes exactly the pixels where it was that first surface."""
+    seen = np.isin(index, np.asarray(list(dropped_ids), dtype=index.dtype))
+    if not seen.any():
+        return None
+    rows = np.nonzero(seen.any(axis=1))[0]
+    cols = np.nonzero(seen.any(axis=0))[0]
+    return int(rows[0]), int(cols[0]), int(rows[-1]), int(cols[-1])
+
+
+def paste_region(before: Mapping[str, np.ndarray], region_render: Mapping[str, np.ndarray],
+                 region: tuple[int, int, int, int]) -> dict[str, np.ndarray]:
+    """The id passes after a border re-render: ``before`` everywhere, ``region_render`` inside ``region``."""
+    row0, col0, row1, col1 = region
+    out = {}
+    for key, arr in before.items():
+        merged = arr.copy()
+        merged[row0:row1 + 1, col0:col1 + 1] = region_render[key][row0:row1 + 1, col0:col1 + 1]
+        out[key] = merged
+    return out
+
+
 def amodal_mask(silhouette: np.ndarray, index: np.ndarray, instance_id: int) -> np.ndarray:
     """The object's amodal (unoccluded) mask inside the frame: its rasterised silhouette united with its
     visible pixels in the id pass, so the amodal mask always contains the visible one (the rasteriser and

@@ -524,15 +524,25 @@ def visibility_loop(state: SceneState, masks: dict[int, np.ndarray], timer: Time
     MAX_VISIBILITY_ROUNDS times); returns the last id passes and the number of renders.
 
     Dropping an object removes it from the Blender scene, so the next id pass and the final RGB render
-    no longer show it; the loop only ends on an id pass rendered without every dropped object."""
+    no longer show it; the loop only ends on id passes that hold no dropped object. A re-render covers
+    only the box of pixels where the dropped objects were seen (:func:`D.changed_region`; no render at
+    all when they were seen nowhere) and is pasted into the previous passes: those are the only pixels
+    that removing them changes, and a border render gives them exactly as a full one does."""
     from mixcount.blender import passes as P
 
     v_t = state.spec.render.visibility_threshold
     exr = state.out_dir / "_ids.exr"
-    rounds = 0
+    rounds = renders = 0
+    id_passes: Optional[dict[str, np.ndarray]] = None
+    region: Optional[tuple[int, int, int, int]] = None
     while True:
         with timer.stage("id_pass"):
-            id_passes = P.render_id_passes(state.scene, exr)
+            if id_passes is None:
+                id_passes = P.render_id_passes(state.scene, exr)
+                renders += 1
+            elif region is not None:
+                id_passes = D.paste_region(id_passes, P.render_id_passes(state.scene, exr, region), region)
+                renders += 1
         with timer.stage("visibility"):
             kept = state.kept()
             vis = D.measure_visibility(id_passes["index"], {state.objects[i].instance_id: masks[state.objects[i].instance_id]
@@ -546,11 +556,12 @@ def visibility_loop(state: SceneState, masks: dict[int, np.ndarray], timer: Time
             low = D.occluded({state.objects[i].instance_id: state.objects[i].visibility for i in kept}, v_t)
             if not low or rounds >= D.MAX_VISIBILITY_ROUNDS:
                 break
+            region = D.changed_region(id_passes["index"], low)
             for inst in low:
                 state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(vis[inst].visibility, 4))
             rounds += 1
     P.remove_quiet(exr)
-    return id_passes, rounds + 1
+    return id_passes, renders
 
 
 def final_status(state: SceneState) -> str:
