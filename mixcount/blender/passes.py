@@ -55,6 +55,7 @@ def configure_id_pass(scene: Any) -> None:
     c.transmission_bounces = 0
     c.transparent_max_bounces = 0
     vl = scene.view_layers[0]
+    vl.use_pass_combined = False  # never read from the id pass
     vl.use_pass_object_index = True
     vl.use_pass_z = True
     vl.use_pass_normal = True
@@ -80,6 +81,7 @@ def configure_rgb(scene: Any, *, samples: int, denoise: bool) -> None:
     c.transmission_bounces = 4
     c.transparent_max_bounces = 8
     vl = scene.view_layers[0]
+    vl.use_pass_combined = True
     vl.use_pass_object_index = False
     vl.use_pass_z = False
     vl.use_pass_normal = False

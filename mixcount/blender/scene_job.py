@@ -504,16 +504,27 @@ def check_frame(state: SceneState, camera: PinholeCamera) -> None:
             state.drop(i, D.OUTSIDE_FRAME, "frame")
 
 
-def silhouettes(state: SceneState, camera: PinholeCamera) -> dict[int, np.ndarray]:
-    """Each kept object's unoccluded mask (numpy rasteriser), by instance id."""
+def silhouettes(state: SceneState, camera: PinholeCamera, threads: int) -> dict[int, np.ndarray]:
+    """Each kept object's unoccluded mask (numpy rasteriser), by instance id.
+
+    Objects are rasterised on ``threads`` threads: numpy releases the GIL in the large array
+    operations that make up the rasteriser, and each mask depends on its object alone."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from mixcount.blender.visibility import unoccluded_mask
 
-    masks: dict[int, np.ndarray] = {}
-    for i in state.kept():
+    kept = state.kept()
+
+    def one(i: int) -> np.ndarray:
         o = state.objects[i]
         local, tris = state.cache.arrays[o.asset]
-        mask = unoccluded_mask(camera, local, tris, np.array(o.matrix_world))
-        masks[o.instance_id] = mask
+        return unoccluded_mask(camera, local, tris, np.array(o.matrix_world))
+
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+        results = list(pool.map(one, kept))
+    masks: dict[int, np.ndarray] = {}
+    for i, mask in zip(kept, results):
+        masks[state.objects[i].instance_id] = mask
         state.update(i, unoccluded_px=int(mask.sum()))
     return masks
 
@@ -659,7 +670,7 @@ def run_scene(req: SceneRequest) -> SceneResult:
     with timer.stage("frame_check"):
         check_frame(state, camera)
     with timer.stage("silhouettes"):
-        masks = silhouettes(state, camera)
+        masks = silhouettes(state, camera, req.threads)
     id_passes, renders = visibility_loop(state, masks, timer)
     status = final_status(state)
     if status == STATUS_OK:
