@@ -43,7 +43,8 @@ def mask_to_rle(mask: NDArray[Any]) -> dict[str, Any]:
     """COCO compressed RLE (counts as str) of a boolean (H, W) mask."""
     from pycocotools import mask as mask_util
 
-    rle = mask_util.encode(np.asfortranarray(mask.astype(np.uint8)))
+    # a mask that is already column-major (see build_scene_coco) is not copied twice here
+    rle = mask_util.encode(np.asfortranarray(mask).astype(np.uint8, order="F"))
     rle["counts"] = rle["counts"].decode("ascii")
     return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"]}
 
@@ -100,8 +101,9 @@ def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], ca
     anns: list[dict[str, Any]] = []
     areas_by_cat: dict[int, list[int]] = {}
     masks = {}
+    ids_f = np.asfortranarray(ids)  # COCO RLE runs down columns: masks compared on it come out column-major
     for obj in objects:
-        m = ids == int(obj["instance_id"])
+        m = ids_f == int(obj["instance_id"])
         area = int(m.sum())
         if area == 0:
             continue
@@ -120,7 +122,7 @@ def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], ca
         vis = float(obj.get("visibility", 1.0))
         amodal_fields: dict[str, Any] = {}
         if amodal is not None:
-            am = np.asarray(amodal[inst], dtype=bool) | m
+            am = np.logical_or(np.asarray(amodal[inst], dtype=bool), m, order="F")
             area_amodal = int(am.sum())
             vis = area / area_amodal
             amodal_fields = {"segmentation_amodal": mask_to_rle(am), "bbox_amodal": bbox_of(am),
