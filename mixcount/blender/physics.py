@@ -1,7 +1,7 @@
 """Rigid-body settling with Blender's Bullet world, and the checks that the result holds (bpy).
 
 Setup follows the stage's UsdPhysics schema: instances with RigidBodyAPI are active bodies with a
-convex-hull shape (of their collision proxy when the asset has one: a hidden object of <= 128 vertices
+convex-hull shape (of their collision proxy when the asset has one: a hidden object of <= ingest.proxy_max_vertices vertices
 that the scene job moves in their place, see docs/performance.md); the container (static, ``approximation = none``) is a passive triangle-mesh collider;
 the floor is a passive convex hull (it is a box or a cylinder, and a hull does not let thin floors tunnel
 like a triangle mesh can). Frames, substeps and solver iterations come from the PhysicsScene prim's

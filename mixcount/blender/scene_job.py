@@ -153,7 +153,7 @@ class AssetCache:
         from mixcount.blender.decisions import hull_equations
 
         key = str(path)
-        if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= 128 points)
+        if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= proxy_max_vertices points)
             self.hulls[key] = hull_equations(self.proxy_points.get(key, self.arrays[key][0]))
         return self.hulls[key]
 
