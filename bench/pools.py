@@ -27,12 +27,18 @@ def load_pool(name: str, work: Path, *, min_faces: int = 200_000) -> list[Any]:
 
 
 def with_proxies(spec: Any, proxy_dir: Path, max_vertices: int) -> Any:
-    """``spec`` with every asset's collision proxy (built once per model into ``proxy_dir``)."""
-    from mixcount.demo.pool import _proxy_for
+    """``spec`` with every asset's collision proxy (built once per model into ``proxy_dir``) and the
+    container's decimated collision mesh, as ingest stores them."""
+    from mixcount.config import load_config
+    from mixcount.demo.pool import _collision_for, _proxy_for
 
-    assets = tuple(dataclasses.replace(a, proxy_path=_proxy_for(Path(a.model_path), a.content_hash, proxy_dir,
-                                                                max_vertices))
-                   for a in spec.assets)
+    container = spec.container.object_id if spec.container is not None else None
+    budget = load_config().ingest.collision_face_budget
+    assets = tuple(dataclasses.replace(
+        a, proxy_path=_proxy_for(Path(a.model_path), a.content_hash, proxy_dir, max_vertices),
+        collision_path=(_collision_for(Path(a.model_path), a.content_hash, proxy_dir, budget)
+                        if a.object_id == container else a.collision_path))
+        for a in spec.assets)
     return dataclasses.replace(spec, assets=assets)
 
 

@@ -186,7 +186,7 @@ def _paper(args: Any) -> int:
     from pools import load_pool
 
     from mixcount.config import load_config
-    from mixcount.demo.pool import _proxy_for
+    from mixcount.demo.pool import _collision_for, _proxy_for
     from mixcount.run.local import LocalExecutor
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
@@ -208,8 +208,11 @@ def _paper(args: Any) -> int:
         used |= {a.object_id for a in sample_scene(s, "train", sconf, pool).assets}
     import dataclasses
 
-    pool = [dataclasses.replace(o, proxy_path=_proxy_for(Path(o.model_path), o.content_hash, work / "proxies", budget))
-            if o.object_id in used else o for o in pool]
+    pool = [dataclasses.replace(
+        o, proxy_path=_proxy_for(Path(o.model_path), o.content_hash, work / "proxies", budget),
+        collision_path=(_collision_for(Path(o.model_path), o.content_hash, work / "proxies",
+                                       cfg.ingest.collision_face_budget) if o.container else None))
+        if o.object_id in used else o for o in pool]  # proxies and container collision meshes, as ingest
     t = time.perf_counter()
     for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):
         convert_scene_assets(sample_scene(s, "train", sconf, pool), work / "assets")  # warm the asset cache

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -66,8 +67,9 @@ def main() -> int:
                                 work / "proxies", cfg.ingest.proxy_max_vertices)
             assets = work / "assets"
             convert_scene_assets(spec, assets)
-            task = SceneTask(spec=spec, out_dir=str(work / f"out_{pool_name}_{n}"), assets_dir=str(assets), timeout_s=3600,
-                             threads=threads)
+            out = work / f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
+            shutil.rmtree(out, ignore_errors=True)  # a finished scene would be skipped, not measured
+            task = SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=3600, threads=threads)
             outcome = run_scene_task(task, worker)
             if outcome.status != WRITTEN:
                 rows.append({"pool": pool_name, "objects": n, "status": outcome.status, "error": outcome.error})

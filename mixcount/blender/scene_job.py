@@ -414,8 +414,10 @@ def _add_instances(state: SceneState, stage: Any) -> None:
                 cobj.matrix_world = mathutils.Matrix(m.tolist())
                 cobj.hide_render = True
                 state.bodies.append(Body(cobj, "passive", "MESH"))
-            else:
+            else:  # no decimated collision asset: Bullet gets every render triangle (slow on a capture)
                 state.bodies.append(Body(obj, "passive", "MESH"))
+                state.diagnostics.append({"kind": "container_collision", "source": "render mesh",
+                                          "triangles": len(state.cache.arrays[str(asset)][1])})
             continue
         kind = "active" if prim.HasAPI(UsdPhysics.RigidBodyAPI) else "passive"
         proxy_prim = stage.GetPrimAtPath(f"{ids.path}/Proxy")

@@ -60,6 +60,9 @@ def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
         proto.flush()
 
     import bpy  # noqa: F401  (import once: the slow part of a worker's start)
+    from pxr import Usd, UsdGeom, UsdLux, UsdPhysics, UsdShade  # noqa: F401
+
+    Usd.Stage.CreateInMemory()  # USD's plugin registry loads here, once, not inside the first scene
 
     reply({"ready": True, "pid": os.getpid()})
     for line in sys.stdin:

@@ -34,15 +34,27 @@ def _proxy_for(model: Path, digest: str, proxy_dir: Path, max_vertices: int) -> 
     return str(out.resolve())
 
 
+def _collision_for(model: Path, digest: str, out_dir: Path, face_budget: int) -> str:
+    from mixcount.catalog.mesh import build_collision_mesh, load_normalised
+
+    out = out_dir / f"{digest[:32]}_{face_budget}.ply"
+    build_collision_mesh(load_normalised(model).mesh, out, face_budget)
+    return str(out.resolve())
+
+
 def pool_from_demo_library(root: Path, *, split: str = "train", proxy_dir: Optional[Path] = None,
                            proxy_max_vertices: Optional[int] = None) -> list[ObjectRecord]:
-    """ObjectRecords for every non-broken object of the demo library at ``root`` (with collision proxies
-    in ``proxy_dir`` when given, of at most ``proxy_max_vertices``: ``ingest.proxy_max_vertices`` of
-    configs/default.toml when None)."""
-    if proxy_max_vertices is None:
-        from mixcount.config import load_config
+    """ObjectRecords for every non-broken object of the demo library at ``root``. With ``proxy_dir``,
+    as ingest would store them: collision proxies of at most ``proxy_max_vertices``
+    (``ingest.proxy_max_vertices`` of configs/default.toml when None), and for containers the decimated
+    collision mesh (``ingest.collision_face_budget``) they collide through. Without one a container
+    collides through its render mesh, which on a capture-sized mesh makes Bullet crawl (a 300k-triangle
+    tray held one 31-object scene in physics for over 10 minutes)."""
+    from mixcount.config import load_config
 
-        proxy_max_vertices = load_config().ingest.proxy_max_vertices
+    ingest = load_config().ingest
+    if proxy_max_vertices is None:
+        proxy_max_vertices = ingest.proxy_max_vertices
     root = Path(root)
     truth = json.loads((root / "ground_truth.json").read_text())
     broken = {b["folder"] for b in truth.get("broken", [])}
@@ -56,9 +68,12 @@ def pool_from_demo_library(root: Path, *, split: str = "train", proxy_dir: Optio
         name = folder.split("_")[-1].lower()
         caps = fallback_captions(f"{name} {rec['category']}", rec["category"])
         proxy = _proxy_for(model, digest, Path(proxy_dir), proxy_max_vertices) if proxy_dir is not None else None
+        collision = (_collision_for(model, digest, Path(proxy_dir), ingest.collision_face_budget)
+                     if proxy_dir is not None and rec["container"] else None)
         pool.append(ObjectRecord(
             object_id=k, name=folder, category=rec["category"], dims=tuple(float(v) for v in rec["dims_m"]),
             captions=caps, split=split, model_path=str(model.resolve()), content_hash=digest, proxy_path=proxy,
+            collision_path=collision,
             container=bool(rec["container"]), source_units=rec.get("units"), source_up_axis=rec.get("up_axis"),
         ))
     return pool
