@@ -1,10 +1,11 @@
 """Rigid-body settling with Blender's Bullet world, and the checks that the result holds (bpy).
 
 Setup follows the stage's UsdPhysics schema: instances with RigidBodyAPI are active bodies with a
-convex-hull shape (of their collision proxy when the asset has one: a hidden object of <= ingest.proxy_max_vertices vertices
-that the scene job moves in their place, see docs/performance.md); the container (static, ``approximation = none``) is a passive triangle-mesh collider;
-the floor is a passive convex hull (it is a box or a cylinder, and a hull does not let thin floors tunnel
-like a triangle mesh can). Frames, substeps and solver iterations come from the PhysicsScene prim's
+convex-hull shape (of their collision proxy when the asset has one: a hidden object of at most
+``ingest.proxy_max_vertices`` vertices that the scene job moves in their place, see docs/performance.md);
+the container (static, ``approximation = none``) is a passive triangle-mesh collider; the floor is a
+passive convex hull of a hidden copy reaching ``physics.floor_collider_depth`` under its top (a box or a
+cylinder: a hull does not let thin floors tunnel like a triangle mesh can, and the depth holds fast bodies). Frames, substeps and solver iterations come from the PhysicsScene prim's
 customData. After stepping the frames the evaluated world matrices are read back, the rigid-body world is
 removed and the matrices are written onto the objects, so later renders see a static scene at frame 1.
 """
