@@ -166,6 +166,7 @@ def test_default_substeps_over_the_deep_floor_settle_as_well_as_eight_on_the_thi
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
     variants = {"default": (), "before": ("scene.physics_substeps=8", "scene.physics_floor_collider_depth=0.0")}
     drops = {name: 0 for name in variants}
+    containers = 0
     with BlenderWorker(name="substeps-test", log_dir=tmp_path) as worker:
         for seed in (11, 13):
             for name, overrides in variants.items():
@@ -183,4 +184,9 @@ def test_default_substeps_over_the_deep_floor_settle_as_well_as_eight_on_the_thi
                 rest = next(d for d in meta["diagnostics"] if d["kind"] == "rest")
                 assert np.median([rest["speed_m_s"][o["name"]] for o in kept]) < 0.05, name
                 drops[name] += sum(1 for o in meta["objects"] if o.get("reason") in settle_reasons)
+                if meta["spec"]["container"] is not None:  # it collides through its convex parts
+                    coll = [d for d in meta["diagnostics"] if d["kind"] == "container_collision"]
+                    assert len(coll) == 1 and coll[0]["source"] == "convex parts" and coll[0]["parts"] >= 2, coll
+                    containers += 1
+    assert containers > 0, "the seeds must draw a container"
     assert drops["default"] <= drops["before"], drops

@@ -13,7 +13,7 @@ removed and the matrices are written onto the objects, so later renders see a st
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
@@ -26,6 +26,9 @@ class Body:
     obj: Any
     kind: str  # "active" | "passive"
     shape: str  # Blender collision shape
+    # collision margin (m); None: 0.04 for convex shapes (Blender's default), 0 for triangle meshes. A
+    # container's convex parts take 0: static, and a margin would lift the pile off the container's floor
+    collision_margin: Optional[float] = None
 
 
 def _add_bodies(scene: Any, bodies: list[Body]) -> None:
@@ -53,7 +56,8 @@ def _add_bodies(scene: Any, bodies: list[Body]) -> None:
         rb.friction = 0.6
         rb.restitution = 0.0
         rb.use_margin = True
-        rb.collision_margin = 0.0 if body.shape == "MESH" else 0.04
+        rb.collision_margin = (body.collision_margin if body.collision_margin is not None
+                               else 0.0 if body.shape == "MESH" else 0.04)
         if body.kind == "active":
             rb.mass = 1.0
             rb.linear_damping = 0.1

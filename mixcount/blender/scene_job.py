@@ -386,7 +386,7 @@ def _add_instances(state: SceneState, stage: Any) -> None:
     from pxr import Usd, UsdGeom, UsdPhysics
 
     from mixcount.blender.physics import SHAPES, Body
-    from mixcount.usd.read import labelled_prims
+    from mixcount.usd.read import convex_parts, labelled_prims
 
     scene, stage_dir = state.scene, state.stage_path.parent
     floor = _import_floor(state.stage_path)
@@ -408,7 +408,19 @@ def _add_instances(state: SceneState, stage: Any) -> None:
         state.blender_objects[ids.path] = obj
         if ids.role == "container":
             coll = prim.GetCustomDataByKey("mixcount:collision_asset")
-            if coll:
+            parts = convex_parts(str(coll)) if coll else []
+            if parts:  # the container's convex decomposition: one static convex body per part
+                for k, (pts, tris) in enumerate(parts):
+                    data = bpy.data.meshes.new(f"{prim.GetName()}_part{k:03d}")
+                    data.from_pydata(pts.tolist(), [], tris.tolist())
+                    pobj = bpy.data.objects.new(data.name, data)
+                    scene.collection.objects.link(pobj)
+                    pobj.matrix_world = mathutils.Matrix(m.tolist())
+                    pobj.hide_render = True
+                    state.bodies.append(Body(pobj, "passive", "CONVEX_HULL", collision_margin=0.0))
+                state.diagnostics.append({"kind": "container_collision", "source": "convex parts",
+                                          "parts": len(parts)})
+            elif coll:
                 cobj = bpy.data.objects.new(prim.GetName() + "_collision", state.cache.mesh(Path(coll)))
                 scene.collection.objects.link(cobj)
                 cobj.matrix_world = mathutils.Matrix(m.tolist())

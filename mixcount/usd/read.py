@@ -119,3 +119,30 @@ def _corner_normals(mesh: Any) -> Any:
     if interp == UsdGeom.Tokens.constant:
         return np.repeat(n[:1], len(idx), axis=0)
     return None
+
+
+def convex_parts(asset_path: str) -> list[tuple[Any, Any]]:
+    """The convex collision parts of an asset (``/Asset/ConvexParts/*`` meshes with approximation
+    convexHull): (points (V, 3) in the asset's frame, triangles (T, 3)) each; empty when it has none."""
+    import numpy as np
+    from pxr import Usd, UsdGeom, UsdPhysics
+
+    stage = Usd.Stage.Open(str(asset_path))
+    if stage is None:
+        raise RuntimeError(f"cannot open asset {asset_path}")
+    root = stage.GetPrimAtPath("/Asset/ConvexParts")
+    out = []
+    if not root:
+        return out
+    for prim in Usd.PrimRange(root):
+        if not prim.IsA(UsdGeom.Mesh) or not prim.HasAPI(UsdPhysics.MeshCollisionAPI):
+            continue
+        if UsdPhysics.MeshCollisionAPI(prim).GetApproximationAttr().Get() != UsdPhysics.Tokens.convexHull:
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        pts = np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64)
+        m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64).T
+        pts = pts @ m[:3, :3].T + m[:3, 3]
+        tris = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64).reshape(-1, 3)
+        out.append((pts, tris))
+    return out
