@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -48,11 +47,10 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
-    from pools import load_pool, scene_bytes, with_proxies
+    from pools import load_pool, run_fresh_scene, scene_bytes, with_proxies
 
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
-    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
@@ -77,16 +75,13 @@ def main() -> int:
                 convert_scene_assets(spec, work / "assets")
                 out = work / (f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
                               f"{'_noproxy' if args.no_proxies else ''}{'_set' if args.set else ''}")
-                shutil.rmtree(out, ignore_errors=True)  # a finished scene would be skipped, not measured
-                outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(work / "assets"),
-                                                   timeout_s=7200, threads=threads, oracle=args.oracle), worker)
-                if outcome.status != WRITTEN:
+                outcome, meta, stages = run_fresh_scene(worker, spec, out, work / "assets", timeout_s=7200,
+                                                        threads=threads, oracle=args.oracle)
+                if meta is None:
                     rows.append({"pool": pool_name, "objects": n, "status": outcome.status, "error": outcome.error})
                     print(json.dumps(rows[-1]), file=sys.stderr)
                     continue
-                meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
                 t = meta["timings"]
-                stages = {k.split(".", 1)[1]: v for k, v in t.items() if k.startswith("worker.")}
                 oracle_s = stages.pop("oracle", None)
                 whole = t["total"] - (oracle_s or 0.0)
                 faces = {a["object_id"]: a for a in meta["spec"]["assets"]}

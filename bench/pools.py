@@ -42,6 +42,25 @@ def with_proxies(spec: Any, proxy_dir: Path, max_vertices: int) -> Any:
     return dataclasses.replace(spec, assets=assets)
 
 
+def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_s: float, threads: int,
+                    oracle: bool = False) -> tuple[Any, Any, dict[str, float]]:
+    """One scene into an emptied ``out`` (a finished scene would be skipped, not measured): the task's
+    outcome, its metadata.json (None when not written) and the worker's stage seconds."""
+    import json
+    import shutil
+
+    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
+
+    shutil.rmtree(out, ignore_errors=True)
+    outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=timeout_s,
+                                       threads=threads, oracle=oracle), worker)
+    if outcome.status != WRITTEN:
+        return outcome, None, {}
+    meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
+    stages = {k.split(".", 1)[1]: v for k, v in meta["timings"].items() if k.startswith("worker.")}
+    return outcome, meta, stages
+
+
 def scene_bytes(scene_dir: Path) -> dict[str, int]:
     """Bytes per file of a finished scene folder (exemplar crops summed), and the total."""
     sizes: dict[str, int] = {}

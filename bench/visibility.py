@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -43,11 +42,10 @@ def main() -> int:
     ap.add_argument("--pools", default="light,heavy", help="light, heavy or both")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "bench"))
-    from pools import load_pool, with_proxies
+    from pools import load_pool, run_fresh_scene, with_proxies
 
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
-    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
 
@@ -68,16 +66,12 @@ def main() -> int:
             assets = work / "assets"
             convert_scene_assets(spec, assets)
             out = work / f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
-            shutil.rmtree(out, ignore_errors=True)  # a finished scene would be skipped, not measured
-            task = SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=3600, threads=threads)
-            outcome = run_scene_task(task, worker)
-            if outcome.status != WRITTEN:
+            outcome, meta, stages = run_fresh_scene(worker, spec, out, assets, timeout_s=3600, threads=threads)
+            if meta is None:
                 rows.append({"pool": pool_name, "objects": n, "status": outcome.status, "error": outcome.error})
                 print(json.dumps(rows[-1]), file=sys.stderr)
                 continue
-            meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
             t = meta["timings"]
-            stages = {k.split(".", 1)[1]: v for k, v in t.items() if k.startswith("worker.")}
             vis = sum(stages.get(k, 0.0) for k in VISIBILITY_STAGES)
             whole = t["total"]
             row = {"pool": pool_name, "objects": n, "spawned_counted": spec.n_counted, "counted_kept": meta["n_counted"],

@@ -85,7 +85,6 @@ class AssetCache:
         self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.columns: dict[str, np.ndarray] = {}  # local vertices as (3, V): rows reduce fast
         self.hulls: dict[str, np.ndarray] = {}
-        self.flipped_normals: dict[str, bool] = {}
         self.proxies: dict[str, Any] = {}
         self.proxy_points: dict[str, np.ndarray] = {}
 
@@ -136,8 +135,7 @@ class AssetCache:
                 bpy.ops.object.join()
         mesh = parts[0].data
         mesh.name = f"asset_{Path(key).stem[:16]}"
-        self.flipped_normals[key] = normals_against_winding(key)
-        if self.flipped_normals[key]:
+        if normals_against_winding(key):
             drop_authored_normals(mesh)
         mesh.use_fake_user = True
         for o in list(bpy.data.objects):
