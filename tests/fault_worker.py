@@ -7,6 +7,9 @@
 * ``{"op": "border_check", "stage": path, "out_dir": path, "drop": k}`` - the visibility loop's border
   re-render against a full one: a settled scene, its id pass, the ``k`` most visible objects removed, the
   changed region re-rendered and pasted, then a full render; answers which passes are identical.
+* ``{"op": "rest_stop"}`` - the simulation's early stop: two cubes resting on a floor and three falling
+  from 30 m at x >= 10, simulated with every body waited for and with only those at x < 5; answers the
+  frames each run simulated.
 
 Tests select it with ``monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")``.
 """
@@ -65,6 +68,42 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
             "dropped_still_seen": int(np.isin(pasted["index"], drop).sum())}
 
 
+def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
+    import bpy
+    import numpy as np
+
+    from mixcount.blender.physics import Body, simulate
+
+    out: dict[str, Any] = {"ok": True}
+    for mode in ("all", "near"):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+
+        def cube(name: str, loc: tuple[float, float, float], size: float) -> Any:
+            mesh = bpy.data.meshes.new(name)
+            h = size / 2
+            verts = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)]
+            faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+            mesh.from_pydata(verts, [], faces)
+            obj = bpy.data.objects.new(name, mesh)
+            scene.collection.objects.link(obj)
+            obj.location = loc
+            return obj
+
+        # more falling bodies than the rolling allowance (REST_ROLLING_MIN) lets move
+        bodies = [Body(cube("floor", (0.0, 0.0, -1.0), 2.0 * 20), "passive", "BOX")]
+        bodies += [Body(cube(f"resting{i}", (-2.0 * i, 0.0, 0.55), 1.0), "active", "CONVEX_HULL") for i in range(2)]
+        bodies += [Body(cube(f"falling{i}", (10.0 + 2 * i, 0.0, 30.0), 1.0), "active", "CONVEX_HULL")
+                   for i in range(3)]
+        bodies[0].obj.scale = (1.0, 1.0, 0.05)
+        stats: dict[str, Any] = {}
+        simulate(scene, bodies, frames=200, substeps=8, iterations=4, gravity=9.81, rest_speed=0.05, stats=stats,
+                 waited_for=(lambda c: np.asarray(c[:, 0] < 5.0)) if mode == "near" else None)
+        out[mode] = {"frames_run": stats["frames_run"], "waited_for": stats["waited_for"],
+                     "falling_z": float(bpy.data.objects["falling0"].matrix_world.translation.z)}
+    return out
+
+
 if __name__ == "__main__":
     sys.exit(worker_main.main({**worker_main.HANDLERS, "sleep": sleep, "canonical": canonical,
-                                      "border_check": border_check}))
+                                      "border_check": border_check, "rest_stop": rest_stop}))

@@ -70,6 +70,13 @@ def test_origin_in_frame() -> None:
     assert not inside
     _, inside = D.origin_in_frame(cam, pose(0, 0, 20))  # behind the camera
     assert not inside
+    # the vectorised form (the physics early stop's) gives the same answer point by point
+    pts = np.array([[0, 0, 0], [50, 0, 0], [0, 0, 20], [1.5, -1.0, 0.5], [-5.0, 2.5, 1.0]], dtype=float)
+    px, inside_all = D.points_in_frame(cam, pts)
+    for p, q, ins in zip(pts, px, inside_all):
+        (x, y), one = D.origin_in_frame(cam, pose(*p))
+        assert one == bool(ins) and (x, y) == pytest.approx(tuple(q))
+    assert inside_all.tolist() == [True, False, False, True, False]
 
 
 def test_visibility_occlusion_and_status() -> None:

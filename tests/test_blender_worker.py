@@ -311,6 +311,23 @@ def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_p
             assert r["equal"] == {"index": True, "depth": True, "normal": True}, r
 
 
+def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The early stop ends once the waited-for bodies are calm: a body the scene job would drop anyway
+    (here: one still falling far away) no longer keeps the simulation going."""
+    from mixcount.blender.worker import BlenderWorker
+
+    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "rest_stop"
+    with BlenderWorker(name="rest", log_dir=tmp_path) as w:
+        r = w.request({"op": "rest_stop"}, timeout=300)
+    assert r["ok"], r
+    every, near = r["all"], r["near"]
+    assert every["waited_for"] == 5 and near["waited_for"] == 2
+    # waiting for the falling cubes: they land (~2.5 s = 59 frames at 24 fps) and calm down first
+    assert every["frames_run"] > 59 and every["falling_z"] < 1.0, every
+    # waiting for the resting ones alone: two calm windows of 10 frames
+    assert near["frames_run"] <= 30 and near["falling_z"] > 10.0, near
+
+
 def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from mixcount.blender.contract import SceneRequest
     from mixcount.blender.worker import BlenderWorker

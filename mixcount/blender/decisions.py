@@ -148,13 +148,20 @@ def interpenetrations(bodies: Sequence[SettledBody], fraction: float) -> list[tu
 # ------------------------------------------------------------------------------------ frame and visibility
 
 
+def points_in_frame(camera: PinholeCamera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points (N, 3) -> their pixel positions (N, 2; x = column, y = row) and whether each lies
+    in the image in front of the camera (the frame check's rule, for many origins at once)."""
+    px, depth = camera.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    inside = ((depth > camera.near) & (px[:, 0] >= 0) & (px[:, 0] < camera.width)
+              & (px[:, 1] >= 0) & (px[:, 1] < camera.height))
+    return px, inside
+
+
 def origin_in_frame(camera: PinholeCamera, matrix_world: np.ndarray) -> tuple[tuple[float, float], bool]:
     """The projected origin (x = column, y = row) and whether it lies in the image in front of the camera."""
     m = np.asarray(matrix_world, dtype=np.float64)
-    px, depth = camera.project(m[None, :3, 3])
-    x, y = float(px[0, 0]), float(px[0, 1])
-    inside = bool(depth[0] > camera.near and 0 <= x < camera.width and 0 <= y < camera.height)
-    return (x, y), inside
+    px, inside = points_in_frame(camera, m[None, :3, 3])
+    return (float(px[0, 0]), float(px[0, 1])), bool(inside[0])
 
 
 class Visibility(NamedTuple):

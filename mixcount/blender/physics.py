@@ -13,7 +13,7 @@ removed and the matrices are written onto the objects, so later renders see a st
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 
@@ -73,15 +73,18 @@ REST_ROLLING_MIN = 2  # ... and at least this many (they are mostly dropped as o
 
 def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
              gravity: float, rest_speed: float, speeds: dict[str, float] | None = None,
-             stats: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
+             stats: dict[str, Any] | None = None,
+             waited_for: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> dict[str, np.ndarray]:
     """Run the simulation for at most ``frames`` frames; returns the settled 4x4 world matrix per active body.
 
     Every :data:`REST_WINDOW` frames the active bodies' mean speeds over the window are measured; with
     ``rest_speed`` > 0 the run stops once all bodies but :data:`REST_ROLLING` of them, at least 2 (objects rolling
     away over the floor, which Bullet's damping stops only slowly) have been slower than it (m/s) for
-    :data:`REST_WINDOWS` windows in a row (bodies fallen under z = 0 are not waited for): a settled pile
-    costs no further frames. ``speeds`` (when
-    given) receives each body's speed over the last window, ``stats`` the frames actually simulated."""
+    :data:`REST_WINDOWS` windows in a row: a settled pile costs no further frames. Only bodies that can
+    still be kept are waited for: by default those whose centre is above the floor's top (z = 0);
+    ``waited_for`` (active bodies' centres (N, 3) -> bool mask) replaces that rule, e.g. to add "origin
+    in the camera frame" (the scene job's). ``speeds`` (when given) receives each body's speed over
+    the last window, ``stats`` the frames actually simulated."""
     import bpy
 
     if scene.rigidbody_world is None:
@@ -108,7 +111,7 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         return np.array([o.evaluated_get(dg).matrix_world.translation for o in active], dtype=np.float64)
 
     last, last_f, calm, ran = positions(), 1, 0, int(frames)
-    window_speed = np.zeros(len(active))
+    window_speed = waited = np.zeros(len(active))
     for f in range(2, int(frames) + 2):
         scene.frame_set(f)
         if (f - 1) % REST_WINDOW and f != int(frames) + 1:
@@ -118,9 +121,10 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         last, last_f = now, f
         # a body whose centre fell under the floor's top (z = 0) is dropped as below_floor anyway and
         # may fall forever: it does not hold the rest of the pile up
-        on_floor = window_speed[now[:, 2] >= 0.0] if len(active) else window_speed
-        moving = int((on_floor >= rest_speed).sum())
-        calm = calm + 1 if rest_speed > 0 and moving <= max(REST_ROLLING_MIN, REST_ROLLING * len(on_floor)) else 0
+        keep = waited_for(now) if waited_for is not None else now[:, 2] >= 0.0
+        waited = window_speed[np.asarray(keep, dtype=bool)] if len(active) else window_speed
+        moving = int((waited >= rest_speed).sum())
+        calm = calm + 1 if rest_speed > 0 and moving <= max(REST_ROLLING_MIN, REST_ROLLING * len(waited)) else 0
         if calm >= REST_WINDOWS:
             ran = f - 1
             break
@@ -128,6 +132,7 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         speeds.update({o.name: float(v) for o, v in zip(active, window_speed)})
     if stats is not None:
         stats["frames_run"] = ran
+        stats["waited_for"] = len(waited)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
                for b in bodies if b.kind == "active"}
