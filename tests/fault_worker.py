@@ -68,6 +68,21 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
             "dropped_still_seen": int(np.isin(pasted["index"], drop).sum())}
 
 
+def _cube(scene: Any, name: str, loc: tuple[float, float, float], size: float) -> Any:
+    """A cube mesh object of edge ``size`` at ``loc``, linked into ``scene``."""
+    import bpy
+
+    mesh = bpy.data.meshes.new(name)
+    h = size / 2
+    verts = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    mesh.from_pydata(verts, [], faces)
+    obj = bpy.data.objects.new(name, mesh)
+    scene.collection.objects.link(obj)
+    obj.location = loc
+    return obj
+
+
 def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
     import bpy
     import numpy as np
@@ -78,22 +93,11 @@ def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
     for mode in ("all", "near"):
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
-
-        def cube(name: str, loc: tuple[float, float, float], size: float) -> Any:
-            mesh = bpy.data.meshes.new(name)
-            h = size / 2
-            verts = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)]
-            faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-            mesh.from_pydata(verts, [], faces)
-            obj = bpy.data.objects.new(name, mesh)
-            scene.collection.objects.link(obj)
-            obj.location = loc
-            return obj
-
         # more falling bodies than the rolling allowance (REST_ROLLING_MIN) lets move
-        bodies = [Body(cube("floor", (0.0, 0.0, -1.0), 2.0 * 20), "passive", "BOX")]
-        bodies += [Body(cube(f"resting{i}", (-2.0 * i, 0.0, 0.55), 1.0), "active", "CONVEX_HULL") for i in range(2)]
-        bodies += [Body(cube(f"falling{i}", (10.0 + 2 * i, 0.0, 30.0), 1.0), "active", "CONVEX_HULL")
+        bodies = [Body(_cube(scene, "floor", (0.0, 0.0, -1.0), 2.0 * 20), "passive", "BOX")]
+        bodies += [Body(_cube(scene, f"resting{i}", (-2.0 * i, 0.0, 0.55), 1.0), "active", "CONVEX_HULL")
+                   for i in range(2)]
+        bodies += [Body(_cube(scene, f"falling{i}", (10.0 + 2 * i, 0.0, 30.0), 1.0), "active", "CONVEX_HULL")
                    for i in range(3)]
         bodies[0].obj.scale = (1.0, 1.0, 0.05)
         stats: dict[str, Any] = {}
