@@ -242,6 +242,10 @@ class SplitConfig:
             raise ConfigError(f"split fractions must be >= 0 with a positive sum, got {fr}")
 
 
+# Cycles' OpenImageDenoise prefilter of the albedo / normal guiding passes (docs/performance.md)
+DENOISE_PREFILTERS = ("ACCURATE", "FAST", "NONE")
+
+
 @dataclass(frozen=True)
 class ComposeConfig:
     """``[compose]``: the rendering run (docs/blender.md, docs/ray.md)."""
@@ -251,6 +255,7 @@ class ComposeConfig:
     resolution: int
     samples: int
     denoise: bool
+    denoise_prefilter: str
     visibility_threshold: float
     workers: int
     render_threads: int
@@ -269,6 +274,9 @@ class ComposeConfig:
             raise ConfigError(f"compose.split must be train, val or test, got {self.split!r}")
         if self.workers < 1 or self.resolution < 1 or self.samples < 1:
             raise ConfigError("compose.workers, compose.resolution and compose.samples must be >= 1")
+        if self.denoise_prefilter not in DENOISE_PREFILTERS:
+            raise ConfigError(f"compose.denoise_prefilter must be one of {', '.join(DENOISE_PREFILTERS)}, "
+                              f"got {self.denoise_prefilter!r}")
         known = ("instance", "class", "depth", "normal")
         unknown = [p for p in self.passes if p not in known]
         if unknown:

@@ -69,7 +69,8 @@ def composed(library, tmp_path_factory: pytest.TempPathFactory):
     out = tmp_path_factory.mktemp("out")
     pool = _with_renders(pool, out.parent / (out.name + "_renders"))
     # distractors close to the pile: with the default ring most land outside the frame (noted in docs/scene.md)
-    summary = compose_scenes(pool=pool, config=_config("scene.n_distractors=[3, 5]", "scene.distractor_ring=[0.0, 0.05]"), out_dir=out,
+    summary = compose_scenes(pool=pool, config=_config("scene.n_distractors=[3, 5]", "scene.distractor_ring=[0.0, 0.05]",
+                                                       "compose.denoise_prefilter=FAST"), out_dir=out,
                              assets_dir=assets, n=2, progress=False, oracle=True)
     return out, summary, pool
 
@@ -94,6 +95,10 @@ def test_compose_writes_n_complete_scenes(composed) -> None:
         scene_cfg = _config().scene  # the physics values used are the stage's, recorded as such
         assert meta["physics"]["substeps"] == scene_cfg.physics_substeps == meta["spec"]["physics"]["substeps"]
         assert meta["physics"]["frames"] == scene_cfg.physics_frames
+        # the RGB render used the spec's render settings, as Cycles reports them back
+        rgb = [x for x in meta["diagnostics"] if x["kind"] == "rgb"]
+        assert rgb == [{"kind": "rgb", "samples": 4, "denoise": True, "denoiser": "OPENIMAGEDENOISE", "prefilter": "FAST"}]
+        assert meta["spec"]["render"]["denoise_prefilter"] == "FAST"
         assert (d / "exemplars").is_dir() and any((d / "exemplars").iterdir())
     summary_json = json.loads((out / "dataset.json").read_text())
     assert summary_json["counts"]["scenes"] == 2

@@ -55,6 +55,7 @@ NOT_CONFIG_GETS = {
     ("mixcount/scene/spec.py", "collision_proxies"),  # a stage written before proxies existed: none
     ("mixcount/scene/spec.py", "rest_speed"),  # ... and before early stopping: all frames
     ("mixcount/scene/spec.py", "floor_collider_depth"),  # ... and before the deep floor collider: the floor
+    ("mixcount/scene/spec.py", "denoise_prefilter"),  # ... and before the prefilter was a setting: Blender's
 }
 
 

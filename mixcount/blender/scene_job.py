@@ -642,7 +642,11 @@ def render_rgb(state: SceneState) -> None:
     """The final image with the stage's samples and denoiser."""
     from mixcount.blender import passes as P
 
-    P.configure_rgb(state.scene, samples=state.spec.render.samples, denoise=state.spec.render.denoise)
+    P.configure_rgb(state.scene, samples=state.spec.render.samples, denoise=state.spec.render.denoise,
+                    prefilter=state.spec.render.denoise_prefilter)
+    c = state.scene.cycles  # what Cycles was set to, read back (a diagnostic, not the spec's wish)
+    state.diagnostics.append({"kind": "rgb", "samples": int(c.samples), "denoise": bool(c.use_denoising),
+                              "denoiser": str(c.denoiser), "prefilter": str(c.denoising_prefilter)})
     P.render_to(state.scene, state.out_dir / "rgb.png")
 
 

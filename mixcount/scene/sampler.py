@@ -481,6 +481,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
                             config.settle_penetration_fraction, bool(config.collision_proxies),
                             round(float(config.physics_rest_speed) * s, 6),
                             round(float(config.physics_floor_collider_depth) * s, 6)),
-        render=RenderSpec(compose.resolution, compose.samples, compose.denoise, compose.visibility_threshold),
+        render=RenderSpec(compose.resolution, compose.samples, compose.denoise, compose.visibility_threshold,
+                          compose.denoise_prefilter),
         assets=assets,
     )

@@ -309,13 +309,15 @@ class RenderSpec:
     samples: int
     denoise: bool
     visibility_threshold: float
+    denoise_prefilter: str = "ACCURATE"  # Cycles' OIDN prefilter; specs written before it existed used this
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RenderSpec":
-        return cls(int(d["resolution"]), int(d["samples"]), bool(d["denoise"]), float(d["visibility_threshold"]))
+        return cls(int(d["resolution"]), int(d["samples"]), bool(d["denoise"]), float(d["visibility_threshold"]),
+                   str(d.get("denoise_prefilter", "ACCURATE")))
 
 
 @dataclass(frozen=True)
