@@ -79,6 +79,25 @@ def test_origin_in_frame() -> None:
     assert inside_all.tolist() == [True, False, False, True, False]
 
 
+def test_may_still_be_kept_waits_for_bodies_falling_into_view() -> None:
+    # a camera 10 m up and 10 m back, looking at the origin at 45 degrees: a body high above the origin
+    # is outside the frame but falls into it
+    eye = np.array([0.0, -10.0, 10.0])
+    fwd = -eye / np.linalg.norm(eye)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -fwd, eye
+    cam = PinholeCamera.from_physical(50.0, 36.0, 100, 100, c2w, near=0.1)
+    centres = np.array([[0.0, 0.0, 0.5],    # on the floor in view
+                        [0.0, 0.0, 30.0],   # high above the view, falling into it
+                        [25.0, 0.0, 0.5],   # rolled away over the floor
+                        [0.0, 0.0, -0.2]])  # under the floor's top
+    assert D.points_in_frame(cam, centres)[1].tolist() == [True, False, False, True]
+    assert D.may_still_be_kept(cam, centres).tolist() == [True, True, False, False]
+
+
 def test_visibility_occlusion_and_status() -> None:
     index = np.zeros((4, 5), dtype=np.int32)
     index[0, :4] = 1  # 4 px of object 1

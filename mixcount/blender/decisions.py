@@ -157,6 +157,17 @@ def points_in_frame(camera: PinholeCamera, points: np.ndarray) -> tuple[np.ndarr
     return px, inside
 
 
+def may_still_be_kept(camera: PinholeCamera, centres: np.ndarray) -> np.ndarray:
+    """Bool per body centre (N, 3), during the simulation: may the body still end kept? Not when its
+    centre is under the floor's top (z = 0; dropped as below_floor) nor when neither its origin nor the
+    floor point under it is in the camera frame (it lies or rolls on the floor outside the view, and
+    the frame check drops it). A body in the air above the view (falling into it) may."""
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    below = c * np.array([1.0, 1.0, 0.0])
+    in_view = points_in_frame(camera, c)[1] | points_in_frame(camera, below)[1]
+    return np.asarray((c[:, 2] >= 0.0) & in_view)
+
+
 def origin_in_frame(camera: PinholeCamera, matrix_world: np.ndarray) -> tuple[tuple[float, float], bool]:
     """The projected origin (x = column, y = row) and whether it lies in the image in front of the camera."""
     m = np.asarray(matrix_world, dtype=np.float64)

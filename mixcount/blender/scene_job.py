@@ -456,8 +456,10 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
     """Rigid-body simulation with exactly the stage's physics values; settled matrix per active body.
 
     With ``camera`` the early stop waits only for bodies that can still be kept: centre above the
-    floor's top and origin in the camera frame. :func:`check_frame` drops the others whatever their
-    pose, so how far they roll on does not change the scene (docs/performance.md has the frames saved)."""
+    floor's top, and origin in the camera frame or right above a point of the floor that is (a body
+    still falling into view counts). :func:`check_frame` drops the others whatever their pose, so how
+    far they roll on over the floor outside the view does not change the scene (docs/performance.md
+    has the frames saved)."""
     import bpy
     import mathutils
 
@@ -465,7 +467,7 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
 
     def waited_for(centres: np.ndarray) -> np.ndarray:
         assert camera is not None
-        return np.asarray((centres[:, 2] >= 0.0) & D.points_in_frame(camera, centres)[1])
+        return D.may_still_be_kept(camera, centres)
 
     ph = state.spec.physics
     speeds: dict[str, float] = {}
