@@ -6,6 +6,7 @@ with ``--paper``, scenes per hour and core-minutes per scene at the paper's sett
     .venv/bin/python bench/throughput.py --memory 40 --resolution 64 --samples 1  # worker RSS per scene
     .venv/bin/python bench/throughput.py --paper --scenes 3     # 1024 px, 32 spp, default scene config
                                                                 # (30-200 objects), heavy pool, proxies
+    .venv/bin/python bench/throughput.py --paper --scenes 3 --set compose.denoise_prefilter=FAST
 
 ``--paper``: one local worker using every core (``--workers`` slots share them), default config (not
 quick), the capture-like heavy pool (bench/pools.py) with collision proxies; ``core_min_per_scene`` =
@@ -125,6 +126,8 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None)
     ap.add_argument("--paper", action="store_true", help="paper settings on the heavy pool (see above)")
     ap.add_argument("--pool", choices=("light", "heavy"), default=None, help="--paper pool (default heavy)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="--paper: extra config override (repeatable), e.g. --set compose.denoise_prefilter=FAST")
     args = ap.parse_args()
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private 127.0.0.1 cluster
     if args.paper:
@@ -199,7 +202,8 @@ def _paper(args: Any) -> int:
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-paper-"))
     pool_name = args.pool or "heavy"
     cfg = load_config([], [f"compose.resolution={resolution}", f"compose.samples={samples}",
-                           f"compose.render_threads={max(1, cores // workers)}", "compose.scene_timeout_s=14400"])
+                           f"compose.render_threads={max(1, cores // workers)}", "compose.scene_timeout_s=14400",
+                           *args.set])
     pool = load_pool(pool_name, work)
     budget = cfg.ingest.proxy_max_vertices
     sconf = cfg
@@ -217,6 +221,9 @@ def _paper(args: Any) -> int:
     for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):
         convert_scene_assets(sample_scene(s, "train", sconf, pool), work / "assets")  # warm the asset cache
     prep = time.perf_counter() - t
+    import shutil
+
+    shutil.rmtree(work / "paper", ignore_errors=True)  # a fresh run (a finished scene would be skipped)
     ex = LocalExecutor(workers, log_dir=work / "logs", recycle_after=0)
     try:
         for w in ex.workers:
@@ -239,6 +246,7 @@ def _paper(args: Any) -> int:
         "cpu_min_per_scene": round(run["cpu_s_per_scene"] / 60, 2) if run["cpu_s_per_scene"] else None,
         "paper_core_min_per_scene": PAPER_CORE_MIN,
         "objects_per_scene": [len(m["objects"]) for m in metas],
+        "counted_kept_per_scene": [m["n_counted"] for m in metas], "set": args.set,
         "physics_share": round(sum(phys) / max(sum(total), 1e-9), 4),
         "whole_over_rgb": round(sum(total) / max(sum(rgb), 1e-9), 3),
         "asset_prep_s": round(prep, 1), "failed": run["failed"], "regenerated": run["regenerated"],
