@@ -66,6 +66,9 @@ def test_section_checks_run_at_load():
         load_config(overrides=["captions.colour_source=guess"])
     with pytest.raises(ConfigError, match="low 3 > high 2"):
         load_config(overrides=["scene.n_classes=[3, 2]"])
+    with pytest.raises(ConfigError, match="denoise_prefilter must be one of ACCURATE, FAST, NONE"):
+        load_config(overrides=["compose.denoise_prefilter=BEST"])
+    assert load_config(overrides=["compose.denoise_prefilter=FAST"]).compose.denoise_prefilter == "FAST"
     assert load_config(overrides=["split.train_fraction=2.0"]).split.fractions[0] == pytest.approx(2.0 / 2.3)
 
 
