@@ -10,6 +10,9 @@
 * ``{"op": "rest_stop"}`` - the simulation's early stop: two cubes resting on a floor and three falling
   from 30 m at x >= 10, simulated with every body waited for and with only those at x < 5; answers the
   frames each run simulated.
+* ``{"op": "release_wave"}`` - a spawn wave: a cube held until frame 40 at (5, 0, 10) beside two resting
+  ones; answers its centre at every rest check, its settled pose, the frames run and whether any
+  animation is left on it.
 
 Tests select it with ``monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")``.
 """
@@ -108,6 +111,35 @@ def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def release_wave(req: dict[str, Any]) -> dict[str, Any]:
+    import bpy
+    import numpy as np
+
+    from mixcount.blender.physics import Body, simulate
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    bodies = [Body(_cube(scene, "floor", (0.0, 0.0, -1.0), 2.0 * 20), "passive", "BOX")]
+    bodies += [Body(_cube(scene, f"resting{i}", (-2.0 * (i + 1), 0.0, 0.55), 1.0), "active", "CONVEX_HULL")
+               for i in range(2)]
+    bodies.append(Body(_cube(scene, "held", (5.0, 0.0, 10.0), 1.0), "active", "CONVEX_HULL"))
+    bodies[0].obj.scale = (1.0, 1.0, 0.05)
+    seen: list[list[float]] = []
+
+    def record(centres: Any) -> Any:
+        seen.append([float(v) for v in centres[2]])
+        return np.ones(len(centres), dtype=bool)
+
+    stats: dict[str, Any] = {}
+    settled = simulate(scene, bodies, frames=100, substeps=8, iterations=4, gravity=9.81, rest_speed=0.05,
+                       stats=stats, waited_for=record, releases={"held": 40})
+    held = bpy.data.objects["held"]
+    return {"ok": True, "centres": seen, "frames_run": stats["frames_run"], "last_release": stats["last_release"],
+            "settled": [float(v) for v in settled["held"][:3, 3]], "animation_left": held.animation_data is not None,
+            "pose": [float(v) for v in held.matrix_world.translation]}
+
+
 if __name__ == "__main__":
     sys.exit(worker_main.main({**worker_main.HANDLERS, "sleep": sleep, "canonical": canonical,
-                                      "border_check": border_check, "rest_stop": rest_stop}))
+                                      "border_check": border_check, "rest_stop": rest_stop,
+                                      "release_wave": release_wave}))

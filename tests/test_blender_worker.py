@@ -333,6 +333,25 @@ def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkey
     assert near["frames_run"] <= 30 and near["falling_z"] > 10.0, near
 
 
+def test_spawn_wave_body_is_held_then_falls_from_its_spot(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A body released at frame 40 takes no part before it (parked far away), then falls from rest at
+    its spawn spot; the simulation runs on past the release and leaves no animation behind."""
+    from mixcount.blender.worker import BlenderWorker
+
+    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "release_wave"
+    with BlenderWorker(name="wave", log_dir=tmp_path) as w:
+        r = w.request({"op": "release_wave"}, timeout=300)
+    assert r["ok"], r
+    centres = r["centres"]  # at frames 11, 21, 31, 41, ...
+    assert all(c[2] > 500 for c in centres[:3]), centres[:4]  # parked until the release
+    x, y, z = centres[3]  # frame 41, one frame after the release: at its spot, barely moving yet
+    assert abs(x - 5.0) < 1e-3 and abs(y) < 1e-3 and 9.9 < z <= 10.0, centres[3]
+    assert r["last_release"] == 40 and r["frames_run"] >= 70
+    sx, sy, sz = r["settled"]
+    assert abs(sx - 5.0) < 0.3 and abs(sy) < 0.3 and 0.4 < sz < 0.7, r["settled"]  # about straight down, on the floor
+    assert not r["animation_left"] and r["pose"] == pytest.approx(r["settled"], abs=1e-4)
+
+
 def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from mixcount.blender.contract import SceneRequest
     from mixcount.blender.worker import BlenderWorker

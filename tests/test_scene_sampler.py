@@ -59,10 +59,16 @@ def test_scale_is_applied_consistently(conf):
             np.clip(s.floor.uv_scale_m / conf.scene.scale, *conf.scene.floor_uv_scale), rel=1e-6)
 
 
-def test_spawn_positions_inside_ellipse_and_height_range(conf):
+@pytest.mark.parametrize("waves", [True, False])
+def test_spawn_positions_inside_ellipse_and_height_range(conf, waves):
+    """With spawn waves (the default) every spot lies in the height range (later waves plus the
+    clearance) and bodies that found no room are released later; without them they are stacked above."""
     pool = rich_pool()
     s_ = conf.scene.scale
-    checked = stacked = 0
+    if not waves:
+        conf = load_config([], ["scene.spawn_release_waves=false"])
+    clearance, interval = conf.scene.spawn_wave_clearance * s_, conf.scene.spawn_wave_interval_frames
+    checked = stacked = later = 0
     for seed in range(60):
         s = sample_scene(seed, "train", conf, pool)
         if s.container is None:
@@ -82,7 +88,11 @@ def test_spawn_positions_inside_ellipse_and_height_range(conf):
             ly = -math.sin(yaw) * x + math.cos(yaw) * y
             assert (lx / a) ** 2 + (ly / b) ** 2 <= 1 + 1e-4
             assert top + conf.scene.spawn_height[0] * s_ - 1e-5 <= o.position[2]
-            if o.position[2] > top + conf.scene.spawn_height[1] * s_ + 1e-5:
+            assert (o.release_frame - 1) % interval == 0 and (waves or o.release_frame == 1)
+            if o.release_frame > 1:
+                later += 1  # no free spot in the range: a later wave, lowered into the range
+                assert o.position[2] <= top + conf.scene.spawn_height[1] * s_ + clearance + 1e-5
+            elif o.position[2] > top + conf.scene.spawn_height[1] * s_ + 1e-5:
                 stacked += 1  # no free spot in the range: lifted above its column (spawn_stack)
             checked += 1
         # distractors stand outside the container's box and apart from each other
@@ -92,17 +102,24 @@ def test_spawn_positions_inside_ellipse_and_height_range(conf):
             assert (lx / (c.extent_m[0] / 2)) ** 2 + (ly / (c.extent_m[1] / 2)) ** 2 > 1
             for e in s.distractors[i + 1:]:
                 assert math.dist(d.position[:2], e.position[:2]) > 0.5 * (d.size_m + e.size_m) * 0.5
-    assert checked > 0 and stacked > 0  # dense default scenes do need the stacking
+    # dense default scenes do need the stacking, as waves or as height
+    assert checked > 0 and (later > 0 and stacked == 0 if waves else stacked > 0 and later == 0)
 
 
 def test_spawn_spheres_do_not_overlap(conf):
+    """Bodies in the air together (one release wave) never start overlapping."""
+    waves = 0
     for seed in range(15):
         s = sample_scene(seed, "train", conf, rich_pool())
-        pos = np.array([o.position for o in s.objects])
-        r = np.array([o.size_m / 2 for o in s.objects])
-        gap = np.linalg.norm(pos[:, None] - pos[None], axis=2) - (r[:, None] + r[None])
-        np.fill_diagonal(gap, 1.0)
-        assert gap.min() >= -1e-5, (seed, len(pos))
+        for frame in sorted({o.release_frame for o in s.objects}):
+            wave = [o for o in s.objects if o.release_frame == frame]
+            pos = np.array([o.position for o in wave])
+            r = np.array([o.size_m / 2 for o in wave])
+            gap = np.linalg.norm(pos[:, None] - pos[None], axis=2) - (r[:, None] + r[None])
+            np.fill_diagonal(gap, 1.0)
+            assert gap.min() >= -1e-5, (seed, frame, len(pos))
+            waves += frame > 1
+    assert waves > 0
     loose = load_config([], ["scene.spawn_stack=false", "scene.n_objects=[200, 200]"])
     s = sample_scene(0, "train", loose, rich_pool())
     assert max(o.position[2] for o in s.objects) <= (s.container.extent_m[2] if s.container else 0) + 15.0 + 1e-5

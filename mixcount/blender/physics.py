@@ -65,6 +65,25 @@ def _add_bodies(scene: Any, bodies: list[Body]) -> None:
             rb.use_deactivation = True
 
 
+def _hold_until_release(obj: Any, release: int, slot: int) -> None:
+    """Keep a body out of the simulation until frame ``release``, then let it go from rest at its pose.
+
+    Until then it is animated (kinematic) and parked far from everything (kinematic bodies do not
+    collide with each other); three frames before its release it is moved to its spawn pose, and at
+    ``release`` ``rigid_body.kinematic`` turns off, so Bullet takes it over with no velocity. Blender
+    5.0 honours such keyframes mid-simulation without resetting the cache (docs/blender.md)."""
+    at = obj.matrix_world.copy()
+    obj.keyframe_insert("location", frame=release - 3)
+    obj.location = (1000.0 + 10.0 * slot, 1000.0, 1000.0)
+    obj.keyframe_insert("location", frame=1)
+    obj.keyframe_insert("location", frame=release - 4)
+    obj.rigid_body.kinematic = True
+    obj.keyframe_insert("rigid_body.kinematic", frame=release - 1)
+    obj.rigid_body.kinematic = False
+    obj.keyframe_insert("rigid_body.kinematic", frame=release)
+    obj.location = at.translation  # the current frame's pose stays the spawn pose for anything reading it
+
+
 REST_WINDOW = 10  # frames between rest checks
 REST_WINDOWS = 2  # consecutive calm windows before the simulation stops early
 REST_ROLLING = 0.05  # fraction of bodies still allowed to move then: balls rolling away over the floor
@@ -74,7 +93,8 @@ REST_ROLLING_MIN = 2  # ... and at least this many (they are mostly dropped as o
 def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
              gravity: float, rest_speed: float, speeds: dict[str, float] | None = None,
              stats: dict[str, Any] | None = None,
-             waited_for: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> dict[str, np.ndarray]:
+             waited_for: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+             releases: Optional[dict[str, int]] = None) -> dict[str, np.ndarray]:
     """Run the simulation for at most ``frames`` frames; returns the settled 4x4 world matrix per active body.
 
     Every :data:`REST_WINDOW` frames the active bodies' mean speeds over the window are measured; with
@@ -83,8 +103,11 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     :data:`REST_WINDOWS` windows in a row: a settled pile costs no further frames. Only bodies that can
     still be kept are waited for: by default those whose centre is above the floor's top (z = 0);
     ``waited_for`` (active bodies' centres (N, 3) -> bool mask) replaces that rule, e.g. to add "origin
-    in the camera frame" (the scene job's). ``speeds`` (when given) receives each body's speed over
-    the last window, ``stats`` the frames actually simulated."""
+    in the camera frame" (the scene job's). ``releases`` (active body name -> frame > 1) holds bodies
+    out until their frame (:func:`_hold_until_release`, spawn waves); ``frames`` then counts from the
+    last release, and the run does not stop before every held body has been let go and has slowed
+    below ``rest_speed`` once. ``speeds`` (when given)
+    receives each body's speed over the last window, ``stats`` the frames actually simulated."""
     import bpy
 
     if scene.rigidbody_world is None:
@@ -95,13 +118,19 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         world.collection = bpy.data.collections.new("RigidBodyWorld")
     world.substeps_per_frame = max(1, int(substeps))
     world.solver_iterations = max(1, int(iterations))
+    held = {name: int(f) for name, f in (releases or {}).items() if int(f) > 1}
+    last_release = max(held.values(), default=1)
+    frames = int(frames) + last_release - 1
     world.point_cache.frame_start = 1
-    world.point_cache.frame_end = int(frames) + 1
+    world.point_cache.frame_end = frames + 1
     scene.gravity = (0.0, 0.0, -abs(float(gravity)))
     scene.use_gravity = True
     scene.frame_start = 1
-    scene.frame_end = int(frames) + 1
+    scene.frame_end = frames + 1
     _add_bodies(scene, bodies)
+    held_objs = [b.obj for b in bodies if b.kind == "active" and b.obj.name in held]
+    for slot, obj in enumerate(held_objs):
+        _hold_until_release(obj, held[obj.name], slot)
     scene.frame_set(1)
     fps = scene.render.fps / scene.render.fps_base
     active = [b.obj for b in bodies if b.kind == "active"]
@@ -111,6 +140,7 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         return np.array([o.evaluated_get(dg).matrix_world.translation for o in active], dtype=np.float64)
 
     last, last_f, calm, ran = positions(), 1, 0, int(frames)
+    unlanded = {i for i, o in enumerate(active) if o.name in held}
     window_speed = waited = np.zeros(len(active))
     for f in range(2, int(frames) + 2):
         scene.frame_set(f)
@@ -125,6 +155,11 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         waited = window_speed[np.asarray(keep, dtype=bool)] if len(active) else window_speed
         moving = int((waited >= rest_speed).sum())
         calm = calm + 1 if rest_speed > 0 and moving <= max(REST_ROLLING_MIN, REST_ROLLING * len(waited)) else 0
+        # a held body counts as landed once slower than rest_speed after its release; until every one
+        # has, the run goes on (the rolling allowance must not freeze a late body in mid-air)
+        unlanded = {i for i in unlanded if f <= held[active[i].name] or window_speed[i] >= rest_speed}
+        if unlanded:
+            calm = 0
         if calm >= REST_WINDOWS:
             ran = f - 1
             break
@@ -133,6 +168,7 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     if stats is not None:
         stats["frames_run"] = ran
         stats["waited_for"] = len(waited)
+        stats["last_release"] = last_release
     depsgraph = bpy.context.evaluated_depsgraph_get()
     settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
                for b in bodies if b.kind == "active"}
@@ -140,6 +176,8 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     # transforms; the bodies keep inert rigid-body settings, which nothing reads without a world
     with bpy.context.temp_override(scene=scene):
         bpy.ops.rigidbody.world_remove()
+    for obj in held_objs:  # the parking animation would put them back at frame 1
+        obj.animation_data_clear()
     scene.frame_set(1)
     import mathutils
 

@@ -472,12 +472,21 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
     ph = state.spec.physics
     speeds: dict[str, float] = {}
     stats: dict[str, Any] = {}
+    # spawn waves: the body that collides for each instance (its proxy, else itself) -> release frame
+    release = {p.instance_id: p.release_frame for p in (*state.spec.objects, *state.spec.distractors)}
+    releases = {}
+    for o in state.objects:
+        obj = state.blender_objects.get(o.path)
+        if obj is not None and release.get(o.instance_id, 1) > 1:
+            releases[state.proxies.get(obj.name, obj).name] = release[o.instance_id]
     settled = simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
                        iterations=ph.solver_iterations, gravity=ph.gravity, rest_speed=ph.rest_speed,
-                       speeds=speeds, stats=stats, waited_for=waited_for if camera is not None else None)
+                       speeds=speeds, stats=stats, waited_for=waited_for if camera is not None else None,
+                       releases=releases)
     names = {pobj.name: name for name, pobj in state.proxies.items()}
     state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies), "frames_run": stats["frames_run"],
-                              "waited_for": stats["waited_for"],
+                              "waited_for": stats["waited_for"], "released_later": len(releases),
+                              "last_release": stats["last_release"],
                               "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(speeds.items())}})
     proxy_objs = set(state.proxies.values())
     state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]

@@ -63,6 +63,9 @@ class SceneConfig:
     spawn_xy_no_container: Range
     spawn_max_tries: int
     spawn_stack: bool
+    spawn_release_waves: bool
+    spawn_wave_interval_frames: int
+    spawn_wave_clearance: float
     n_distractors: IntRange
     distractor_base_size: float
     distractor_size_multiplier: Range
@@ -120,6 +123,9 @@ class SceneConfig:
             raise ConfigError("scene.n_objects high must be >= scene.n_classes high (one instance per class)")
         if self.n_cameras < 1:
             raise ConfigError("scene.n_cameras must be >= 1")
+        if self.spawn_wave_interval_frames < 5 or self.spawn_wave_clearance < 0:
+            # a held body is moved to its spot 3 frames before its release, parked before that
+            raise ConfigError("scene.spawn_wave_interval_frames must be >= 5 and scene.spawn_wave_clearance >= 0")
         if self.resize_ratio[0] <= 1.0:
             raise ConfigError("scene.resize_ratio must be > 1 (a clearly different size)")
         unknown = set(self.floor_shapes) - {"cube", "cylinder"}

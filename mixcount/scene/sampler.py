@@ -264,6 +264,25 @@ def _spawn_positions(rng: np.random.Generator, radii: NDArray[Any], centre: NDAr
     return out
 
 
+def _release_waves(positions: NDArray[Any], z_range: tuple[float, float], clearance: float,
+                   interval: int) -> tuple[NDArray[Any], NDArray[Any]]:
+    """Stacked spawn spots -> spots in the height range, released in waves.
+
+    A body that :func:`_spawn_positions` stacked ``w`` bands (a band = the height range) above the range
+    is moved down ``w`` bands and up ``clearance`` (over the pile the earlier waves left), and released
+    at frame ``1 + w * interval``; the others are released at frame 1. Bodies of one wave keep their
+    relative positions, so they stay as clear of each other as the stacking made them; earlier waves
+    have fallen away by the time a later one is released. Returns the new positions and release frames.
+    """
+    band = z_range[1] - z_range[0]
+    out = np.array(positions, dtype=np.float64)
+    if band <= 0 or len(out) == 0:
+        return out, np.ones(len(out), dtype=int)
+    wave = np.where(out[:, 2] > z_range[1], np.ceil((out[:, 2] - z_range[1]) / band), 0).astype(int)
+    out[:, 2] -= wave * band - np.where(wave > 0, clearance, 0.0)
+    return out, 1 + wave * int(interval)
+
+
 def _ellipse_radius(a: float, b: float, theta: float) -> float:
     return a * b / math.sqrt((b * math.cos(theta)) ** 2 + (a * math.sin(theta)) ** 2)
 
@@ -378,6 +397,10 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     z_range = (base_z + config.spawn_height[0] * s, base_z + config.spawn_height[1] * s)
     positions = _spawn_positions(rng, sizes / 2, centre, semi, pile_yaw, z_range, config.spawn_max_tries, ellipse,
                                  config.spawn_stack)
+    release = np.ones(n, dtype=int)
+    if config.spawn_stack and config.spawn_release_waves:
+        positions, release = _release_waves(positions, z_range, config.spawn_wave_clearance * s,
+                                            config.spawn_wave_interval_frames)
     if config.random_orientation:
         orients = _random_quats(rng, n).tolist()
     else:
@@ -391,7 +414,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         objects.append(PlacedObject(
             instance_id=i + 1, role=ROLE_COUNTED, object_id=drafts[ci].obj.object_id, class_index=ci,
             position=tuple(pos_r[i]), orientation=tuple(orients[i]), scale=(f, f, f),
-            size_m=sizes_r[i],
+            size_m=sizes_r[i], release_frame=int(release[i]),
         ))
 
     # distractors: other objects of the split, each once, resting upright around the pile

@@ -126,12 +126,16 @@ class PlacedObject:
     orientation: Quat
     scale: Vec3
     size_m: float
+    # the simulation frame the body is let go at (spawn waves, docs/scene.md); 1 = at the start, which
+    # specs written before waves existed mean
+    release_frame: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "instance_id": self.instance_id, "role": self.role, "object_id": self.object_id,
             "class_index": self.class_index, "position": list(self.position),
             "orientation": list(self.orientation), "scale": list(self.scale), "size_m": self.size_m,
+            "release_frame": self.release_frame,
         }
 
     @classmethod
@@ -139,7 +143,7 @@ class PlacedObject:
         return cls(
             instance_id=int(d["instance_id"]), role=str(d["role"]), object_id=int(d["object_id"]),
             class_index=int(d["class_index"]), position=_t(d["position"]), orientation=_t(d["orientation"]),
-            scale=_t(d["scale"]), size_m=float(d["size_m"]),
+            scale=_t(d["scale"]), size_m=float(d["size_m"]), release_frame=int(d.get("release_frame", 1)),
         )
 
 
