@@ -106,7 +106,7 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     in the camera frame" (the scene job's). ``releases`` (active body name -> frame > 1) holds bodies
     out until their frame (:func:`_hold_until_release`, spawn waves); ``frames`` then counts from the
     last release, and the run does not stop before every held body has been let go and has slowed
-    below ``rest_speed`` once. ``speeds`` (when given)
+    below ``rest_speed`` once (or stopped being waited for). ``speeds`` (when given)
     receives each body's speed over the last window, ``stats`` the frames actually simulated."""
     import bpy
 
@@ -137,7 +137,8 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
 
     def positions() -> np.ndarray:
         dg = bpy.context.evaluated_depsgraph_get()
-        return np.array([o.evaluated_get(dg).matrix_world.translation for o in active], dtype=np.float64)
+        return np.array([o.evaluated_get(dg).matrix_world.translation for o in active],
+                        dtype=np.float64).reshape(-1, 3)
 
     last, last_f, calm, ran = positions(), 1, 0, int(frames)
     unlanded = {i for i, o in enumerate(active) if o.name in held}
@@ -147,17 +148,19 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         if (f - 1) % REST_WINDOW and f != int(frames) + 1:
             continue
         now = positions()
-        window_speed = np.linalg.norm(now - last, axis=1) * fps / max(1, f - last_f) if len(active) else window_speed
+        window_speed = np.linalg.norm(now - last, axis=1) * fps / max(1, f - last_f)
         last, last_f = now, f
         # a body whose centre fell under the floor's top (z = 0) is dropped as below_floor anyway and
         # may fall forever: it does not hold the rest of the pile up
-        keep = waited_for(now) if waited_for is not None else now[:, 2] >= 0.0
-        waited = window_speed[np.asarray(keep, dtype=bool)] if len(active) else window_speed
+        waiting = np.asarray(waited_for(now) if waited_for is not None else now[:, 2] >= 0.0, dtype=bool)
+        waited = window_speed[waiting]
         moving = int((waited >= rest_speed).sum())
         calm = calm + 1 if rest_speed > 0 and moving <= max(REST_ROLLING_MIN, REST_ROLLING * len(waited)) else 0
-        # a held body counts as landed once slower than rest_speed after its release; until every one
-        # has, the run goes on (the rolling allowance must not freeze a late body in mid-air)
-        unlanded = {i for i in unlanded if f <= held[active[i].name] or window_speed[i] >= rest_speed}
+        # a held body counts as landed once, after its release, it is slower than rest_speed or no longer
+        # waited for (fallen off the floor, rolling on outside the view); until every one has, the run
+        # goes on (the rolling allowance must not freeze a late body in mid-air)
+        unlanded = {i for i in unlanded
+                    if f <= held[active[i].name] or (waiting[i] and window_speed[i] >= rest_speed)}
         if unlanded:
             calm = 0
         if calm >= REST_WINDOWS:
