@@ -459,7 +459,8 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
     floor's top, and origin in the camera frame or right above a point of the floor that is (a body
     still falling into view counts). :func:`check_frame` drops the others whatever their pose, so how
     far they roll on over the floor outside the view does not change the scene (docs/performance.md
-    has the frames saved)."""
+    has the frames saved). Instances with a spec ``release_frame`` > 1 (spawn waves, docs/scene.md)
+    join the simulation at that frame."""
     import bpy
     import mathutils
 
