@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 POOLS = ("light", "heavy")
 
@@ -26,19 +26,25 @@ def load_pool(name: str, work: Path, *, min_faces: int = 200_000) -> list[Any]:
     raise SystemExit(f"unknown pool {name!r}: choose from {', '.join(POOLS)}")
 
 
-def with_proxies(spec: Any, proxy_dir: Path, max_vertices: int) -> Any:
-    """``spec`` with every asset's collision proxy (built once per model into ``proxy_dir``) and the
-    container's decimated collision mesh, as ingest stores them."""
+def with_ingest_meshes(rec: Any, container: bool, proxy_dir: Path, max_vertices: int,
+                       face_budget: Optional[int] = None) -> Any:
+    """``rec`` (an ObjectRecord or a spec's AssetRef) with its collision proxy and, for a container,
+    its decimated collision mesh of ``face_budget`` faces (``ingest.collision_face_budget`` when None),
+    as ingest stores them (each built once per model into ``proxy_dir``)."""
     from mixcount.config import load_config
     from mixcount.demo.pool import _collision_for, _proxy_for
 
+    model = Path(rec.model_path)
+    budget = face_budget if face_budget is not None else load_config().ingest.collision_face_budget
+    collision = _collision_for(model, rec.content_hash, proxy_dir, budget) if container else rec.collision_path
+    return dataclasses.replace(rec, proxy_path=_proxy_for(model, rec.content_hash, proxy_dir, max_vertices),
+                               collision_path=collision)
+
+
+def with_proxies(spec: Any, proxy_dir: Path, max_vertices: int) -> Any:
+    """``spec`` with every asset's ingest meshes (:func:`with_ingest_meshes`)."""
     container = spec.container.object_id if spec.container is not None else None
-    budget = load_config().ingest.collision_face_budget
-    assets = tuple(dataclasses.replace(
-        a, proxy_path=_proxy_for(Path(a.model_path), a.content_hash, proxy_dir, max_vertices),
-        collision_path=(_collision_for(Path(a.model_path), a.content_hash, proxy_dir, budget)
-                        if a.object_id == container else a.collision_path))
-        for a in spec.assets)
+    assets = tuple(with_ingest_meshes(a, a.object_id == container, proxy_dir, max_vertices) for a in spec.assets)
     return dataclasses.replace(spec, assets=assets)
 
 

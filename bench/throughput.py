@@ -186,10 +186,9 @@ def _paper(args: Any) -> int:
     import sys as _sys
 
     _sys.path.insert(0, str(ROOT / "bench"))
-    from pools import load_pool
+    from pools import load_pool, with_ingest_meshes
 
     from mixcount.config import load_config
-    from mixcount.demo.pool import _collision_for, _proxy_for
     from mixcount.run.local import LocalExecutor
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
@@ -210,13 +209,8 @@ def _paper(args: Any) -> int:
     used: set[int] = set()
     for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):  # only the objects scenes use
         used |= {a.object_id for a in sample_scene(s, "train", sconf, pool).assets}
-    import dataclasses
-
-    pool = [dataclasses.replace(
-        o, proxy_path=_proxy_for(Path(o.model_path), o.content_hash, work / "proxies", budget),
-        collision_path=(_collision_for(Path(o.model_path), o.content_hash, work / "proxies",
-                                       cfg.ingest.collision_face_budget) if o.container else None))
-        if o.object_id in used else o for o in pool]  # proxies and container collision meshes, as ingest
+    pool = [with_ingest_meshes(o, o.container, work / "proxies", budget, cfg.ingest.collision_face_budget)
+            if o.object_id in used else o for o in pool]
     t = time.perf_counter()
     for s in range(cfg.compose.seed, cfg.compose.seed + 2 * args.scenes + 2):
         convert_scene_assets(sample_scene(s, "train", sconf, pool), work / "assets")  # warm the asset cache

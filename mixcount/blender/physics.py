@@ -3,9 +3,11 @@
 Setup follows the stage's UsdPhysics schema: instances with RigidBodyAPI are active bodies with a
 convex-hull shape (of their collision proxy when the asset has one: a hidden object of at most
 ``ingest.proxy_max_vertices`` vertices that the scene job moves in their place, see docs/performance.md);
-the container (static, ``approximation = none``) is a passive triangle-mesh collider; the floor is a
-passive convex hull of a hidden copy reaching ``physics.floor_collider_depth`` under its top (a box or a
-cylinder: a hull does not let thin floors tunnel like a triangle mesh can, and the depth holds fast bodies). Frames, substeps and solver iterations come from the PhysicsScene prim's
+the container is static: one passive convex hull per part of its convex decomposition (else its
+decimated triangle mesh); the floor is a passive convex hull of a hidden copy reaching
+``physics.floor_collider_depth`` under its top (a box or a cylinder: a hull does not let thin floors
+tunnel like a triangle mesh can, and the depth holds fast bodies). Bodies with a later release frame
+(spawn waves) join mid-run. Frames, substeps and solver iterations come from the PhysicsScene prim's
 customData. After stepping the frames the evaluated world matrices are read back, the rigid-body world is
 removed and the matrices are written onto the objects, so later renders see a static scene at frame 1.
 """

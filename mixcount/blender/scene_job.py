@@ -25,6 +25,7 @@ object's amodal mask, see :func:`write_amodal_masks`) and ``worker.json`` (the
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -203,7 +204,7 @@ def _floor_collider(scene: Any, floor: Any, depth: float) -> Any:
     """The floor as physics sees it: a hidden copy whose bottom lies ``depth`` metres under its top.
 
     The rendered floor is a thin slab (box or cylinder); at the paper's 2 substeps a body dropped from
-    1.5·s falls ~0.35 m per Bullet step (~0.18 m at the default 4) and can pass through it between steps. The collider keeps
+    1.5·s falls ~0.35 m per Bullet step (~0.09 m at the default 8) and can pass through it between steps. The collider keeps
     the floor's outline and top face (so the pile rests exactly where it renders) but is a deep solid:
     a body that reaches it is pushed back up. ``depth`` <= the floor's own thickness: the floor itself.
     """
@@ -222,6 +223,18 @@ def _floor_collider(scene: Any, floor: Any, depth: float) -> Any:
     obj = bpy.data.objects.new("Floor_collider", data)
     scene.collection.objects.link(obj)
     obj.matrix_world = mathutils.Matrix.Identity(4)
+    obj.hide_render = True
+    return obj
+
+
+def _hidden_collider(scene: Any, name: str, data: Any, matrix: np.ndarray) -> Any:
+    """An object of mesh ``data`` at ``matrix`` (4x4) that only collides: linked, hidden from renders."""
+    import bpy
+    import mathutils
+
+    obj = bpy.data.objects.new(name, data)
+    scene.collection.objects.link(obj)
+    obj.matrix_world = mathutils.Matrix(matrix.tolist())
     obj.hide_render = True
     return obj
 
@@ -411,18 +424,12 @@ def _add_instances(state: SceneState, stage: Any) -> None:
                 for k, (pts, tris) in enumerate(parts):
                     data = bpy.data.meshes.new(f"{prim.GetName()}_part{k:03d}")
                     data.from_pydata(pts.tolist(), [], tris.tolist())
-                    pobj = bpy.data.objects.new(data.name, data)
-                    scene.collection.objects.link(pobj)
-                    pobj.matrix_world = mathutils.Matrix(m.tolist())
-                    pobj.hide_render = True
-                    state.bodies.append(Body(pobj, "passive", "CONVEX_HULL", collision_margin=0.0))
+                    state.bodies.append(Body(_hidden_collider(scene, data.name, data, m), "passive", "CONVEX_HULL",
+                                             collision_margin=0.0))
                 state.diagnostics.append({"kind": "container_collision", "source": "convex parts",
                                           "parts": len(parts)})
             elif coll:
-                cobj = bpy.data.objects.new(prim.GetName() + "_collision", state.cache.mesh(Path(coll)))
-                scene.collection.objects.link(cobj)
-                cobj.matrix_world = mathutils.Matrix(m.tolist())
-                cobj.hide_render = True
+                cobj = _hidden_collider(scene, prim.GetName() + "_collision", state.cache.mesh(Path(coll)), m)
                 state.bodies.append(Body(cobj, "passive", "MESH"))
             else:  # no decimated collision asset: Bullet gets every render triangle (slow on a capture)
                 state.bodies.append(Body(obj, "passive", "MESH"))
@@ -435,10 +442,7 @@ def _add_instances(state: SceneState, stage: Any) -> None:
                 and UsdPhysics.CollisionAPI(proxy_prim).GetCollisionEnabledAttr().Get() is not False):
             # collide through the convex proxy: a hidden object that the simulation moves; settle()
             # copies its pose onto the render object
-            pobj = bpy.data.objects.new(prim.GetName() + "_proxy", state.cache.proxy(asset, proxy_prim))
-            scene.collection.objects.link(pobj)
-            pobj.matrix_world = mathutils.Matrix(m.tolist())
-            pobj.hide_render = True
+            pobj = _hidden_collider(scene, prim.GetName() + "_proxy", state.cache.proxy(asset, proxy_prim), m)
             state.proxies[obj.name] = pobj
             state.bodies.append(Body(pobj, kind, "CONVEX_HULL"))
         else:
@@ -466,10 +470,6 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
 
     from mixcount.blender.physics import simulate
 
-    def waited_for(centres: np.ndarray) -> np.ndarray:
-        assert camera is not None
-        return D.may_still_be_kept(camera, centres)
-
     ph = state.spec.physics
     speeds: dict[str, float] = {}
     stats: dict[str, Any] = {}
@@ -482,7 +482,8 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
             releases[state.proxies.get(obj.name, obj).name] = release[o.instance_id]
     settled = simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
                        iterations=ph.solver_iterations, gravity=ph.gravity, rest_speed=ph.rest_speed,
-                       speeds=speeds, stats=stats, waited_for=waited_for if camera is not None else None,
+                       speeds=speeds, stats=stats,
+                       waited_for=functools.partial(D.may_still_be_kept, camera) if camera is not None else None,
                        releases=releases)
     names = {pobj.name: name for name, pobj in state.proxies.items()}
     state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies), "frames_run": stats["frames_run"],

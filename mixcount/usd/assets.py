@@ -33,9 +33,9 @@ import numpy as np
 from mixcount.catalog.materials import material_vertex_colours
 from mixcount.errors import CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
+from mixcount.usd.read import CONVEX_PARTS_PRIM
 
 CONVERTER_VERSION = 4  # bump when the converter output changes: cached assets are rebuilt
-CONVEX_PARTS_PRIM = "/Asset/ConvexParts"  # a container's convex decomposition inside its collision asset
 # V-HACD (vhacdx through trimesh) settings of that decomposition: part of the converter's output, so
 # fixed here with the version rather than configured (a changed value must rebuild every cached asset)
 CONVEX_PARTS_MAX = 16

@@ -121,6 +121,9 @@ def _corner_normals(mesh: Any) -> Any:
     return None
 
 
+CONVEX_PARTS_PRIM = "/Asset/ConvexParts"  # a container's convex decomposition inside its collision asset
+
+
 def convex_parts(asset_path: str) -> list[tuple[Any, Any]]:
     """The convex collision parts of an asset (``/Asset/ConvexParts/*`` meshes with approximation
     convexHull): (points (V, 3) in the asset's frame, triangles (T, 3)) each; empty when it has none."""
@@ -130,7 +133,7 @@ def convex_parts(asset_path: str) -> list[tuple[Any, Any]]:
     stage = Usd.Stage.Open(str(asset_path))
     if stage is None:
         raise RuntimeError(f"cannot open asset {asset_path}")
-    root = stage.GetPrimAtPath("/Asset/ConvexParts")
+    root = stage.GetPrimAtPath(CONVEX_PARTS_PRIM)
     out = []
     if not root:
         return out
