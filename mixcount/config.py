@@ -267,6 +267,7 @@ class ComposeConfig:
     passes: tuple[str, ...]
     depth_format: str
     normal_format: str
+    mesh_cache: str
     merge: bool
 
     def validate(self) -> None:
@@ -277,6 +278,11 @@ class ComposeConfig:
         if self.denoise_prefilter not in DENOISE_PREFILTERS:
             raise ConfigError(f"compose.denoise_prefilter must be one of {', '.join(DENOISE_PREFILTERS)}, "
                               f"got {self.denoise_prefilter!r}")
+        from mixcount.blender.contract import MESH_CACHE_MODES
+
+        if self.mesh_cache not in MESH_CACHE_MODES:
+            raise ConfigError(f"compose.mesh_cache must be one of {', '.join(MESH_CACHE_MODES)}, "
+                              f"got {self.mesh_cache!r}")
         known = ("instance", "class", "depth", "normal")
         unknown = [p for p in self.passes if p not in known]
         if unknown:

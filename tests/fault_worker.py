@@ -13,6 +13,10 @@
 * ``{"op": "release_wave"}`` - a spawn wave: a cube held until frame 40 at (5, 0, 10) beside two resting
   ones; answers its centre at every rest check, its settled pose, the frames run and whether any
   animation is left on it.
+* ``{"op": "mesh_cache", "stage": path, "out_dir": path}`` - the .blend mesh cache and the unlit id
+  pass: the stage loaded with no cache, with a cold cache (files written), a warm one (files appended)
+  and one whose first file was truncated; answers each load's cache events and whether every load's id
+  passes and small RGB render equal the uncached one's, and whether a lit id pass equals the unlit one.
 
 Tests select it with ``monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")``.
 """
@@ -139,7 +143,53 @@ def release_wave(req: dict[str, Any]) -> dict[str, Any]:
             "pose": [float(v) for v in held.matrix_world.translation]}
 
 
+def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
+    import shutil
+    from pathlib import Path
+
+    import numpy as np
+    from PIL import Image
+
+    from mixcount.blender import passes as P
+    from mixcount.blender import scene_job as J
+    from mixcount.blender.contract import SceneRequest
+    from mixcount.blender.mesh_cache import CACHE_DIR, cache_file
+
+    out = Path(req["out_dir"])
+
+    def load(mode: str) -> tuple[Any, dict[str, Any]]:
+        state = J.load_scene(SceneRequest(stage=req["stage"], out_dir=str(out), threads=2, oracle=False,
+                                          mesh_cache=mode))
+        state.scene.render.resolution_percentage = 50
+        ids = P.render_id_passes(state.scene, out / "_ids.exr")
+        P.configure_rgb(state.scene, samples=2, denoise=False)
+        P.render_to(state.scene, out / "_rgb.png")
+        ids["rgb"] = np.asarray(Image.open(out / "_rgb.png"))
+        events = next((d["assets"] for d in state.diagnostics if d["kind"] == "mesh_cache"), {})
+        return state, {"ids": ids, "events": events}
+
+    first, ref = load("off")
+    assets = sorted(first.cache.meshes)
+    lit = P.render_id_passes(first.scene, out / "_lit.exr", unlit=False)
+    for a in assets:
+        shutil.rmtree(Path(a).parent / CACHE_DIR, ignore_errors=True)
+    runs = {"off": ref}
+    _, runs["cold"] = load("zstd")
+    _, runs["warm"] = load("zstd")
+    broken = cache_file(Path(assets[0]))
+    assert broken is not None
+    broken.write_bytes(broken.read_bytes()[:4096])  # an interrupted copy, say
+    _, runs["truncated"] = load("zstd")
+    _, runs["after"] = load("zstd")
+    keys = ("index", "depth", "normal", "rgb")
+    return {"ok": True, "assets": [Path(a).name for a in assets], "broken": Path(assets[0]).name,
+            "events": {k: r["events"] for k, r in runs.items()},
+            "equal": {k: all(np.array_equal(ref["ids"][x], r["ids"][x]) for x in keys) for k, r in runs.items()},
+            "lit_equal": all(np.array_equal(lit[x], ref["ids"][x]) for x in ("index", "depth", "normal")),
+            "files": sorted(p.name for d in {Path(a).parent / CACHE_DIR for a in assets} for p in d.glob("*.blend"))}
+
+
 if __name__ == "__main__":
     sys.exit(worker_main.main({**worker_main.HANDLERS, "sleep": sleep, "canonical": canonical,
                                       "border_check": border_check, "rest_stop": rest_stop,
-                                      "release_wave": release_wave}))
+                                      "release_wave": release_wave, "mesh_cache": mesh_cache}))

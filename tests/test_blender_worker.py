@@ -316,6 +316,32 @@ def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_p
             assert r["equal"] == {"index": True, "depth": True, "normal": True}, r
 
 
+def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Asset meshes appended from the .blend cache render exactly as imported from USD: same ids, depth,
+    normals and RGB, cold (files written) and warm (files appended); a truncated file is a miss that is
+    rewritten. The unlit id pass equals a lit one."""
+    from mixcount.blender.worker import BlenderWorker
+
+    out, _summary, _pool = composed
+    scene = _scenes(out)[0]
+    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "mesh_cache"
+    with BlenderWorker(name="meshcache", log_dir=tmp_path) as w:
+        r = w.request({"op": "mesh_cache", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / "mc")},
+                      timeout=300)
+    assert r["ok"], r
+    assets, events = r["assets"], r["events"]
+    assert len(assets) >= 2
+    assert events["off"] == {}
+    assert events["cold"] == {a: "written" for a in assets}
+    assert events["warm"] == {a: "hit" for a in assets}
+    assert events["truncated"] == {a: ("written" if a == r["broken"] else "hit") for a in assets}
+    assert events["after"] == {a: "hit" for a in assets}
+    assert r["equal"] == {k: True for k in ("off", "cold", "warm", "truncated", "after")}, r["equal"]
+    assert r["lit_equal"] is True
+    assert len(r["files"]) == len(assets)  # one file per asset, no temporary or stale ones
+
+
 def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The early stop ends once the waited-for bodies are calm: a body the scene job would drop anyway
     (here: one still falling far away) no longer keeps the simulation going."""

@@ -69,6 +69,9 @@ def test_section_checks_run_at_load():
     with pytest.raises(ConfigError, match="denoise_prefilter must be one of ACCURATE, FAST, NONE"):
         load_config(overrides=["compose.denoise_prefilter=BEST"])
     assert load_config(overrides=["compose.denoise_prefilter=FAST"]).compose.denoise_prefilter == "FAST"
+    with pytest.raises(ConfigError, match="mesh_cache must be one of zstd, raw, off"):
+        load_config(overrides=["compose.mesh_cache=lz4"])
+    assert load_config(overrides=["compose.mesh_cache=off"]).compose.mesh_cache == "off"
     assert load_config(overrides=["split.train_fraction=2.0"]).split.fractions[0] == pytest.approx(2.0 / 2.3)
 
 

@@ -27,6 +27,10 @@ DROPPED = "dropped"
 
 Matrix = tuple[tuple[float, ...], ...]
 
+# how the worker keeps imported asset meshes between scenes (mixcount.blender.mesh_cache): a compressed
+# or uncompressed .blend beside each converted asset, or no cache (every scene imports from USD)
+MESH_CACHE_MODES = ("zstd", "raw", "off")
+
 
 def _matrix(m: Any) -> Optional[Matrix]:
     return None if m is None else tuple(tuple(float(v) for v in row) for row in m)
@@ -44,6 +48,7 @@ class SceneRequest:
     passes: tuple[str, ...] = ("instance", "class", "depth", "normal")
     depth_format: str = "png16"
     normal_format: str = "png8"
+    mesh_cache: str = "zstd"  # one of MESH_CACHE_MODES
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -52,7 +57,7 @@ class SceneRequest:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneRequest":
-        extra = {k: d[k] for k in ("depth_format", "normal_format") if k in d}
+        extra = {k: d[k] for k in ("depth_format", "normal_format", "mesh_cache") if k in d}
         if "passes" in d:
             extra["passes"] = tuple(d["passes"])
         return cls(stage=str(d["stage"]), out_dir=str(d["out_dir"]), threads=int(d["threads"]),

@@ -4,7 +4,10 @@ Two kinds of render, both on the same pixel grid:
 
 * the *id pass* render: 1 sample, a 0.01 px box filter, no bounces, no denoising; Cycles then samples
   every pixel at its centre, so the object-index pass holds exact integer ids and the depth / normal
-  passes are those of the surface seen through the pixel centre. It writes a multi-layer EXR
+  passes are those of the surface seen through the pixel centre. It renders unlit (lamps and world
+  off for the render): the passes read only the first hit's object, distance and shading normal, which
+  no light changes, and Cycles would otherwise still trace a shadow ray and sample the world at every
+  pixel (~0.6-0.8 s of a 1024² id pass on a heavy scene, docs/performance.md). It writes a multi-layer EXR
   (``render.image_settings.media_type = 'MULTI_LAYER_IMAGE'``; Blender 5.0 dropped the
   OPEN_EXR_MULTILAYER format enum from the usual path) read back with the ``OpenEXR`` package.
 * the *RGB* render: the configured samples and denoiser, the default 1.5 px Blackman-Harris filter,
@@ -129,8 +132,27 @@ def read_exr_layers(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def render_id_passes(scene: Any, path: Path, region: Optional[tuple[int, int, int, int]] = None
-                     ) -> dict[str, np.ndarray]:
+class _Unlit:
+    """Lamps hidden from the render and no world for the duration of a ``with`` block; both restored."""
+
+    def __init__(self, scene: Any) -> None:
+        self.scene = scene
+
+    def __enter__(self) -> None:
+        self.world = self.scene.world
+        self.lamps = [o for o in self.scene.objects if o.type == "LIGHT" and not o.hide_render]
+        for o in self.lamps:
+            o.hide_render = True
+        self.scene.world = None
+
+    def __exit__(self, *exc: Any) -> None:
+        self.scene.world = self.world
+        for o in self.lamps:
+            o.hide_render = False
+
+
+def render_id_passes(scene: Any, path: Path, region: Optional[tuple[int, int, int, int]] = None,
+                     unlit: bool = True) -> dict[str, np.ndarray]:
     """Render the id pass and return ``index`` (int32), ``depth`` (float32, metres along the view ray
     as Cycles reports it, background 1e10) and ``normal`` (world space) arrays, rows top-down.
 
@@ -149,7 +171,11 @@ def render_id_passes(scene: Any, path: Path, region: Optional[tuple[int, int, in
         r.border_min_y, r.border_max_y = max(0.0, (h - row1 - 2) / h), min(1.0, (h - row0 + 1) / h)
         r.use_border, r.use_crop_to_border = True, False
     try:
-        render_to(scene, path)
+        if unlit:
+            with _Unlit(scene):
+                render_to(scene, path)
+        else:
+            render_to(scene, path)
     finally:
         r.use_border = False
     layers = read_exr_layers(path)

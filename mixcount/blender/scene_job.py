@@ -2,7 +2,8 @@
 
 Scene building (chosen over ``wm.usd_import`` of the whole stage, see docs/blender.md): the stage is read
 with pxr; every referenced asset file is imported ONCE with ``wm.usd_import`` (UsdPreviewSurface ->
-Principled BSDF), its mesh parts baked and joined into one mesh datablock, and every instance prim becomes
+Principled BSDF), its mesh parts baked and joined into one mesh datablock - or that datablock is
+appended from the asset's .blend cache (:mod:`mixcount.blender.mesh_cache`) -, and every instance prim becomes
 a linked duplicate (a new object sharing that mesh) placed by the prim's world matrix. Objects keep the
 prim's name, so mapping back to prims is by name; ``pass_index`` is the instance id. The floor (with its
 material) is imported through ``prim_path_mask``; camera and lights are built from their prims.
@@ -79,15 +80,21 @@ def _reference_path(prim: Any, stage_dir: Path) -> Optional[Path]:
 
 
 class AssetCache:
-    """One joined mesh datablock per asset file, imported once per scene."""
+    """One joined mesh datablock per asset file, imported once per scene.
 
-    def __init__(self) -> None:
+    With ``mesh_cache`` "zstd" or "raw" the finished mesh also goes to a .blend beside the asset
+    (:mod:`mixcount.blender.mesh_cache`), and later scenes append it from there instead of importing the
+    USD file again. ``cache_events`` records, per asset, "hit", "written" or the reason it was not."""
+
+    def __init__(self, mesh_cache: str = "off") -> None:
+        self.mesh_cache = mesh_cache
         self.meshes: dict[str, Any] = {}
         self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.columns: dict[str, np.ndarray] = {}  # local vertices as (3, V): rows reduce fast
         self.hulls: dict[str, np.ndarray] = {}
         self.proxies: dict[str, Any] = {}
         self.proxy_points: dict[str, np.ndarray] = {}
+        self.cache_events: dict[str, str] = {}
 
     def proxy(self, path: Path, prim: Any) -> Any:
         """The collision proxy mesh of an asset (read from the instance's ``Proxy`` prim), one per asset."""
@@ -107,42 +114,23 @@ class AssetCache:
         return self.proxies[key]
 
     def mesh(self, path: Path) -> Any:
-        import bpy
-
+        """The asset's render mesh: from this scene's memory, the .blend cache, or a USD import."""
+        from mixcount.blender import mesh_cache
         from mixcount.blender.visibility import mesh_arrays
-        from mixcount.usd.read import normals_against_winding
 
         key = str(path)
         if key in self.meshes:
             return self.meshes[key]
-        before = set(bpy.data.objects)
-        res = bpy.ops.wm.usd_import(filepath=key, import_lights=False, import_cameras=False, import_guide=False,
-                                    import_proxy=False, create_collection=False)
-        if "FINISHED" not in res:
-            raise RuntimeError(f"USD import of {key} failed")
-        new = [o for o in bpy.data.objects if o not in before]
-        parts = [o for o in new if o.type == "MESH"]
-        if not parts:
-            raise RuntimeError(f"asset {key} holds no mesh")
-        bpy.context.view_layer.update()
-        for o in parts:
-            if o.data.users > 1:
-                o.data = o.data.copy()
-            o.data.transform(o.matrix_world)
-            o.matrix_world.identity()
-        if len(parts) > 1:
-            with bpy.context.temp_override(active_object=parts[0], object=parts[0], selected_objects=parts,
-                                           selected_editable_objects=parts):
-                bpy.ops.object.join()
-        mesh = parts[0].data
-        mesh.name = f"asset_{Path(key).stem[:16]}"
-        if normals_against_winding(key):
-            drop_authored_normals(mesh)
-        mesh.use_fake_user = True
-        for o in list(bpy.data.objects):
-            if o in before:
-                continue
-            bpy.data.objects.remove(o, do_unlink=True)
+        mesh = None
+        cached = mesh_cache.cache_file(path) if self.mesh_cache != "off" else None
+        if cached is not None:
+            mesh = mesh_cache.load(cached)
+            if mesh is not None:
+                self.cache_events[key] = "hit"
+        if mesh is None:
+            mesh = _import_asset_mesh(key)
+            if cached is not None:
+                self.cache_events[key] = mesh_cache.store(mesh, cached, self.mesh_cache) or "written"
         self.meshes[key] = mesh
         self.arrays[key] = mesh_arrays(mesh)
         self.columns[key] = np.ascontiguousarray(self.arrays[key][0].T)
@@ -155,6 +143,45 @@ class AssetCache:
         if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= proxy_max_vertices points)
             self.hulls[key] = hull_equations(self.proxy_points.get(key, self.arrays[key][0]))
         return self.hulls[key]
+
+
+def _import_asset_mesh(asset: str) -> Any:
+    """``wm.usd_import`` of one asset file (UsdPreviewSurface -> Principled BSDF), its mesh parts baked
+    and joined into one mesh datablock (fake user) and the import's objects removed; authored normals
+    that point against the winding are replaced (:func:`drop_authored_normals`)."""
+    import bpy
+
+    from mixcount.usd.read import normals_against_winding
+
+    before = set(bpy.data.objects)
+    res = bpy.ops.wm.usd_import(filepath=asset, import_lights=False, import_cameras=False, import_guide=False,
+                                import_proxy=False, create_collection=False)
+    if "FINISHED" not in res:
+        raise RuntimeError(f"USD import of {asset} failed")
+    new = [o for o in bpy.data.objects if o not in before]
+    parts = [o for o in new if o.type == "MESH"]
+    if not parts:
+        raise RuntimeError(f"asset {asset} holds no mesh")
+    bpy.context.view_layer.update()
+    for o in parts:
+        if o.data.users > 1:
+            o.data = o.data.copy()
+        o.data.transform(o.matrix_world)
+        o.matrix_world.identity()
+    if len(parts) > 1:
+        with bpy.context.temp_override(active_object=parts[0], object=parts[0], selected_objects=parts,
+                                       selected_editable_objects=parts):
+            bpy.ops.object.join()
+    mesh = parts[0].data
+    mesh.name = f"asset_{Path(asset).stem[:16]}"
+    if normals_against_winding(asset):
+        drop_authored_normals(mesh)
+    mesh.use_fake_user = True
+    for o in list(bpy.data.objects):
+        if o in before:
+            continue
+        bpy.data.objects.remove(o, do_unlink=True)
+    return mesh
 
 
 def drop_authored_normals(mesh: Any) -> None:
@@ -376,7 +403,7 @@ def load_scene(req: SceneRequest) -> SceneState:
         raise RuntimeError(f"cannot open stage {stage_path}")
     spec = SceneSpec.from_json(stage.GetRootLayer().customLayerData["mixcount"]["spec"])
     state = SceneState(scene=scene, spec=spec, stage_path=stage_path, out_dir=out_dir, cam_obj=None, lights={},
-                       cache=AssetCache(), bodies=[], objects=[], blender_objects={})
+                       cache=AssetCache(req.mesh_cache), bodies=[], objects=[], blender_objects={})
     _add_instances(state, stage)
     cam_prims = [p for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]
     if not cam_prims:
@@ -386,6 +413,9 @@ def load_scene(req: SceneRequest) -> SceneState:
         state.diagnostics.append({"kind": "cameras",
                                   "message": f"{len(cam_prims)} cameras: rendering {cam_prims[0].GetName()} only"})
     state.lights = _build_lights(scene, stage, stage_path.parent)
+    if state.cache.cache_events:
+        state.diagnostics.append({"kind": "mesh_cache", "mode": req.mesh_cache,
+                                  "assets": {Path(k).name: v for k, v in sorted(state.cache.cache_events.items())}})
     return state
 
 

@@ -127,7 +127,8 @@ def compose_scenes(
                              threads=threads, oracle=oracle, captions={k: v for k, v in captions.items()
                                                             if k in {d.object_id for d in spec.distractors}},
                              external_exemplars={k: external[k] for k in sorted(used) if k in external},
-                             passes=chosen, depth_format=depth_format, normal_format=normal_format)
+                             passes=chosen, depth_format=depth_format, normal_format=normal_format,
+                             mesh_cache=comp.mesh_cache)
         return None
 
     bar = as_reporter(progress)

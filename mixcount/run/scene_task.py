@@ -39,6 +39,7 @@ class SceneTask:
     passes: tuple[str, ...] = ("instance", "class", "depth", "normal")  # besides rgb (compose --passes)
     depth_format: str = "png16"  # mixcount.annotate.passes formats
     normal_format: str = "png8"
+    mesh_cache: str = "zstd"  # the worker's .blend cache of imported asset meshes (compose.mesh_cache)
 
 
 @dataclass
@@ -77,7 +78,7 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
         t = time.perf_counter()
         request = SceneRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=task.threads,
                                oracle=task.oracle, passes=tuple(task.passes), depth_format=task.depth_format,
-                               normal_format=task.normal_format)
+                               normal_format=task.normal_format, mesh_cache=task.mesh_cache)
         result = worker.render_scene(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
         status = result.status
