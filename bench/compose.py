@@ -8,7 +8,9 @@
 
 Pools (bench/pools.py): ``light`` = the generated demo library; ``heavy`` = the same objects subdivided to
 >= 200k faces, textures kept (a real capture's size). Asset conversion, proxy building and the bpy start-up
-happen before the clock starts (all cached or one-off in a real run). Per scene: ``whole`` = stage writing
+happen before the clock starts (all cached or one-off in a real run), and so does the worker's .blend cache
+of each asset's imported mesh (``compose.mesh_cache``; ``--cold-mesh-cache`` leaves it for the scene's
+import to make, the cost of an asset's first scene). Per scene: ``whole`` = stage writing
 + worker (import, physics, checks, silhouettes, id passes, passes, RGB) + annotation and writing;
 ``whole_over_rgb`` = whole / RGB render (target <= 1.15 on the heavy pool at paper settings);
 ``physics_share`` = physics / whole (target <= 0.05); ``bytes`` = the finished scene folder (target
@@ -44,10 +46,12 @@ def main() -> int:
     ap.add_argument("--oracle", action="store_true", help="also run the one-render-per-object reference")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="extra config override (repeatable), e.g. --set scene.physics_substeps=2")
+    ap.add_argument("--cold-mesh-cache", action="store_true",
+                    help="do not make the .blend mesh cache before the clock (each asset's first scene)")
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
-    from pools import load_pool, run_fresh_scene, scene_bytes, with_proxies
+    from pools import load_pool, run_fresh_scene, scene_bytes, warm_mesh_cache, with_proxies
 
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
@@ -72,11 +76,18 @@ def main() -> int:
                 spec = sample_scene(args.seed, "train", cfg, pool)
                 if not args.no_proxies:
                     spec = with_proxies(spec, work / "proxies", cfg.ingest.proxy_max_vertices)
-                convert_scene_assets(spec, work / "assets")
+                converted = convert_scene_assets(spec, work / "assets")
+                if args.cold_mesh_cache:
+                    for a in converted.values():
+                        for f in (a.visual.parent / "_blend").glob(f"{a.visual.stem}-*.blend"):
+                            f.unlink()
+                else:
+                    warm_mesh_cache(worker, converted, cfg.compose.mesh_cache)
                 out = work / (f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
                               f"{'_noproxy' if args.no_proxies else ''}{'_set' if args.set else ''}")
                 outcome, meta, stages = run_fresh_scene(worker, spec, out, work / "assets", timeout_s=7200,
-                                                        threads=threads, oracle=args.oracle)
+                                                        threads=threads, oracle=args.oracle,
+                                                        mesh_cache=cfg.compose.mesh_cache)
                 if meta is None:
                     rows.append({"pool": pool_name, "objects": n, "status": outcome.status, "error": outcome.error})
                     print(json.dumps(rows[-1]), file=sys.stderr)
@@ -103,7 +114,7 @@ def main() -> int:
     heavy = [r for r in ok if r["pool"] == "heavy"]
     print(json.dumps({"bench": "compose", "resolution": args.resolution, "samples": args.samples,
                       "frames": args.frames, "threads": threads, "cpu_count": os.cpu_count(),
-                      "proxies": not args.no_proxies, "scenes": rows,
+                      "proxies": not args.no_proxies, "cold_mesh_cache": args.cold_mesh_cache, "scenes": rows,
                       "heavy_targets_met": bool(heavy) and all(r["whole_over_rgb"] <= 1.15 and r["physics_share"] <= 0.05
                                                                 for r in heavy)}))
     return 0

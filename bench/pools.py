@@ -48,8 +48,20 @@ def with_proxies(spec: Any, proxy_dir: Path, max_vertices: int) -> Any:
     return dataclasses.replace(spec, assets=assets)
 
 
+def warm_mesh_cache(worker: Any, converted: dict[int, Any], mode: str) -> dict[str, str]:
+    """Make the worker's .blend mesh cache of the scene's converted assets before the clock starts (a
+    one-off per asset in a real run, like the conversion itself); returns asset name -> cache event."""
+    if mode == "off":
+        return {}
+    r = worker.request({"op": "cache_meshes", "assets": [str(a.visual) for a in converted.values()], "mode": mode},
+                       timeout=1800)
+    if not r.get("ok"):
+        raise RuntimeError(f"cache_meshes failed: {r.get('error')}")
+    return dict(r["assets"])
+
+
 def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_s: float, threads: int,
-                    oracle: bool = False) -> tuple[Any, Any, dict[str, float]]:
+                    oracle: bool = False, mesh_cache: str = "zstd") -> tuple[Any, Any, dict[str, float]]:
     """One scene into an emptied ``out`` (a finished scene would be skipped, not measured): the task's
     outcome, its metadata.json (None when not written) and the worker's stage seconds."""
     import json
@@ -59,7 +71,7 @@ def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_
 
     shutil.rmtree(out, ignore_errors=True)
     outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=timeout_s,
-                                       threads=threads, oracle=oracle), worker)
+                                       threads=threads, oracle=oracle, mesh_cache=mesh_cache), worker)
     if outcome.status != WRITTEN:
         return outcome, None, {}
     meta = json.loads((Path(outcome.path) / "metadata.json").read_text())

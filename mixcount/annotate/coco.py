@@ -95,29 +95,38 @@ def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], ca
     ``area_amodal`` and ``visibility`` = area / area_amodal; without it ``visibility`` is the record's.
     Annotation ids are the instance ids (unique within the scene). Field conventions: docs/annotations.md.
     """
+    from scipy.ndimage import find_objects
+
     from mixcount.annotate.points import interior_point
 
     h, w = ids.shape
     anns: list[dict[str, Any]] = []
     areas_by_cat: dict[int, list[int]] = {}
-    masks = {}
+    masks, crops = {}, {}
     ids_f = np.asfortranarray(ids)  # COCO RLE runs down columns: masks compared on it come out column-major
+    # each id's tight box in one pass over the map: an object's mask is compared within its box only
+    # (a full-image comparison per object was ~0.3 s of a 100-object 1024² scene)
+    boxes = find_objects(ids_f) if ids_f.size and int(ids_f.max()) > 0 else []
     for obj in objects:
-        m = ids_f == int(obj["instance_id"])
-        area = int(m.sum())
-        if area == 0:
+        inst = int(obj["instance_id"])
+        sl = boxes[inst - 1] if 0 < inst <= len(boxes) else None
+        if sl is None:
             continue
-        masks[int(obj["instance_id"])] = m
+        crop = ids_f[sl] == inst
+        m = np.zeros((h, w), dtype=bool, order="F")
+        m[sl] = crop
+        masks[inst], crops[inst] = m, (crop, sl)
         if obj["role"] == "counted":
-            areas_by_cat.setdefault(int(obj["category_id"]), []).append(area)
+            areas_by_cat.setdefault(int(obj["category_id"]), []).append(int(crop.sum()))
     ref = {c: float(np.median(a)) for c, a in areas_by_cat.items()}
     for obj in objects:
         inst = int(obj["instance_id"])
         if inst not in masks:
             continue
         m = masks[inst]
-        box = bbox_of(m)
-        area = int(m.sum())
+        crop, (rows, cols) = crops[inst]
+        box = [float(cols.start), float(rows.start), float(cols.stop - cols.start), float(rows.stop - rows.start)]
+        area = int(crop.sum())
         cat = int(obj["category_id"])
         vis = float(obj.get("visibility", 1.0))
         amodal_fields: dict[str, Any] = {}
@@ -127,7 +136,8 @@ def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], ca
             vis = area / area_amodal
             amodal_fields = {"segmentation_amodal": mask_to_rle(am), "bbox_amodal": bbox_of(am),
                              "area_amodal": area_amodal}
-        x, y = interior_point(m)
+        cx, cy = interior_point(crop)
+        x, y = cols.start + cx, rows.start + cy
         anns.append({
             "id": inst, "image_id": image_id, "category_id": cat, "bbox": box, "segmentation": mask_to_rle(m),
             "area": area, "iscrowd": 0, "point": [x, y], "keypoints": [x, y, 2], "num_keypoints": 1,

@@ -145,6 +145,20 @@ class AssetCache:
         return self.hulls[key]
 
 
+def cache_asset_meshes(assets: list[str], mode: str) -> dict[str, str]:
+    """Make (or find) the .blend mesh cache of each asset file ahead of the scenes that use it; returns
+    asset file name -> "hit", "written" or why it could not be written. In an empty Blender file."""
+    import bpy
+
+    if mode == "off":
+        return {}
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    cache = AssetCache(mode)
+    for a in assets:
+        cache.mesh(Path(a))
+    return {Path(k).name: v for k, v in sorted(cache.cache_events.items())}
+
+
 def _import_asset_mesh(asset: str) -> Any:
     """``wm.usd_import`` of one asset file (UsdPreviewSurface -> Principled BSDF), its mesh parts baked
     and joined into one mesh datablock (fake user) and the import's objects removed; authored normals

@@ -10,6 +10,9 @@ redirected to stderr at start-up, so the protocol channel carries nothing else. 
   :func:`mixcount.blender.scene_job.run_scene`)
 * ``{"op": "canonical", "job": {...}}`` -> ``{"ok": true, "views": [...]}`` (one catalog object's
   canonical renders, see :func:`mixcount.blender.canonical.render_object`)
+* ``{"op": "cache_meshes", "assets": [paths], "mode": "zstd"}`` -> ``{"ok": true, "assets": {name:
+  "hit" | "written" | why not}}`` (each converted asset's .blend mesh cache made ahead of the scenes, see
+  :func:`mixcount.blender.scene_job.cache_asset_meshes`)
 * ``{"op": "exit"}`` -> ``{"ok": true}`` and the process ends.
 
 A Python error in a handler answers ``{"ok": false, "error", "traceback"}`` and the worker stays up for
@@ -46,7 +49,14 @@ def handle_canonical(req: dict[str, Any]) -> dict[str, Any]:
     return {"ok": True, **render_object(req["job"])}
 
 
-HANDLERS: dict[str, Handler] = {"scene": handle_scene, "canonical": handle_canonical}
+def handle_cache_meshes(req: dict[str, Any]) -> dict[str, Any]:
+    from mixcount.blender.scene_job import cache_asset_meshes
+
+    return {"ok": True, "assets": cache_asset_meshes(req["assets"], str(req.get("mode", "zstd")))}
+
+
+HANDLERS: dict[str, Handler] = {"scene": handle_scene, "canonical": handle_canonical,
+                                "cache_meshes": handle_cache_meshes}
 
 
 def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
