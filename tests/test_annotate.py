@@ -17,7 +17,7 @@ from mixcount.annotate.coco import (
     exemplar_score,
     mask_to_rle,
 )
-from mixcount.annotate.raster import PinholeCamera, rasterize_triangles, silhouette
+from mixcount.annotate.raster import PinholeCamera, placed_silhouette, rasterize_triangles, silhouette
 
 
 def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -67,6 +67,28 @@ def test_silhouette_of_a_cube_matches_convex_hull_of_its_projection() -> None:
     expect = MplPath(hull).contains_points(centres).reshape(80, 96)
     assert mask.sum() > 200
     assert (mask != expect).sum() <= 2  # only centres lying on the hull boundary may differ
+
+
+def test_placed_silhouette_equals_silhouette_of_the_world_vertices() -> None:
+    """The scene job's path (local rows + pose, one transform into camera space) gives the same mask as
+    projecting world vertices, also for a mesh partly behind the camera and partly outside the frame."""
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    local = np.asarray(mesh.vertices, dtype=np.float64) * [1.0, 0.6, 0.4]
+    tris = np.asarray(mesh.faces, dtype=np.int64)
+    cam = PinholeCamera.from_physical(35.0, 36.0, 160, 120, _look_at(np.array([4.0, -3.0, 2.5]), np.zeros(3)))
+    rng = np.random.default_rng(5)
+    for k in range(6):
+        q = rng.normal(size=4)
+        pose = np.eye(4)
+        pose[:3, :3] = trimesh.transformations.quaternion_matrix(q / np.linalg.norm(q))[:3, :3] * rng.uniform(0.5, 2.0)
+        pose[:3, 3] = rng.uniform(-2.0, 2.0, size=3) if k < 5 else [4.0, -3.0, 2.5]  # the last one around the camera
+        world = local @ pose[:3, :3].T + pose[:3, 3]
+        expect = silhouette(cam, world, tris)
+        got = placed_silhouette(cam, np.ascontiguousarray(local.T), np.ascontiguousarray(tris.T), pose)
+        assert got.shape == (120, 160) and (k == 5 or expect.sum() > 0)
+        assert np.array_equal(got, expect), (k, int((got != expect).sum()))
 
 
 def test_category_ids_are_deterministic_and_distinct() -> None:

@@ -316,7 +316,7 @@ def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_p
             assert r["equal"] == {"index": True, "depth": True, "normal": True}, r
 
 
-def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, tmp_path: Path,
+def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, library, tmp_path: Path,
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """Asset meshes appended from the .blend cache render exactly as imported from USD: same ids, depth,
     normals and RGB, cold (files written) and warm (files appended); a truncated file is a miss that is
@@ -329,7 +329,12 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, tm
     with BlenderWorker(name="meshcache", log_dir=tmp_path) as w:
         r = w.request({"op": "mesh_cache", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / "mc")},
                       timeout=300)
+        paths = [str(library[1] / name) for name in r.get("assets", [])]
+        ahead = w.request({"op": "cache_meshes", "assets": paths, "mode": "zstd"}, timeout=300)  # the bench's warm-up
+        off = w.request({"op": "cache_meshes", "assets": paths, "mode": "off"}, timeout=300)
     assert r["ok"], r
+    assert ahead == {"ok": True, "assets": {a: "hit" for a in r["assets"]}}, ahead
+    assert off == {"ok": True, "assets": {}}
     assets, events = r["assets"], r["events"]
     assert len(assets) >= 2
     assert events["off"] == {}

@@ -94,20 +94,28 @@ def rasterize_triangles(points2d: NDArray[Any], triangles: NDArray[Any], shape: 
     ``points2d`` (V, 2) in pixels (x = column, y = row), ``triangles`` (T, 3) vertex indices,
     ``valid`` an optional (V,) bool: triangles touching an invalid vertex (behind the camera) are skipped.
     """
+    pts = np.asarray(points2d, dtype=np.float64)
+    corners = np.ascontiguousarray(np.asarray(triangles, dtype=np.int64).reshape(-1, 3).T)
+    return _rasterize(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), corners, shape, valid)
+
+
+def _rasterize(x: NDArray[Any], y: NDArray[Any], corners: NDArray[Any], shape: tuple[int, int],
+               valid: NDArray[Any] | None = None) -> NDArray[Any]:
+    """:func:`rasterize_triangles` on vertex coordinate rows ``x``, ``y`` (V,) and ``corners`` (3, T),
+    the triangles' vertex indices as three contiguous rows (gathers from them are ~2x faster than from
+    the columns of a (T, 3) array, and a caller can keep them per mesh)."""
     h, w = int(shape[0]), int(shape[1])
     mask = np.zeros((h, w), dtype=bool)
-    tris = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    if len(tris) == 0:
+    if corners.shape[1] == 0:
         return mask
     if valid is not None and not np.all(valid):
         v = np.asarray(valid)
-        tris = tris[v[tris[:, 0]] & v[tris[:, 1]] & v[tris[:, 2]]]
-    pts = np.asarray(points2d, dtype=np.float64)
-    # per-corner coordinate columns: element-wise min/max over three arrays is ~10x faster than a
+        corners = corners[:, v[corners[0]] & v[corners[1]] & v[corners[2]]]
+    # per-corner coordinate rows: element-wise min/max over three arrays is ~10x faster than a
     # reduction over a length-3 axis, and a dense capture has most triangles between pixel centres,
     # so they are culled here before any (T, 3, 2) array is gathered
-    xs = [pts[tris[:, k], 0] for k in range(3)]
-    ys = [pts[tris[:, k], 1] for k in range(3)]
+    xs = [x[corners[k]] for k in range(3)]
+    ys = [y[corners[k]] for k in range(3)]
     x0 = np.ceil(np.minimum(np.minimum(xs[0], xs[1]), xs[2]) - 0.5).astype(np.int64)
     x1 = np.floor(np.maximum(np.maximum(xs[0], xs[1]), xs[2]) - 0.5).astype(np.int64)
     y0 = np.ceil(np.minimum(np.minimum(ys[0], ys[1]), ys[2]) - 0.5).astype(np.int64)
@@ -117,7 +125,8 @@ def rasterize_triangles(points2d: NDArray[Any], triangles: NDArray[Any], shape: 
     np.minimum(x1, w - 1, out=x1)
     np.minimum(y1, h - 1, out=y1)
     keep = np.nonzero((x1 >= x0) & (y1 >= y0))[0]
-    tri = pts[tris[keep]]  # (K, 3, 2): only triangles that contain a pixel centre's candidate window
+    # (K, 3, 2): only triangles that contain a pixel centre's candidate window
+    tri = np.stack([np.stack([xs[k][keep], ys[k][keep]], axis=1) for k in range(3)], axis=1)
     x0c, y0c, x1c, y1c = x0[keep], y0[keep], x1[keep], y1[keep]
     size = np.maximum(x1c - x0c, y1c - y0c) + 1
     done = np.zeros(len(tri), dtype=bool)
@@ -143,3 +152,20 @@ def silhouette(camera: PinholeCamera, vertices_world: NDArray[Any], triangles: N
     """The unoccluded mask of one mesh (world-space vertices) seen by ``camera``."""
     pts, depth = camera.project(vertices_world)
     return rasterize_triangles(pts, triangles, (camera.height, camera.width), valid=depth > camera.near)
+
+
+def placed_silhouette(camera: PinholeCamera, local_rows: NDArray[Any], corners: NDArray[Any],
+                      matrix_world: NDArray[Any]) -> NDArray[Any]:
+    """:func:`silhouette` of a mesh placed by ``matrix_world`` (4x4), from its local vertices as rows
+    (3, V) and its triangles' corners as rows (3, T), both kept per mesh by the caller.
+
+    One 3x3 product maps the local vertices straight into camera space (rows in, rows out): a world
+    copy of the vertices and a (V, 2) pixel array are never made. Up to rounding in the last bits of
+    the camera-space coordinates, the mask is :func:`silhouette`'s."""
+    to_cam = np.linalg.inv(camera.cam_to_world) @ np.asarray(matrix_world, dtype=np.float64)
+    pc = to_cam[:3, :3] @ local_rows + to_cam[:3, 3:4]
+    depth = -pc[2]
+    safe = np.where(np.abs(depth) < 1e-12, 1e-12, depth)
+    x = camera.cx + camera.fx * pc[0] / safe
+    y = camera.cy - camera.fy * pc[1] / safe
+    return _rasterize(x, y, corners, (camera.height, camera.width), valid=depth > camera.near)

@@ -91,6 +91,7 @@ class AssetCache:
         self.meshes: dict[str, Any] = {}
         self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.columns: dict[str, np.ndarray] = {}  # local vertices as (3, V): rows reduce fast
+        self.corners: dict[str, np.ndarray] = {}  # triangles' vertex indices as (3, T): rows gather fast
         self.hulls: dict[str, np.ndarray] = {}
         self.proxies: dict[str, Any] = {}
         self.proxy_points: dict[str, np.ndarray] = {}
@@ -134,6 +135,7 @@ class AssetCache:
         self.meshes[key] = mesh
         self.arrays[key] = mesh_arrays(mesh)
         self.columns[key] = np.ascontiguousarray(self.arrays[key][0].T)
+        self.corners[key] = np.ascontiguousarray(self.arrays[key][1].T)
         return mesh
 
     def hull(self, path: Path) -> np.ndarray:
@@ -595,8 +597,8 @@ def silhouettes(state: SceneState, camera: PinholeCamera, threads: int) -> dict[
 
     def one(i: int) -> np.ndarray:
         o = state.objects[i]
-        local, tris = state.cache.arrays[o.asset]
-        return unoccluded_mask(camera, local, tris, np.array(o.matrix_world))
+        return unoccluded_mask(camera, state.cache.columns[o.asset], state.cache.corners[o.asset],
+                               np.array(o.matrix_world))
 
     with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
         results = list(pool.map(one, kept))

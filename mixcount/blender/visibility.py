@@ -13,7 +13,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from mixcount.annotate.raster import PinholeCamera, silhouette
+from mixcount.annotate.raster import PinholeCamera, placed_silhouette
 
 
 def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -33,11 +33,6 @@ def mesh_arrays(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
     return verts.reshape(-1, 3).astype(np.float64), tris.reshape(-1, 3).astype(np.int64)
 
 
-def world_vertices(local: np.ndarray, matrix_world: np.ndarray) -> np.ndarray:
-    m = np.asarray(matrix_world, dtype=np.float64)
-    return local @ m[:3, :3].T + m[:3, 3]
-
-
 def camera_model(scene: Any, cam_obj: Any) -> PinholeCamera:
     """The pinhole model Blender renders with (horizontal sensor fit, square pixels, no shift)."""
     cam = cam_obj.data
@@ -48,9 +43,11 @@ def camera_model(scene: Any, cam_obj: Any) -> PinholeCamera:
                                        near=float(cam.clip_start))
 
 
-def unoccluded_mask(camera: PinholeCamera, local_verts: np.ndarray, tris: np.ndarray,
+def unoccluded_mask(camera: PinholeCamera, local_rows: np.ndarray, corners: np.ndarray,
                     matrix_world: np.ndarray) -> np.ndarray:
-    return silhouette(camera, world_vertices(local_verts, matrix_world), tris)
+    """The object's silhouette from its mesh's local vertices (3, V) and triangle corners (3, T) as
+    rows (kept per asset by the scene job's AssetCache) placed by ``matrix_world``."""
+    return placed_silhouette(camera, local_rows, corners, matrix_world)
 
 
 def oracle_masks(scene: Any, objects: Iterable[Any], work: Path) -> dict[int, np.ndarray]:
