@@ -15,7 +15,8 @@
   animation is left on it.
 * ``{"op": "mesh_cache", "stage": path, "out_dir": path}`` - the .blend mesh cache and the unlit id
   pass: the stage loaded with no cache, with a cold cache (files written), a warm one (files appended)
-  and one whose first file was truncated; answers each load's cache events and whether every load's id
+  one whose first file was truncated, and one whose last file cannot be written (a folder in its
+  place); answers each load's cache events and whether every load's id
   passes and small RGB render equal the uncached one's, and whether a lit id pass equals the unlit one.
 
 Tests select it with ``monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")``.
@@ -181,8 +182,15 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
     broken.write_bytes(broken.read_bytes()[:4096])  # an interrupted copy, say
     _, runs["truncated"] = load("zstd")
     _, runs["after"] = load("zstd")
+    blocked = cache_file(Path(assets[-1]))  # a folder where the file would go: the write must fail, not the scene
+    assert blocked is not None
+    blocked.unlink()
+    blocked.mkdir()
+    _, runs["unwritable"] = load("zstd")
+    blocked.rmdir()
     keys = ("index", "depth", "normal", "rgb")
     return {"ok": True, "assets": [Path(a).name for a in assets], "broken": Path(assets[0]).name,
+            "blocked": Path(assets[-1]).name,
             "events": {k: r["events"] for k, r in runs.items()},
             "equal": {k: all(np.array_equal(ref["ids"][x], r["ids"][x]) for x in keys) for k, r in runs.items()},
             "lit_equal": all(np.array_equal(lit[x], ref["ids"][x]) for x in ("index", "depth", "normal")),

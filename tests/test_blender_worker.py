@@ -320,7 +320,8 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """Asset meshes appended from the .blend cache render exactly as imported from USD: same ids, depth,
     normals and RGB, cold (files written) and warm (files appended); a truncated file is a miss that is
-    rewritten. The unlit id pass equals a lit one."""
+    rewritten, and a file that cannot be written is reported and costs nothing else. The unlit id pass
+    equals a lit one."""
     from mixcount.blender.worker import BlenderWorker
 
     out, _summary, _pool = composed
@@ -330,10 +331,11 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
         r = w.request({"op": "mesh_cache", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / "mc")},
                       timeout=300)
         paths = [str(library[1] / name) for name in r.get("assets", [])]
-        ahead = w.request({"op": "cache_meshes", "assets": paths, "mode": "zstd"}, timeout=300)  # the bench's warm-up
+        ahead = w.request({"op": "cache_meshes", "assets": paths, "mode": "zstd"}, timeout=300)
         off = w.request({"op": "cache_meshes", "assets": paths, "mode": "off"}, timeout=300)
     assert r["ok"], r
-    assert ahead == {"ok": True, "assets": {a: "hit" for a in r["assets"]}}, ahead
+    # the bench's warm-up: every file there, the one that could not be written made now
+    assert ahead == {"ok": True, "assets": {a: ("written" if a == r["blocked"] else "hit") for a in r["assets"]}}, ahead
     assert off == {"ok": True, "assets": {}}
     assets, events = r["assets"], r["events"]
     assert len(assets) >= 2
@@ -342,9 +344,14 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
     assert events["warm"] == {a: "hit" for a in assets}
     assert events["truncated"] == {a: ("written" if a == r["broken"] else "hit") for a in assets}
     assert events["after"] == {a: "hit" for a in assets}
-    assert r["equal"] == {k: True for k in ("off", "cold", "warm", "truncated", "after")}, r["equal"]
+    unwritable = events["unwritable"]  # the write fails and says why; the scene is the same
+    assert unwritable.pop(r["blocked"]).startswith(("IsADirectoryError", "OSError", "PermissionError"))
+    assert unwritable == {a: "hit" for a in assets if a != r["blocked"]}
+    assert r["equal"] == {k: True for k in ("off", "cold", "warm", "truncated", "after", "unwritable")}, r["equal"]
     assert r["lit_equal"] is True
-    assert len(r["files"]) == len(assets)  # one file per asset, no temporary or stale ones
+    # one file per asset (the blocked one's write failed) and no temporary or stale ones
+    stems = sorted(f.rsplit("-", 1)[0] for f in r["files"])
+    assert stems == sorted(a[:-len(".usdc")] for a in assets if a != r["blocked"]), r["files"]
 
 
 def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
