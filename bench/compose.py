@@ -53,6 +53,7 @@ def main() -> int:
 
     from pools import load_pool, run_fresh_scene, scene_bytes, warm_mesh_cache, with_proxies
 
+    from mixcount.blender import mesh_cache
     from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
     from mixcount.scene.sampler import sample_scene
@@ -79,7 +80,7 @@ def main() -> int:
                 converted = convert_scene_assets(spec, work / "assets")
                 if args.cold_mesh_cache:
                     for a in converted.values():
-                        for f in (a.visual.parent / "_blend").glob(f"{a.visual.stem}-*.blend"):
+                        for f in mesh_cache.files_of(a.visual):
                             f.unlink()
                 else:
                     warm_mesh_cache(worker, converted, cfg.compose.mesh_cache)

@@ -44,6 +44,12 @@ def cache_file(asset: Path) -> Optional[Path]:
     return asset.parent / CACHE_DIR / f"{asset.stem}-{digest}.blend"
 
 
+def files_of(asset: Path) -> list[Path]:
+    """Every cache file of ``asset``, whatever its digest (no bpy: callers outside the worker use it)."""
+    folder, stem = Path(asset).parent / CACHE_DIR, Path(asset).stem
+    return [f for f in folder.glob(f"{stem}-*.blend") if f.stem.rsplit("-", 1)[0] == stem]
+
+
 def load(path: Path) -> Optional[Any]:
     """The mesh datablock appended from ``path`` (with its materials and images), or None when the file
     is missing or unreadable."""
@@ -85,9 +91,9 @@ def store(mesh: Any, path: Path, mode: str) -> Optional[str]:
         except OSError:
             pass
         return f"{type(exc).__name__}: {exc}"
-    stem = path.stem.rsplit("-", 1)[0]
-    for old in path.parent.glob(f"{stem}-*.blend"):  # the same asset converted or placed differently before
-        if old != path and old.stem.rsplit("-", 1)[0] == stem:
+    asset = path.parent.parent / path.stem.rsplit("-", 1)[0]  # the suffix does not matter to files_of
+    for old in files_of(asset):  # the same asset converted or placed differently before
+        if old != path:
             try:
                 old.unlink()
             except OSError:

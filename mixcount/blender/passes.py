@@ -16,6 +16,7 @@ Two kinds of render, both on the same pixel grid:
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 from typing import Any, Optional
@@ -171,10 +172,7 @@ def render_id_passes(scene: Any, path: Path, region: Optional[tuple[int, int, in
         r.border_min_y, r.border_max_y = max(0.0, (h - row1 - 2) / h), min(1.0, (h - row0 + 1) / h)
         r.use_border, r.use_crop_to_border = True, False
     try:
-        if unlit:
-            with _Unlit(scene):
-                render_to(scene, path)
-        else:
+        with _Unlit(scene) if unlit else contextlib.nullcontext():
             render_to(scene, path)
     finally:
         r.use_border = False

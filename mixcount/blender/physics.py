@@ -142,12 +142,12 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         return np.array([o.evaluated_get(dg).matrix_world.translation for o in active],
                         dtype=np.float64).reshape(-1, 3)
 
-    last, last_f, calm, ran = positions(), 1, 0, int(frames)
+    last, last_f, calm, ran = positions(), 1, 0, frames
     unlanded = {i for i, o in enumerate(active) if o.name in held}
     window_speed = waited = np.zeros(len(active))
-    for f in range(2, int(frames) + 2):
+    for f in range(2, frames + 2):
         scene.frame_set(f)
-        if (f - 1) % REST_WINDOW and f != int(frames) + 1:
+        if (f - 1) % REST_WINDOW and f != frames + 1:
             continue
         now = positions()
         window_speed = np.linalg.norm(now - last, axis=1) * fps / max(1, f - last_f)

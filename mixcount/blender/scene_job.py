@@ -89,7 +89,6 @@ class AssetCache:
     def __init__(self, mesh_cache: str) -> None:
         self.mesh_cache = mesh_cache
         self.meshes: dict[str, Any] = {}
-        self.arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.columns: dict[str, np.ndarray] = {}  # local vertices as (3, V): rows reduce fast
         self.corners: dict[str, np.ndarray] = {}  # triangles' vertex indices as (3, T): rows gather fast
         self.hulls: dict[str, np.ndarray] = {}
@@ -133,17 +132,21 @@ class AssetCache:
             if cached is not None:
                 self.cache_events[key] = mesh_cache.store(mesh, cached, self.mesh_cache) or "written"
         self.meshes[key] = mesh
-        self.arrays[key] = mesh_arrays(mesh)
-        self.columns[key] = np.ascontiguousarray(self.arrays[key][0].T)
-        self.corners[key] = np.ascontiguousarray(self.arrays[key][1].T)
+        verts, tris = mesh_arrays(mesh)
+        self.columns[key] = np.ascontiguousarray(verts.T)
+        self.corners[key] = np.ascontiguousarray(tris.T)
         return mesh
+
+    def cache_report(self) -> dict[str, str]:
+        """Asset file name -> what the .blend cache did for it ("hit", "written" or why not)."""
+        return {Path(k).name: v for k, v in sorted(self.cache_events.items())}
 
     def hull(self, path: Path) -> np.ndarray:
         from mixcount.blender.decisions import hull_equations
 
         key = str(path)
         if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= proxy_max_vertices points)
-            self.hulls[key] = hull_equations(self.proxy_points.get(key, self.arrays[key][0]))
+            self.hulls[key] = hull_equations(self.proxy_points.get(key, self.columns[key].T))
         return self.hulls[key]
 
 
@@ -158,7 +161,7 @@ def cache_asset_meshes(assets: list[str], mode: str) -> dict[str, str]:
     cache = AssetCache(mode)
     for a in assets:
         cache.mesh(Path(a))
-    return {Path(k).name: v for k, v in sorted(cache.cache_events.items())}
+    return cache.cache_report()
 
 
 def _import_asset_mesh(asset: str) -> Any:
@@ -430,8 +433,7 @@ def load_scene(req: SceneRequest) -> SceneState:
                                   "message": f"{len(cam_prims)} cameras: rendering {cam_prims[0].GetName()} only"})
     state.lights = _build_lights(scene, stage, stage_path.parent)
     if state.cache.cache_events:
-        state.diagnostics.append({"kind": "mesh_cache", "mode": req.mesh_cache,
-                                  "assets": {Path(k).name: v for k, v in sorted(state.cache.cache_events.items())}})
+        state.diagnostics.append({"kind": "mesh_cache", "mode": req.mesh_cache, "assets": state.cache.cache_report()})
     return state
 
 
@@ -480,7 +482,7 @@ def _add_instances(state: SceneState, stage: Any) -> None:
             else:  # no decimated collision asset: Bullet gets every render triangle (slow on a capture)
                 state.bodies.append(Body(obj, "passive", "MESH"))
                 state.diagnostics.append({"kind": "container_collision", "source": "render mesh",
-                                          "triangles": len(state.cache.arrays[str(asset)][1])})
+                                          "triangles": int(state.cache.corners[str(asset)].shape[1])})
             continue
         kind = "active" if prim.HasAPI(UsdPhysics.RigidBodyAPI) else "passive"
         proxy_prim = stage.GetPrimAtPath(f"{ids.path}/Proxy")

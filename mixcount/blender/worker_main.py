@@ -52,7 +52,7 @@ def handle_canonical(req: dict[str, Any]) -> dict[str, Any]:
 def handle_cache_meshes(req: dict[str, Any]) -> dict[str, Any]:
     from mixcount.blender.scene_job import cache_asset_meshes
 
-    return {"ok": True, "assets": cache_asset_meshes(req["assets"], str(req.get("mode", "zstd")))}
+    return {"ok": True, "assets": cache_asset_meshes(req["assets"], str(req["mode"]))}
 
 
 HANDLERS: dict[str, Handler] = {"scene": handle_scene, "canonical": handle_canonical,
