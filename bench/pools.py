@@ -36,8 +36,10 @@ def with_ingest_meshes(rec: Any, container: bool, proxy_dir: Path, max_vertices:
 
     model = Path(rec.model_path)
     budget = face_budget if face_budget is not None else load_config().ingest.collision_face_budget
-    collision = _collision_for(model, rec.content_hash, proxy_dir, budget) if container else rec.collision_path
-    return dataclasses.replace(rec, proxy_path=_proxy_for(model, rec.content_hash, proxy_dir, max_vertices),
+    frame = (rec.source_units, rec.source_up_axis)  # a scan's OBJ in centimetres, Y-up: read as ingest reads it
+    collision = (_collision_for(model, rec.content_hash, proxy_dir, budget, *frame) if container
+                 else rec.collision_path)
+    return dataclasses.replace(rec, proxy_path=_proxy_for(model, rec.content_hash, proxy_dir, max_vertices, *frame),
                                collision_path=collision)
 
 

@@ -69,6 +69,35 @@ def test_ingest_stores_proxy_and_reingest_fills_an_old_catalog(tmp_path: Path, c
         assert all(o.proxy_path.endswith("_hull32.ply") and o.proxy_vertex_count <= 32 for o in objs)
 
 
+def test_pool_proxies_fit_their_objects_whatever_the_source_units(tmp_path: Path) -> None:
+    """A scan's OBJ in centimetres, Y-up gets its proxy in metres, Z-up like its render mesh. It used to be
+    built from the file read as metres: a body 100x the object, which flung a whole bowl scene apart
+    (bodies hundreds of km away). The USD converter now refuses a proxy that does not fit its model."""
+    from mixcount.catalog.proxies import build_proxy, read_proxy
+    from mixcount.demo.library import generate_demo_library
+    from mixcount.demo.pool import pool_from_demo_library
+    from mixcount.errors import CompositionError
+    from mixcount.usd.assets import convert_asset
+
+    generate_demo_library(tmp_path / "demo", seed=0)
+    pool = pool_from_demo_library(tmp_path / "demo", proxy_dir=tmp_path / "proxies")
+    scans = [r for r in pool if r.source_units == "cm"]
+    assert scans, "the demo library must hold a scan in centimetres"
+    for rec in pool:
+        verts, _ = read_proxy(Path(rec.proxy_path))
+        extent = verts.max(axis=0) - verts.min(axis=0)  # the axis extremes seed the proxy: the full box
+        assert np.allclose(extent, rec.dims, rtol=0.01, atol=1e-4), (rec.name, extent, rec.dims)
+    scan = scans[0]
+    ok = convert_asset(scan.model_path, tmp_path / "assets", content_hash=scan.content_hash, units="cm",
+                       up_axis=scan.source_up_axis, proxy_path=scan.proxy_path)
+    assert ok.has_proxy
+    wrong = tmp_path / "wrong_hull64.ply"  # the old mistake: the same points in centimetres
+    build_proxy(read_proxy(Path(scan.proxy_path))[0] * 100.0, wrong, 64)
+    with pytest.raises(CompositionError, match="does not fit model"):
+        convert_asset(scan.model_path, tmp_path / "assets2", content_hash=scan.content_hash, units="cm",
+                      up_axis=scan.source_up_axis, proxy_path=str(wrong))
+
+
 @pytest.fixture(scope="module")
 def proxy_library(tmp_path_factory: pytest.TempPathFactory):
     from mixcount.demo.library import generate_demo_library

@@ -24,21 +24,31 @@ import numpy as np
 from mixcount.scene.pool import ObjectRecord, fallback_captions
 
 
-def _proxy_for(model: Path, digest: str, proxy_dir: Path, max_vertices: int) -> str:
+def _frame_key(digest: str, units: Optional[str], up_axis: Optional[str]) -> str:
+    """The key of a model's proxy / collision file: its bytes *and* the frame they are read in. An OBJ in
+    centimetres read as metres gives a proxy 100x the object (it flung whole scenes apart), so the units
+    and up axis are part of the name: a file built in another frame is never reused."""
+    return hashlib.sha256(f"{digest}|{units or 'm'}|{(up_axis or 'Y').upper()}".encode()).hexdigest()
+
+
+def _proxy_for(model: Path, digest: str, proxy_dir: Path, max_vertices: int, units: Optional[str],
+               up_axis: Optional[str]) -> str:
     from mixcount.catalog.mesh import load_normalised
     from mixcount.catalog.proxies import build_proxy, proxy_name
 
-    out = proxy_dir / proxy_name(digest, max_vertices)
+    out = proxy_dir / proxy_name(_frame_key(digest, units, up_axis), max_vertices)
     if not out.is_file():
-        build_proxy(np.asarray(load_normalised(model).mesh.vertices), out, max_vertices)
+        mesh = load_normalised(model, units=units or "m", up_axis=up_axis or "Y").mesh
+        build_proxy(np.asarray(mesh.vertices), out, max_vertices)
     return str(out.resolve())
 
 
-def _collision_for(model: Path, digest: str, out_dir: Path, face_budget: int) -> str:
+def _collision_for(model: Path, digest: str, out_dir: Path, face_budget: int, units: Optional[str],
+                   up_axis: Optional[str]) -> str:
     from mixcount.catalog.mesh import build_collision_mesh, load_normalised
 
-    out = out_dir / f"{digest[:32]}_{face_budget}.ply"
-    build_collision_mesh(load_normalised(model).mesh, out, face_budget)
+    out = out_dir / f"{_frame_key(digest, units, up_axis)[:32]}_{face_budget}.ply"
+    build_collision_mesh(load_normalised(model, units=units or "m", up_axis=up_axis or "Y").mesh, out, face_budget)
     return str(out.resolve())
 
 
@@ -67,14 +77,16 @@ def pool_from_demo_library(root: Path, *, split: str = "train", proxy_dir: Optio
         digest = hashlib.sha256(model.read_bytes()).hexdigest()
         name = folder.split("_")[-1].lower()
         caps = fallback_captions(f"{name} {rec['category']}", rec["category"])
-        proxy = _proxy_for(model, digest, Path(proxy_dir), proxy_max_vertices) if proxy_dir is not None else None
-        collision = (_collision_for(model, digest, Path(proxy_dir), ingest.collision_face_budget)
+        units, up_axis = rec.get("units"), rec.get("up_axis")
+        proxy = (_proxy_for(model, digest, Path(proxy_dir), proxy_max_vertices, units, up_axis)
+                 if proxy_dir is not None else None)
+        collision = (_collision_for(model, digest, Path(proxy_dir), ingest.collision_face_budget, units, up_axis)
                      if proxy_dir is not None and rec["container"] else None)
         pool.append(ObjectRecord(
             object_id=k, name=folder, category=rec["category"], dims=tuple(float(v) for v in rec["dims_m"]),
             captions=caps, split=split, model_path=str(model.resolve()), content_hash=digest, proxy_path=proxy,
             collision_path=collision,
-            container=bool(rec["container"]), source_units=rec.get("units"), source_up_axis=rec.get("up_axis"),
+            container=bool(rec["container"]), source_units=units, source_up_axis=up_axis,
         ))
     return pool
 

@@ -324,12 +324,17 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
         raise CompositionError(f"model file {model} of asset {key[:12]} does not exist")
     scale, _units, up = source_frame(model, units, up_axis)
     if model.suffix.lower() in USD_EXTENSIONS:
-        center = _usd_center(model)
+        lo, hi = _usd_bounds(model)
+        center = (lo + hi) / 2
+        if proxy is not None:
+            check_proxy_fits(proxy, lo, hi, model)
         _write_layer_atomically(lambda p, _t: _wrap_usd(p, key, model, center, proxy), visual, None)
     else:
         parts = _load_parts(model, scale, up)
         allpts = np.vstack([p.points for p in parts])
         center = (allpts.min(0) + allpts.max(0)) / 2
+        if proxy is not None:
+            check_proxy_fits(proxy, allpts.min(0), allpts.max(0), model)
 
         def build(path: Path, tdir: Optional[Path]) -> None:
             from pxr import UsdGeom, UsdShade
@@ -351,6 +356,28 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
     if coll is not None and collision_path:
         _write_layer_atomically(lambda p, _t: _write_collision(p, key, Path(collision_path), center), coll, None)
     return AssetPaths(visual, coll, (float(center[0]), float(center[1]), float(center[2])), proxy is not None)
+
+
+PROXY_FIT_TOLERANCE = 0.05  # of the model's box diagonal: how far a proxy may reach past the model's box
+
+
+def check_proxy_fits(proxy: Path, lo: np.ndarray, hi: np.ndarray, model: Path) -> None:
+    """Refuse a collision proxy that does not fit its model (``lo``/``hi``: the model's box in metres, Z-up).
+
+    A proxy is an inner hull of the model's collision mesh in the same frame, so its box lies within the
+    model's. One built in another frame - an OBJ in centimetres read as metres - is a body 100x the object
+    that flings a whole scene apart (bodies ended hundreds of km away); that must fail here, by name,
+    not as a scene of explosions."""
+    from mixcount.catalog.proxies import read_proxy
+
+    verts, _faces = read_proxy(proxy)
+    plo, phi = verts.min(axis=0), verts.max(axis=0)
+    tol = PROXY_FIT_TOLERANCE * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo)))
+    if (plo < np.asarray(lo) - tol).any() or (phi > np.asarray(hi) + tol).any():
+        raise CompositionError(
+            f"collision proxy {proxy.name} does not fit model {model}: proxy box {np.round(plo, 4).tolist()} .. "
+            f"{np.round(phi, 4).tolist()} m, model box {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()} m "
+            "(built in other units or another up axis? rebuild it from the model in metres, Z-up)")
 
 
 def _define_proxy(stage: Any, ply: Path, center: np.ndarray) -> None:
@@ -419,7 +446,8 @@ def _define_convex_parts(stage: Any, mesh: Any, center: np.ndarray) -> None:
         UsdPhysics.MeshCollisionAPI.Apply(usd_mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
 
 
-def _usd_center(model: Path) -> np.ndarray:
+def _usd_bounds(model: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The USD model's box in metres, Z-up (its own metersPerUnit and up axis applied)."""
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(str(model))
@@ -431,7 +459,7 @@ def _usd_center(model: Path) -> np.ndarray:
     box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
     lo, hi = np.asarray(box.GetMin()) * mpu, np.asarray(box.GetMax()) * mpu
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) @ rot.T
-    return (corners.min(0) + corners.max(0)) / 2
+    return corners.min(0), corners.max(0)
 
 
 def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray, proxy: Optional[Path] = None) -> None:
