@@ -69,6 +69,35 @@ def test_ingest_stores_proxy_and_reingest_fills_an_old_catalog(tmp_path: Path, c
         assert all(o.proxy_path.endswith("_hull32.ply") and o.proxy_vertex_count <= 32 for o in objs)
 
 
+def test_ingested_scan_in_centimetres_gets_a_proxy_of_its_true_size(tmp_path: Path, catalog) -> None:
+    """The product path for a scan (OBJ in cm, Y-up, plain folder): ingest stores a proxy whose box is the
+    object's true size in metres, Z-up, and the asset converts with it (the converter's fit check)."""
+    from sqlalchemy import select
+
+    from mixcount.catalog.ingest import ingest_paths
+    from mixcount.catalog.models import CatalogObject
+    from mixcount.catalog.proxies import read_proxy
+    from mixcount.config import load_config
+    from mixcount.demo.library import generate_demo_library
+    from mixcount.usd.assets import convert_asset
+
+    truth = generate_demo_library(tmp_path / "lib", seed=0)
+    scans = {o["folder"]: o for o in truth["objects"] if o.get("units") == "cm"}
+    assert scans, "the demo library must hold a scan in centimetres"
+    ingest_paths(catalog, [tmp_path / "lib" / folder for folder in scans],
+                 config=load_config([], ["ingest.workers=1"]))
+    with catalog.session() as s:
+        objs = [o for o in s.scalars(select(CatalogObject)) if o.status != "broken"]
+        assert len(objs) == len(scans)
+        for o in objs:
+            true_dims = next(t["dims_m"] for f, t in scans.items() if f in o.model_path)
+            verts, _ = read_proxy(Path(o.proxy_path))
+            assert np.allclose(verts.max(0) - verts.min(0), true_dims, rtol=0.03, atol=1e-3), o.model_path
+            paths = convert_asset(o.model_path, tmp_path / "assets", content_hash=o.content_hash or "",
+                                  units=o.source_units, up_axis=o.source_up_axis, proxy_path=o.proxy_path)
+            assert paths.has_proxy
+
+
 def test_pool_proxies_fit_their_objects_whatever_the_source_units(tmp_path: Path) -> None:
     """A scan's OBJ in centimetres, Y-up gets its proxy in metres, Z-up like its render mesh. It used to be
     built from the file read as metres: a body 100x the object, which flung a whole bowl scene apart
