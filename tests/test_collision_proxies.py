@@ -69,7 +69,17 @@ def test_ingest_stores_proxy_and_reingest_fills_an_old_catalog(tmp_path: Path, c
         assert all(o.proxy_path.endswith("_hull32.ply") and o.proxy_vertex_count <= 32 for o in objs)
 
 
-def test_ingested_scan_in_centimetres_gets_a_proxy_of_its_true_size(tmp_path: Path, catalog) -> None:
+@pytest.fixture(scope="module")
+def full_demo_library(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    """The whole demo library (its scans are OBJ files in centimetres, Y-up) and its ground truth."""
+    from mixcount.demo.library import generate_demo_library
+
+    root = tmp_path_factory.mktemp("full_lib") / "demo"
+    return root, generate_demo_library(root, seed=0)
+
+
+def test_ingested_scan_in_centimetres_gets_a_proxy_of_its_true_size(tmp_path: Path, catalog,
+                                                                      full_demo_library) -> None:
     """The product path for a scan (OBJ in cm, Y-up, plain folder): ingest stores a proxy whose box is the
     object's true size in metres, Z-up, and the asset converts with it (the converter's fit check)."""
     from sqlalchemy import select
@@ -78,13 +88,12 @@ def test_ingested_scan_in_centimetres_gets_a_proxy_of_its_true_size(tmp_path: Pa
     from mixcount.catalog.models import CatalogObject
     from mixcount.catalog.proxies import read_proxy
     from mixcount.config import load_config
-    from mixcount.demo.library import generate_demo_library
     from mixcount.usd.assets import convert_asset
 
-    truth = generate_demo_library(tmp_path / "lib", seed=0)
+    root, truth = full_demo_library
     scans = {o["folder"]: o for o in truth["objects"] if o.get("units") == "cm"}
     assert scans, "the demo library must hold a scan in centimetres"
-    ingest_paths(catalog, [tmp_path / "lib" / folder for folder in scans],
+    ingest_paths(catalog, [root / folder for folder in scans],
                  config=load_config([], ["ingest.workers=1"]))
     with catalog.session() as s:
         objs = [o for o in s.scalars(select(CatalogObject)) if o.status != "broken"]
@@ -98,18 +107,16 @@ def test_ingested_scan_in_centimetres_gets_a_proxy_of_its_true_size(tmp_path: Pa
             assert paths.has_proxy
 
 
-def test_pool_proxies_fit_their_objects_whatever_the_source_units(tmp_path: Path) -> None:
+def test_pool_proxies_fit_their_objects_whatever_the_source_units(tmp_path: Path, full_demo_library) -> None:
     """A scan's OBJ in centimetres, Y-up gets its proxy in metres, Z-up like its render mesh. It used to be
     built from the file read as metres: a body 100x the object, which flung a whole bowl scene apart
     (bodies hundreds of km away). The USD converter now refuses a proxy that does not fit its model."""
     from mixcount.catalog.proxies import build_proxy, read_proxy
-    from mixcount.demo.library import generate_demo_library
     from mixcount.demo.pool import pool_from_demo_library
     from mixcount.errors import CompositionError
     from mixcount.usd.assets import convert_asset
 
-    generate_demo_library(tmp_path / "demo", seed=0)
-    pool = pool_from_demo_library(tmp_path / "demo", proxy_dir=tmp_path / "proxies")
+    pool = pool_from_demo_library(full_demo_library[0], proxy_dir=tmp_path / "proxies")
     scans = [r for r in pool if r.source_units == "cm"]
     assert scans, "the demo library must hold a scan in centimetres"
     for rec in pool:

@@ -24,11 +24,15 @@ import numpy as np
 from mixcount.scene.pool import ObjectRecord, fallback_captions
 
 
-def _frame_key(digest: str, units: Optional[str], up_axis: Optional[str]) -> str:
-    """The key of a model's proxy / collision file: its bytes *and* the frame they are read in. An OBJ in
-    centimetres read as metres gives a proxy 100x the object (it flung whole scenes apart), so the units
-    and up axis are part of the name: a file built in another frame is never reused."""
-    return hashlib.sha256(f"{digest}|{units or 'm'}|{(up_axis or 'Y').upper()}".encode()).hexdigest()
+def _frame(model: Path, digest: str, units: Optional[str], up_axis: Optional[str]) -> tuple[str, dict[str, str]]:
+    """The key of a model's proxy / collision file and the frame to read the model in (units, up axis as
+    :func:`mixcount.frame.source_frame` resolves them, the converter's rule). An OBJ in centimetres read
+    as metres gives a proxy 100x the object (it flung whole scenes apart), so the frame is part of the
+    key: a file built in another frame is never reused."""
+    from mixcount.frame import source_frame
+
+    _scale, name, up = source_frame(model, units, up_axis)
+    return hashlib.sha256(f"{digest}|{name}|{up}".encode()).hexdigest(), {"units": name, "up_axis": up}
 
 
 def _proxy_for(model: Path, digest: str, proxy_dir: Path, max_vertices: int, units: Optional[str],
@@ -36,10 +40,10 @@ def _proxy_for(model: Path, digest: str, proxy_dir: Path, max_vertices: int, uni
     from mixcount.catalog.mesh import load_normalised
     from mixcount.catalog.proxies import build_proxy, proxy_name
 
-    out = proxy_dir / proxy_name(_frame_key(digest, units, up_axis), max_vertices)
+    key, frame = _frame(model, digest, units, up_axis)
+    out = proxy_dir / proxy_name(key, max_vertices)
     if not out.is_file():
-        mesh = load_normalised(model, units=units or "m", up_axis=up_axis or "Y").mesh
-        build_proxy(np.asarray(mesh.vertices), out, max_vertices)
+        build_proxy(np.asarray(load_normalised(model, **frame).mesh.vertices), out, max_vertices)
     return str(out.resolve())
 
 
@@ -47,8 +51,9 @@ def _collision_for(model: Path, digest: str, out_dir: Path, face_budget: int, un
                    up_axis: Optional[str]) -> str:
     from mixcount.catalog.mesh import build_collision_mesh, load_normalised
 
-    out = out_dir / f"{_frame_key(digest, units, up_axis)[:32]}_{face_budget}.ply"
-    build_collision_mesh(load_normalised(model, units=units or "m", up_axis=up_axis or "Y").mesh, out, face_budget)
+    key, frame = _frame(model, digest, units, up_axis)
+    out = out_dir / f"{key[:32]}_{face_budget}.ply"
+    build_collision_mesh(load_normalised(model, **frame).mesh, out, face_budget)
     return str(out.resolve())
 
 

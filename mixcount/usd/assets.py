@@ -372,8 +372,9 @@ def check_proxy_fits(proxy: Path, lo: np.ndarray, hi: np.ndarray, model: Path) -
 
     verts, _faces = read_proxy(proxy)
     plo, phi = verts.min(axis=0), verts.max(axis=0)
-    tol = PROXY_FIT_TOLERANCE * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo)))
-    if (plo < np.asarray(lo) - tol).any() or (phi > np.asarray(hi) + tol).any():
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    tol = PROXY_FIT_TOLERANCE * float(np.linalg.norm(hi - lo))
+    if (plo < lo - tol).any() or (phi > hi + tol).any():
         raise CompositionError(
             f"collision proxy {proxy.name} does not fit model {model}: proxy box {np.round(plo, 4).tolist()} .. "
             f"{np.round(phi, 4).tolist()} m, model box {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()} m "
