@@ -28,7 +28,6 @@ such collisions; ``--caption-tier concise`` or ``detailed`` keeps the classes ap
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -106,40 +105,39 @@ def export_countgd(ds: ComposedDataset, out: Path | str, *, split: Optional[str]
     bar.start("export countgd", ds.count_samples(splits))
     try:
         for s in splits:
-            lines: list[str] = []
-            coco_images: list[dict[str, Any]] = []
-            coco_anns: list[dict[str, Any]] = []
-            for img in ds.images(s):
-                filename = f"{img.key}{img.path.suffix}"
-                image_files.append(filename)
-                if not folder.fresh(f"{IMAGES}/{filename}", [img.path]):
-                    folder.copy_file(img.path, f"{IMAGES}/{filename}")
-                    folder.produced()
-                for cid in img.classes():
-                    lines.append(json.dumps(odvg_record(img, cid, filename, cat_label, label_map)))
-                    image_id = len(coco_images) + 1
-                    coco_images.append({"id": image_id, "file_name": filename, "width": img.width,
-                                        "height": img.height, "scene_id": img.scene_id, "source_image_id": img.id,
-                                        "source_category_id": cid})
-                    label = cat_label[cid]
-                    for a in img.of_category(cid):
-                        x, y = object_point(a)
-                        coco_anns.append({"id": len(coco_anns) + 1, "image_id": image_id, "category_id": label,
-                                          "bbox": point_box(x, y, img.width, img.height), "area": 4,
-                                          "iscrowd": 0, "point": [round(x, 3), round(y, 3)]})
-                    for a in img.exemplars(cid):
-                        bx, by, bw, bh = (float(v) for v in a["bbox"])
-                        area = bw * bh
-                        coco_anns.append({"id": len(coco_anns) + 1, "image_id": image_id, "category_id": label,
-                                          "bbox": [bx, by, bw, bh], "area": area + 0.01 if area == 4 else area,
-                                          "iscrowd": 0, "exemplar": True})
-                    bar.advance(info=f"{img.key} / {cid}")
-            folder.write_text(f"{s}_odvg.jsonl", "".join(line + "\n" for line in lines))
-            folder.write_json(f"{s}_coco_exemplars.json", {
-                "info": {"description": f"mixcount countgd export, {s}: points as {POINT_BOX:g}x{POINT_BOX:g} boxes, "
-                                        "three exemplar boxes last per image"},
-                "images": coco_images, "annotations": coco_anns, "categories": coco_categories})
-            records_per_split[s] = len(lines)
+            # spooled to temporary files: one record per (image, class) adds up to millions at 58,000 scenes
+            with folder.spool(lines=True, ensure_ascii=True) as lines, folder.spool() as coco_images, folder.spool() as coco_anns:
+                for img in ds.images(s):
+                    filename = f"{img.key}{img.path.suffix}"
+                    image_files.append(filename)
+                    if not folder.fresh(f"{IMAGES}/{filename}", [img.path]):
+                        folder.copy_file(img.path, f"{IMAGES}/{filename}")
+                        folder.produced()
+                    for cid in img.classes():
+                        lines.append(odvg_record(img, cid, filename, cat_label, label_map))
+                        image_id = len(coco_images) + 1
+                        coco_images.append({"id": image_id, "file_name": filename, "width": img.width,
+                                            "height": img.height, "scene_id": img.scene_id, "source_image_id": img.id,
+                                            "source_category_id": cid})
+                        label = cat_label[cid]
+                        for a in img.of_category(cid):
+                            x, y = object_point(a)
+                            coco_anns.append({"id": len(coco_anns) + 1, "image_id": image_id, "category_id": label,
+                                              "bbox": point_box(x, y, img.width, img.height), "area": 4,
+                                              "iscrowd": 0, "point": [round(x, 3), round(y, 3)]})
+                        for a in img.exemplars(cid):
+                            bx, by, bw, bh = (float(v) for v in a["bbox"])
+                            area = bw * bh
+                            coco_anns.append({"id": len(coco_anns) + 1, "image_id": image_id, "category_id": label,
+                                              "bbox": [bx, by, bw, bh], "area": area + 0.01 if area == 4 else area,
+                                              "iscrowd": 0, "exemplar": True})
+                        bar.advance(info=f"{img.key} / {cid}")
+                folder.write_spooled(f"{s}_odvg.jsonl", lines)
+                folder.write_json_members(f"{s}_coco_exemplars.json", [
+                    ("info", {"description": f"mixcount countgd export, {s}: points as {POINT_BOX:g}x{POINT_BOX:g} "
+                                             "boxes, three exemplar boxes last per image"}),
+                    ("images", coco_images), ("annotations", coco_anns), ("categories", coco_categories)])
+                records_per_split[s] = len(lines)
     finally:
         bar.stop()
     folder.prune(IMAGES, image_files)

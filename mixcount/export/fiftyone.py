@@ -42,37 +42,37 @@ def export_fiftyone(ds: ComposedDataset, out: Path | str, *, split: Optional[str
     folder = ExportFolder(out, ds.root, "fiftyone")
     files: list[str] = []
     per_split: dict[str, dict[str, int]] = {}
-    bar.start("export fiftyone", sum(len(ds.coco(s)["images"]) for s in splits))
+    bar.start("export fiftyone", sum(ds.n_images(s) for s in splits))
     try:
         for s in splits:
-            images, anns = [], []
-            for img in ds.images(s):
-                filename = f"{img.key}{img.path.suffix}"
-                files.append(filename)
-                if not folder.fresh(f"{DATA}/{filename}", [img.path]):
-                    folder.copy_file(img.path, f"{DATA}/{filename}")
-                    folder.produced()
-                images.append({"id": img.id, "file_name": filename, "width": img.width, "height": img.height,
-                               "scene_id": img.scene_id})
-                rank = {int(a["id"]): k for cid in img.classes() for k, a in enumerate(img.exemplar_ranking(cid))}
-                for a in img.annotations:
-                    x, y = object_point(a)
-                    rec = {"id": int(a["id"]), "image_id": img.id, "category_id": int(a["category_id"]),
-                           "bbox": [float(v) for v in a["bbox"]], "segmentation": a["segmentation"],
-                           "area": a.get("area"), "iscrowd": int(a.get("iscrowd", 0)),
-                           **{k: a[k] for k in ATTRIBUTE_KEYS if k in a},
-                           "exemplar_rank": rank.get(int(a["id"]), -1), "point": [round(x, 3), round(y, 3)],
-                           "scene_instance_id": int(a.get("instance_id", a["id"])),
-                           "count": img.count(int(a["category_id"]))}
-                    anns.append(rec)
-                bar.advance(info=img.key)
-            categories = [{"id": cid, "name": caption(cat, tier), "supercategory": cat.get("supercategory") or "",
-                           **{t: caption(cat, t) for t in ("short", "concise", "detailed")}}
-                          for cid, cat in sorted(ds.categories(s).items())]
-            folder.write_json(f"labels_{s}.json", {
-                "info": {"description": f"mixcount fiftyone export, {s}"},
-                "images": images, "annotations": anns, "categories": categories})
-            per_split[s] = {"images": len(images), "annotations": len(anns)}
+            # both arrays go to temporary files: at 58,000 scenes the masks alone are ~3.4 GB
+            with folder.spool() as images, folder.spool() as anns:
+                for img in ds.images(s):
+                    filename = f"{img.key}{img.path.suffix}"
+                    files.append(filename)
+                    if not folder.fresh(f"{DATA}/{filename}", [img.path]):
+                        folder.copy_file(img.path, f"{DATA}/{filename}")
+                        folder.produced()
+                    images.append({"id": img.id, "file_name": filename, "width": img.width, "height": img.height,
+                                   "scene_id": img.scene_id})
+                    rank = {int(a["id"]): k for cid in img.classes() for k, a in enumerate(img.exemplar_ranking(cid))}
+                    for a in img.annotations:
+                        x, y = object_point(a)
+                        anns.append({"id": int(a["id"]), "image_id": img.id, "category_id": int(a["category_id"]),
+                                     "bbox": [float(v) for v in a["bbox"]], "segmentation": a["segmentation"],
+                                     "area": a.get("area"), "iscrowd": int(a.get("iscrowd", 0)),
+                                     **{k: a[k] for k in ATTRIBUTE_KEYS if k in a},
+                                     "exemplar_rank": rank.get(int(a["id"]), -1), "point": [round(x, 3), round(y, 3)],
+                                     "scene_instance_id": int(a.get("instance_id", a["id"])),
+                                     "count": img.count(int(a["category_id"]))})
+                    bar.advance(info=img.key)
+                categories = [{"id": cid, "name": caption(cat, tier), "supercategory": cat.get("supercategory") or "",
+                               **{t: caption(cat, t) for t in ("short", "concise", "detailed")}}
+                              for cid, cat in sorted(ds.categories(s).items())]
+                folder.write_json_members(f"labels_{s}.json", [
+                    ("info", {"description": f"mixcount fiftyone export, {s}"}),
+                    ("images", images), ("annotations", anns), ("categories", categories)])
+                per_split[s] = {"images": len(images), "annotations": len(anns)}
     finally:
         bar.stop()
     folder.prune(DATA, files)

@@ -19,6 +19,7 @@ files per split) and ``dataset_info`` (features, split sizes).
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Any, Optional
 
@@ -167,15 +168,15 @@ def export_hf(ds: ComposedDataset, out: Path | str, *, split: Optional[str] = No
     split_rows: dict[str, int] = {}
     shard_names: list[str] = []
     counts = {"classes": 0, "objects": 0}
-    total = sum(len(ds.coco(s)["images"]) for s in splits)
+    total = sum(ds.n_images(s) for s in splits)
     bar.start("export hf", total)
     try:
         for s in splits:
-            images = list(ds.images(s))
-            split_rows[s] = len(images)
-            n_shards = max(1, -(-len(images) // ROWS_PER_SHARD))
+            images = ds.images(s)  # streamed: one shard's images in memory at a time
+            split_rows[s] = ds.n_images(s)
+            n_shards = max(1, -(-split_rows[s] // ROWS_PER_SHARD))
             for k in range(n_shards):
-                chunk = images[k * ROWS_PER_SHARD:(k + 1) * ROWS_PER_SHARD]
+                chunk = list(itertools.islice(images, ROWS_PER_SHARD))
                 for img in chunk:
                     counts["classes"] += len(img.classes())
                     counts["objects"] += sum(1 for a in img.annotations if not a.get("is_distractor", False))

@@ -15,8 +15,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
-from typing import Any, Iterable, Optional
+from typing import Any, Iterable, Optional, Sequence
 
 from mixcount.export.errors import ExportError
 
@@ -29,6 +30,43 @@ def _inside(child: Path, parent: Path) -> bool:
         return True
     except ValueError:
         return False
+
+
+class SpooledArray:
+    """A JSON array written element by element to a temporary file, for export index files that would
+    not fit in memory at the paper's scale (the masks of 4 million objects); see
+    :meth:`ExportFolder.write_json_members`. ``lines=True``: JSON Lines instead (one element per line,
+    no brackets; :meth:`ExportFolder.write_spooled`). Close it (or use it as a context manager) when done."""
+
+    def __init__(self, folder: Path, *, lines: bool = False, ensure_ascii: bool = False) -> None:
+        self._fh = tempfile.TemporaryFile("w+", encoding="utf-8", dir=folder)
+        self.lines, self.ensure_ascii = lines, ensure_ascii
+        self.n = 0
+
+    def append(self, obj: Any) -> None:
+        text = json.dumps(obj, ensure_ascii=self.ensure_ascii)
+        self._fh.write(text + "\n" if self.lines else (", " if self.n else "") + text)
+        self.n += 1
+
+    def __len__(self) -> int:
+        return self.n
+
+    def copy_to(self, out: Any) -> None:
+        out.write("" if self.lines else "[")
+        self._fh.flush()
+        self._fh.seek(0)
+        shutil.copyfileobj(self._fh, out)
+        self._fh.seek(0, os.SEEK_END)
+        out.write("" if self.lines else "]")
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> "SpooledArray":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 class ExportFolder:
@@ -75,6 +113,32 @@ class ExportFolder:
 
     def write_json(self, rel: str | Path, obj: Any, indent: Optional[int] = None) -> Path:
         return self.write_text(rel, json.dumps(obj, indent=indent, ensure_ascii=False) + "\n")
+
+    def write_json_members(self, rel: str | Path, members: Sequence[tuple[str, Any]]) -> Path:
+        """Write the JSON object of ``members`` (key, value); a :class:`SpooledArray` value is copied from
+        its file. The bytes are those :meth:`write_json` writes for the same object (no indent)."""
+        def write(tmp: Path) -> None:
+            with open(tmp, "w", encoding="utf-8") as out:
+                out.write("{")
+                for k, (key, value) in enumerate(members):
+                    out.write((", " if k else "") + json.dumps(key) + ": ")
+                    if isinstance(value, SpooledArray):
+                        value.copy_to(out)
+                    else:
+                        out.write(json.dumps(value, ensure_ascii=False))
+                out.write("}\n")
+        return self.write_with(rel, write)
+
+    def spool(self, *, lines: bool = False, ensure_ascii: bool = False) -> SpooledArray:
+        """A :class:`SpooledArray` whose file lives in this folder (the same disk as the export)."""
+        return SpooledArray(self.root, lines=lines, ensure_ascii=ensure_ascii)
+
+    def write_spooled(self, rel: str | Path, spooled: SpooledArray) -> Path:
+        """Write ``spooled`` on its own: a JSON Lines file, or a JSON array."""
+        def write(tmp: Path) -> None:
+            with open(tmp, "w", encoding="utf-8") as out:
+                spooled.copy_to(out)
+        return self.write_with(rel, write)
 
     def write_with(self, rel: str | Path, writer: Any) -> Path:
         """Call ``writer(tmp_path)`` and rename the result into place (for PIL, numpy, parquet writers)."""

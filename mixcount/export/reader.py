@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Optional, Sequence
 
+from mixcount.export.coco_stream import members
 from mixcount.export.errors import ExportError
 
 CAPTION_TIERS = ("short", "concise", "detailed")
@@ -109,8 +110,24 @@ class DatasetImage:
         return [ranked[k % len(ranked)] for k in range(n)]
 
 
+@dataclass
+class _SplitIndex:
+    """What one streaming pass over a split's COCO file keeps: everything but the annotations."""
+
+    images: list[Mapping[str, Any]]  # in id order
+    categories: list[Mapping[str, Any]]
+    n_samples: int  # (image, counted category) pairs
+    grouped: bool  # annotations come image by image, in image-id order (the merge writes them so)
+
+
 class ComposedDataset:
-    """A ``mixcount compose`` output folder, opened read-only."""
+    """A ``mixcount compose`` output folder, opened read-only.
+
+    A split's merged COCO file is read in streaming passes (:mod:`mixcount.export.coco_stream`): one pass
+    keeps the images, categories and sample count; :meth:`images` then reads the annotations again,
+    one image's at a time. At 58,000 scenes the file is ~3.4 GB of mostly RLE masks, which
+    ``json.loads`` would hold whole (docs/export.md). A file whose annotations are not grouped by image
+    in image order (not written by the merge) is read whole instead."""
 
     def __init__(self, root: Path | str):
         self.root = Path(root)
@@ -128,6 +145,7 @@ class ComposedDataset:
                               "write one with `mixcount compose --out DIR`)")
         self.annotation_files: dict[str, Path] = files
         self._coco: dict[str, dict[str, Any]] = {}
+        self._index: dict[str, _SplitIndex] = {}
 
     @property
     def splits(self) -> list[str]:
@@ -142,6 +160,7 @@ class ComposedDataset:
         return [split]
 
     def coco(self, split: str) -> dict[str, Any]:
+        """The split's whole COCO document, parsed at once (small datasets, and files not in merge order)."""
         if split not in self._coco:
             path = self.annotation_files[split]
             try:
@@ -154,23 +173,90 @@ class ComposedDataset:
             self._coco[split] = doc
         return self._coco[split]
 
+    def _members(self, split: str) -> Iterator[tuple[str, Any, bool]]:
+        path = self.annotation_files[split]
+        try:
+            yield from members(path, ("images", "annotations"))
+        except (OSError, ValueError) as exc:
+            raise ExportError(f"{path}: cannot read the COCO file ({exc})") from None
+
+    def _split_index(self, split: str) -> _SplitIndex:
+        """One streaming pass: images, categories, the sample count and whether annotations are grouped."""
+        if split in self._index:
+            return self._index[split]
+        path = self.annotation_files[split]
+        images: list[Mapping[str, Any]] = []
+        categories: Any = None
+        seen: set[str] = set()
+        pairs: set[tuple[int, int]] = set()
+        last, grouped = -1, True
+        for key, value, element in self._members(split):
+            if key in ("images", "annotations", "categories"):
+                if not element and not isinstance(value, list):
+                    raise ExportError(f"{path}: COCO key {key!r} is missing or not a list")
+                seen.add(key)
+            if key == "images" and element:
+                images.append(value)
+            elif key == "annotations" and element:
+                image_id = int(value["image_id"])
+                grouped = grouped and image_id >= last
+                last = image_id
+                if not value.get("is_distractor", False):
+                    pairs.add((image_id, int(value["category_id"])))
+            elif key == "categories":
+                categories = value
+        missing = {"images", "annotations", "categories"} - seen
+        if missing:
+            raise ExportError(f"{path}: COCO key {sorted(missing)[0]!r} is missing or not a list")
+        index = _SplitIndex(sorted(images, key=lambda r: int(r["id"])), list(categories), len(pairs), grouped)
+        self._index[split] = index
+        return index
+
     def categories(self, split: str) -> dict[int, Mapping[str, Any]]:
-        return {int(c["id"]): c for c in self.coco(split)["categories"]}
+        return {int(c["id"]): c for c in self._split_index(split).categories}
+
+    def n_images(self, split: str) -> int:
+        return len(self._split_index(split).images)
+
+    def _annotations_by_image(self, split: str) -> Iterator[tuple[int, list[Mapping[str, Any]]]]:
+        """(image id, its annotations in file order), image by image in file order."""
+        index = self._split_index(split)
+        if not index.grouped:
+            by_image: dict[int, list[Mapping[str, Any]]] = {}
+            for a in self.coco(split)["annotations"]:
+                by_image.setdefault(int(a["image_id"]), []).append(a)
+            yield from sorted(by_image.items())
+            return
+        current: Optional[int] = None
+        group: list[Mapping[str, Any]] = []
+        for key, value, element in self._members(split):
+            if key != "annotations" or not element:
+                continue
+            image_id = int(value["image_id"])
+            if image_id != current:
+                if current is not None:
+                    yield current, group
+                current, group = image_id, []
+            group.append(value)
+        if current is not None:
+            yield current, group
 
     def images(self, split: str) -> Iterator[DatasetImage]:
         """The split's images in id order, each with its annotations; a missing RGB file is an error."""
-        doc = self.coco(split)
         cats = self.categories(split)
-        by_image: dict[int, list[Mapping[str, Any]]] = {}
-        by_id: dict[int, Mapping[str, Any]] = {}
-        for a in doc["annotations"]:
-            by_image.setdefault(int(a["image_id"]), []).append(a)
-            by_id[int(a["id"])] = a
-        for rec in sorted(doc["images"], key=lambda r: int(r["id"])):
+        groups = self._annotations_by_image(split)
+        pending = next(groups, None)
+        for rec in self._split_index(split).images:
+            image_id = int(rec["id"])
+            while pending is not None and pending[0] < image_id:  # annotations of no listed image
+                pending = next(groups, None)
+            anns: list[Mapping[str, Any]] = []
+            if pending is not None and pending[0] == image_id:
+                anns = pending[1]
+                pending = next(groups, None)
             path = self.root / str(rec["file_name"])
             if not path.is_file():
                 raise ExportError(f"{path}: image of {self.annotation_files[split].name} image {rec['id']} is missing")
-            anns = by_image.get(int(rec["id"]), [])
             yield DatasetImage(split, rec, anns, cats, path, {int(a["id"]): a for a in anns})
 
     def samples(self, split: str) -> Iterator[tuple[DatasetImage, int]]:
@@ -180,14 +266,9 @@ class ComposedDataset:
                 yield img, cid
 
     def count_samples(self, splits: Sequence[str]) -> int:
-        n = 0
-        for s in splits:
-            doc = self.coco(s)
-            n += len({(int(a["image_id"]), int(a["category_id"])) for a in doc["annotations"]
-                      if not a.get("is_distractor", False)})
-        return n
+        return sum(self._split_index(s).n_samples for s in splits)
 
     def scene_ids(self, splits: Sequence[str]) -> list[str]:
         """Scene ids of the images of ``splits`` (what an export's attribution must cover)."""
-        return sorted({str(img.get("scene_id")) for s in splits for img in self.coco(s)["images"]
+        return sorted({str(img.get("scene_id")) for s in splits for img in self._split_index(s).images
                        if img.get("scene_id")})
