@@ -144,3 +144,22 @@ def test_spooled_members_write_the_bytes_write_json_writes(tmp_path: Path) -> No
     assert (folder.root / "streamed.json").read_bytes() == (folder.root / "whole.json").read_bytes()
     assert (folder.root / "lines.jsonl").read_text() == "".join(json.dumps(i) + "\n" for i in images)
     assert sorted(p.name for p in folder.root.iterdir()) == ["lines.jsonl", "streamed.json", "whole.json"]
+
+
+def test_ground_truth_and_stats_stream_the_annotations_and_count_as_before(tmp_path: Path) -> None:
+    from mixcount.evaluate.errors import GroundTruthError
+    from mixcount.evaluate.metrics import ground_truth_from_coco, load_ground_truth, read_coco
+    from mixcount.evaluate.stats import compute_stats
+
+    ds = _dataset(tmp_path / "d", shuffle=True)
+    path = ds.annotation_files["train"]
+    whole = json.loads(path.read_text())
+    slim = read_coco(path, GroundTruthError, keep=("image_id", "category_id", "is_distractor"))
+    assert [set(a) for a in slim["annotations"]] == [{"image_id", "category_id", "is_distractor"}] * 9
+    assert slim["images"] == whole["images"] and slim["categories"] == whole["categories"]
+    streamed, loaded = load_ground_truth(tmp_path / "d", "train"), ground_truth_from_coco(whole, str(path))
+    assert (streamed.counts, streamed.counted) == (loaded.counts, loaded.counted)
+    assert compute_stats(tmp_path / "d")["splits"]["train"]["objects"] == 8  # 9 annotations, one distractor
+    path.write_text(path.read_text()[:-30])
+    with pytest.raises(GroundTruthError, match="not valid JSON"):
+        load_ground_truth(path)

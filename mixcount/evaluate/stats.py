@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.evaluate.errors import GroundTruthError
-from mixcount.evaluate.metrics import read_json
+from mixcount.evaluate.metrics import read_coco
 
 TIERS = ("short", "concise", "detailed")
 SPLIT_ORDER = ("train", "val", "test")
@@ -103,7 +103,8 @@ def compute_stats(dataset: str | Path) -> dict[str, Any]:
     splits: dict[str, dict[str, int]] = {}
     captions: dict[tuple[Any, ...], dict[str, Any]] = {}
     for split, path in files.items():
-        doc = _check_coco(read_json(path, GroundTruthError), path)
+        doc = _check_coco(read_coco(path, GroundTruthError,
+                                    keep=("image_id", "category_id", "is_distractor", "visibility")), path)
         per_image: dict[Any, Counter[Any]] = {img.get("id"): Counter() for img in doc["images"]}
         n_dist: Counter[Any] = Counter()
         for ann in doc["annotations"]:
