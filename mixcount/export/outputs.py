@@ -121,7 +121,7 @@ class ExportFolder:
             with open(tmp, "w", encoding="utf-8") as out:
                 out.write("{")
                 for k, (key, value) in enumerate(members):
-                    out.write((", " if k else "") + json.dumps(key) + ": ")
+                    out.write((", " if k else "") + json.dumps(key, ensure_ascii=False) + ": ")
                     if isinstance(value, SpooledArray):
                         value.copy_to(out)
                     else:
