@@ -55,6 +55,14 @@ class _Scanner:
             raise ValueError(f"expected {char!r} at character {self.pos}, found {got or 'the end of the file'!r}")
         self.pos += 1
 
+    def next_item(self, close: str) -> bool:
+        """After a member or element: True past a comma (another follows), False past ``close``."""
+        if self.peek() == ",":
+            self.pos += 1
+            return True
+        self.expect(close)
+        return False
+
     def value(self) -> Any:
         """The next JSON value, read further into the file until it is complete."""
         self.peek()
@@ -97,17 +105,11 @@ def members(path: Path | str, streamed: Collection[str] = (), *,
                 else:
                     while True:
                         yield key, sc.value(), True
-                        if sc.peek() == ",":
-                            sc.pos += 1
-                            continue
-                        sc.expect("]")
-                        break
+                        if not sc.next_item("]"):
+                            break
             else:
                 yield key, sc.value(), False
-            if sc.peek() == ",":
-                sc.pos += 1
-                continue
-            sc.expect("}")
-            break
+            if not sc.next_item("}"):
+                break
         if sc.peek():
             raise ValueError(f"extra data after the JSON object at character {sc.pos}")

@@ -110,9 +110,7 @@ def export_countgd(ds: ComposedDataset, out: Path | str, *, split: Optional[str]
                 for img in ds.images(s):
                     filename = f"{img.key}{img.path.suffix}"
                     image_files.append(filename)
-                    if not folder.fresh(f"{IMAGES}/{filename}", [img.path]):
-                        folder.copy_file(img.path, f"{IMAGES}/{filename}")
-                        folder.produced()
+                    folder.copy_if_stale(img.path, f"{IMAGES}/{filename}")
                     for cid in img.classes():
                         lines.append(odvg_record(img, cid, filename, cat_label, label_map))
                         image_id = len(coco_images) + 1

@@ -50,9 +50,7 @@ def export_fiftyone(ds: ComposedDataset, out: Path | str, *, split: Optional[str
                 for img in ds.images(s):
                     filename = f"{img.key}{img.path.suffix}"
                     files.append(filename)
-                    if not folder.fresh(f"{DATA}/{filename}", [img.path]):
-                        folder.copy_file(img.path, f"{DATA}/{filename}")
-                        folder.produced()
+                    folder.copy_if_stale(img.path, f"{DATA}/{filename}")
                     images.append({"id": img.id, "file_name": filename, "width": img.width, "height": img.height,
                                    "scene_id": img.scene_id})
                     rank = {int(a["id"]): k for cid in img.classes() for k, a in enumerate(img.exemplar_ranking(cid))}

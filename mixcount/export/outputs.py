@@ -155,6 +155,12 @@ class ExportFolder:
     def copy_file(self, src: Path, rel: str | Path) -> Path:
         return self.write_with(rel, lambda tmp: shutil.copyfile(src, tmp))
 
+    def copy_if_stale(self, src: Path, rel: str | Path) -> None:
+        """Copy ``src`` to ``rel`` unless the copy there is up to date (a resumed export), counting it."""
+        if not self.fresh(rel, [src]):
+            self.copy_file(src, rel)
+            self.produced()
+
     def fresh(self, rel: str | Path, sources: Iterable[Path]) -> bool:
         """True (and counted as up to date) when ``rel`` exists and is at least as new as every source."""
         target = self.root / rel
