@@ -2,24 +2,38 @@
 
 Every command calls :func:`open_catalog`, which brings the database to the newest migration before
 use. The schema exists only through ``migrations/versions``; ``Base.metadata.create_all`` is never used.
+
+Concurrent first use (two terminals, a job array) is safe: a catalog already at head is only read; one
+that needs migrating is migrated inside one ``BEGIN IMMEDIATE`` transaction, so SQLite's own write lock
+lets one process migrate while the others wait (up to :data:`MIGRATION_WAIT_S`), then find it at head.
+The DDL is inside that transaction too, so a migration killed half-way leaves the old schema, never a
+half-built one. Every connection waits up to :data:`BUSY_TIMEOUT_S` for a lock another process holds.
+A file that is not a mixcount catalog (not SQLite, another program's database, a newer schema) is
+refused with one line naming the file and the problem (docs/faults.md).
 """
 
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Optional
 
 from sqlalchemy import create_engine, event, inspect
 from sqlalchemy.engine import Engine, make_url
-from sqlalchemy.exc import OperationalError, SQLAlchemyError
+from sqlalchemy.exc import DBAPIError, OperationalError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import NullPool
 
 from mixcount.errors import CatalogError
 from mixcount.resources import data_dir
 
 MIGRATIONS_DIR = data_dir("migrations")
 DEFAULT_DB_PATH = Path("catalog") / "catalog.db"
+BUSY_TIMEOUT_S = 30.0  # every connection: how long one statement waits for another process's lock
+MIGRATION_WAIT_S = 300.0  # how long a process waits for another one's migration before giving up
+OWN_TABLES = ("objects", "ingest_runs")  # tables every mixcount schema revision has
 
 
 def resolve_db_url(db: str | None = None) -> str:
@@ -32,11 +46,19 @@ def resolve_db_url(db: str | None = None) -> str:
 
 def _sqlite_pragmas(dbapi_conn, _record) -> None:  # type: ignore[no-untyped-def]
     cur = dbapi_conn.cursor()
+    cur.execute(f"PRAGMA busy_timeout={int(BUSY_TIMEOUT_S * 1000)}")  # first: switching to WAL may wait
     cur.execute("PRAGMA journal_mode=WAL")
     cur.execute("PRAGMA foreign_keys=ON")
-    cur.execute("PRAGMA busy_timeout=30000")
     cur.execute("PRAGMA synchronous=NORMAL")
     cur.close()
+
+
+def _sqlite_file(url: str) -> Optional[Path]:
+    """The database file of a SQLite URL (None for another backend or an in-memory database)."""
+    parsed = make_url(url)
+    if parsed.get_backend_name() != "sqlite" or not parsed.database or parsed.database == ":memory:":
+        return None
+    return Path(parsed.database)
 
 
 def make_engine(url: str) -> Engine:
@@ -45,6 +67,8 @@ def make_engine(url: str) -> Engine:
         database = parsed.database
         if database and database != ":memory:":
             path = Path(database)
+            if path.is_dir():
+                raise CatalogError(f"catalog database {path} is a directory, not a file: give --db a file path")
             try:
                 path.parent.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
@@ -53,7 +77,7 @@ def make_engine(url: str) -> Engine:
                 raise CatalogError(f"catalog database {path} is not writable")
             if not os.access(path.parent, os.W_OK):
                 raise CatalogError(f"catalog directory {path.parent} is not writable")
-        engine = create_engine(url, connect_args={"timeout": 30})
+        engine = create_engine(url, connect_args={"timeout": BUSY_TIMEOUT_S})
         event.listen(engine, "connect", _sqlite_pragmas)
         return engine
     return create_engine(url)
@@ -68,17 +92,138 @@ def alembic_config(url: str):  # type: ignore[no-untyped-def]
     return cfg
 
 
-def migrate(engine: Engine) -> None:
-    """Upgrade the database behind ``engine`` to the newest migration (no-op when already there)."""
+def _migration_engine(url: str) -> Engine:
+    """A one-connection engine whose transactions start with ``BEGIN IMMEDIATE`` (SQLite takes its
+    write lock at the start, so concurrent migrators queue there) and hold the DDL too: pysqlite's own
+    transaction handling is switched off on it, as the SQLAlchemy pysqlite documentation describes."""
+    engine = create_engine(url, connect_args={"timeout": BUSY_TIMEOUT_S}, poolclass=NullPool)
+
+    def on_connect(dbapi_conn, record) -> None:  # type: ignore[no-untyped-def]
+        _sqlite_pragmas(dbapi_conn, record)
+        dbapi_conn.isolation_level = None
+
+    event.listen(engine, "connect", on_connect)
+    event.listen(engine, "begin", lambda conn: conn.exec_driver_sql("BEGIN IMMEDIATE"))
+    return engine
+
+
+def _is_locked(exc: BaseException) -> bool:
+    text = str(getattr(exc, "orig", exc)).lower()
+    return "database is locked" in text or "database is busy" in text
+
+
+def _upgrade(conn: Any) -> None:
     from alembic import command
 
-    cfg = alembic_config(engine.url.render_as_string(hide_password=False))
+    cfg = alembic_config(conn.engine.url.render_as_string(hide_password=False))
+    cfg.attributes["connection"] = conn
+    command.upgrade(cfg, "head")
+
+
+def migrate(engine: Engine, *, wait_s: float = MIGRATION_WAIT_S) -> None:
+    """Upgrade the database behind ``engine`` to the newest migration (no-op when already there).
+
+    A SQLite catalog is migrated in one ``BEGIN IMMEDIATE`` transaction: a process that finds another
+    one migrating waits for it (up to ``wait_s`` seconds), then finds the catalog at head."""
+    url = engine.url.render_as_string(hide_password=False)
+    head = head_revision()
+    check_known_catalog(engine, head)
+    if current_revision(engine) == head:
+        return
+    if _sqlite_file(url) is None:
+        try:
+            with engine.begin() as conn:
+                _upgrade(conn)
+        except OperationalError as exc:
+            raise CatalogError(f"cannot migrate catalog database {engine.url}: {exc.orig}") from None
+        return
+    deadline = time.monotonic() + wait_s
+    mig = _migration_engine(url)
     try:
-        with engine.begin() as conn:
-            cfg.attributes["connection"] = conn
-            command.upgrade(cfg, "head")
-    except OperationalError as exc:
-        raise CatalogError(f"cannot migrate catalog database {engine.url}: {exc.orig}") from None
+        while True:
+            try:
+                with mig.begin() as conn:  # BEGIN IMMEDIATE: waits for another migrator's commit
+                    from alembic.runtime.migration import MigrationContext
+
+                    if MigrationContext.configure(conn).get_current_revision() != head:
+                        _upgrade(conn)
+                return
+            except OperationalError as exc:
+                if not _is_locked(exc):
+                    raise CatalogError(f"cannot migrate catalog database {_sqlite_file(url)}: {exc.orig}") from None
+                if time.monotonic() > deadline:
+                    raise CatalogError(
+                        f"catalog database {_sqlite_file(url)} stayed locked by another process for "
+                        f"{wait_s:.0f} s while this one waited to migrate it; try again when that one is done"
+                    ) from None
+                time.sleep(0.2)
+    finally:
+        mig.dispose()
+
+
+SQLITE_HEADER = b"SQLite format 3\x00"
+
+
+def check_known_catalog(engine: Engine, head: Optional[str]) -> None:
+    """Refuse, with one line, a database that is not a mixcount catalog this version can use: one of
+    another program (tables but no mixcount schema version) or one with a newer schema revision."""
+    from alembic.runtime.migration import MigrationContext
+
+    with engine.connect() as conn:
+        tables = set(inspect(conn).get_table_names())
+        revisions = MigrationContext.configure(conn).get_current_heads() if "alembic_version" in tables else ()
+    _refuse_unknown(str(_sqlite_file(str(engine.url)) or engine.url), tables, tuple(revisions), head)
+
+
+def check_sqlite_file(path: Path, head: Optional[str]) -> None:
+    """:func:`check_known_catalog` for an existing SQLite file, read through a read-only connection
+    before anything else opens it: a file that is not a catalog is refused without a byte of it changed
+    (an ordinary connection would switch it to WAL mode first)."""
+    import sqlite3
+
+    try:
+        with open(path, "rb") as fh:
+            header = fh.read(len(SQLITE_HEADER))
+    except OSError as exc:
+        raise CatalogError(f"cannot read catalog database {path}: {exc.strerror}") from None
+    if not header:
+        return  # an empty file is a new catalog
+    if header != SQLITE_HEADER:
+        raise CatalogError(f"{path} is not a SQLite database (file is not a database: it lacks the SQLite "
+                           "header): give --db a catalog file or a new path")
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=BUSY_TIMEOUT_S)
+        try:
+            tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            revisions: tuple[str, ...] = ()
+            if "alembic_version" in tables:
+                revisions = tuple(str(r[0]) for r in con.execute("SELECT version_num FROM alembic_version"))
+        finally:
+            con.close()
+    except sqlite3.DatabaseError as exc:
+        raise CatalogError(describe_database_error(f"sqlite:///{path}", exc)) from None
+    _refuse_unknown(str(path), tables, revisions, head)
+
+
+def _refuse_unknown(where: str, tables: set[str], revisions: tuple[str, ...], head: Optional[str]) -> None:
+    from alembic.script import ScriptDirectory
+
+    tables = {t for t in tables if not t.startswith("sqlite_")}
+    if not tables:
+        return  # a new, empty catalog
+    if "alembic_version" not in tables:
+        shown = ", ".join(sorted(tables)[:6]) + (", ..." if len(tables) > 6 else "")
+        raise CatalogError(f"{where} is a database of another program, not a mixcount catalog "
+                           f"(tables {shown}; no schema version): give --db a new path or a catalog file")
+    known = {rev.revision for rev in ScriptDirectory.from_config(alembic_config("sqlite://")).walk_revisions()}
+    unknown = [r for r in revisions if r not in known]
+    if not unknown:
+        return
+    if set(OWN_TABLES) <= tables:
+        raise CatalogError(f"catalog {where} has schema revision {unknown[0]!r}, newer than this mixcount knows "
+                           f"(its newest is {head!r}): it was written by a newer mixcount; upgrade mixcount to use it")
+    raise CatalogError(f"{where} is a database of another program, not a mixcount catalog (schema revision "
+                       f"{unknown[0]!r} is not mixcount's): give --db a new path or a catalog file")
 
 
 def current_revision(engine: Engine) -> str | None:
@@ -132,18 +277,47 @@ def data_dir_for(url: str, configured: str) -> Path:
     return Path("catalog").resolve()
 
 
+def describe_database_error(url: str, exc: BaseException) -> str:
+    """One line for a database error at open time: the file and what is wrong with it."""
+    orig = getattr(exc, "orig", None) or exc
+    text = str(orig).strip().splitlines()[0] if str(orig).strip() else type(orig).__name__
+    where = _sqlite_file(url) or make_url(url).render_as_string(hide_password=True)
+    low = text.lower()
+    if "file is not a database" in low or "not a database" in low:
+        return f"{where} is not a SQLite database ({text}): give --db a catalog file or a new path"
+    if "malformed" in low or "corrupt" in low:
+        return f"catalog {where} is damaged ({text}): restore it from a backup, or give --db a new path"
+    if _is_locked(exc):
+        return f"catalog {where} stayed locked by another process for {BUSY_TIMEOUT_S:.0f} s ({text}); try again"
+    if "unable to open" in low:
+        return f"cannot open catalog {where} ({text}): check that its folder exists and is writable"
+    return f"cannot open catalog {where}: {text}"
+
+
 def open_catalog(db: str | None, *, data_dir: str, migrate_to_head: bool = True) -> Catalog:
     """Open (creating if needed) and migrate the catalog at ``db`` (path or SQLAlchemy URL; None = the
-    default). ``data_dir``: ``catalog.data_dir`` ("" = beside the SQLite file)."""
+    default). ``data_dir``: ``catalog.data_dir`` ("" = beside the SQLite file). A database that is not a
+    usable mixcount catalog raises :class:`CatalogError` with one line naming the file and the problem."""
     url = resolve_db_url(db)
+    path = _sqlite_file(url)
+    if path is not None and path.is_file():
+        check_sqlite_file(path, head_revision())
     engine = make_engine(url)
     try:
         if migrate_to_head:
             migrate(engine)
         else:
             inspect(engine).get_table_names()
-    except SQLAlchemyError as exc:
+    except CatalogError:
         engine.dispose()
-        raise CatalogError(f"cannot open catalog {url}: {exc}") from None
+        raise
+    except (SQLAlchemyError, DBAPIError) as exc:
+        engine.dispose()
+        raise CatalogError(describe_database_error(url, exc)) from None
+    except Exception as exc:  # alembic's CommandError (e.g. an unknown revision) and the like
+        engine.dispose()
+        if type(exc).__module__.startswith("alembic"):
+            raise CatalogError(f"cannot migrate catalog {_sqlite_file(url) or url}: {exc}") from None
+        raise
     sessions = sessionmaker(bind=engine, expire_on_commit=False)
     return Catalog(url=url, engine=engine, sessions=sessions, data_dir=data_dir_for(url, data_dir))
