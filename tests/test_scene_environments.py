@@ -57,12 +57,49 @@ def test_patterns_are_deterministic_repetitive_and_seamless(pattern):
     assert not np.array_equal(render_pattern(other, 64), a)
 
 
-def test_default_scenes_use_sky_and_procedural_floors():
+def test_default_scenes_are_lit_by_a_bundled_hdri_that_exists():
+    from mixcount.scene.bundled_environments import bundled_environments, bundled_hdri_dir
+
     conf = load_config()
+    assert conf.scene.default_environment == "bundled_hdri"
+    bundled = {e.path for e in bundled_environments()}
+    assert len(bundled) == 8  # bpy 5.0's studio-light worlds
+    seen, rotations = set(), set()
+    for seed in range(40):
+        env = sample_scene(seed, "train", conf, rich_pool()).environment
+        assert env.kind == "hdri" and env.environment_id is None
+        assert env.path in bundled and Path(env.path).is_file() and Path(env.path).parent == bundled_hdri_dir()
+        lo, hi = conf.scene.environment_strength
+        assert lo <= env.strength <= hi and 0.0 <= env.rotation_deg < 360.0
+        seen.add(env.path)
+        rotations.add(round(env.rotation_deg))
+    assert len(seen) >= 6 and len(rotations) >= 30  # uniform over the eight, randomly turned about Z
+    again = sample_scene(7, "train", conf, rich_pool()).environment
+    assert again == sample_scene(7, "train", conf, rich_pool()).environment  # seeded
+
+
+def test_ingested_hdris_take_precedence_over_the_bundled_ones(tmp_path):
+    from mixcount.scene.pool import EnvironmentRecord
+
+    hdr = write_hdr(tmp_path / "mine.hdr")
+    env = sample_scene(3, "train", load_config(), rich_pool(),
+                       environments=[EnvironmentRecord(5, "mine", str(hdr), "h")]).environment
+    assert env.kind == "hdri" and env.path == str(hdr) and env.environment_id == 5
+
+
+def test_bad_default_environment_is_a_config_error():
+    from mixcount.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="default_environment must be one of"):
+        load_config([], ["scene.default_environment=studio"])
+
+
+def test_sky_config_scenes_use_sky_and_procedural_floors():
+    conf = load_config([], ["scene.default_environment=sky"])
     patterns = set()
     for seed in range(60):
         s = sample_scene(seed, "train", conf, rich_pool())
-        assert s.environment.kind == "sky"
+        assert s.environment.kind == "sky" and s.environment.path is None
         lo, hi = conf.scene.sky_sun_elevation_deg
         assert lo <= s.environment.sun_elevation_deg <= hi
         assert s.floor.material.kind == "procedural"

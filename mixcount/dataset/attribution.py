@@ -5,7 +5,9 @@ dataset itself is CC BY-SA. Everything is read from the dataset folder alone: ea
 ``metadata.json`` holds the scene spec, whose ``assets`` list every catalog object the scene used with
 ``source`` (dtc | folder), ``source_id`` (the stable key there), ``license`` (the licence text found at
 ingest) and ``content_hash``; the spec's classes, distractors and container give each object's role.
-Environment maps and floor materials are listed too (the catalog records no licence for them).
+Environment maps and floor materials are listed too: bpy's bundled HDRIs (the default light) with the
+licence, author and original named in the ``license.txt`` beside them; the catalog records no licence
+for ingested maps and materials.
 
 Identical licence texts are stored once (``licenses``, keyed by the SHA-256 of the text) and objects
 refer to them by ``license_id``. Objects without a recorded licence are listed under
@@ -67,6 +69,23 @@ def attribution_extract(spec: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def environment_license(path: str) -> dict[str, Any]:
+    """Licence fields of an environment map: for one of bpy's bundled HDRIs the ``license.txt`` beside
+    it gives ``source`` "bpy_bundled", ``license`` (CC0), ``author``, ``provider`` (Poly Haven),
+    ``provider_url``, ``original_url`` (the Poly Haven page of the original; ``original_uncertain`` when
+    the text says "Probably") and ``license_text``; an ingested map gets nothing (no licence recorded)."""
+    from mixcount.scene.bundled_environments import BUNDLED_SOURCE, bundled_license, is_bundled_path
+
+    if not is_bundled_path(path):
+        return {}
+    info = bundled_license(path)
+    if info is None:
+        return {"source": BUNDLED_SOURCE}
+    return {"source": BUNDLED_SOURCE, "name": info["name"], "license": info["license"], "author": info["author"],
+            "provider": info["source"], "provider_url": info["source_url"], "original_url": info["original_url"],
+            "original_uncertain": info["original_uncertain"], "license_text": info["license_text"]}
+
+
 class AttributionCollector:
     """Builds the attribution document one scene at a time (memory grows with the objects, not the scenes).
 
@@ -112,7 +131,9 @@ class AttributionCollector:
             entry["scenes"] += 1
         env = extract.get("environment")
         if env:
-            e = self.environments.setdefault(env["path"], {**env, "license": None, "scenes": 0})
+            e = self.environments.get(env["path"])
+            if e is None:
+                e = self.environments[env["path"]] = {**env, "license": None, "scenes": 0, **environment_license(env["path"])}
             e["scenes"] += 1
         mat = extract.get("material")
         if mat:
@@ -168,10 +189,19 @@ def attribution_markdown(doc: Mapping[str, Any]) -> str:
         lines += [f"### {short[lic['id']]} ({lic['objects']} object(s), {lic['id']})", "", "```", lic["text"], "```", ""]
     if doc["environments"] or doc["materials"]:
         lines += ["## Environment maps and floor materials", "",
-                  ("The catalog records no licence for these; check their sources (Poly Haven and similar "
-                   "libraries publish CC0 assets)."), ""]
+                  ("HDRIs bundled with Blender (bpy) carry their licence below. The catalog records no licence "
+                   "for ingested maps and materials; check their sources (Poly Haven and similar libraries "
+                   "publish CC0 assets)."), ""]
         for e in doc["environments"]:
-            lines.append(f"- environment map `{e['path']}` ({e['scenes']} scene(s))")
+            if e.get("license"):
+                original = e.get("original_url") or "(original not named)"
+                if e.get("original_uncertain"):
+                    original = f"probably {original}"
+                lines.append(f"- environment map `{e['path']}` ({e['scenes']} scene(s)): {e['name']}, bundled with "
+                             f"Blender; {e['license']}, by {e['author']} ({e['provider']} {e['provider_url']}); "
+                             f"original: {original}")
+            else:
+                lines.append(f"- environment map `{e['path']}` ({e['scenes']} scene(s))")
         for m in doc["materials"]:
             lines.append(f"- floor material `{m['name']}` ({m['scenes']} scene(s))")
         lines.append("")

@@ -95,6 +95,7 @@ class SceneConfig:
     sky_sun_elevation_deg: Range
     sky_sun_strength: Range
     sky_turbidity: Range
+    default_environment: str
 
     @classmethod
     def from_section(cls, scene: Mapping[str, Any]) -> "SceneConfig":
@@ -138,3 +139,8 @@ class SceneConfig:
             raise ConfigError(f"scene.floor_patterns: unknown {sorted(bad)}; known {list(PATTERNS)}")
         if self.collision_shape not in ("convexHull", "convexDecomposition", "boundingCube", "boundingSphere", "none"):
             raise ConfigError(f"scene.collision_shape {self.collision_shape!r} is not a UsdPhysics approximation")
+        from mixcount.scene.environments import DEFAULT_ENVIRONMENTS
+
+        if self.default_environment not in DEFAULT_ENVIRONMENTS:
+            raise ConfigError(f"scene.default_environment must be one of {list(DEFAULT_ENVIRONMENTS)}, "
+                              f"got {self.default_environment!r}")

@@ -1,7 +1,9 @@
 """Environments and floor materials: sampling them, and the embedded procedural defaults.
 
-Without ingested HDRIs the scene gets a procedural sky (sun elevation/azimuth/strength, turbidity),
-described in :class:`~mixcount.scene.spec.EnvironmentSpec`. Without ingested PBR sets (or by chance,
+Without ingested HDRIs the scene is lit by one of bpy's bundled HDRIs (real captured light, CC0 Poly
+Haven maps; :mod:`mixcount.scene.bundled_environments`) or, with ``scene.default_environment = "sky"``,
+by a procedural sky (sun elevation/azimuth/strength, turbidity), described in
+:class:`~mixcount.scene.spec.EnvironmentSpec`. Without ingested PBR sets (or by chance,
 ``scene.procedural_floor_probability``) the floor gets a procedural material that favours repetitive
 patterns, as the paper does: tiles, bricks, planks, checker, dots, noise. A procedural material is a
 parameter dict (pattern, colours, cell counts, seed, ...) that :func:`render_pattern` turns into a
@@ -21,6 +23,9 @@ from numpy.typing import NDArray
 from mixcount.scene.spec import EnvironmentSpec, MaterialSpec
 
 PATTERNS = ("tiles", "bricks", "planks", "checker", "dots", "noise")
+BUNDLED_HDRI = "bundled_hdri"
+SKY = "sky"
+DEFAULT_ENVIRONMENTS = (BUNDLED_HDRI, SKY)  # scene.default_environment: the light without ingested HDRIs
 
 
 def _u(rng: np.random.Generator, r: Sequence[float]) -> float:
@@ -171,12 +176,22 @@ def sample_floor_material(rng: np.random.Generator, patterns: Sequence[str], mat
 
 
 def sample_environment(rng: np.random.Generator, config: Any, environments: Sequence[Any]) -> EnvironmentSpec:
-    """An ingested HDRI (uniform over the group, random Z rotation) or the procedural sky."""
+    """An HDRI (uniform over ``environments``, random Z rotation) or the procedural sky.
+
+    Without ingested ``environments``, ``config.default_environment`` decides: ``bundled_hdri`` draws
+    from bpy's bundled CC0 Poly Haven HDRIs (:func:`~mixcount.scene.bundled_environments.bundled_environments`,
+    found in bpy's install), ``sky`` gives the procedural sky. The strength is drawn first either way."""
     strength = round(_u(rng, config.environment_strength), 6)
+    if not environments and config.default_environment == BUNDLED_HDRI:
+        from mixcount.scene.bundled_environments import bundled_environments
+
+        environments = bundled_environments()
     if environments:
         env = environments[int(rng.integers(len(environments)))]
         return EnvironmentSpec(kind="hdri", strength=strength, rotation_deg=round(_u(rng, (0.0, 360.0)), 6),
                                environment_id=env.environment_id, path=env.path)
+    if config.default_environment != SKY:
+        raise ValueError(f"unknown scene.default_environment {config.default_environment!r}")
     return EnvironmentSpec(
         kind="sky", strength=strength, rotation_deg=0.0,
         sun_elevation_deg=round(_u(rng, config.sky_sun_elevation_deg), 6),

@@ -42,10 +42,14 @@ class ObjectRecord:
 
 @dataclass(frozen=True)
 class EnvironmentRecord:
-    environment_id: int
+    """An HDRI the sampler may draw: an ingested one (catalog id), or one of bpy's bundled maps
+    (``environment_id`` None, ``source`` "bpy_bundled", see :mod:`mixcount.scene.bundled_environments`)."""
+
+    environment_id: Optional[int]
     name: str
     path: str
     content_hash: str
+    source: Optional[str] = None  # None: ingested into the catalog
 
 
 @dataclass(frozen=True)
