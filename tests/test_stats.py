@@ -112,3 +112,122 @@ def test_cli_stats(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert capsys.readouterr().out == ""
     assert main(["stats", str(tmp_path / "nothing")]) == 2
     assert "not a folder" in capsys.readouterr().err
+
+
+def _obj(role: str, class_index: int, category_id: int, reason: str | None = None) -> dict:
+    return {"role": role, "class_index": class_index, "category_id": category_id,
+            "status": "kept" if reason is None else "dropped", "reason": reason}
+
+
+def write_scene_meta(root: Path, scene_id: str, *, container: bool, classes: list[tuple[int, str, int]],
+                     objects: list[dict], **extra: object) -> None:
+    """A scene's metadata.json as the scene writer lays it out (only the keys density reads)."""
+    d = root / "scenes" / scene_id
+    d.mkdir(parents=True)
+    meta = {"scene_id": scene_id, "seed": int(scene_id[-6:]), "objects": objects,
+            "categories": [{"id": cid, "name": name} for _, name, cid in classes],
+            "spec": {"container": {"object_id": 9} if container else None,
+                     "classes": [{"class_index": ci, "name": name, "size_qualifier": None,
+                                  "count": sum(o["class_index"] == ci and o["role"] == "counted" for o in objects)}
+                                 for ci, name, _ in classes]},
+            **extra}
+    (d / "metadata.json").write_text(json.dumps(meta))
+
+
+def write_density_dataset(root: Path) -> Path:
+    """LAYOUT's COCO files plus metadata for scene_000000 (container) and scene_000001 (none); scene_000002
+    has none. scene_000000: class 0 keeps 2 of 3 (1 occluded), class 1 keeps 0 of 2 (origin_outside_frame,
+    below_floor), 1 of 2 distractors kept (1 flung_out). scene_000001: class 0 keeps 4 of 4, class 1 loses
+    its one instance (occluded); its metadata carries the scene writer's classes_without_instances."""
+    write_dataset(root)
+    write_scene_meta(root, "scene_000000", container=True, classes=[(0, "cup", 4), (1, "die", 8)], objects=[
+        _obj("counted", 0, 4), _obj("counted", 0, 4), _obj("counted", 0, 4, "occluded"),
+        _obj("counted", 1, 8, "origin_outside_frame"), _obj("counted", 1, 8, "below_floor"),
+        _obj("distractor", -1, 12), _obj("distractor", -1, 16, "flung_out")])
+    written = [{"class_index": 1, "category_id": 20, "name": "pen (from the writer)", "spawned": 1,
+                "reasons": {"occluded": 1}}]
+    write_scene_meta(root, "scene_000001", container=False, classes=[(0, "key", 24), (1, "pen", 20)],
+                     objects=[_obj("counted", 0, 24) for _ in range(4)] + [_obj("counted", 1, 20, "occluded")],
+                     classes_without_instances=written)
+    return root
+
+
+def test_density_kept_vs_spawned_from_scene_metadata(tmp_path: Path) -> None:
+    d = compute_stats(write_density_dataset(tmp_path / "ds"))["density"]
+    assert d["scenes_without_metadata"] == ["scene_000002"]
+    s0, s1 = d["scenes"]
+    assert (s0["split"], s0["container"], s0["counted_spawned"], s0["counted_kept"]) == ("train", True, 5, 2)
+    assert (s0["distractors_spawned"], s0["distractors_kept"]) == (2, 1)
+    assert s0["counted_drops"] == {"below_floor": 1, "occluded": 1, "origin_outside_frame": 1}
+    assert s0["distractor_drops"] == {"flung_out": 1}
+    assert s0["classes_without_instances"] == [{"class_index": 1, "category_id": 8, "name": "die", "spawned": 2,
+                                                "reasons": {"below_floor": 1, "origin_outside_frame": 1}}]
+    assert s1["classes_without_instances"][0]["name"] == "pen (from the writer)"  # the writer's key is preferred
+    t = d["summary"]
+    assert (t["scenes"], t["counted_spawned"], t["counted_kept"], t["retention"]) == (2, 10, 6, 0.6)
+    assert t["mean_counted_kept"] == 3.0
+    assert t["container"] == {"scenes": 1, "counted_spawned": 5, "counted_kept": 2, "retention": 0.4, "mean_counted_kept": 2.0}
+    assert t["no_container"]["retention"] == 0.8
+    assert (t["distractors_spawned"], t["distractors_kept"], t["mean_distractors_kept"]) == (2, 1, 0.5)
+    assert t["counted_drops"] == {"below_floor": 1, "occluded": 2, "origin_outside_frame": 1}
+    assert (t["lost_off_floor"], t["lost_off_floor_share"]) == (2, round(2 / 12, 4))  # of 12 spawned bodies
+    assert (t["classes"], t["classes_without_instances"]) == (4, 2)
+    assert t["classes_without_instances_reasons"] == {"below_floor": 1, "occluded": 1, "origin_outside_frame": 1}
+    assert d["kept_per_scene"]["histogram"] == {"edges": [0.0, 10.0], "counts": [2]}
+    assert d["retention_per_scene"]["mean"] == pytest.approx((0.4 + 0.8) / 2)
+
+
+def test_density_without_scenes_folder_and_broken_metadata(tmp_path: Path) -> None:
+    root = write_dataset(tmp_path / "ds")
+    s = compute_stats(root)
+    assert s["density"] is None
+    paths = write_plots(s, tmp_path / "plots")  # a "no data" kept_vs_spawned.png
+    assert (tmp_path / "plots" / "kept_vs_spawned.png") in paths
+    (root / "scenes" / "scene_000000").mkdir(parents=True)
+    (root / "scenes" / "scene_000000" / "metadata.json").write_text('{"scene_id": "scene_000000"}')
+    with pytest.raises(GroundTruthError, match="scene_000000/metadata.json: not a scene's metadata.json"):
+        compute_stats(root)
+
+
+def test_cli_stats_reports_kept_vs_spawned_and_empty_classes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    root = write_density_dataset(tmp_path / "ds")
+    capsys.readouterr()
+    assert main(["stats", str(root)]) == 0
+    err = capsys.readouterr().err
+    assert "kept vs spawned counted objects: 6 of 10 (60 %), mean 3.0 kept per scene" in err
+    assert "container scenes 40 % (1), without 80 % (1)" in err
+    assert "distractors: 1 of 2 kept" in err and "lost off the floor 2 (17 % of spawned bodies)" in err
+    assert "classes with no visible instance: 2 of 4" in err
+    assert "scene_000000: class 1 'die' (category 8), 2 spawned, none kept: below_floor 1, origin_outside_frame 1" in err
+    assert "1 scene(s) of the COCO files have no metadata.json" in err
+    with Image.open(root / "stats" / "kept_vs_spawned.png") as im:
+        assert im.format == "PNG" and len(set(im.convert("L").getdata())) > 2
+    on_disk = json.loads((root / "stats" / "stats.json").read_text())
+    assert on_disk["density"]["summary"]["counted_kept"] == 6
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_density_of_a_real_composed_dataset_agrees_with_its_coco(composed_dataset: Path) -> None:
+    """Independent of the objects list: kept counts equal the merged COCO's annotations per scene,
+    spawned counts the spec's class counts, and a class is empty exactly when COCO has none of it."""
+    from collections import Counter
+
+    d = compute_stats(composed_dataset)["density"]
+    coco = json.loads((composed_dataset / "annotations" / "instances_train.json").read_text())
+    scene_of = {img["id"]: img["scene_id"] for img in coco["images"]}
+    counted = Counter(scene_of[a["image_id"]] for a in coco["annotations"] if not a["is_distractor"])
+    dist = Counter(scene_of[a["image_id"]] for a in coco["annotations"] if a["is_distractor"])
+    cats = {(scene_of[a["image_id"]], a["category_id"]) for a in coco["annotations"] if not a["is_distractor"]}
+    assert len(d["scenes"]) == 2 and d["scenes_without_metadata"] == []
+    for row in d["scenes"]:
+        meta = json.loads((composed_dataset / "scenes" / row["scene_id"] / "metadata.json").read_text())
+        assert row["counted_kept"] == counted[row["scene_id"]] == meta["n_counted"]
+        assert row["distractors_kept"] == dist[row["scene_id"]]
+        assert row["counted_spawned"] == sum(c["count"] for c in meta["spec"]["classes"])
+        assert row["distractors_spawned"] == len(meta["spec"]["distractors"])
+        assert sum(row["counted_drops"].values()) == row["counted_spawned"] - row["counted_kept"]
+        class_cat = {o["class_index"]: o["category_id"] for o in meta["objects"] if o["role"] == "counted"}
+        empty = {c["class_index"] for c in row["classes_without_instances"]}
+        assert empty == {ci for ci, cid in class_cat.items() if (row["scene_id"], cid) not in cats}
+    assert d["summary"]["counted_kept"] == sum(counted.values())

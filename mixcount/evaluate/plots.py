@@ -20,7 +20,7 @@ from mixcount.evaluate.stats import TIERS  # noqa: E402
 DPI = 100
 PLOT_FILES = (
     "objects_per_scene.png", "classes_per_scene.png", "class_imbalance.png", "visibility.png",
-    "splits.png", "caption_length.png",
+    "splits.png", "caption_length.png", "kept_vs_spawned.png",
 )
 
 
@@ -98,4 +98,35 @@ def write_plots(stats: dict[str, Any], out_dir: str | Path) -> list[Path]:
         _int_bar(ax, stats["caption_length"][tier]["histogram"], color)
         ax.set(title=f"{tier} captions", xlabel="words", ylabel="categories")
     paths.append(_save(fig, out_dir / "caption_length.png"))
+    paths.append(_kept_vs_spawned(stats.get("density"), out_dir / "kept_vs_spawned.png"))
     return paths
+
+
+def _kept_vs_spawned(density: dict[str, Any] | None, path: Path) -> Path:
+    """Left: counted objects spawned and kept per scene (histograms). Right: drop reasons of counted
+    objects and distractors ("no data" panels for a dataset without scene metadata)."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    if density is None or not density["summary"]["scenes"]:
+        for ax in axes:
+            ax.text(0.5, 0.5, "no data (no scene metadata.json)", ha="center", va="center", transform=ax.transAxes)
+        return _save(fig, path)
+    _edge_bar(axes[0], density["spawned_per_scene"]["histogram"], "#9aa7b4", "spawned", 0.7)
+    _edge_bar(axes[0], density["kept_per_scene"]["histogram"], "#3b75af", "kept", 0.8)
+    d = density["summary"]
+    axes[0].legend(loc="upper right")
+    axes[0].set(title=f"Counted objects per scene (retention {d['retention'] or 0:.2f})", xlabel="objects",
+                ylabel="scenes")
+    reasons = sorted(set(d["counted_drops"]) | set(d["distractor_drops"]))
+    if reasons:
+        counted = [d["counted_drops"].get(r, 0) for r in reasons]
+        axes[1].barh(reasons, counted, color="#3b75af", label="counted")
+        axes[1].barh(reasons, [d["distractor_drops"].get(r, 0) for r in reasons], left=counted, color="#c53a32",
+                     label="distractors")
+        axes[1].legend(loc="lower right")
+    else:
+        axes[1].text(0.5, 0.5, "nothing dropped", ha="center", va="center", transform=axes[1].transAxes)
+    axes[1].set(title="Drop reasons", xlabel="objects")
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path

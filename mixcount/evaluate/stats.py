@@ -10,6 +10,14 @@ Reads every ``OUT/annotations/instances_<split>.json`` (COCO, see docs/contracts
   visibility             visibility of every counted annotation (and of distractors, apart)
   splits                 images, scenes, objects, distractors and categories per split
   caption_length         words per caption tier (short / concise / detailed) over the distinct categories
+  density                what each scene kept of what it spawned, read from ``OUT/scenes/<id>/metadata.json``
+                         (None without scene folders, e.g. an export): per scene (``scenes``) spawned and kept
+                         counted objects and distractors, drop reasons by role and the counted classes that
+                         ended with no visible instance (with their objects' drop reasons); in ``summary``
+                         the same pooled (retention overall and in container / no-container scenes, share
+                         lost off the floor, ...; :func:`mixcount.evaluate.density.summarise_density`);
+                         ``kept_per_scene`` / ``spawned_per_scene`` / ``retention_per_scene`` summaries and
+                         histograms (bins of 10 objects)
 Engine-free; plotting lives in mixcount.evaluate.plots.
 """
 
@@ -24,6 +32,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from mixcount.evaluate.density import scene_density, summarise_density
 from mixcount.evaluate.errors import GroundTruthError
 from mixcount.evaluate.metrics import read_coco
 
@@ -102,6 +111,7 @@ def compute_stats(dataset: str | Path) -> dict[str, Any]:
     vis_distractor: list[float] = []
     splits: dict[str, dict[str, int]] = {}
     captions: dict[tuple[Any, ...], dict[str, Any]] = {}
+    scene_splits: dict[str, str] = {}
     for split, path in files.items():
         doc = _check_coco(read_coco(path, GroundTruthError,
                                     keep=("image_id", "category_id", "is_distractor", "visibility")), path)
@@ -123,6 +133,7 @@ def compute_stats(dataset: str | Path) -> dict[str, Any]:
             if per_class:
                 imbalance.append(max(per_class.values()) / min(per_class.values()))
         scene_ids = {img.get("scene_id", img.get("id")) for img in doc["images"]}
+        scene_splits.update({str(sid): split for sid in scene_ids})
         counted_cats = {a["category_id"] for a in doc["annotations"] if not a.get("is_distractor", False)}
         splits[split] = {
             "images": len(doc["images"]), "scenes": len(scene_ids),
@@ -153,6 +164,37 @@ def compute_stats(dataset: str | Path) -> dict[str, Any]:
             t: {**summarise(caption_words[t]), "histogram": int_histogram(caption_words[t])} for t in TIERS
         },
         "distinct_categories": len(captions),
+        "density": density_stats(dataset, scene_splits),
+    }
+
+
+def density_stats(dataset: Path, scene_splits: dict[str, str]) -> dict[str, Any] | None:
+    """The ``density`` key: :func:`~mixcount.evaluate.density.scene_density` of every scene the COCO
+    files name (``scene_splits``: scene id -> split) whose ``scenes/<id>/metadata.json`` is there, pooled;
+    None when the dataset has no ``scenes`` folder (an export). One metadata.json is read at a time."""
+    scenes_dir = Path(dataset) / "scenes"
+    if not scenes_dir.is_dir():
+        return None
+    rows, missing = [], []
+    for sid in sorted(scene_splits):
+        meta_path = scenes_dir / sid / "metadata.json"
+        if not meta_path.is_file():
+            missing.append(sid)
+            continue
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            rows.append({"split": scene_splits[sid], **scene_density(meta)})
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise GroundTruthError(f"{meta_path}: not a scene's metadata.json ({type(exc).__name__}: {exc})") from None
+    kept = [r["counted_kept"] for r in rows]
+    spawned = [r["counted_spawned"] for r in rows]
+    top = max([10, *spawned])
+    edges = [float(10 * i) for i in range(int(np.ceil(top / 10)) + 1)]  # the last bin is closed: holds top
+    return {
+        "scenes": rows, "scenes_without_metadata": missing, "summary": summarise_density(rows),
+        "kept_per_scene": {**summarise(kept), "histogram": bin_histogram(kept, edges)},
+        "spawned_per_scene": {**summarise(spawned), "histogram": bin_histogram(spawned, edges)},
+        "retention_per_scene": summarise([k / n for k, n in zip(kept, spawned) if n]),
     }
 
 
@@ -192,6 +234,45 @@ def summary_lines(stats: dict[str, Any]) -> list[str]:
             for tier in TIERS
         ),
     ]
+    return lines + density_lines(stats.get("density"))
+
+
+def _top(reasons: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))) or "none"
+
+
+def density_lines(density: dict[str, Any] | None, max_classes: int = 10) -> list[str]:
+    """Summary lines of the ``density`` key: retention, distractors, drop reasons and the classes that
+    ended with no visible instance (the first ``max_classes`` of them by scene, with their reasons)."""
+    if density is None:
+        return ["kept vs spawned: n/a (no scenes/ folder with metadata.json)"]
+    d = density["summary"]
+    if not d["scenes"]:
+        return ["kept vs spawned: n/a (no scene metadata.json found)"]
+
+    def pct(x: float | None) -> str:
+        return "n/a" if x is None else f"{100 * x:.0f} %"
+
+    c, nc = d["container"], d["no_container"]
+    lines = [
+        f"kept vs spawned counted objects: {d['counted_kept']} of {d['counted_spawned']} ({pct(d['retention'])}), "
+        f"mean {d['mean_counted_kept']:.1f} kept per scene; container scenes {pct(c['retention'])} "
+        f"({c['scenes']}), without {pct(nc['retention'])} ({nc['scenes']})",
+        f"distractors: {d['distractors_kept']} of {d['distractors_spawned']} kept, mean {d['mean_distractors_kept']:.2f} "
+        f"per scene",
+        f"drop reasons (counted): {_top(d['counted_drops'])}; (distractors): {_top(d['distractor_drops'])}; "
+        f"lost off the floor {d['lost_off_floor']} ({pct(d['lost_off_floor_share'])} of spawned bodies)",
+        f"classes with no visible instance: {d['classes_without_instances']} of {d['classes']}"
+        + (f" (their objects: {_top(d['classes_without_instances_reasons'])})" if d["classes_without_instances"] else ""),
+    ]
+    empty = [(r["scene_id"], c) for r in density["scenes"] for c in r["classes_without_instances"]]
+    for sid, cls in empty[:max_classes]:
+        lines.append(f"  {sid}: class {cls['class_index']} {cls['name']!r} (category {cls['category_id']}), "
+                     f"{cls['spawned']} spawned, none kept: {_top(cls['reasons'])}")
+    if len(empty) > max_classes:
+        lines.append(f"  ... {len(empty) - max_classes} more in stats.json (density.scenes)")
+    if density["scenes_without_metadata"]:
+        lines.append(f"{len(density['scenes_without_metadata'])} scene(s) of the COCO files have no metadata.json")
     return lines
 
 
@@ -202,5 +283,5 @@ def per_split_table(stats: dict[str, Any]) -> list[tuple[str, int, int, int, int
 
 __all__ = [
     "compute_stats", "find_annotation_files", "per_split_table", "summarise", "summary_lines", "write_stats",
-    "int_histogram", "bin_histogram", "TIERS",
+    "int_histogram", "bin_histogram", "TIERS", "density_stats", "density_lines",
 ]
