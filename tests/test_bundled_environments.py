@@ -13,8 +13,15 @@ import numpy as np
 import pytest
 
 from mixcount.errors import ConfigError
-from mixcount.scene.bundled_environments import (BUNDLED_SOURCE, bundled_environments, bundled_hdri_dir,
-                                                 bundled_license, bpy_package_dir, is_bundled_path, parse_license)
+from mixcount.scene.bundled_environments import (
+    BUNDLED_SOURCE,
+    bpy_package_dir,
+    bundled_environments,
+    bundled_hdri_dir,
+    bundled_license,
+    is_bundled_path,
+    parse_license,
+)
 from tests.conftest import PROJECT_ROOT
 
 NAMES = ["city", "courtyard", "forest", "interior", "night", "studio", "sunrise", "sunset"]
@@ -115,5 +122,5 @@ def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Pa
     assert (e["license"], e["author"], e["provider"]) == ("CC0", "Greg Zaal", "Poly Haven")
     assert e["original_url"] == parse_license(e["license_text"])["originals"][name]["url"]
     md = (tmp_path / "export" / "ATTRIBUTION.md").read_text()
-    assert f"CC0, by Greg Zaal (Poly Haven https://polyhaven.com)" in md and e["original_url"] in md
+    assert "CC0, by Greg Zaal (Poly Haven https://polyhaven.com)" in md and e["original_url"] in md
     assert json.loads((tmp_path / "export" / "ATTRIBUTION.json").read_text())["environments"][0]["license"] == "CC0"
