@@ -52,9 +52,19 @@ def test_scale_is_applied_consistently(conf):
             assert max(by_id[o.object_id].dims) * o.scale[0] == pytest.approx(o.size_m, rel=1e-4)
         if s.container is not None:
             real = np.asarray(by_id[s.container.object_id].dims)
-            ratio = np.asarray(s.container.extent_m) / real / conf.scene.scale
+            # per-axis jitter x s, then the pile fit on X and Y only
+            fit = np.array([s.container.pile_fit, s.container.pile_fit, 1.0])
+            ratio = np.asarray(s.container.extent_m) / real / conf.scene.scale / fit
             assert np.all(ratio >= conf.scene.container_scale_jitter[0] - 1e-4)
             assert np.all(ratio <= conf.scene.container_scale_jitter[1] + 1e-4)
+            # the fitted box holds its pile: area / sum of counted sizes squared within the configured range
+            footprint = sum(o.size_m ** 2 for o in s.objects)
+            area_ratio = s.container.extent_m[0] * s.container.extent_m[1] / footprint
+            lo, hi = conf.scene.container_pile_area
+            assert lo * (1 - 1e-3) <= area_ratio <= hi * (1 + 1e-3)
+            # the floor reaches past the container's corners by the margin
+            reach = float(np.hypot(*s.container.extent_m[:2])) / 2 + conf.scene.floor_pile_margin * conf.scene.scale
+            assert min(s.floor.half_extent) >= reach - 1e-3
         assert s.floor.uv_scale_m / conf.scene.scale == pytest.approx(
             np.clip(s.floor.uv_scale_m / conf.scene.scale, *conf.scene.floor_uv_scale), rel=1e-6)
 
@@ -65,8 +75,9 @@ def test_spawn_positions_inside_ellipse_and_height_range(conf, waves):
     clearance) and bodies that found no room are released later; without them they are stacked above."""
     pool = rich_pool()
     s_ = conf.scene.scale
-    if not waves:
-        conf = load_config([], ["scene.spawn_release_waves=false"])
+    # containers at their real size x jitter (no pile fit), so dense scenes must stack or wait
+    real_size = ["scene.container_pile_area=[0.0001, 1e9]"]
+    conf = load_config([], real_size + ([] if waves else ["scene.spawn_release_waves=false"]))
     clearance, interval = conf.scene.spawn_wave_clearance * s_, conf.scene.spawn_wave_interval_frames
     checked = stacked = later = 0
     for seed in range(60):
@@ -107,7 +118,9 @@ def test_spawn_positions_inside_ellipse_and_height_range(conf, waves):
 
 
 def test_spawn_spheres_do_not_overlap(conf):
-    """Bodies in the air together (one release wave) never start overlapping."""
+    """Bodies in the air together (one release wave) never start overlapping (containers at their real
+    size, so dense scenes need waves)."""
+    conf = load_config([], ["scene.container_pile_area=[0.0001, 1e9]"])
     waves = 0
     for seed in range(15):
         s = sample_scene(seed, "train", conf, rich_pool())

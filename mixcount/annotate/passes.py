@@ -71,14 +71,21 @@ def _read_exr(path: Path) -> dict[str, NDArray[Any]]:
         return {name: np.array(ch.pixels) for name, ch in f.channels().items()}
 
 
-def write_depth(folder: Path, depth: NDArray[Any], fmt: str = "png16") -> dict[str, object]:
-    """Write planar depth (H, W) metres, 0 = none, into ``folder``; returns its metadata record."""
+def suffixed(name: str, suffix: str) -> str:
+    """``depth.png`` + ``_cam_1`` -> ``depth_cam_1.png``: the file of a scene's further cameras."""
+    stem, dot, ext = name.partition(".")
+    return f"{stem}{suffix}{dot}{ext}"
+
+
+def write_depth(folder: Path, depth: NDArray[Any], fmt: str = "png16", suffix: str = "") -> dict[str, object]:
+    """Write planar depth (H, W) metres, 0 = none, into ``folder`` (file name + ``suffix`` for a further
+    camera); returns its metadata record."""
     from PIL import Image
     from PIL.PngImagePlugin import PngInfo
 
     folder = Path(folder)
     d = np.asarray(depth, dtype=np.float32)
-    name = DEPTH_FORMATS[fmt]
+    name = suffixed(DEPTH_FORMATS[fmt], suffix)
     if fmt == "npy":
         np.save(folder / name, d)
         return {"file": name, "format": "npy", "dtype": "float32", "units": "m"}
@@ -94,13 +101,14 @@ def write_depth(folder: Path, depth: NDArray[Any], fmt: str = "png16") -> dict[s
     return {"file": name, "format": "png16", "unit_m": unit, "max_error_m": unit / 2}
 
 
-def write_normals(folder: Path, normals: NDArray[Any], fmt: str = "png8") -> dict[str, object]:
-    """Write camera-space unit normals (H, W, 3), 0 = none, into ``folder``; returns its metadata record."""
+def write_normals(folder: Path, normals: NDArray[Any], fmt: str = "png8", suffix: str = "") -> dict[str, object]:
+    """Write camera-space unit normals (H, W, 3), 0 = none, into ``folder`` (file name + ``suffix`` for a
+    further camera); returns its metadata record."""
     from PIL import Image
 
     folder = Path(folder)
     n = np.asarray(normals, dtype=np.float32)
-    name = NORMAL_FORMATS[fmt]
+    name = suffixed(NORMAL_FORMATS[fmt], suffix)
     if fmt == "npy":
         np.save(folder / name, n)
         return {"file": name, "format": "npy", "dtype": "float32"}

@@ -89,6 +89,10 @@ class ObjectResult:
     oracle_unoccluded_px: Optional[int] = None
     oracle_iou: Optional[float] = None
     oracle_visibility: Optional[float] = None
+    # per camera, in stage order: {"camera", "origin_px", "unoccluded_px", "visible_px", "amodal_px",
+    # "visibility", oracle_* when run}; the fields above are cam_0's, but ``visibility`` is the minimum
+    # over cameras (the paper's max occlusion over cameras), the value the keep rule used
+    views: tuple[dict[str, Any], ...] = ()
 
     @property
     def kept(self) -> bool:
@@ -101,6 +105,7 @@ class ObjectResult:
                 d[k] = [list(r) for r in d[k]]
         if d["origin_px"] is not None:
             d["origin_px"] = list(d["origin_px"])
+        d["views"] = [dict(v) for v in self.views]
         return d
 
     @classmethod
@@ -114,6 +119,7 @@ class ObjectResult:
         v["matrix_world"] = _matrix(v.get("matrix_world"))
         if v.get("origin_px") is not None:
             v["origin_px"] = (float(v["origin_px"][0]), float(v["origin_px"][1]))
+        v["views"] = tuple(dict(x) for x in v.get("views", ()))
         return cls(**v)
 
 
@@ -133,11 +139,16 @@ class SceneResult:
     objects: tuple[ObjectResult, ...]
     diagnostics: tuple[dict[str, Any], ...] = ()
     timings: dict[str, float] = field(default_factory=dict)
+    # one per camera, in stage order: {"name", "suffix" (file-name suffix: "" for cam_0, "_cam_1", ...),
+    # "camera" (the record, as ``camera`` for cam_0), "framing" (how the settled pile framed it),
+    # "passes" (written depth / normal records)}
+    views: tuple[dict[str, Any], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["objects"] = [o.to_dict() for o in self.objects]
         d["diagnostics"] = [dict(x) for x in self.diagnostics]
+        d["views"] = [dict(x) for x in self.views]
         return d
 
     @classmethod
@@ -146,6 +157,7 @@ class SceneResult:
         v["objects"] = tuple(ObjectResult.from_dict(o) for o in d["objects"])
         v["diagnostics"] = tuple(dict(x) for x in d.get("diagnostics", ()))
         v["timings"] = dict(d.get("timings", {}))
+        v["views"] = tuple(dict(x) for x in d.get("views", ()))
         return cls(**v)
 
     def to_json(self) -> str:
@@ -154,3 +166,9 @@ class SceneResult:
     @classmethod
     def from_json(cls, text: str) -> "SceneResult":
         return cls.from_dict(json.loads(text))
+
+
+def view_suffix(k: int) -> str:
+    """File-name suffix of camera ``k``'s outputs: cam_0 writes ``rgb.png``, camera k ``rgb_cam_<k>.png``
+    (the export reader's image key, mixcount.export.reader.DatasetImage.key, reads it the same way)."""
+    return "" if k == 0 else f"_cam_{k}"

@@ -20,6 +20,7 @@ UNSTABLE = "unstable"
 INTERPENETRATION = "interpenetration"
 OUTSIDE_FRAME = "origin_outside_frame"
 OCCLUDED = "occluded"
+NO_SPOT_IN_VIEW = "no_spot_in_view"  # a distractor that found no free floor in every camera's view
 
 BACKGROUND_DEPTH = 1e9  # Cycles writes 1e10 where a pixel sees no surface
 MAX_VISIBILITY_ROUNDS = 3  # re-renders of the id pass after dropping occluded objects
@@ -166,6 +167,15 @@ def may_still_be_kept(camera: PinholeCamera, centres: np.ndarray) -> np.ndarray:
     below = c * np.array([1.0, 1.0, 0.0])
     in_view = points_in_frame(camera, c)[1] | points_in_frame(camera, below)[1]
     return np.asarray((c[:, 2] >= 0.0) & in_view)
+
+
+def near_the_pile(centre_xy: np.ndarray, radius: float, centres: np.ndarray) -> np.ndarray:
+    """Bool per body centre (N, 3), during the simulation, when the cameras are framed after it: may the
+    body still end kept? Not under the floor's top (z = 0), nor farther than ``radius`` (horizontally)
+    from ``centre_xy``, where no camera framed on the pile will see it."""
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    far = np.hypot(c[:, 0] - centre_xy[0], c[:, 1] - centre_xy[1]) > radius
+    return np.asarray((c[:, 2] >= 0.0) & ~far)
 
 
 def origin_in_frame(camera: PinholeCamera, matrix_world: np.ndarray) -> tuple[tuple[float, float], bool]:

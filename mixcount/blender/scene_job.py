@@ -36,7 +36,7 @@ import numpy as np
 
 from mixcount.annotate.raster import PinholeCamera
 from mixcount.blender import decisions as D
-from mixcount.blender.contract import DROPPED, STATUS_OK, ObjectResult, SceneRequest, SceneResult
+from mixcount.blender.contract import DROPPED, STATUS_OK, ObjectResult, SceneRequest, SceneResult, view_suffix
 from mixcount.scene.spec import SceneSpec
 
 
@@ -376,7 +376,7 @@ class SceneState:
     spec: SceneSpec
     stage_path: Path
     out_dir: Path
-    cam_obj: Any
+    cam_objs: list[Any]  # one Blender camera per stage camera, in stage order
     lights: dict[str, Any]
     cache: AssetCache
     bodies: list[Any]  # mixcount.blender.physics.Body, floor and container included
@@ -384,12 +384,24 @@ class SceneState:
     blender_objects: dict[str, Any]  # prim path -> bpy object (removed from the scene when dropped)
     diagnostics: list[dict[str, Any]] = field(default_factory=list)
     proxies: dict[str, Any] = field(default_factory=dict)  # render object name -> its hidden collision proxy
+    framings: list[dict[str, Any]] = field(default_factory=list)  # per camera: how it was framed
+    views: dict[int, list[dict[str, Any]]] = field(default_factory=dict)  # object index -> per-camera records
+
+    @property
+    def placed_after_physics(self) -> bool:
+        """Cameras framed on the settled pile and distractors placed in view (specs with a placement)."""
+        return self.spec.placement is not None
 
     def kept(self, role: Optional[str] = None) -> list[int]:
         return [i for i, o in enumerate(self.objects) if o.kept and (role is None or o.role == role)]
 
     def update(self, i: int, **changes: Any) -> None:
         self.objects[i] = replace(self.objects[i], **changes)
+
+    def view(self, i: int, k: int) -> dict[str, Any]:
+        """Object ``i``'s record for camera ``k`` (created on first use)."""
+        views = self.views.setdefault(i, [{"camera": c.name} for c in self.cam_objs])
+        return views[k]
 
     def drop(self, i: int, reason: str, step: str, **extra: Any) -> None:
         """Mark object ``i`` dropped (with a diagnostic) and remove it from the Blender scene."""
@@ -405,7 +417,7 @@ class SceneState:
 
 
 def load_scene(req: SceneRequest) -> SceneState:
-    """Factory-empty Blender -> floor, one linked duplicate per instance prim, camera and lights."""
+    """Factory-empty Blender -> floor, one linked duplicate per instance prim, cameras and lights."""
     import bpy
     from pxr import Usd, UsdGeom
 
@@ -421,16 +433,14 @@ def load_scene(req: SceneRequest) -> SceneState:
     if stage is None:
         raise RuntimeError(f"cannot open stage {stage_path}")
     spec = SceneSpec.from_json(stage.GetRootLayer().customLayerData["mixcount"]["spec"])
-    state = SceneState(scene=scene, spec=spec, stage_path=stage_path, out_dir=out_dir, cam_obj=None, lights={},
+    state = SceneState(scene=scene, spec=spec, stage_path=stage_path, out_dir=out_dir, cam_objs=[], lights={},
                        cache=AssetCache(req.mesh_cache), bodies=[], objects=[], blender_objects={})
     _add_instances(state, stage)
     cam_prims = [p for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]
     if not cam_prims:
         raise RuntimeError("stage has no camera")
-    state.cam_obj = _build_camera(scene, cam_prims[0])
-    if len(cam_prims) > 1:
-        state.diagnostics.append({"kind": "cameras",
-                                  "message": f"{len(cam_prims)} cameras: rendering {cam_prims[0].GetName()} only"})
+    state.cam_objs = [_build_camera(scene, prim) for prim in cam_prims]
+    scene.camera = state.cam_objs[0]
     state.lights = _build_lights(scene, stage, stage_path.parent)
     if state.cache.cache_events:
         state.diagnostics.append({"kind": "mesh_cache", "mode": req.mesh_cache, "assets": state.cache.cache_report()})
@@ -439,13 +449,14 @@ def load_scene(req: SceneRequest) -> SceneState:
 
 def _add_instances(state: SceneState, stage: Any) -> None:
     """The floor and every labelled prim as Blender objects and physics bodies; an ObjectResult each for
-    counted objects and distractors."""
+    counted objects and distractors. With after-physics placement distractors get no body: the paper
+    simulates the counted objects, the floor and the container only, and they are placed afterwards."""
     import bpy
     import mathutils
     from pxr import Usd, UsdGeom, UsdPhysics
 
     from mixcount.blender.physics import SHAPES, Body
-    from mixcount.usd.read import convex_parts, labelled_prims
+    from mixcount.usd.read import labelled_prims
 
     scene, stage_dir = state.scene, state.stage_path.parent
     floor = _import_floor(state.stage_path)
@@ -466,27 +477,13 @@ def _add_instances(state: SceneState, stage: Any) -> None:
         obj.pass_index = int(ids.instance_id)
         state.blender_objects[ids.path] = obj
         if ids.role == "container":
-            coll = prim.GetCustomDataByKey("mixcount:collision_asset")
-            parts = convex_parts(str(coll)) if coll else []
-            if parts:  # the container's convex decomposition: one static convex body per part
-                for k, (pts, tris) in enumerate(parts):
-                    data = bpy.data.meshes.new(f"{prim.GetName()}_part{k:03d}")
-                    data.from_pydata(pts.tolist(), [], tris.tolist())
-                    state.bodies.append(Body(_hidden_collider(scene, data.name, data, m), "passive", "CONVEX_HULL",
-                                             collision_margin=0.0))
-                state.diagnostics.append({"kind": "container_collision", "source": "convex parts",
-                                          "parts": len(parts)})
-            elif coll:
-                cobj = _hidden_collider(scene, prim.GetName() + "_collision", state.cache.mesh(Path(coll)), m)
-                state.bodies.append(Body(cobj, "passive", "MESH"))
-            else:  # no decimated collision asset: Bullet gets every render triangle (slow on a capture)
-                state.bodies.append(Body(obj, "passive", "MESH"))
-                state.diagnostics.append({"kind": "container_collision", "source": "render mesh",
-                                          "triangles": int(state.cache.corners[str(asset)].shape[1])})
+            _add_container_collision(state, prim, obj, asset, m)
             continue
         kind = "active" if prim.HasAPI(UsdPhysics.RigidBodyAPI) else "passive"
         proxy_prim = stage.GetPrimAtPath(f"{ids.path}/Proxy")
-        if (proxy_prim and proxy_prim.HasAPI(UsdPhysics.CollisionAPI)
+        if ids.role == "distractor" and state.placed_after_physics:
+            pass  # placed on free floor after physics (place_distractors_in_view), never simulated
+        elif (proxy_prim and proxy_prim.HasAPI(UsdPhysics.CollisionAPI)
                 and UsdPhysics.CollisionAPI(proxy_prim).GetCollisionEnabledAttr().Get() is not False):
             # collide through the convex proxy: a hidden object that the simulation moves; settle()
             # copies its pose onto the render object
@@ -504,15 +501,39 @@ def _add_instances(state: SceneState, stage: Any) -> None:
             spawn_matrix=tuple(tuple(float(v) for v in row) for row in m)))
 
 
+def _add_container_collision(state: SceneState, prim: Any, obj: Any, asset: Path, m: np.ndarray) -> None:
+    """The container's static colliders: its convex parts, else its decimated mesh, else the render mesh."""
+    import bpy
+
+    from mixcount.blender.physics import Body
+    from mixcount.usd.read import convex_parts
+
+    coll = prim.GetCustomDataByKey("mixcount:collision_asset")
+    parts = convex_parts(str(coll)) if coll else []
+    if parts:  # the container's convex decomposition: one static convex body per part
+        for k, (pts, tris) in enumerate(parts):
+            data = bpy.data.meshes.new(f"{prim.GetName()}_part{k:03d}")
+            data.from_pydata(pts.tolist(), [], tris.tolist())
+            state.bodies.append(Body(_hidden_collider(state.scene, data.name, data, m), "passive", "CONVEX_HULL",
+                                     collision_margin=0.0))
+        state.diagnostics.append({"kind": "container_collision", "source": "convex parts", "parts": len(parts)})
+    elif coll:
+        cobj = _hidden_collider(state.scene, prim.GetName() + "_collision", state.cache.mesh(Path(coll)), m)
+        state.bodies.append(Body(cobj, "passive", "MESH"))
+    else:  # no decimated collision asset: Bullet gets every render triangle (slow on a capture)
+        state.bodies.append(Body(obj, "passive", "MESH"))
+        state.diagnostics.append({"kind": "container_collision", "source": "render mesh",
+                                  "triangles": int(state.cache.corners[str(asset)].shape[1])})
+
+
 def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[str, np.ndarray]:
     """Rigid-body simulation with exactly the stage's physics values; settled matrix per active body.
 
-    With ``camera`` the early stop waits only for bodies that can still be kept: centre above the
-    floor's top, and origin in the camera frame or right above a point of the floor that is (a body
-    still falling into view counts). :func:`check_frame` drops the others whatever their pose, so how
-    far they roll on over the floor outside the view does not change the scene (docs/performance.md
-    has the frames saved). Instances with a spec ``release_frame`` > 1 (spawn waves, docs/scene.md)
-    join the simulation at that frame."""
+    The early stop waits only for bodies that can still be kept: with after-physics placement those
+    above the floor's top within the placement's ``view_radius`` of the scene centre (the cameras are
+    framed afterwards); for older specs, with ``camera``, those whose origin is in the camera frame or
+    right above a point of the floor that is (a body still falling into view counts). Instances with
+    a spec ``release_frame`` > 1 (spawn waves, docs/scene.md) join the simulation at that frame."""
     import bpy
     import mathutils
 
@@ -528,11 +549,14 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
         obj = state.blender_objects.get(o.path)
         if obj is not None and release.get(o.instance_id, 1) > 1:
             releases[state.proxies.get(obj.name, obj).name] = release[o.instance_id]
+    waited_for = None
+    if state.spec.placement is not None:
+        waited_for = functools.partial(D.near_the_pile, np.zeros(2), state.spec.placement.view_radius)
+    elif camera is not None:
+        waited_for = functools.partial(D.may_still_be_kept, camera)
     settled = simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
                        iterations=ph.solver_iterations, gravity=ph.gravity, rest_speed=ph.rest_speed,
-                       speeds=speeds, stats=stats,
-                       waited_for=functools.partial(D.may_still_be_kept, camera) if camera is not None else None,
-                       releases=releases)
+                       speeds=speeds, stats=stats, waited_for=waited_for, releases=releases)
     names = {pobj.name: name for name, pobj in state.proxies.items()}
     state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies), "frames_run": stats["frames_run"],
                               "waited_for": stats["waited_for"], "released_later": len(releases),
@@ -550,12 +574,15 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
     return settled
 
 
-def check_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:
-    """Record settled poses; drop unstable / below-floor / flung-out bodies, then deep interpenetrations."""
+def check_settled(state: SceneState, settled: dict[str, np.ndarray], roles: tuple[str, ...]) -> None:
+    """Record settled poses of the objects of ``roles``; drop unstable / below-floor / flung-out bodies,
+    then deep interpenetrations among them."""
     ph, floor = state.spec.physics, state.spec.floor
     live: list[int] = []
     bodies: list[D.SettledBody] = []
     for i, o in enumerate(state.objects):
+        if o.role not in roles or not o.kept:
+            continue
         obj = state.blender_objects[o.path]
         mat = settled.get(obj.name, np.array(obj.matrix_world))
         lo, hi = D.world_bounds(state.cache.columns[o.asset], mat)
@@ -577,17 +604,100 @@ def check_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:
         state.drop(live[j], D.INTERPENETRATION, "settle", other=state.objects[live[k]].name, depth=round(depth, 4))
 
 
-def check_frame(state: SceneState, camera: PinholeCamera) -> None:
-    """Drop objects whose origin projects outside the image (or behind the camera)."""
+def _set_matrix(obj: Any, matrix: np.ndarray) -> None:
+    import mathutils
+
+    obj.matrix_world = mathutils.Matrix(np.asarray(matrix).tolist())
+
+
+def frame_cameras(state: SceneState) -> None:
+    """Every camera re-aimed at the settled counted objects by its framing rule
+    (:func:`mixcount.scene.framing.frame_camera`); the Blender cameras move there."""
+    from mixcount.scene.framing import frame_camera, rotation_of
+
+    kept = state.kept("counted")
+    centres = np.array([np.asarray(state.objects[i].matrix_world)[:3, 3] for i in kept]).reshape(-1, 3)
+    sizes = np.array([state.objects[i].size_m for i in kept])
+    container = state.spec.container
+    diag = float(np.linalg.norm(container.extent_m)) if container is not None else None
+    margin = state.spec.placement.frame_margin if state.spec.placement is not None else 0.0
+    state.framings = []
+    for cam_obj, cam in zip(state.cam_objs, state.spec.cameras):
+        framed = frame_camera(cam, centres, sizes, diag, margin=margin)
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = rotation_of(framed.camera), framed.camera.position
+        _set_matrix(cam_obj, m)
+        state.framings.append({**framed.derivation, "camera": framed.camera.to_dict()})
+
+
+def place_distractors_in_view(state: SceneState, cameras: list[PinholeCamera]) -> None:
+    """Distractors on free floor where every camera sees them (:func:`mixcount.scene.framing.place_distractors`),
+    resting on the floor at their drawn yaw and size; one without a spot is dropped (``no_spot_in_view``)."""
+    from mixcount.scene.framing import DistractorShape, image_box, place_distractors
+
+    placement = state.spec.placement
+    assert placement is not None
+    distractors = state.kept("distractor")
+    if not distractors:
+        return
+    counted = state.kept("counted")
+    bounds = [D.world_bounds(state.cache.columns[state.objects[i].asset], np.asarray(state.objects[i].matrix_world))
+              for i in counted]
+    occupied = [[lo[0], lo[1], hi[0], hi[1]] for lo, hi in bounds]
+    if state.spec.container is not None:
+        cobj = next(o for p, o in state.blender_objects.items() if o.pass_index == state.spec.container.instance_id)
+        corners = np.array(cobj.matrix_world) @ np.c_[np.array([list(c) for c in cobj.bound_box]), np.ones(8)].T
+        occupied.append([corners[0].min(), corners[1].min(), corners[0].max(), corners[1].max()])
+    counted_boxes = []
+    for cam in cameras:
+        boxes = [image_box(cam, lo, hi) for lo, hi in bounds]
+        counted_boxes.append(np.array([b for b in boxes if b is not None]).reshape(-1, 4))
+    shapes, spawn = [], []
+    for i in distractors:
+        m = np.asarray(state.objects[i].spawn_matrix, dtype=np.float64).copy()
+        m[:3, 3] = 0.0
+        lo, hi = D.world_bounds(state.cache.columns[state.objects[i].asset], m)
+        shapes.append(DistractorShape(tuple(lo.tolist()), tuple(hi.tolist())))  # type: ignore[arg-type]
+        spawn.append(m)
+    centres = np.array([np.asarray(state.objects[i].matrix_world)[:3, 3] for i in counted]).reshape(-1, 3)
+    centre = np.median(centres[:, :2], axis=0) if len(centres) else np.zeros(2)
+    reach = max(float(np.linalg.norm(np.asarray(f["camera"]["position"])[:2] - centre)) for f in state.framings)
+    rng = np.random.default_rng([state.spec.seed, PLACEMENT_STREAM])
+    spots = place_distractors(rng, shapes, cameras, state.spec.floor, np.array(occupied).reshape(-1, 4),
+                              counted_boxes, centre=centre, max_radius=reach, margin=placement.distractor_margin,
+                              frame_margin=placement.frame_margin, tries=placement.distractor_tries,
+                              max_overlap=placement.distractor_max_overlap)
+    for i, m, spot in zip(distractors, spawn, spots):
+        if spot is None:
+            state.drop(i, D.NO_SPOT_IN_VIEW, "placement")
+            continue
+        m[:3, 3] = spot
+        obj = state.blender_objects[state.objects[i].path]
+        _set_matrix(obj, m)
+        lo, _ = D.world_bounds(state.cache.columns[state.objects[i].asset], m)
+        state.update(i, matrix_world=tuple(tuple(float(v) for v in row) for row in m), min_z=float(lo[2]))
+
+
+PLACEMENT_STREAM = 23  # the distractor placement's generator: default_rng([scene seed, PLACEMENT_STREAM])
+
+
+def check_frame(state: SceneState, cameras: list[PinholeCamera]) -> None:
+    """Drop objects whose origin projects outside any camera's image (or behind it): the paper keeps an
+    object "only if their origin projects inside every camera frame"."""
     for i in state.kept():
-        origin, inside = D.origin_in_frame(camera, np.array(state.objects[i].matrix_world))
-        state.update(i, origin_px=origin)
-        if not inside:
+        inside_all = True
+        for k, camera in enumerate(cameras):
+            origin, inside = D.origin_in_frame(camera, np.array(state.objects[i].matrix_world))
+            state.view(i, k)["origin_px"] = list(origin)
+            if k == 0:
+                state.update(i, origin_px=origin)
+            inside_all = inside_all and inside
+        if not inside_all:
             state.drop(i, D.OUTSIDE_FRAME, "frame")
 
 
-def silhouettes(state: SceneState, camera: PinholeCamera, threads: int) -> dict[int, np.ndarray]:
-    """Each kept object's unoccluded mask (numpy rasteriser), by instance id.
+def silhouettes(state: SceneState, camera: PinholeCamera, threads: int, k: int = 0) -> dict[int, np.ndarray]:
+    """Each kept object's unoccluded mask in camera ``k`` (numpy rasteriser), by instance id.
 
     Objects are rasterised on ``threads`` threads: numpy releases the GIL in the large array
     operations that make up the rasteriser, and each mask depends on its object alone."""
@@ -607,14 +717,18 @@ def silhouettes(state: SceneState, camera: PinholeCamera, threads: int) -> dict[
     masks: dict[int, np.ndarray] = {}
     for i, mask in zip(kept, results):
         masks[state.objects[i].instance_id] = mask
-        state.update(i, unoccluded_px=int(mask.sum()))
+        state.view(i, k)["unoccluded_px"] = int(mask.sum())
+        if k == 0:
+            state.update(i, unoccluded_px=int(mask.sum()))
     return masks
 
 
-def visibility_loop(state: SceneState, masks: dict[int, np.ndarray], timer: Timer) -> tuple[dict[str, np.ndarray], int]:
-    """Render the id pass, measure every kept object's visibility (visible / amodal pixels), drop the
-    occluded ones - counted objects and distractors under the same rule - and re-render (up to
-    MAX_VISIBILITY_ROUNDS times); returns the last id passes and the number of renders.
+def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
+                    timer: Timer) -> tuple[list[dict[str, np.ndarray]], int]:
+    """Render each camera's id pass, measure every kept object's visibility (visible / amodal pixels) in
+    each, drop the occluded ones - counted objects and distractors under the same rule, occlusion the
+    maximum over the cameras - and re-render (up to MAX_VISIBILITY_ROUNDS times); returns the last id
+    passes per camera and the number of renders.
 
     Dropping an object removes it from the Blender scene, so the next id pass and the final RGB render
     no longer show it; the loop only ends on id passes that hold no dropped object. A re-render covers
@@ -624,37 +738,58 @@ def visibility_loop(state: SceneState, masks: dict[int, np.ndarray], timer: Time
     from mixcount.blender import passes as P
 
     v_t = state.spec.render.visibility_threshold
-    exr = state.out_dir / "_ids.exr"
+    n_cams = len(state.cam_objs)
+    exrs = [state.out_dir / f"_ids{view_suffix(k)}.exr" for k in range(n_cams)]
     rounds = renders = 0
-    id_passes: Optional[dict[str, np.ndarray]] = None
-    region: Optional[tuple[int, int, int, int]] = None
+    id_passes: list[Optional[dict[str, np.ndarray]]] = [None] * n_cams
+    regions: list[Optional[tuple[int, int, int, int]]] = [None] * n_cams
     while True:
         with timer.stage("id_pass"):
-            if id_passes is None:
-                id_passes = P.render_id_passes(state.scene, exr)
-                renders += 1
-            elif region is not None:
-                id_passes = D.paste_region(id_passes, P.render_id_passes(state.scene, exr, region), region)
-                renders += 1
+            for k in range(n_cams):
+                state.scene.camera = state.cam_objs[k]
+                before = id_passes[k]
+                if before is None:
+                    id_passes[k] = P.render_id_passes(state.scene, exrs[k])
+                    renders += 1
+                elif regions[k] is not None:
+                    region = regions[k]
+                    assert region is not None
+                    id_passes[k] = D.paste_region(before, P.render_id_passes(state.scene, exrs[k], region), region)
+                    renders += 1
+            state.scene.camera = state.cam_objs[0]
         with timer.stage("visibility"):
             kept = state.kept()
-            vis = D.measure_visibility(id_passes["index"], {state.objects[i].instance_id: masks[state.objects[i].instance_id]
-                                                            for i in kept})
+            worst: dict[int, float] = {}
             by_inst = {}
-            for i in kept:
-                o = state.objects[i]
-                m = vis[o.instance_id]
-                state.update(i, visible_px=m.visible_px, amodal_px=m.amodal_px, visibility=m.visibility)
-                by_inst[o.instance_id] = i
-            low = D.occluded({state.objects[i].instance_id: state.objects[i].visibility for i in kept}, v_t)
+            for k in range(n_cams):
+                passes_k = id_passes[k]
+                assert passes_k is not None
+                vis = D.measure_visibility(passes_k["index"], {state.objects[i].instance_id:
+                                                               masks[k][state.objects[i].instance_id] for i in kept})
+                for i in kept:
+                    o = state.objects[i]
+                    m = vis[o.instance_id]
+                    state.view(i, k).update(visible_px=m.visible_px, amodal_px=m.amodal_px, visibility=m.visibility)
+                    if k == 0:
+                        state.update(i, visible_px=m.visible_px, amodal_px=m.amodal_px)
+                    worst[o.instance_id] = min(worst.get(o.instance_id, 1.0), m.visibility)
+                    by_inst[o.instance_id] = i
+            for inst, v in worst.items():
+                state.update(by_inst[inst], visibility=v)
+            low = D.occluded(worst, v_t)
             if not low or rounds >= D.MAX_VISIBILITY_ROUNDS:
                 break
-            region = D.changed_region(id_passes["index"], low)
+            for k in range(n_cams):
+                passes_k = id_passes[k]
+                assert passes_k is not None
+                regions[k] = D.changed_region(passes_k["index"], low)
             for inst in low:
-                state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(vis[inst].visibility, 4))
+                state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(worst[inst], 4))
             rounds += 1
-    P.remove_quiet(exr)
-    return id_passes, renders
+    for exr in exrs:
+        P.remove_quiet(exr)
+    out = [p for p in id_passes if p is not None]
+    return out, renders
 
 
 def final_status(state: SceneState) -> str:
@@ -671,36 +806,38 @@ def final_status(state: SceneState) -> str:
     return status
 
 
-def write_amodal_masks(state: SceneState, masks: dict[int, np.ndarray], id_passes: dict[str, np.ndarray]) -> None:
-    """``amodal.npz``: each kept object's amodal mask (silhouette | visible pixels, packed bits under
-    ``amodal_<instance id>``) and the image ``shape``; the scene writer turns them into RLE."""
+def write_amodal_masks(state: SceneState, masks: dict[int, np.ndarray], id_passes: dict[str, np.ndarray],
+                       k: int = 0) -> None:
+    """``amodal<suffix>.npz``: each kept object's amodal mask in camera ``k`` (silhouette | visible pixels,
+    packed bits under ``amodal_<instance id>``) and the image ``shape``; the scene writer turns them into RLE."""
     index = id_passes["index"]
     save = {f"amodal_{state.objects[i].instance_id}":
             np.packbits(D.amodal_mask(masks[state.objects[i].instance_id], index, state.objects[i].instance_id))
             for i in state.kept()}
-    np.savez_compressed(state.out_dir / "amodal.npz", shape=np.array(index.shape[:2]), **save)
+    np.savez_compressed(state.out_dir / f"amodal{view_suffix(k)}.npz", shape=np.array(index.shape[:2]), **save)
 
 
 def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: PinholeCamera,
-                 req: SceneRequest) -> dict[str, Any]:
-    """ids.npy (kept objects only; the scene writer turns it into instance/class PNGs and annotations),
-    and the requested depth (planar metres) and normal (camera space) passes in their compact formats
-    (:mod:`mixcount.annotate.passes`); returns the written passes' records."""
+                 req: SceneRequest, k: int = 0) -> dict[str, Any]:
+    """ids<suffix>.npy (kept objects only; the scene writer turns it into instance/class PNGs and
+    annotations), and the requested depth (planar metres) and normal (camera space) passes of camera
+    ``k`` in their compact formats (:mod:`mixcount.annotate.passes`); returns the written passes' records."""
     from mixcount.annotate.passes import write_depth, write_normals
 
+    suffix = view_suffix(k)
     keep = [state.objects[i].instance_id for i in state.kept()]
-    np.save(state.out_dir / "ids.npy", D.instance_map(id_passes["index"], keep))
+    np.save(state.out_dir / f"ids{suffix}.npy", D.instance_map(id_passes["index"], keep))
     written: dict[str, Any] = {}
     if "normal" in req.passes:
         normals = D.camera_normals(id_passes["normal"], camera.cam_to_world, id_passes["depth"])
-        written["normal"] = write_normals(state.out_dir, normals, req.normal_format)
+        written["normal"] = write_normals(state.out_dir, normals, req.normal_format, suffix)
     if "depth" in req.passes:
-        written["depth"] = write_depth(state.out_dir, D.planar_depth(id_passes["depth"]), req.depth_format)
+        written["depth"] = write_depth(state.out_dir, D.planar_depth(id_passes["depth"]), req.depth_format, suffix)
     return written
 
 
 def render_rgb(state: SceneState) -> None:
-    """The final image with the stage's samples and denoiser."""
+    """The final image of every camera (``rgb.png``, ``rgb_cam_1.png``, ...) with the stage's samples and denoiser."""
     from mixcount.blender import passes as P
 
     P.configure_rgb(state.scene, samples=state.spec.render.samples, denoise=state.spec.render.denoise,
@@ -708,27 +845,39 @@ def render_rgb(state: SceneState) -> None:
     c = state.scene.cycles  # what Cycles was set to, read back (a diagnostic, not the spec's wish)
     state.diagnostics.append({"kind": "rgb", "samples": int(c.samples), "denoise": bool(c.use_denoising),
                               "denoiser": str(c.denoiser), "prefilter": str(c.denoising_prefilter)})
-    P.render_to(state.scene, state.out_dir / "rgb.png")
+    for k, cam_obj in enumerate(state.cam_objs):
+        state.scene.camera = cam_obj
+        P.render_to(state.scene, state.out_dir / f"rgb{view_suffix(k)}.png")
+    state.scene.camera = state.cam_objs[0]
 
 
-def reference_check(state: SceneState, masks: dict[int, np.ndarray], camera: PinholeCamera) -> None:
-    """The paper's one-render-per-object masks against the rasterised ones: oracle_* fields on each kept
-    object and ``oracle_masks.npz`` (packed bits of both masks)."""
+def reference_check(state: SceneState, masks: dict[int, np.ndarray], camera: PinholeCamera, k: int = 0) -> None:
+    """The paper's one-render-per-object masks against the rasterised ones in camera ``k``: oracle_*
+    fields on each kept object's view (and on the object for cam_0) and ``oracle_masks<suffix>.npz``
+    (packed bits of both masks)."""
     from mixcount.blender.visibility import oracle_masks
 
     kept = state.kept()
-    oracle = oracle_masks(state.scene, [state.blender_objects[state.objects[i].path] for i in kept], state.out_dir)
+    state.scene.camera = state.cam_objs[k]
+    try:
+        oracle = oracle_masks(state.scene, [state.blender_objects[state.objects[i].path] for i in kept], state.out_dir)
+    finally:
+        state.scene.camera = state.cam_objs[0]
     save = {}
     for i in kept:
         o = state.objects[i]
+        view = state.view(i, k)
         om, rm = oracle[o.instance_id], masks[o.instance_id]
         union = int((om | rm).sum())
-        state.update(i, oracle_unoccluded_px=int(om.sum()),
-                     oracle_iou=int((om & rm).sum()) / union if union else 1.0,
-                     oracle_visibility=(o.visible_px / int(om.sum())) if om.any() else 0.0)
+        fields = {"oracle_unoccluded_px": int(om.sum()), "oracle_iou": int((om & rm).sum()) / union if union else 1.0,
+                  "oracle_visibility": (int(view["visible_px"]) / int(om.sum())) if om.any() else 0.0}
+        view.update(fields)
+        if k == 0:
+            state.update(i, **fields)
         save[f"oracle_{o.instance_id}"] = np.packbits(om)
         save[f"raster_{o.instance_id}"] = np.packbits(rm)
-    np.savez_compressed(state.out_dir / "oracle_masks.npz", shape=np.array([camera.height, camera.width]), **save)
+    np.savez_compressed(state.out_dir / f"oracle_masks{view_suffix(k)}.npz",
+                        shape=np.array([camera.height, camera.width]), **save)
 
 
 def _camera_record(cam_obj: Any, camera: PinholeCamera) -> dict[str, Any]:
@@ -741,6 +890,25 @@ def _camera_record(cam_obj: Any, camera: PinholeCamera) -> dict[str, Any]:
     }
 
 
+def _place_after_physics(state: SceneState, settled: dict[str, np.ndarray], timer: Timer) -> list[PinholeCamera]:
+    """Settle checks, then (specs with a placement) cameras framed on the settled pile and distractors
+    placed in view; returns each camera's pixel model."""
+    from mixcount.blender.visibility import camera_model
+
+    with timer.stage("settle_checks"):
+        if state.placed_after_physics:
+            check_settled(state, settled, ("counted",))
+        else:
+            check_settled(state, settled, ("counted", "distractor"))
+    with timer.stage("placement"):
+        if state.placed_after_physics:
+            frame_cameras(state)
+        cameras = [camera_model(state.scene, c) for c in state.cam_objs]
+        if state.placed_after_physics:
+            place_distractors_in_view(state, cameras)
+    return cameras
+
+
 def run_scene(req: SceneRequest) -> SceneResult:
     """Handle one scene request (see module docstring); writes and returns the SceneResult."""
     from mixcount.blender.visibility import camera_model
@@ -748,31 +916,38 @@ def run_scene(req: SceneRequest) -> SceneResult:
     timer = Timer()
     with timer.stage("import"):
         state = load_scene(req)
-    camera = camera_model(state.scene, state.cam_obj)
     with timer.stage("physics"):
-        settled = settle(state, camera)
-    with timer.stage("settle_checks"):
-        check_settled(state, settled)
+        settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
+    cameras = _place_after_physics(state, settled, timer)
     with timer.stage("frame_check"):
-        check_frame(state, camera)
+        check_frame(state, cameras)
     with timer.stage("silhouettes"):
-        masks = silhouettes(state, camera, req.threads)
+        masks = [silhouettes(state, cam, req.threads, k) for k, cam in enumerate(cameras)]
     id_passes, renders = visibility_loop(state, masks, timer)
     status = final_status(state)
+    view_passes: list[dict[str, Any]] = [{} for _ in cameras]
     if status == STATUS_OK:
         with timer.stage("write_passes"):
-            state.diagnostics.append({"kind": "passes", "passes": write_passes(state, id_passes, camera, req)})
-            write_amodal_masks(state, masks, id_passes)
+            for k, cam in enumerate(cameras):
+                view_passes[k] = write_passes(state, id_passes[k], cam, req, k)
+                write_amodal_masks(state, masks[k], id_passes[k], k)
         with timer.stage("rgb"):
             render_rgb(state)
         if req.oracle:
             with timer.stage("oracle"):
-                reference_check(state, masks, camera)
+                for k, cam in enumerate(cameras):
+                    reference_check(state, masks[k], cam, k)
+    for i, views in state.views.items():
+        state.update(i, views=tuple(views))
     spec = state.spec
+    records = [_camera_record(c, cam) for c, cam in zip(state.cam_objs, cameras)]
+    views = tuple({"name": c.name, "suffix": view_suffix(k), "camera": records[k],
+                   "framing": state.framings[k] if state.framings else {"framing": "fixed"},
+                   "passes": view_passes[k]} for k, c in enumerate(state.cam_objs))
     result = SceneResult(
         status=status, stage=str(state.stage_path), scene_id=spec.scene_id, seed=spec.seed,
         visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=renders,
-        physics=spec.physics.to_dict(), camera=_camera_record(state.cam_obj, camera), lights=state.lights,
-        objects=tuple(state.objects), diagnostics=tuple(state.diagnostics), timings=dict(timer.times))
+        physics=spec.physics.to_dict(), camera=records[0], lights=state.lights,
+        objects=tuple(state.objects), diagnostics=tuple(state.diagnostics), timings=dict(timer.times), views=views)
     (state.out_dir / "worker.json").write_text(result.to_json())
     return result

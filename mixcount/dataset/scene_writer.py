@@ -111,9 +111,34 @@ def decompose(matrix: Any) -> dict[str, list[float]]:
     return {"translate": m[:3, 3].tolist(), "orient": list(quat_from_matrix(rot)), "scale": scale.tolist()}
 
 
-def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectResult]) -> None:
+def _set_camera_pose(stage: Any, view: Mapping[str, Any]) -> None:
+    """A camera prim moved to the pose the worker framed (``view``: one of SceneResult.views), with the
+    framing's derivation in its customData (``mixcount:framing``, JSON)."""
+    from pxr import Gf, UsdGeom
+
+    prim = stage.GetPrimAtPath(f"/World/Cameras/{view['name']}")
+    if not prim or not prim.IsValid() or "cam_to_world" not in view["camera"]:
+        return
+    pose = decompose(view["camera"]["cam_to_world"])
+    for op in UsdGeom.Xformable(prim).GetOrderedXformOps():
+        if op.GetOpType() == UsdGeom.XformOp.TypeTranslate:
+            op.Set(Gf.Vec3d(*pose["translate"]))
+        elif op.GetOpType() == UsdGeom.XformOp.TypeOrient:
+            w, x, y, z = pose["orient"]
+            op.Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)))
+    framing = dict(view.get("framing") or {})
+    cam = framing.pop("camera", None)
+    if cam is not None:
+        prim.SetCustomDataByKey("mixcount:look_at", Gf.Vec3d(*cam["look_at"]))
+        prim.SetCustomDataByKey("mixcount:distance", float(cam["distance"]))
+    prim.SetCustomDataByKey("mixcount:framing", json.dumps(framing, sort_keys=True))
+
+
+def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectResult],
+                        views: Sequence[Mapping[str, Any]] = ()) -> None:
     """scene.usda -> settled.usda: dropped prims removed, kept ones at their settled pose (same names and
-    customData, plus mixcount:visibility and mixcount:status on each kept instance)."""
+    customData, plus mixcount:visibility and mixcount:status on each kept instance), every camera at the
+    pose it was rendered from (``views``: SceneResult.views)."""
     from pxr import Gf, Sdf, Usd, UsdGeom
 
     src = Sdf.Layer.FindOrOpen(str(scene_usda))
@@ -139,6 +164,8 @@ def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectRes
                 op.Set(Gf.Vec3f(*pose["scale"]))
         if rec.visibility is not None:
             prim.SetCustomDataByKey("mixcount:visibility", float(rec.visibility))
+    for view in views:
+        _set_camera_pose(stage, view)
     data = dict(layer.customLayerData)
     mc = dict(data.get("mixcount", {}))
     mc["settled"] = True
@@ -154,24 +181,27 @@ def _png16(arr: np.ndarray, path: Path) -> None:
     Image.fromarray(arr.astype(np.uint16)).save(path)
 
 
-def write_exemplar_crops(rgb_path: Path, coco: Mapping[str, Any], out: Path, margin: float = 0.1) -> list[dict[str, Any]]:
-    """Crops of the internal exemplars (``exemplars/<category_id>_<rank>.png``)."""
+def write_exemplar_crops(rgb_path: Path, coco: Mapping[str, Any], out: Path, margin: float = 0.1,
+                         image_index: int = 0, suffix: str = "") -> list[dict[str, Any]]:
+    """Crops of the internal exemplars of image ``image_index`` (``exemplars/<category_id>_<rank><suffix>.png``)."""
     from PIL import Image
 
     out.mkdir(exist_ok=True)
     im = Image.open(rgb_path).convert("RGB")
-    anns = {a["id"]: a for a in coco["annotations"]}
+    image = coco["images"][image_index]
+    anns = {a["id"]: a for a in coco["annotations"] if a["image_id"] == image["id"]}
     written = []
-    for ex in coco["images"][0]["exemplars"]:
+    for ex in image["exemplars"]:
         for rank, aid in enumerate(ex["annotation_ids"]):
             x, y, w, h = anns[aid]["bbox"]
             mx, my = margin * w, margin * h
             box = (max(0, int(x - mx)), max(0, int(y - my)), min(im.width, int(np.ceil(x + w + mx))),
                    min(im.height, int(np.ceil(y + h + my))))
-            name = f"{ex['category_id']}_{rank}.png"
+            name = f"{ex['category_id']}_{rank}{suffix}.png"
             im.crop(box).save(out / name)
             written.append({"category_id": ex["category_id"], "annotation_id": aid, "rank": rank,
-                            "file": f"exemplars/{name}", "exemplar_score": anns[aid]["exemplar_score"]})
+                            "image_id": image["id"], "file": f"exemplars/{name}",
+                            "exemplar_score": anns[aid]["exemplar_score"]})
     return written
 
 
@@ -185,16 +215,58 @@ def read_amodal_masks(path: Path) -> Optional[dict[int, np.ndarray]]:
                 for k in z.files if k.startswith("amodal_")}
 
 
+ANNOTATION_ID_STRIDE = 100_000  # camera k's annotation ids in a scene's coco.json: k * stride + instance id
+
+
+def _views(worker: SceneResult) -> list[dict[str, Any]]:
+    """The worker's per-camera records; a result without them (one camera) as one view."""
+    if worker.views:
+        return [dict(v) for v in worker.views]
+    pass_files = next((dict(d["passes"]) for d in worker.diagnostics if d.get("kind") == "passes"), {})
+    return [{"name": worker.camera.get("name", "cam_0"), "suffix": "", "camera": worker.camera,
+             "framing": {"framing": "fixed"}, "passes": pass_files}]
+
+
+def _offset_annotation_ids(coco: dict[str, Any], offset: int) -> dict[str, Any]:
+    if offset:
+        for a in coco["annotations"]:
+            a["id"] = int(a["id"]) + offset
+        for img in coco["images"]:
+            img["exemplars"] = [{**e, "annotation_ids": [int(i) + offset for i in e["annotation_ids"]]}
+                                for e in img["exemplars"]]
+    return coco
+
+
+def classes_without_instances(spec: SceneSpec, objects: Sequence[Mapping[str, Any]],
+                              class_cat: Mapping[int, int]) -> list[dict[str, Any]]:
+    """Counted classes of the spec that end with no kept instance, with how many were spawned and why
+    each was dropped (a class that leaves the ground truth is recorded, never silently)."""
+    out = []
+    for c in spec.classes:
+        mine = [r for r in objects if r["role"] == "counted" and int(r["class_index"]) == c.class_index]
+        if any(r["status"] == KEPT for r in mine):
+            continue
+        reasons: dict[str, int] = {}
+        for r in mine:
+            reasons[str(r.get("reason"))] = reasons.get(str(r.get("reason")), 0) + 1
+        out.append({"class_index": c.class_index, "category_id": class_cat[c.class_index],
+                    "name": c.name if c.size_qualifier is None else f"{c.name} ({c.size_qualifier})",
+                    "spawned": len(mine), "reasons": dict(sorted(reasons.items()))})
+    return out
+
+
 def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions: Mapping[int, Mapping[str, str]],
                    timings: dict[str, float], extra: Optional[dict[str, Any]] = None,
                    external_exemplars: Optional[Mapping[int, str]] = None,
                    passes: Sequence[str]) -> dict[str, Any]:
     """Turn the worker's raw outputs in ``tmp`` and its SceneResult into the scene's files; returns
     metadata.json's dict (its ``objects`` are the ObjectResult fields plus category, box, point, amodal
-    box, pose; its ``ground_truth`` the evaluation pairs of this image, distractors included)."""
-    ids = np.load(tmp / "ids.npy")
-    amodal = read_amodal_masks(tmp / "amodal.npz")
-    pass_files = next((dict(d["passes"]) for d in worker.diagnostics if d.get("kind") == "passes"), {})
+    box, pose of cam_0's image, and per camera the same under ``views``; its ``ground_truth`` the
+    evaluation pairs of cam_0's image, distractors included: every camera shows the same kept objects).
+
+    One COCO image per camera: cam_0's is ``rgb.png`` (image id 1, annotation ids = instance ids), camera
+    k's ``rgb_cam_<k>.png`` (image id k + 1, annotation ids k * ANNOTATION_ID_STRIDE + instance id)."""
+    views = _views(worker)
     cats, class_cat = scene_categories(spec, captions, external_exemplars)
     objects = []
     for rec in worker.objects:
@@ -202,57 +274,90 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         objects.append({**rec.to_dict(), "category_id": cid})
     kept = [r for r in objects if r["status"] == KEPT]
     inst_cat = {int(r["instance_id"]): int(r["category_id"]) for r in kept}
-    if "instance" in passes:
-        _png16(ids.astype(np.uint16), tmp / "instance.png")
-    if "class" in passes:
-        _png16(class_map(ids, inst_cat), tmp / "class.png")
-    coco = build_scene_coco(ids, kept, cats, image_id=1, file_name=f"scenes/{spec.scene_id}/rgb.png",
-                            scene_id=spec.scene_id, amodal=amodal)
-    by_inst = {a["id"]: a for a in coco["annotations"]}
-    for r in objects:
-        a = by_inst.get(int(r["instance_id"]))
-        if a is not None:
-            r.update(bbox=a["bbox"], area=a["area"], point=a["point"], visibility=a["visibility"],
-                     exemplar_score=a["exemplar_score"], annotation_id=a["id"])
+    coco: dict[str, Any] = {"images": [], "annotations": [], "categories": []}
+    images, files, exemplars = [], {}, []
+    for k, view in enumerate(views):
+        suffix = str(view["suffix"])
+        ids = np.load(tmp / f"ids{suffix}.npy")
+        amodal = read_amodal_masks(tmp / f"amodal{suffix}.npz")
+        if "instance" in passes:
+            _png16(ids.astype(np.uint16), tmp / f"instance{suffix}.png")
+        if "class" in passes:
+            _png16(class_map(ids, inst_cat), tmp / f"class{suffix}.png")
+        file_name = f"scenes/{spec.scene_id}/rgb{suffix}.png"
+        one = _offset_annotation_ids(build_scene_coco(ids, kept, cats, image_id=k + 1, file_name=file_name,
+                                                      scene_id=spec.scene_id, amodal=amodal), k * ANNOTATION_ID_STRIDE)
+        one["images"][0]["camera"] = view["name"]
+        coco["images"] += one["images"]
+        coco["annotations"] += one["annotations"]
+        coco["categories"] = one["categories"]
+        by_inst = {a["instance_id"]: a for a in one["annotations"]}
+        for r in objects:
+            a = by_inst.get(int(r["instance_id"]))
+            if a is None:
+                continue
+            fields = dict(bbox=a["bbox"], area=a["area"], point=a["point"], visibility=a["visibility"],
+                          exemplar_score=a["exemplar_score"], annotation_id=a["id"])
             if "bbox_amodal" in a:
-                r.update(bbox_amodal=a["bbox_amodal"], area_amodal=a["area_amodal"])
+                fields.update(bbox_amodal=a["bbox_amodal"], area_amodal=a["area_amodal"])
+            if k == 0:
+                r.update(fields)
+            if k < len(r.get("views") or []):
+                r["views"][k].update(fields)
+        exemplars += write_exemplar_crops(tmp / f"rgb{suffix}.png", coco, tmp / "exemplars", image_index=k,
+                                          suffix=suffix)
+        images.append({"file_name": file_name, "width": int(ids.shape[1]), "height": int(ids.shape[0]),
+                       "camera": view["name"], "image_id": k + 1})
+        files[view["name"]] = {"rgb": f"rgb{suffix}.png",
+                               **{p: f"{p}{suffix}.png" for p in ("instance", "class") if p in passes},
+                               **{name: rec["file"] for name, rec in dict(view.get("passes") or {}).items()}}
+        os.remove(tmp / f"ids{suffix}.npy")
+        if amodal is not None:
+            os.remove(tmp / f"amodal{suffix}.npz")  # the masks are in coco.json as segmentation_amodal
+    for r in objects:
         if r["status"] == KEPT:
             r["pose"] = decompose(r["matrix_world"])
+            if len(views) > 1:  # the rule's value: the worst camera's visibility (the paper's max occlusion)
+                r["visibility_min"] = min(float(v.get("visibility", 1.0)) for v in r["views"])
     (tmp / "coco.json").write_text(json.dumps(coco))
-    exemplars = write_exemplar_crops(tmp / "rgb.png", coco, tmp / "exemplars")
-    write_settled_stage(tmp / "scene.usda", tmp / "settled.usda", worker.objects)
-    os.remove(tmp / "ids.npy")
-    if amodal is not None:
-        os.remove(tmp / "amodal.npz")  # the masks are in coco.json as segmentation_amodal
+    write_settled_stage(tmp / "scene.usda", tmp / "settled.usda", worker.objects, views)
     if (tmp / "worker.json").exists():
         os.remove(tmp / "worker.json")  # everything in it is in metadata.json
     counts: dict[str, int] = {}
     for r in kept:
         if r["role"] == "counted":
             counts[str(r["category_id"])] = counts.get(str(r["category_id"]), 0) + 1
+    first = [a for a in coco["annotations"] if a["image_id"] == 1]
     meta = {
         "scene_id": spec.scene_id, "seed": spec.seed, "split": spec.split, "config_hash": spec.config_hash,
-        "image": {"file_name": f"scenes/{spec.scene_id}/rgb.png", "width": int(ids.shape[1]), "height": int(ids.shape[0])},
+        "image": {k: v for k, v in images[0].items() if k in ("file_name", "width", "height")},
+        "images": images,
         "camera": worker.camera, "lights": worker.lights, "physics": worker.physics,
+        "cameras": [{"name": v["name"], "record": v["camera"], "framing": v.get("framing")} for v in views],
         "visibility_threshold": worker.visibility_threshold,
         "counts": counts, "n_counted": sum(counts.values()),
-        "n_distractors": sum(1 for a in coco["annotations"] if a["is_distractor"]),
-        "ground_truth": [{"category_id": c, "count": n} for c, n in ground_truth_pairs(coco).items()],
+        "n_distractors": sum(1 for a in first if a["is_distractor"]),
+        "ground_truth": [{"category_id": c, "count": n}
+                         for c, n in ground_truth_pairs({"annotations": first}).items()],
         "n_dropped": sum(1 for r in objects if r["status"] != KEPT),
+        "spawned": {"counted": sum(1 for r in objects if r["role"] == "counted"),
+                    "distractors": sum(1 for r in objects if r["role"] == "distractor")},
+        "classes_without_instances": classes_without_instances(spec, objects, class_cat),
         "categories": cats, "objects": objects, "exemplars": exemplars,
         "diagnostics": list(worker.diagnostics),
         "timings": {**timings, **{f"worker.{k}": v for k, v in worker.timings.items()}},
         "spec": spec.to_dict(),
-        "files": {"rgb": "rgb.png", **{p: f"{p}.png" for p in ("instance", "class") if p in passes},
-                  **{k: v["file"] for k, v in pass_files.items()},
-                  "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json"},
-        "passes": pass_files,
+        "files": {**files[views[0]["name"]], "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json",
+                  **({"cameras": files} if len(views) > 1 else {})},
+        "passes": dict(views[0].get("passes") or {}),
         "conventions": {
             "instance.png": "uint16 instance id of counted objects and distractors; 0 = floor, container, background",
             "class.png": "uint16 COCO category id (4 * object_id + q; q 0 none, 1 larger, 2 smaller); 0 = none",
             "depth": "planar depth along the optical axis, metres; 0 = no surface (mixcount.dataset.read_depth)",
             "normal": "unit normals in camera space (x right, y up, z toward the camera); 0 = none "
                       "(mixcount.dataset.read_normals)",
+            "cameras": "camera k > 0 writes rgb_cam_<k>.png, instance_cam_<k>.png, ...; coco.json holds one "
+                       "image per camera",
         },
         **(extra or {}),
         "complete": True,

@@ -47,6 +47,8 @@ class SceneConfig:
     no_container_probability: float
     container_scale_jitter: Range
     container_other_split_fallback: bool
+    container_pile_area: Range
+    floor_pile_margin: float
     n_objects: IntRange
     n_classes: IntRange
     class_size: Range
@@ -72,6 +74,7 @@ class SceneConfig:
     distractor_margin: float
     distractor_ring: Range
     distractor_max_tries: int
+    distractor_max_overlap: float
     physics_frames: int
     physics_substeps: int
     physics_solver_iterations: int
@@ -88,6 +91,9 @@ class SceneConfig:
     camera_distance_factor: float
     camera_distance_jitter: float
     camera_lookat_jitter: float
+    camera_framing: str
+    camera_fit_share: float
+    camera_frame_margin: float
     focal_length_mm: float
     sensor_width_mm: float
     clip_range: Range
@@ -124,6 +130,12 @@ class SceneConfig:
             raise ConfigError("scene.n_objects high must be >= scene.n_classes high (one instance per class)")
         if self.n_cameras < 1:
             raise ConfigError("scene.n_cameras must be >= 1")
+        if self.camera_framing not in ("paper", "fit"):
+            raise ConfigError(f"scene.camera_framing must be paper or fit, got {self.camera_framing!r}")
+        if not 0.0 < self.camera_fit_share <= 1.0 or not 0.0 <= self.camera_frame_margin < 0.5:
+            raise ConfigError("scene.camera_fit_share must lie in (0, 1] and scene.camera_frame_margin in [0, 0.5)")
+        if self.container_pile_area[0] <= 0:
+            raise ConfigError("scene.container_pile_area must be positive (container area / pile footprint)")
         if self.spawn_wave_interval_frames < 5 or self.spawn_wave_clearance < 0:
             # a held body is moved to its spot 3 frames before its release, parked before that
             raise ConfigError("scene.spawn_wave_interval_frames must be >= 5 and scene.spawn_wave_clearance >= 0")

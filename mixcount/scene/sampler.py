@@ -31,6 +31,7 @@ from mixcount.errors import CompositionError
 from mixcount.scene.caption_text import normalise_caption, size_qualified
 from mixcount.scene.config import SceneConfig
 from mixcount.scene.environments import sample_environment, sample_floor_material
+from mixcount.scene.framing import camera_position, look_at_rotation
 from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord
 from mixcount.scene.rotation import quat_from_matrix
 
@@ -48,6 +49,7 @@ from mixcount.scene.spec import (
     ObjectClass,
     PhysicsSpec,
     PlacedObject,
+    PlacementSpec,
     RenderSpec,
     SceneSpec,
 )
@@ -80,7 +82,7 @@ def _random_quats(rng: np.random.Generator, n: int) -> NDArray[Any]:
     return np.round(q, _R)
 
 
-def _vec(v: Sequence[float]) -> tuple[float, float, float]:
+def _vec(v: Sequence[float] | NDArray[Any]) -> tuple[float, float, float]:
     return tuple(round(float(x), _R) for x in v)  # type: ignore[return-value]
 
 
@@ -92,19 +94,6 @@ def qualify(caption: str, qualifier: Optional[str]) -> str:
 def caption_keys(captions: Captions) -> frozenset[tuple[str, str]]:
     """(tier, normalised caption) of each tier: two objects whose keys intersect share a prompt."""
     return frozenset((tier, normalise_caption(getattr(captions, tier))) for tier in TIERS)
-
-
-def look_at_rotation(position: NDArray[Any], target: NDArray[Any], roll_deg: float) -> NDArray[Any]:
-    """Camera-to-world rotation: local -Z towards target, +Y up-ish, then ``roll_deg`` about the view axis."""
-    f = target - position
-    f = f / np.linalg.norm(f)
-    right = np.cross(f, np.array([0.0, 0.0, 1.0]))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, f)
-    rot = np.stack([right, up, -f], axis=1)
-    r = math.radians(roll_deg)
-    rz = np.array([[math.cos(r), -math.sin(r), 0.0], [math.sin(r), math.cos(r), 0.0], [0.0, 0.0, 1.0]])
-    return np.asarray(rot @ rz)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -312,32 +301,34 @@ def container_warning(pool: Sequence[ObjectRecord], split: str, config: SceneCon
             "objects as containers")
 
 
-def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectRecord], *,
-                 environments: Sequence[EnvironmentRecord] = (), materials: Sequence[MaterialRecord] = (),
-                 scene_id: Optional[str] = None) -> SceneSpec:
-    """Sample one scene of ``split`` from ``pool``; the same arguments always give the same spec.
-
-    Reads ``cfg.scene`` (everything sampled) and ``cfg.compose`` (image size and render settings the spec
-    records); ``cfg.hash`` goes into the spec.
-    """
-    config, compose = cfg.scene, cfg.compose
-    rng = np.random.default_rng(seed)
+def _sample_floor(rng: np.random.Generator, config: SceneConfig, materials: Sequence[MaterialRecord]) -> FloorSpec:
     s = config.scale
-    in_split = eligible_objects(pool, split)
-
-    environment = sample_environment(rng, config, environments)
-
     shape = str(config.floor_shapes[int(rng.integers(len(config.floor_shapes)))])
     hx = _u(rng, config.floor_half_extent) * s
     hy = hx if shape == "cylinder" else _u(rng, config.floor_half_extent) * s
-    floor = FloorSpec(
+    return FloorSpec(
         shape=shape, half_extent=(round(hx, _R), round(hy, _R)), thickness=round(config.floor_thickness * s, _R),
         uv_scale_m=round(_u(rng, config.floor_uv_scale) * s, _R),
         material=sample_floor_material(rng, config.floor_patterns, materials, config.procedural_floor_probability,
                                        config.floor_texture_px),
     )
 
-    # container (never also a counted class or a distractor)
+
+def _floor_reaching(floor: FloorSpec, half_diagonal: float) -> FloorSpec:
+    """``floor`` grown (never shrunk) so that it reaches ``half_diagonal`` from the centre in every direction."""
+    hx, hy = floor.half_extent
+    need = round(half_diagonal, _R)
+    if floor.shape == "cylinder":
+        grown = (max(hx, need), max(hx, need))
+    else:  # a square of half side h reaches h along the axes: the corners of the pile box must fit
+        grown = (max(hx, need), max(hy, need))
+    return FloorSpec(floor.shape, grown, floor.thickness, floor.uv_scale_m, floor.material)
+
+
+def _draw_container(rng: np.random.Generator, config: SceneConfig, pool: Sequence[ObjectRecord],
+                    in_split: list[ObjectRecord]) -> tuple[Optional[ObjectRecord], NDArray[Any], float]:
+    """The container object (or None), its per-axis jitter x s and its yaw."""
+    s = config.scale
     container_obj: Optional[ObjectRecord] = None
     if rng.random() >= config.no_container_probability:
         cands = [o for o in in_split if o.container]
@@ -347,19 +338,29 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         if cands:
             container_obj = cands[int(rng.integers(len(cands)))]
     cont_scale = np.array([_u(rng, config.container_scale_jitter) * s for _ in range(3)])
-    yaw = _u(rng, (0.0, 2 * math.pi))
+    return container_obj, cont_scale, _u(rng, (0.0, 2 * math.pi))
 
-    exclude = set(config.counted_exclude_categories)
-    eligible = [o for o in in_split if o.category not in exclude
-                and (container_obj is None or o.object_id != container_obj.object_id)]
-    if not eligible:
-        raise CompositionError(f"no eligible objects in split {split!r} (active, with a split and valid size)")
 
-    n = _ui(rng, config.n_objects)
-    n_classes = min(_ui(rng, config.n_classes), n)
-    drafts = _build_classes(rng, config, eligible, n_classes)
-    counts = _split_counts(rng, n, len(drafts))
+def pile_fit_factor(extent_xy: tuple[float, float], sizes: NDArray[Any], area_range: Sequence[float]) -> float:
+    """XY factor that brings a container's box area into ``area_range`` x its pile's one-layer footprint.
 
+    The footprint is the sum of the counted objects' largest sides squared (each at most a size x size
+    square on the floor): a real 25 cm plate at s = 10 is 2.5 m across, and a hundred 0.8 m objects
+    dropped on it spill over and out of the paper's camera. The factor is 1 inside the range."""
+    footprint = float(np.sum(np.square(sizes)))
+    area = float(extent_xy[0] * extent_xy[1])
+    if footprint <= 0 or area <= 0:
+        return 1.0
+    ratio = area / footprint
+    lo, hi = float(area_range[0]), float(area_range[1])
+    if ratio < lo:
+        return math.sqrt(lo / ratio)
+    if ratio > hi:
+        return math.sqrt(hi / ratio)
+    return 1.0
+
+
+def _build_object_classes(drafts: list[_ClassDraft], counts: list[int]) -> list[ObjectClass]:
     classes = []
     for ci, (d, cnt) in enumerate(zip(drafts, counts)):
         caps = d.obj.captions
@@ -370,33 +371,42 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
             size_qualifier=d.qualifier, target_size_m=round(d.size, _R), count=cnt,
             construction=d.construction, base_class_index=d.base,
         ))
+    return classes
 
-    # counted instances in a random class order (a random class per spawn position), sizes, then spawn
-    # poses above the ellipse inscribed in the container's box
-    inst_class = rng.permutation(np.repeat(np.arange(len(counts)), counts)).astype(int)
-    jitter = rng.uniform(config.instance_jitter[0], config.instance_jitter[1], len(inst_class))
-    sizes = np.array([drafts[c].size for c in inst_class]) * jitter
-    if container_obj is not None:
-        extent = np.asarray(container_obj.dims) * cont_scale
-        centre = np.array([0.0, 0.0])
-        semi = (max(extent[0] / 2 - config.spawn_margin * s, config.spawn_min_semi_axis * s),
-                max(extent[1] / 2 - config.spawn_margin * s, config.spawn_min_semi_axis * s))
-        base_z = float(extent[2])
-        ellipse = True
-        pile_semi = (float(extent[0] / 2), float(extent[1] / 2))
-        pile_yaw = yaw
-    else:
-        extent = None
-        lo_xy, hi_xy = config.spawn_xy_no_container[0] * s, config.spawn_xy_no_container[1] * s
-        centre = np.array([(lo_xy + hi_xy) / 2, (lo_xy + hi_xy) / 2])
-        semi = ((hi_xy - lo_xy) / 2, (hi_xy - lo_xy) / 2)
-        base_z = 0.0
-        ellipse = False
-        pile_semi = semi
-        pile_yaw = 0.0
-    z_range = (base_z + config.spawn_height[0] * s, base_z + config.spawn_height[1] * s)
-    positions = _spawn_positions(rng, sizes / 2, centre, semi, pile_yaw, z_range, config.spawn_max_tries, ellipse,
-                                 config.spawn_stack)
+
+class _Pile:
+    """Where the counted objects are dropped: the (yawed) spawn ellipse in the container, or the square."""
+
+    def __init__(self, config: SceneConfig, extent: Optional[NDArray[Any]], yaw: float) -> None:
+        s = config.scale
+        if extent is not None:
+            self.centre = np.array([0.0, 0.0])
+            self.semi = (max(float(extent[0]) / 2 - config.spawn_margin * s, config.spawn_min_semi_axis * s),
+                         max(float(extent[1]) / 2 - config.spawn_margin * s, config.spawn_min_semi_axis * s))
+            self.base_z, self.ellipse = float(extent[2]), True
+            self.outline = (float(extent[0] / 2), float(extent[1] / 2))
+            self.yaw = yaw
+        else:
+            lo_xy, hi_xy = config.spawn_xy_no_container[0] * s, config.spawn_xy_no_container[1] * s
+            self.centre = np.array([(lo_xy + hi_xy) / 2, (lo_xy + hi_xy) / 2])
+            self.semi = ((hi_xy - lo_xy) / 2, (hi_xy - lo_xy) / 2)
+            self.base_z, self.ellipse = 0.0, False
+            self.outline = self.semi
+            self.yaw = 0.0
+
+    @property
+    def half_diagonal(self) -> float:
+        """Distance from the scene centre to the outline's farthest corner (the yawed box's corners)."""
+        return float(math.hypot(abs(self.centre[0]) + self.outline[0], abs(self.centre[1]) + self.outline[1]))
+
+
+def _place_counted(rng: np.random.Generator, config: SceneConfig, drafts: list[_ClassDraft],
+                   inst_class: NDArray[Any], sizes: NDArray[Any], pile: _Pile) -> list[PlacedObject]:
+    """Spawn poses above the pile's ellipse (or square), in waves when stacked; random orientations."""
+    s, n = config.scale, len(inst_class)
+    z_range = (pile.base_z + config.spawn_height[0] * s, pile.base_z + config.spawn_height[1] * s)
+    positions = _spawn_positions(rng, sizes / 2, pile.centre, pile.semi, pile.yaw, z_range, config.spawn_max_tries,
+                                 pile.ellipse, config.spawn_stack)
     release = np.ones(n, dtype=int)
     if config.spawn_stack and config.spawn_release_waves:
         positions, release = _release_waves(positions, z_range, config.spawn_wave_clearance * s,
@@ -408,23 +418,18 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     pos_r = np.round(positions, _R).tolist()
     sizes_r = np.round(sizes, _R).tolist()
     factors = np.round(sizes / np.array([drafts[c].obj.max_dim for c in inst_class]), _R).tolist()
-    objects = []
-    for i, ci in enumerate(inst_class.tolist()):
-        f = factors[i]
-        objects.append(PlacedObject(
-            instance_id=i + 1, role=ROLE_COUNTED, object_id=drafts[ci].obj.object_id, class_index=ci,
-            position=tuple(pos_r[i]), orientation=tuple(orients[i]), scale=(f, f, f),
-            size_m=sizes_r[i], release_frame=int(release[i]),
-        ))
+    return [PlacedObject(
+        instance_id=i + 1, role=ROLE_COUNTED, object_id=drafts[ci].obj.object_id, class_index=ci,
+        position=tuple(pos_r[i]), orientation=tuple(orients[i]), scale=(factors[i],) * 3,
+        size_m=sizes_r[i], release_frame=int(release[i]),
+    ) for i, ci in enumerate(inst_class.tolist())]
 
-    # distractors: other objects of the split, each once, resting upright around the pile
-    used = {d.obj.object_id for d in drafts} | ({container_obj.object_id} if container_obj else set())
-    # (never sharing a caption with a class, in its own or its size-qualified form, or with each other)
-    taken = frozenset().union(*(caption_keys(d.obj.captions) for d in drafts),
-                              *(caption_keys(c.captions) for c in classes))
-    free = [o for o in in_split if o.object_id not in used and not caption_keys(o.captions) & taken]
-    n_dist = min(_ui(rng, config.n_distractors), len(free))
-    picks = _distinct_caption_picks(rng, free, n_dist, taken)
+
+def _place_distractors(rng: np.random.Generator, config: SceneConfig, picks: list[ObjectRecord], pile: _Pile,
+                       first_id: int) -> list[PlacedObject]:
+    """Distractors at their drawn size and yaw, provisionally in a ring around the pile (scene.usda); the
+    worker moves them after physics to free floor in the camera's view (mixcount.scene.framing)."""
+    s = config.scale
     distractors: list[PlacedObject] = []
     placed_xy: list[tuple[float, float, float]] = []
     margin = config.distractor_margin * s
@@ -435,11 +440,11 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         rho = float(math.hypot(ext[0], ext[1]) / 2)
         for _ in range(config.distractor_max_tries):
             theta = _u(rng, (0.0, 2 * math.pi))
-            dist = (_ellipse_radius(pile_semi[0], pile_semi[1], theta) + rho + margin
+            dist = (_ellipse_radius(pile.outline[0], pile.outline[1], theta) + rho + margin
                     + _u(rng, config.distractor_ring) * s)
             lx, ly = dist * math.cos(theta), dist * math.sin(theta)
-            x = centre[0] + math.cos(pile_yaw) * lx - math.sin(pile_yaw) * ly
-            y = centre[1] + math.sin(pile_yaw) * lx + math.cos(pile_yaw) * ly
+            x = pile.centre[0] + math.cos(pile.yaw) * lx - math.sin(pile.yaw) * ly
+            y = pile.centre[1] + math.sin(pile.yaw) * lx + math.cos(pile.yaw) * ly
             if all(math.hypot(x - px, y - py) >= rho + pr + margin for px, py, pr in placed_xy):
                 break
         else:
@@ -447,64 +452,144 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         placed_xy.append((x, y, rho))
         dyaw = _u(rng, (0.0, 2 * math.pi))
         distractors.append(PlacedObject(
-            instance_id=n + len(distractors) + 1, role=ROLE_DISTRACTOR, object_id=obj.object_id, class_index=-1,
+            instance_id=first_id + len(distractors), role=ROLE_DISTRACTOR, object_id=obj.object_id, class_index=-1,
             position=_vec((x, y, ext[2] / 2 + 0.01 * s)), orientation=_yaw_quat(dyaw), scale=_vec((f, f, f)),
             size_m=round(size, _R),
         ))
+    return distractors
 
-    container = None
-    if container_obj is not None:
-        container = ContainerSpec(
-            instance_id=n + len(distractors) + 1, object_id=container_obj.object_id,
-            position=_vec((0.0, 0.0, extent[2] / 2)), orientation=_yaw_quat(yaw),
-            scale=_vec(cont_scale), extent_m=_vec(extent),  # type: ignore[arg-type]
-        )
-        diag = float(np.linalg.norm(extent))
-    else:
-        diag = float(math.hypot(2 * semi[0], 2 * semi[1]))
 
-    # cameras on the hemisphere around the counted objects' expected centre
-    target0 = np.array([centre[0], centre[1], base_z + float(np.mean(sizes)) / 2])
+def _draw_cameras(rng: np.random.Generator, config: SceneConfig, resolution: int, target0: NDArray[Any],
+                  diag: float) -> list[CameraSpec]:
+    """Each camera's drawn angles and jitters, at a provisional pose around the expected pile (the
+    worker re-frames it on the settled pile by ``camera_framing``, mixcount.scene.framing)."""
+    s = config.scale
     cameras = []
     for k in range(config.n_cameras):
-        target = target0 + rng.uniform(-1, 1, 3) * config.camera_lookat_jitter * s
+        offset = rng.uniform(-1, 1, 3) * config.camera_lookat_jitter * s
+        target = target0 + offset
         elev = _u(rng, config.camera_elevation_deg)
         azim = _u(rng, (0.0, 360.0))
         roll = _u(rng, config.camera_roll_deg)
-        dist = config.camera_distance_factor * diag * (1 + _u(rng, (-config.camera_distance_jitter,
-                                                                       config.camera_distance_jitter)))
-        e, a = math.radians(elev), math.radians(azim)
-        pos = target + dist * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+        scale = 1 + _u(rng, (-config.camera_distance_jitter, config.camera_distance_jitter))
+        dist = config.camera_distance_factor * diag * scale
+        pos = camera_position(target, elev, azim, dist)
         rot = look_at_rotation(pos, target, roll)
-        res = (compose.resolution, compose.resolution)
+        res = (resolution, resolution)
         cameras.append(CameraSpec(
             name=f"cam_{k}", position=_vec(pos), look_at=_vec(target), orientation=quat_from_matrix(rot),
             elevation_deg=round(elev, _R), azimuth_deg=round(azim, _R), roll_deg=round(roll, _R),
             distance=round(dist, _R), focal_length_mm=config.focal_length_mm,
             sensor_width_mm=config.sensor_width_mm, sensor_height_mm=config.sensor_width_mm * res[1] / res[0],
             resolution=res, clip_range=(config.clip_range[0], config.clip_range[1]),
+            framing=config.camera_framing, lookat_offset=_vec(offset), distance_scale=round(scale, _R),
+            distance_factor=config.camera_distance_factor, fit_share=config.camera_fit_share,
         ))
+    return cameras
 
-    used_objs = {o.object_id: o for o in [d.obj for d in drafts] + picks
-                 + ([container_obj] if container_obj else [])}
-    assets = tuple(
+
+def _asset_refs(objs: Sequence[ObjectRecord]) -> tuple[AssetRef, ...]:
+    used = {o.object_id: o for o in objs}
+    return tuple(
         AssetRef(object_id=o.object_id, name=o.name, category=o.category, model_path=o.model_path,
                  content_hash=o.content_hash, dims_m=_vec(o.dims), collision_path=o.collision_path,
                  proxy_path=o.proxy_path, source_units=o.source_units, source_up_axis=o.source_up_axis,
                  source=o.source, source_id=o.source_id, license=o.license)
-        for _, o in sorted(used_objs.items())
+        for _, o in sorted(used.items())
     )
+
+
+def _physics_spec(config: SceneConfig) -> PhysicsSpec:
+    s = config.scale
+    return PhysicsSpec(
+        frames=config.physics_frames, substeps=config.physics_substeps,
+        solver_iterations=config.physics_solver_iterations, collision_shape=config.collision_shape,
+        gravity=config.gravity, settle_below_floor_fraction=config.settle_below_floor_fraction,
+        settle_penetration_fraction=config.settle_penetration_fraction,
+        collision_proxies=bool(config.collision_proxies), rest_speed=round(float(config.physics_rest_speed) * s, 6),
+        floor_collider_depth=round(float(config.physics_floor_collider_depth) * s, 6))
+
+
+def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectRecord], *,
+                 environments: Sequence[EnvironmentRecord] = (), materials: Sequence[MaterialRecord] = (),
+                 scene_id: Optional[str] = None) -> SceneSpec:
+    """Sample one scene of ``split`` from ``pool``; the same arguments always give the same spec.
+
+    Reads ``cfg.scene`` (everything sampled) and ``cfg.compose`` (image size and render settings the spec
+    records); ``cfg.hash`` goes into the spec. Steps: environment, floor, container draw, classes and
+    counts, instance sizes, the container fitted to its pile (:func:`pile_fit_factor`), the floor grown to
+    reach past it, counted spawn poses, distractors, cameras, assets.
+    """
+    config, compose = cfg.scene, cfg.compose
+    rng = np.random.default_rng(seed)
+    s = config.scale
+    in_split = eligible_objects(pool, split)
+
+    environment = sample_environment(rng, config, environments)
+    floor = _sample_floor(rng, config, materials)
+    container_obj, cont_scale, yaw = _draw_container(rng, config, pool, in_split)
+
+    exclude = set(config.counted_exclude_categories)
+    eligible = [o for o in in_split if o.category not in exclude
+                and (container_obj is None or o.object_id != container_obj.object_id)]
+    if not eligible:
+        raise CompositionError(f"no eligible objects in split {split!r} (active, with a split and valid size)")
+
+    n = _ui(rng, config.n_objects)
+    n_classes = min(_ui(rng, config.n_classes), n)
+    drafts = _build_classes(rng, config, eligible, n_classes)
+    counts = _split_counts(rng, n, len(drafts))
+    classes = _build_object_classes(drafts, counts)
+
+    # a random class per spawn position, sizes, then the container fitted to the pile it must hold
+    inst_class = rng.permutation(np.repeat(np.arange(len(counts)), counts)).astype(int)
+    jitter = rng.uniform(config.instance_jitter[0], config.instance_jitter[1], len(inst_class))
+    sizes = np.array([drafts[c].size for c in inst_class]) * jitter
+    extent: Optional[NDArray[Any]] = None
+    fit = 1.0
+    if container_obj is not None:
+        extent = np.asarray(container_obj.dims) * cont_scale
+        fit = pile_fit_factor((float(extent[0]), float(extent[1])), sizes, config.container_pile_area)
+        cont_scale = cont_scale * np.array([fit, fit, 1.0])
+        extent = np.asarray(container_obj.dims) * cont_scale
+    pile = _Pile(config, extent, yaw)
+    floor = _floor_reaching(floor, pile.half_diagonal + config.floor_pile_margin * s)
+    objects = _place_counted(rng, config, drafts, inst_class, sizes, pile)
+
+    # distractors: other objects of the split, each once (never sharing a caption with a class, in its
+    # own or its size-qualified form, or with each other)
+    used = {d.obj.object_id for d in drafts} | ({container_obj.object_id} if container_obj else set())
+    taken = frozenset().union(*(caption_keys(d.obj.captions) for d in drafts),
+                              *(caption_keys(c.captions) for c in classes))
+    free = [o for o in in_split if o.object_id not in used and not caption_keys(o.captions) & taken]
+    n_dist = min(_ui(rng, config.n_distractors), len(free))
+    picks = _distinct_caption_picks(rng, free, n_dist, taken)
+    distractors = _place_distractors(rng, config, picks, pile, n + 1)
+
+    container = None
+    if container_obj is not None and extent is not None:
+        container = ContainerSpec(
+            instance_id=n + len(distractors) + 1, object_id=container_obj.object_id,
+            position=_vec((0.0, 0.0, extent[2] / 2)), orientation=_yaw_quat(yaw),
+            scale=_vec(cont_scale), extent_m=_vec(extent), pile_fit=round(fit, _R),
+        )
+        diag = float(np.linalg.norm(extent))
+    else:
+        diag = float(math.hypot(2 * pile.semi[0], 2 * pile.semi[1]))
+    target0 = np.array([pile.centre[0], pile.centre[1], pile.base_z + float(np.mean(sizes)) / 2])
+    cameras = _draw_cameras(rng, config, compose.resolution, target0, diag)
+
     return SceneSpec(
         scene_id=scene_id or scene_id_for(seed), seed=int(seed), split=split, scale=s,
         config_hash=cfg.hash, classes=tuple(classes), objects=tuple(objects),
         distractors=tuple(distractors), container=container, floor=floor, environment=environment,
-        cameras=tuple(cameras),
-        physics=PhysicsSpec(config.physics_frames, config.physics_substeps, config.physics_solver_iterations,
-                            config.collision_shape, config.gravity, config.settle_below_floor_fraction,
-                            config.settle_penetration_fraction, bool(config.collision_proxies),
-                            round(float(config.physics_rest_speed) * s, 6),
-                            round(float(config.physics_floor_collider_depth) * s, 6)),
+        cameras=tuple(cameras), physics=_physics_spec(config),
         render=RenderSpec(compose.resolution, compose.samples, compose.denoise, compose.visibility_threshold,
                           compose.denoise_prefilter),
-        assets=assets,
+        assets=_asset_refs([d.obj for d in drafts] + picks + ([container_obj] if container_obj else [])),
+        placement=PlacementSpec(
+            frame_margin=config.camera_frame_margin, distractor_margin=round(config.distractor_margin * s, _R),
+            distractor_tries=config.distractor_max_tries, distractor_max_overlap=config.distractor_max_overlap,
+            # the early stop waits for bodies within 1.5 x the farthest provisional camera of the centre
+            view_radius=round(1.5 * max(c.distance for c in cameras), _R)),
     )

@@ -157,11 +157,13 @@ class ContainerSpec:
     orientation: Quat
     scale: Vec3
     extent_m: Vec3  # scaled AABB size in the scene (before yaw)
+    pile_fit: float  # XY factor applied (after the jitter) so the container holds its pile (1 = none)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "instance_id": self.instance_id, "object_id": self.object_id, "position": list(self.position),
             "orientation": list(self.orientation), "scale": list(self.scale), "extent_m": list(self.extent_m),
+            "pile_fit": self.pile_fit,
         }
 
     @classmethod
@@ -169,6 +171,7 @@ class ContainerSpec:
         return cls(
             instance_id=int(d["instance_id"]), object_id=int(d["object_id"]), position=_t(d["position"]),
             orientation=_t(d["orientation"]), scale=_t(d["scale"]), extent_m=_t(d["extent_m"]),
+            pile_fit=float(d.get("pile_fit", 1.0)),
         )
 
 
@@ -264,10 +267,18 @@ class CameraSpec:
     sensor_height_mm: float
     resolution: tuple[int, int]
     clip_range: tuple[float, float]
+    # How the worker frames the settled pile (mixcount.scene.framing): "paper" | "fit" | "fixed" (the pose
+    # above as it is). position / look_at / orientation / distance are then the provisional pose before
+    # physics; the drawn jitters below are applied to the settled pile's centre and distance rule.
+    framing: str
+    lookat_offset: Vec3  # look-at jitter added to the settled pile's centre
+    distance_scale: float  # 1 + U(-camera_distance_jitter, +camera_distance_jitter)
+    distance_factor: float  # "paper": distance = factor x ||diag AABB(container)|| x distance_scale
+    fit_share: float  # "fit": share of settled counted origins the frame must hold
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        for k in ("position", "look_at", "orientation", "resolution", "clip_range"):
+        for k in ("position", "look_at", "orientation", "resolution", "clip_range", "lookat_offset"):
             d[k] = list(d[k])
         return d
 
@@ -280,6 +291,10 @@ class CameraSpec:
             focal_length_mm=float(d["focal_length_mm"]), sensor_width_mm=float(d["sensor_width_mm"]),
             sensor_height_mm=float(d["sensor_height_mm"]),
             resolution=(int(d["resolution"][0]), int(d["resolution"][1])), clip_range=_t(d["clip_range"]),
+            # specs written before post-physics framing: the pose is final ("fixed")
+            framing=str(d.get("framing", "fixed")), lookat_offset=_t(d.get("lookat_offset", (0.0, 0.0, 0.0))),
+            distance_scale=float(d.get("distance_scale", 1.0)), distance_factor=float(d.get("distance_factor", 0.0)),
+            fit_share=float(d.get("fit_share", 1.0)),
         )
 
 
@@ -325,6 +340,27 @@ class RenderSpec:
 
 
 @dataclass(frozen=True)
+class PlacementSpec:
+    """What the worker places after physics (mixcount.scene.framing): every camera framed on the settled
+    pile, and the distractors (not simulated) put on free floor in view. Specs written before it have
+    none: their cameras and distractors stay where the sampler put them, distractors simulated."""
+
+    frame_margin: float  # image border kept clear (fraction per side): fit framing, distractor origins
+    distractor_margin: float  # m between a distractor's footprint and the pile, container, other distractors
+    distractor_tries: int  # candidate spots per distractor
+    distractor_max_overlap: float  # share of its image box that counted objects' boxes may cover
+    view_radius: float  # m: bodies farther from the pile's centre are not waited for by the early stop
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "PlacementSpec":
+        return cls(float(d["frame_margin"]), float(d["distractor_margin"]), int(d["distractor_tries"]),
+                   float(d["distractor_max_overlap"]), float(d["view_radius"]))
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """One scene. ``objects`` are the counted instances (instance ids 1..n), then ``distractors``,
     then the container; ``assets`` lists every catalog object used, sorted by object_id."""
@@ -345,6 +381,7 @@ class SceneSpec:
     render: RenderSpec
     assets: tuple[AssetRef, ...]
     version: int = 1
+    placement: Optional[PlacementSpec] = None  # None: a spec written before after-physics placement
 
     @property
     def n_counted(self) -> int:
@@ -373,6 +410,7 @@ class SceneSpec:
             "floor": self.floor.to_dict(), "environment": self.environment.to_dict(),
             "cameras": [c.to_dict() for c in self.cameras], "physics": self.physics.to_dict(),
             "render": self.render.to_dict(), "assets": [a.to_dict() for a in self.assets],
+            "placement": None if self.placement is None else self.placement.to_dict(),
         }
 
     def to_json(self) -> str:
@@ -392,6 +430,7 @@ class SceneSpec:
             cameras=tuple(CameraSpec.from_dict(c) for c in d["cameras"]),
             physics=PhysicsSpec.from_dict(d["physics"]), render=RenderSpec.from_dict(d["render"]),
             assets=tuple(AssetRef.from_dict(a) for a in d["assets"]), version=int(d.get("version", 1)),
+            placement=None if d.get("placement") is None else PlacementSpec.from_dict(d["placement"]),
         )
 
     @classmethod
