@@ -83,7 +83,7 @@ def rotation_of(cam: CameraSpec) -> NDArray[Any]:
     ])
 
 
-def in_frame(camera: PinholeCamera, points: NDArray[Any], margin: float = 0.0) -> NDArray[Any]:
+def in_frame(camera: PinholeCamera, points: NDArray[Any], margin: float) -> NDArray[Any]:
     """Bool per world point (N, 3): in front of the camera and inside the image shrunk by ``margin``
     (a fraction of the width / height) on every side."""
     px, depth = camera.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))
@@ -173,7 +173,7 @@ def frame_camera(cam: CameraSpec, counted: NDArray[Any], sizes: NDArray[Any], co
     framed = replace(cam, position=_vec(pos), look_at=_vec(target), orientation=quat_from_matrix(rot),
                      distance=round(float(dist), _R))
     derivation["distance"] = framed.distance
-    inside = in_frame(pinhole_of(framed), pts)
+    inside = in_frame(pinhole_of(framed), pts, 0.0)
     derivation["counted_origins_in_frame"] = f"{int(inside.sum())}/{len(pts)}"
     return Framing(framed, derivation)
 
