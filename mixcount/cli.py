@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 from mixcount.commands.common import AppState, console
-from mixcount.errors import MixcountError
+from mixcount.errors import MixcountError, os_error_line
 
 app = typer.Typer(
     name="mixcount",
@@ -54,7 +54,7 @@ def _root(
 def _register_commands() -> None:
     import importlib
 
-    for name in ("ingest", "curate", "captions", "compose", "evaluate", "demo", "export"):
+    for name in ("ingest", "curate", "captions", "compose", "evaluate", "demo", "export", "verify"):
         try:
             module = importlib.import_module(f"mixcount.commands.{name}")
         except ModuleNotFoundError as exc:
@@ -69,7 +69,8 @@ _register_commands()
 
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point: usage errors exit 2 with the usage line and one line of error,
-    a :class:`MixcountError` exits 2 with its message, Ctrl-C exits 130. Never a traceback for either."""
+    a :class:`MixcountError` exits 2 with its message, as does an ``OSError`` (cause and path, one line),
+    Ctrl-C exits 130. Never a traceback for any of them."""
     # typer vendors click as ``typer._click``: its exceptions are not ``click.exceptions`` classes.
     from typer._click import exceptions as click_exc
 
@@ -77,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
         result = app(args=argv, standalone_mode=False, prog_name="mixcount")
     except MixcountError as exc:
         console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        return 2
+    except OSError as exc:  # a disk or permission fault no command turned into its own message: one line
+        console.print(f"[bold red]error:[/] {os_error_line(exc)}", highlight=False)
         return 2
     except (KeyboardInterrupt, typer.Abort):
         console.print("[yellow]interrupted[/]")

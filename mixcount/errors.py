@@ -7,6 +7,11 @@ MixcountError
   CaptionError       captioner failure for one object (recorded, batch goes on)
   CompositionError   scene sampling / USD writing failed
   RenderError        Blender worker failed, timed out or produced invalid output
+  StorageError       an output folder cannot take the run's files: no space, read-only, no permission
+  AssetError         a file a scene needs (model, texture, environment map) is missing or unreadable
+  DatasetError       a dataset's files do not match their record, or a scene cannot be merged
+
+StorageError and AssetError stop a compose run: no other seed could succeed (docs/faults.md).
 
 Only ``mixcount.cli`` turns these into messages and exit codes.
 """
@@ -44,3 +49,24 @@ class CompositionError(MixcountError):
 
 class RenderError(MixcountError):
     """A Blender worker failed, timed out or produced invalid output."""
+
+
+class StorageError(MixcountError):
+    """An output folder cannot take the run's files (no space left, read-only, no permission): a fault
+    that no other seed can fix, so a compose run stops on it."""
+
+
+class AssetError(MixcountError):
+    """A file a scene needs (an object's model, a floor texture, an environment map) is missing or
+    unreadable: a compose run stops on it instead of drawing seed after seed."""
+
+
+class DatasetError(MixcountError):
+    """A dataset's files do not match their record (``mixcount verify``), or a scene cannot be merged."""
+
+
+def os_error_line(exc: OSError) -> str:
+    """One line for an OSError: its cause and the path it names (``No space left on device: /out/x``)."""
+    cause = exc.strerror or str(exc) or type(exc).__name__
+    path = exc.filename if exc.filename is not None else None
+    return f"{cause}: {path}" if path is not None else cause

@@ -144,8 +144,9 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         finally:
             if executor is not None:
                 executor.close()
+        repaired = f", {len(summary.damaged)} damaged set aside and rendered again" if summary.damaged else ""
         console.print(f"wrote {summary.written} scene(s) ({summary.skipped} already there, {summary.failed} failed, "
-                      f"{summary.empty + summary.rejected} regenerated) in {summary.seconds:.0f} s; "
+                      f"{summary.empty + summary.rejected} regenerated{repaired}) in {summary.seconds:.0f} s; "
                       f"preview {summary.outputs.get('preview')}; annotations {summary.outputs.get('annotations')}")
         out.print(json.dumps({k: v for k, v in summary.to_dict().items() if k != "outcomes"}, indent=2))
         if summary.written < n:
@@ -168,8 +169,14 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         t0 = time.perf_counter()
         res = finalize_dataset(out_dir.resolve(), config=cfg.to_dict(), config_hash=cfg.hash,
                                preview_scenes=cfg.compose.preview_scenes)
+        for line in res.get("damaged", []):
+            console.print(f"[yellow]damaged scene left out:[/] {line}", highlight=False)
         console.print(f"merged in {time.perf_counter() - t0:.1f} s: {res['dataset']}")
         out.print(json.dumps(res, indent=2))
+        if res.get("damaged"):
+            console.print(f"{len(res['damaged'])} damaged scene(s) left out of the merge: run the same `mixcount "
+                          "compose` to render them again (`mixcount verify` lists every problem)", highlight=False)
+            raise typer.Exit(1)
 
     @catalog_app.command("ingest-env")
     def ingest_env(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="HDR/EXR files or folders.")) -> None:

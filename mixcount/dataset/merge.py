@@ -19,10 +19,16 @@ Scaling (58,000 scenes, see docs/performance.md):
   alongside the sorted folder listing (a merge join), so it is not held in memory either.
 
 ``mixcount merge OUT`` runs this on its own; ``compose`` runs it at its end when it wrote scenes.
+
+A damaged scene (a recorded file missing or of another size, a ``coco.json`` that cannot be read; see
+:mod:`mixcount.dataset.manifest`) is left out by name - the result's ``damaged`` lines - and the merge
+goes on with the rest; what the split had written for it is cut back first, so the merged files never
+hold part of a scene.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import shutil
@@ -37,6 +43,7 @@ from mixcount.dataset.attribution import (
     attribution_extract,
     write_attribution_document,
 )
+from mixcount.dataset.manifest import finished_but_unlisted, merge_problem
 from mixcount.dataset.scene_writer import is_complete
 
 INDEX_NAME = ".merge_index.jsonl"
@@ -197,6 +204,24 @@ class _SplitWriter:
                 "annotations": f"annotations/instances_{self.split}.json"}
 
 
+def _add_or_undo(writer: _SplitWriter, scene_dir: Path, rec: dict[str, Any]) -> Optional[str]:
+    """``writer.add`` the scene; when its files cannot be read as a scene, undo what it wrote (the
+    split's temporary files cut back, its counters and collections restored) and return why."""
+    state = vars(writer)
+    positions = {k: v.tell() for k, v in state.items() if hasattr(v, "truncate")}
+    saved = {k: (copy.copy(v) if isinstance(v, (dict, set, list)) else v) for k, v in state.items()
+             if k not in positions}
+    try:
+        writer.add(scene_dir, rec)
+        return None
+    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
+        for k, pos in positions.items():
+            state[k].seek(pos)
+            state[k].truncate()
+        state.update(saved)
+        return f"coco.json cannot be merged ({type(exc).__name__}: {str(exc)[:200]})"
+
+
 # ------------------------------------------------------------------------------------ preview, the pass
 
 
@@ -212,8 +237,11 @@ def write_preview(out_dir: Path, scenes: list[tuple[Path, int]], *, cell: int = 
     grid = Image.new("RGB", (cols * cell, rows * cell), (255, 255, 255))
     draw = ImageDraw.Draw(grid)
     for k, (d, n_counted) in enumerate(scenes):
-        with Image.open(d / "rgb.png") as src:
-            im = src.convert("RGB").resize((cell, cell), Image.BILINEAR)
+        try:
+            with Image.open(d / "rgb.png") as src:
+                im = src.convert("RGB").resize((cell, cell), Image.BILINEAR)
+        except (OSError, ValueError, SyntaxError):  # a damaged image: its cell stays empty
+            im = Image.new("RGB", (cell, cell), (200, 200, 200))
         x, y = (k % cols) * cell, (k // cols) * cell
         grid.paste(im, (x, y))
         draw.rectangle([x, y, x + cell, y + 14], fill=(0, 0, 0))
@@ -237,17 +265,23 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
     preview: list[tuple[Path, int]] = []
     n_scenes = n_counted = 0
     attribution = AttributionCollector()
+    listed: set[str] = set()
+    damaged: list[str] = []  # "<scene_id>: <what is wrong>" of scenes left out
     with tempfile.TemporaryDirectory(prefix=".merge-", dir=ann_dir) as tmpdir:
         tmp = Path(tmpdir)
         scenes_fh = open(tmp / "scenes.json", "w")
         try:
             with open(index_tmp, "w") as index_out:
                 for d, rec, spec in scan_scenes(out_dir, index_out):
-                    attribution.add(d, rec["attribution"], spec)
+                    listed.add(d.name)
                     split = str(rec.get("split"))
                     if split not in splits:
                         splits[split] = _SplitWriter(split, tmp)
-                    splits[split].add(d, rec)
+                    problem = merge_problem(d) or _add_or_undo(splits[split], d, rec)
+                    if problem:
+                        damaged.append(f"{d.name}: {problem}")
+                        continue
+                    attribution.add(d, rec["attribution"], spec)
                     for k, v in rec.get("timings", {}).items():
                         timing_sum[k] = timing_sum.get(k, 0.0) + float(v)
                         timing_n[k] = timing_n.get(k, 0) + 1
@@ -259,6 +293,7 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
                     if len(preview) < preview_scenes:
                         preview.append((d, int(rec.get("n_counted") or 0)))
             os.replace(index_tmp, index_path)
+            damaged += finished_but_unlisted(out_dir / "scenes", listed)
         finally:
             scenes_fh.close()
             index_tmp.unlink(missing_ok=True)
@@ -283,4 +318,4 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
     write_attribution_document(attribution.document(), out_dir)  # every object shown, its source and licence
     return {"annotations": {k: str(v) for k, v in written.items()},
             "preview": str(preview_path) if preview_path else None, "dataset": str(path),
-            "attribution": str(out_dir / JSON_NAME)}
+            "attribution": str(out_dir / JSON_NAME), "damaged": damaged}

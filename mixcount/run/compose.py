@@ -9,6 +9,13 @@ written scenes. The canonical render of every object a scene uses is copied to `
 and dataset.json / preview.png / ATTRIBUTION rewritten from every complete scene in OUT, in one streaming
 pass (:mod:`mixcount.dataset.merge`), when the call wrote a scene or the dataset files are missing, and
 ``compose.merge`` (or ``merge``) is on; ``mixcount merge`` does it on its own.
+
+Faults (docs/faults.md): a finished scene whose files no longer match their record
+(:mod:`mixcount.dataset.manifest`) is set aside under ``OUT/scenes/.damaged/`` and rendered again. A
+fault no seed can fix - the output folder full, read-only or not writable, a scene's input file
+missing or unreadable (:mod:`mixcount.run.faults`) - stops the run: no new seed is drawn, the scenes in
+flight finish (or fail and leave nothing), no merge is attempted, and :class:`StorageError` /
+:class:`AssetError` carries one line naming the path and the cause.
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from mixcount.config import Config
-from mixcount.errors import CompositionError
+from mixcount.errors import AssetError, CompositionError, MixcountError, StorageError, os_error_line
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 
@@ -39,6 +46,8 @@ class ComposeSummary:
     outcomes: list[dict[str, Any]] = field(default_factory=list)
     outputs: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    damaged: list[dict[str, Any]] = field(default_factory=list)  # finished scenes set aside and redone
+    stopped: Optional[str] = None  # the fault that stopped the run (no new seed drawn after it)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -59,14 +68,23 @@ def compose_scenes(
 
     Seeds start at ``compose.seed``; without an ``executor`` a local pool of ``compose.workers`` runs."""
     from mixcount.dataset.external_exemplars import copy_external_exemplars
+    from mixcount.dataset.manifest import check_scene, is_finished, recorded_size, set_aside
     from mixcount.dataset.merge import finalize_dataset
-    from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp, is_complete
+    from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp
+    from mixcount.run.faults import check_output, classify_failure, missing_inputs, scene_bytes_needed
     from mixcount.scene.sampler import container_warning, sample_scene, scene_id_for
 
     comp = config.compose
     split, base, workers = comp.split, comp.seed, comp.workers
     out_dir = Path(out_dir)
-    (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
+    try:
+        (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StorageError(f"cannot create the output folder: {os_error_line(exc)}") from None
+    for folder in (out_dir / "scenes", out_dir):
+        problem = check_output(folder)
+        if problem:
+            raise StorageError(f"{problem}; nothing was rendered")
     clean_stale_tmp(out_dir)
     if not any(getattr(o, "split", None) == split for o in pool):
         raise CompositionError(f"no active objects in split {split!r}: ingest, caption and split the catalog first")
@@ -97,20 +115,51 @@ def compose_scenes(
     next_seed = base
     attempts = 0
     in_flight = 0
+    fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
+    largest_scene = 0  # bytes of the largest scene written by this run (how much free space one needs)
+
+    def stop(error: MixcountError) -> None:
+        nonlocal fatal
+        if fatal is None:
+            fatal = error
+            summary.stopped = str(error)
+
+    def finished_scene_counts(sdir: Path, sid: str) -> bool:
+        """Whether the seed's folder holds a sound finished scene (count it, draw no task); a damaged one
+        of this split (or of no readable split) is set aside first and then rendered again."""
+        if not is_finished(sdir):
+            return False
+        meta_split = _scene_split(sdir)
+        check = check_scene(sdir, deep=False)
+        if check.damaged and meta_split in (split, None):
+            try:
+                moved = set_aside(sdir, check)
+            except OSError as exc:
+                stop(StorageError(f"cannot set damaged scene {sid} aside: {os_error_line(exc)}"))
+                return True
+            summary.damaged.append({"scene_id": sid, "problems": check.describe(),
+                                    "moved_to": None if moved is None else str(moved)})
+            bar.note(f"scene {sid} is damaged ({check.describe()}): set aside as "
+                     f"{moved if moved is not None else 'by another run'}; rendering it again")
+            return False
+        if check.damaged:
+            bar.note(f"scene {sid} of split {meta_split} is damaged ({check.describe()}): "
+                     f"left for a compose of split {meta_split} to repair")
+            return True
+        if meta_split == split:
+            summary.skipped += 1
+            summary.written += 1
+        return True
 
     def next_task() -> Optional[SceneTask]:
         nonlocal next_seed, attempts
-        while attempts < max_attempts:
+        while attempts < max_attempts and fatal is None:
             s = next_seed
             next_seed += 1
             sid = scene_id_for(s)
-            if is_complete(out_dir / "scenes" / sid):
-                meta_split = _scene_split(out_dir / "scenes" / sid)
-                if meta_split == split:
-                    summary.skipped += 1
-                    summary.written += 1
-                    if summary.written >= n:
-                        return None
+            if finished_scene_counts(out_dir / "scenes" / sid, sid):
+                if summary.written >= n or fatal is not None:
+                    return None
                 continue
             if (out_dir / "scenes" / REJECTED_DIR / f"{sid}.json").exists():
                 continue
@@ -121,8 +170,16 @@ def compose_scenes(
                 summary.failed += 1
                 summary.failures.append({"scene_id": sid, "seed": s, "error": f"sampling: {exc}"})
                 continue
+            problem = missing_inputs(spec, Path(assets_dir))
+            if problem:
+                stop(AssetError(f"scene {sid} cannot be rendered: {problem}"))
+                return None
             used = {c.object_id for c in spec.classes} | {d.object_id for d in spec.distractors}
-            external.update(copy_external_exemplars(out_dir, renders, used - set(external)))
+            try:
+                external.update(copy_external_exemplars(out_dir, renders, used - set(external)))
+            except OSError as exc:
+                stop(StorageError(f"cannot copy external exemplars: {os_error_line(exc)}"))
+                return None
             return SceneTask(spec=spec, out_dir=str(out_dir), assets_dir=str(assets_dir), timeout_s=timeout,
                              threads=threads, oracle=oracle, captions={k: v for k, v in captions.items()
                                                             if k in {d.object_id for d in spec.distractors}},
@@ -142,8 +199,8 @@ def compose_scenes(
 
     bar.start("compose", n)
     try:
-        while summary.written < n:
-            while in_flight < executor.slots and summary.written + in_flight < n:
+        while summary.written < n or (fatal is not None and in_flight):  # after a fault: drain, draw none
+            while fatal is None and in_flight < executor.slots and summary.written + in_flight < n:
                 task = next_task()
                 if task is None:
                     break
@@ -157,6 +214,7 @@ def compose_scenes(
             summary.outcomes.append(outcome.to_dict())
             if outcome.status == WRITTEN:
                 summary.written += 1
+                largest_scene = max(largest_scene, recorded_size(Path(outcome.path or "")))
             elif outcome.status == SKIPPED:
                 summary.written += 1
                 summary.skipped += 1
@@ -168,7 +226,13 @@ def compose_scenes(
                 summary.failed += 1
                 summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed,
                                          "error": outcome.error})
-                bar.note(f"scene {outcome.scene_id} failed: {(outcome.error or '').splitlines()[0][:300]}")
+                need = scene_bytes_needed(comp.resolution, largest_scene)
+                problem = classify_failure(outcome.error, out_dir=out_dir, assets_dir=Path(assets_dir),
+                                           need_bytes=need)
+                if problem:
+                    stop(StorageError(problem))
+                elif fatal is None:
+                    bar.note(f"scene {outcome.scene_id} failed: {(outcome.error or '').splitlines()[0][:300]}")
             if on_outcome is not None:
                 on_outcome(outcome)
             bar.update(completed=summary.written, info=info())
@@ -177,14 +241,25 @@ def compose_scenes(
         if own_executor:
             executor.close()
     summary.seconds = round(time.perf_counter() - t0, 3)
+    if fatal is not None:
+        advice = ("restore the file or re-ingest its library" if isinstance(fatal, AssetError)
+                  else "free space or make the folder writable")
+        raise type(fatal)(f"{fatal}; compose stopped with {summary.written} of {n} scene(s) finished and kept, "
+                          f"no new seed drawn: {advice}, then run the same command again")
     if summary.written < n:
         bar.note(f"only {summary.written} of {n} scenes written after {attempts} attempts")
     if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
-        summary.outputs = finalize_dataset(
-            out_dir, config=config.to_dict(), config_hash=config.hash,
-            run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
-            preview_scenes=comp.preview_scenes,
-        )
+        try:
+            summary.outputs = finalize_dataset(
+                out_dir, config=config.to_dict(), config_hash=config.hash,
+                run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
+                preview_scenes=comp.preview_scenes,
+            )
+        except OSError as exc:
+            raise StorageError(f"cannot merge the dataset: {os_error_line(exc)}; the {summary.written} finished "
+                               "scene(s) are kept: free space, then run `mixcount merge` on the folder") from None
+        for line in summary.outputs.get("damaged", []):
+            bar.note(f"left out of the merge: {line}")
     return summary
 
 

@@ -60,7 +60,10 @@ class LocalExecutor:
             try:
                 outcome = self._runner(task, worker)
             except Exception as exc:  # noqa: BLE001 - never lose a task's outcome
-                outcome = SceneOutcome(task.spec.scene_id, task.spec.seed, "failed", 0.0, error=repr(exc))
+                # "OSError: [Errno 28] No space left on device: '...'", as run_scene_task words it, so the
+                # run can tell a fault no seed fixes (mixcount.run.faults) from a bad scene
+                outcome = SceneOutcome(task.spec.scene_id, task.spec.seed, "failed", 0.0,
+                                       error=f"{type(exc).__name__}: {exc}"[:4000])
             done += 1
             if self.recycle_after and done % self.recycle_after == 0:
                 worker.close()  # the next task starts a fresh bpy process

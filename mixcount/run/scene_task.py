@@ -59,6 +59,7 @@ class SceneOutcome:
 
 def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
     """Write the stage into a temporary folder, render it with ``worker``, finalise, rename into place."""
+    from mixcount.dataset.manifest import record_scene_files
     from mixcount.dataset.scene_writer import REJECTED_DIR, finalize_scene, is_complete, move_into_place, tmp_dir_for
     from mixcount.usd.stage import write_stage
 
@@ -98,6 +99,7 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])
         (tmp / "metadata.json").write_text(json.dumps(meta, indent=1))
+        record_scene_files(tmp)  # size + hash of every file the folder holds (mixcount verify)
         move_into_place(tmp, final)
         return SceneOutcome(spec.scene_id, spec.seed, WRITTEN, time.perf_counter() - t0,
                             n_counted=int(meta["n_counted"]), path=str(final), timings=timings)
