@@ -34,7 +34,7 @@ def classes_without_instances(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
     same list computed from ``objects`` and ``spec.classes``."""
     if "classes_without_instances" in meta:
         return [dict(c) for c in meta["classes_without_instances"]]
-    names = {int(c["id"]): str(c["name"]) for c in meta.get("categories", [])}
+    names = {int(c["id"]): str(c["name"]) for c in meta["categories"]}
     by_class: dict[int, list[Mapping[str, Any]]] = {}
     for o in meta["objects"]:
         if o["role"] == "counted":
