@@ -93,7 +93,8 @@ def stats_cmd(
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG plots."),
     json_out: bool = typer.Option(False, "--json", help="Also print stats.json on stdout."),
 ) -> None:
-    """Dataset statistics: objects and classes per scene, class imbalance, visibility, splits, captions."""
+    """Dataset statistics: objects and classes per scene, class imbalance, visibility, splits, captions, and
+    kept vs spawned per scene (drop reasons, classes left with no visible instance) from scenes/*/metadata.json."""
     from rich.table import Table
 
     from mixcount.evaluate.stats import compute_stats, per_split_table, summary_lines, write_stats
