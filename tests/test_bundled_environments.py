@@ -58,6 +58,26 @@ def test_missing_bundle_is_a_clear_config_error(tmp_path: Path) -> None:
         bundled_environments(tmp_path)
 
 
+def test_compose_without_the_bundle_stops_before_any_scene(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bpy without its studio-light HDRIs (here: bpy's folder pointed at an empty one) is one clear
+    error before any worker starts or scene folder is written; the sky config composes on."""
+    from test_scene_distributions import rich_pool
+
+    from mixcount.config import load_config
+    from mixcount.run.compose import compose_scenes
+    from mixcount.scene import bundled_environments as B
+
+    monkeypatch.setattr(B, "bpy_package_dir", lambda: tmp_path / "bpy")
+    (tmp_path / "bpy").mkdir()
+    with pytest.raises(ConfigError, match="no bundled HDRIs under .*bpy"):
+        compose_scenes(pool=rich_pool(), config=load_config(), out_dir=tmp_path / "out", assets_dir=tmp_path / "a", n=1,
+                       progress=False)
+    assert list((tmp_path / "out" / "scenes").iterdir()) == [] and not (tmp_path / "out" / "logs").exists()
+    from mixcount.scene.environments import environments_to_draw
+
+    assert environments_to_draw(load_config([], ["scene.default_environment=sky"]).scene, ()) == ()
+
+
 def test_license_txt_names_every_original() -> None:
     text = (bundled_hdri_dir() / "license.txt").read_text()
     info = parse_license(text)

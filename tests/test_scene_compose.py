@@ -27,6 +27,7 @@ def test_dry_run_prints_plan_and_writes_nothing(demo_db, capsys, tmp_path):
     for p in plan:
         assert 6 <= p["n_counted"] <= 14 and 2 <= len(p["classes"]) <= 3
         assert sum(c["count"] for c in p["classes"]) == p["n_counted"]
+        assert p["environment"] == "hdri" and p["environment_map"].endswith(".exr")  # bpy's bundled HDRIs
         for c in p["classes"]:
             assert 0.45 <= c["size_m"] <= 1.2 and c["size_real_m"] == pytest.approx(c["size_m"] / 10, abs=1e-4)
     assert not (tmp_path / "out").exists()

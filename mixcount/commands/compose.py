@@ -53,6 +53,7 @@ def summarise(spec: Any) -> dict[str, Any]:
         "distractors": [spec.asset(d.object_id).name for d in spec.distractors],
         "floor": f"{spec.floor.shape} / {spec.floor.material.name}",
         "environment": spec.environment.kind,
+        "environment_map": Path(spec.environment.path).name if spec.environment.path else None,
     }
 
 

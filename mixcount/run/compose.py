@@ -72,6 +72,7 @@ def compose_scenes(
     from mixcount.dataset.merge import finalize_dataset
     from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp
     from mixcount.run.faults import check_output, classify_failure, missing_inputs, scene_bytes_needed
+    from mixcount.scene.environments import environments_to_draw
     from mixcount.scene.sampler import container_warning, sample_scene, scene_id_for
 
     comp = config.compose
@@ -88,6 +89,9 @@ def compose_scenes(
     clean_stale_tmp(out_dir)
     if not any(getattr(o, "split", None) == split for o in pool):
         raise CompositionError(f"no active objects in split {split!r}: ingest, caption and split the catalog first")
+    # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
+    # without them stops the run here with one clear error instead of failing every scene's sampling
+    environments = tuple(environments_to_draw(config.scene, environments))
     captions = {int(o.object_id): o.captions.to_dict() for o in pool}
     renders = {int(o.object_id): o.render_path for o in pool}
     external: dict[int, str] = {}  # object id -> its render's copy under OUT/exemplars/external

@@ -175,6 +175,17 @@ def sample_floor_material(rng: np.random.Generator, patterns: Sequence[str], mat
     return MaterialSpec(kind="procedural", name=f"procedural_{pattern}", params=params)
 
 
+def environments_to_draw(config: Any, environments: Sequence[Any]) -> Sequence[Any]:
+    """The HDRIs a scene draws from: the ingested ``environments``, else (``config.default_environment``
+    = bundled_hdri) bpy's bundled ones, else none (the procedural sky). Raises ConfigError when the
+    bundled HDRIs are asked for and bpy's install has none; compose calls it once up front for that."""
+    if environments or config.default_environment != BUNDLED_HDRI:
+        return environments
+    from mixcount.scene.bundled_environments import bundled_environments
+
+    return bundled_environments()
+
+
 def sample_environment(rng: np.random.Generator, config: Any, environments: Sequence[Any]) -> EnvironmentSpec:
     """An HDRI (uniform over ``environments``, random Z rotation) or the procedural sky.
 
@@ -182,10 +193,7 @@ def sample_environment(rng: np.random.Generator, config: Any, environments: Sequ
     from bpy's bundled CC0 Poly Haven HDRIs (:func:`~mixcount.scene.bundled_environments.bundled_environments`,
     found in bpy's install), ``sky`` gives the procedural sky. The strength is drawn first either way."""
     strength = round(_u(rng, config.environment_strength), 6)
-    if not environments and config.default_environment == BUNDLED_HDRI:
-        from mixcount.scene.bundled_environments import bundled_environments
-
-        environments = bundled_environments()
+    environments = environments_to_draw(config, environments)
     if environments:
         env = environments[int(rng.integers(len(environments)))]
         return EnvironmentSpec(kind="hdri", strength=strength, rotation_deg=round(_u(rng, (0.0, 360.0)), 6),
