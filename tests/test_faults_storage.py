@@ -193,9 +193,19 @@ def can_mount() -> list[str] | None:
     return None
 
 
-def run_in_namespace(prefix: list[str], setup_sh: str, args: list[str]) -> subprocess.CompletedProcess:
-    cmd = " ".join([setup_sh, "&&", "exec", sys.executable, "-m", "mixcount", *[f"'{a}'" for a in args]])
+LISTING = "--- files left:"
+
+
+def run_in_namespace(prefix: list[str], setup_sh: str, args: list[str], listed: Path) -> subprocess.CompletedProcess:
+    """Run the CLI in a private mount namespace after ``setup_sh``; then list what ``listed`` holds
+    (inside the namespace, so the listing shows the mounted file system) after ``LISTING`` on stdout."""
+    cmd = " ".join([setup_sh, "&&", "{", sys.executable, "-m", "mixcount", *[f"'{a}'" for a in args],
+                    "; rc=$?; echo '" + LISTING + "'; find", f"'{listed}'", "-mindepth 1 | sort; exit $rc; }"])
     return subprocess.run([*prefix, "sh", "-c", cmd], cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=600)
+
+
+def files_left(res: subprocess.CompletedProcess, root: Path) -> list[str]:
+    return [Path(ln).relative_to(root).as_posix() for ln in res.stdout.split(LISTING, 1)[1].split()]
 
 
 @pytest.mark.blender
@@ -210,7 +220,7 @@ def test_full_tmpfs_with_real_bpy_stops_with_one_line(composed_dataset: Path, tm
     db = composed_dataset.parent / "catalog.db"
     res = run_in_namespace(prefix, f"mount -t tmpfs -o size=200k tmpfs '{out}'",
                            ["--db", str(db), "--config", "quick", "compose", "--n", "3", "--split", "train",
-                            "--seed", "40", "--resolution", "96", "--samples", "2", "--out", str(out)])
+                            "--seed", "40", "--resolution", "96", "--samples", "2", "--out", str(out)], out)
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr
@@ -218,6 +228,9 @@ def test_full_tmpfs_with_real_bpy_stops_with_one_line(composed_dataset: Path, tm
     assert len(errors) == 1 and f"no space left on device: {out}" in errors[0], res.stderr
     assert "compose stopped with 0 of 3 scene(s) finished and kept, no new seed drawn" in errors[0]
     assert not any("scene_000041" in ln for ln in lines), "no seed after the first"
+    left = files_left(res, out)
+    assert not [f for f in left if ".tmp-" in f or f.startswith("scenes/scene_") or f.startswith("annotations")], left
+    assert "scenes" in left, left  # the folders the run made, nothing half-written in them
     assert list(out.iterdir()) == [], "the tmpfs was private to the command"
 
 
@@ -247,7 +260,7 @@ def test_read_only_output_folder_is_one_line_and_keeps_scenes(composed_dataset: 
         prefix = can_mount()
         if prefix is None:
             pytest.skip("root without a mount namespace cannot make a folder read-only")
-        res = run_in_namespace(prefix, f"mount --bind '{out}' '{out}' && mount -o remount,bind,ro '{out}'", args)
+        res = run_in_namespace(prefix, f"mount --bind '{out}' '{out}' && mount -o remount,bind,ro '{out}'", args, out)
         cause = "read-only file system"
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
