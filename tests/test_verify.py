@@ -272,3 +272,24 @@ def test_real_scene_damage_is_caught_and_repaired(composed_dataset: Path, tmp_pa
     assert set(kept_b) == set(originals[b.name])  # every file kept, the modified one as it was found
     assert kept_b["coco.json"] != originals[b.name]["coco.json"] and kept_b["rgb.png"] == originals[b.name]["rgb.png"]
     assert sorted(p.name for p in scene_dirs(out)) == [a.name, b.name]
+
+
+def test_a_scene_without_a_record_is_checked_for_the_files_it_names(tmp_path: Path, capsys) -> None:
+    """Scenes written before records existed: verify calls them unproven (exit 1), merge and compose's
+    check still see a file their coco.json names go missing (the issue's rgb.png case, without a
+    traceback from the preview)."""
+    from test_merge import _scene
+
+    for k in range(2):
+        _scene(tmp_path, k, "train", n_ann=2)
+    report = verify_dataset(tmp_path)
+    assert [c.unrecorded for c in report.scene_problems] == [True, True]
+    assert report.lines()[0].startswith("scene_000000: no manifest.json (written before mixcount recorded")
+    (tmp_path / "scenes" / "scene_000001" / "rgb.png").unlink()
+    assert check_scene(tmp_path / "scenes" / "scene_000001", deep=False).missing == ["rgb.png"]
+    assert main(["merge", str(tmp_path)]) == 1
+    captured = capsys.readouterr()
+    assert "damaged scene left out: scene_000001: missing rgb.png" in captured.err and "Traceback" not in captured.err
+    merged = json.loads((tmp_path / "annotations" / "instances_train.json").read_text())
+    assert [i["scene_id"] for i in merged["images"]] == ["scene_000000"]
+    assert (tmp_path / "preview.png").is_file()
