@@ -53,11 +53,9 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
     from mixcount.blender import passes as P
     from mixcount.blender import scene_job as J
     from mixcount.blender.contract import SceneRequest
-    from mixcount.blender.visibility import camera_model
 
     state = J.load_scene(SceneRequest(stage=req["stage"], out_dir=req["out_dir"], threads=2, oracle=False))
-    J.check_settled(state, J.settle(state))
-    J.check_frame(state, camera_model(state.scene, state.cam_obj))
+    J.check_frame(state, J.place_after_physics(state, J.settle(state), J.Timer()))
     exr = state.out_dir / "_border.exr"
     before = P.render_id_passes(state.scene, exr)
     kept = state.kept()

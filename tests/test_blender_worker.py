@@ -60,19 +60,32 @@ def _with_renders(pool, folder: Path):
     return out
 
 
+N_CAMERAS = 2  # every check below runs per camera: the paper's rules are written for several
+
+
 @pytest.fixture(scope="module")
 def composed(library, tmp_path_factory: pytest.TempPathFactory):
-    """Two scenes with 3-5 distractors each, the one-render-per-object reference on."""
+    """Two scenes of two cameras each with 3-5 distractors (placed in view after physics, the default
+    rule), the one-render-per-object reference on."""
     from mixcount.run.compose import compose_scenes
 
     pool, assets = library
     out = tmp_path_factory.mktemp("out")
     pool = _with_renders(pool, out.parent / (out.name + "_renders"))
-    # distractors close to the pile: with the default ring most land outside the frame (noted in docs/scene.md)
-    summary = compose_scenes(pool=pool, config=_config("scene.n_distractors=[3, 5]", "scene.distractor_ring=[0.0, 0.05]",
+    # the quick config's 6-14 objects get a ~3 m container that fills the paper's frame (1.2 x its diagonal)
+    # in both (here near top-down) cameras, leaving no floor in both views: all distractors would be dropped
+    # (no_spot_in_view) and this test checks their annotations. A wider frame leaves floor for them.
+    summary = compose_scenes(pool=pool, config=_config("scene.n_distractors=[3, 5]", f"scene.n_cameras={N_CAMERAS}",
+                                                       "scene.camera_distance_factor=1.8",
                                                        "compose.denoise_prefilter=FAST"), out_dir=out,
                              assets_dir=assets, n=2, progress=False, oracle=True)
     return out, summary, pool
+
+
+def _suffixes() -> list[str]:
+    from mixcount.blender.contract import view_suffix
+
+    return [view_suffix(k) for k in range(N_CAMERAS)]
 
 
 def _scenes(out: Path) -> list[Path]:
@@ -85,10 +98,16 @@ def test_compose_writes_n_complete_scenes(composed) -> None:
     dirs = _scenes(out)
     assert len(dirs) == 2
     for d in dirs:
-        for name in ("rgb.png", "instance.png", "class.png", "depth.png", "normal.png", "scene.usda",
-                     "settled.usda", "coco.json", "metadata.json"):
+        for name in ("scene.usda", "settled.usda", "coco.json", "metadata.json"):
             assert (d / name).is_file(), name
+        for suffix in _suffixes():  # every camera rendered: K RGB images and K sets of passes
+            for name in ("rgb", "instance", "class", "depth", "normal"):
+                assert (d / f"{name}{suffix}.png").is_file(), (name, suffix)
         meta = json.loads((d / "metadata.json").read_text())
+        assert [c["name"] for c in meta["cameras"]] == [f"cam_{k}" for k in range(N_CAMERAS)]
+        assert [i["file_name"] for i in meta["images"]] == [f"scenes/{d.name}/rgb{s}.png" for s in _suffixes()]
+        for cam in meta["cameras"]:  # framed on the settled pile by the paper's rule, and said how
+            assert cam["framing"]["framing"] == "paper" and "pile_centre" in cam["framing"]
         assert meta["complete"] and meta["n_counted"] >= 1
         assert {"stage", "worker", "annotate", "total", "worker.physics", "worker.rgb"} <= set(meta["timings"])
         assert meta["camera"]["K"][0][0] > 0 and len(meta["camera"]["cam_to_world"]) == 4
@@ -113,29 +132,33 @@ def test_coco_masks_equal_instance_map_and_counts(composed) -> None:
 
     out, _, _ = composed
     merged = COCO(str(out / "annotations" / "instances_train.json"))
-    assert len(merged.getImgIds()) == 2
+    assert len(merged.getImgIds()) == 2 * N_CAMERAS  # one COCO image per camera
     for d in _scenes(out):
-        inst = np.array(Image.open(d / "instance.png"))
-        cls = np.array(Image.open(d / "class.png"))
-        rgb = Image.open(d / "rgb.png")
-        assert inst.dtype == np.uint16 and cls.dtype == np.uint16
-        assert inst.shape == cls.shape == (rgb.height, rgb.width)
         coco = COCO(str(d / "coco.json"))
-        anns = coco.loadAnns(coco.getAnnIds())
-        assert anns
-        for a in anns:
-            m = mask_util.decode(a["segmentation"]).astype(bool)
-            assert (m == (inst == a["id"])).all()
-            assert a["area"] == int(m.sum())
-            assert (cls[m] == a["category_id"]).all()
-            assert 0.0 <= a["exemplar_score"] <= 1.0 and 0.0 < a["visibility"] <= 1.0
-        ids_in_map = set(np.unique(inst).tolist()) - {0}
-        assert ids_in_map == {a["id"] for a in anns}
-        for cat in {a["category_id"] for a in anns if not a["is_distractor"]}:
-            n_anns = sum(1 for a in anns if a["category_id"] == cat and not a["is_distractor"])
-            assert n_anns == len(set(np.unique(inst[cls == cat]).tolist()) - {0})
         meta = json.loads((d / "metadata.json").read_text())
-        assert sum(meta["counts"].values()) == sum(1 for a in anns if not a["is_distractor"])
+        assert sorted(coco.getImgIds()) == list(range(1, N_CAMERAS + 1))
+        for image_id, suffix in zip(range(1, N_CAMERAS + 1), _suffixes()):
+            inst = np.array(Image.open(d / f"instance{suffix}.png"))
+            cls = np.array(Image.open(d / f"class{suffix}.png"))
+            rgb = Image.open(d / f"rgb{suffix}.png")
+            assert coco.loadImgs(image_id)[0]["file_name"] == f"scenes/{d.name}/rgb{suffix}.png"
+            assert inst.dtype == np.uint16 and cls.dtype == np.uint16
+            assert inst.shape == cls.shape == (rgb.height, rgb.width)
+            anns = coco.loadAnns(coco.getAnnIds(imgIds=[image_id]))
+            assert anns
+            for a in anns:
+                m = mask_util.decode(a["segmentation"]).astype(bool)
+                assert (m == (inst == a["instance_id"])).all()
+                assert a["area"] == int(m.sum())
+                assert (cls[m] == a["category_id"]).all()
+                assert 0.0 <= a["exemplar_score"] <= 1.0 and 0.0 < a["visibility"] <= 1.0
+            ids_in_map = set(np.unique(inst).tolist()) - {0}
+            assert ids_in_map == {a["instance_id"] for a in anns}
+            for cat in {a["category_id"] for a in anns if not a["is_distractor"]}:
+                n_anns = sum(1 for a in anns if a["category_id"] == cat and not a["is_distractor"])
+                assert n_anns == len(set(np.unique(inst[cls == cat]).tolist()) - {0})
+            # every camera shows the same kept objects
+            assert sum(meta["counts"].values()) == sum(1 for a in anns if not a["is_distractor"])
 
 
 def test_counted_objects_visible_by_oracle_and_raster_agrees(composed) -> None:
@@ -143,19 +166,28 @@ def test_counted_objects_visible_by_oracle_and_raster_agrees(composed) -> None:
     n_checked = 0
     for d in _scenes(out):
         meta = json.loads((d / "metadata.json").read_text())
-        oracle = np.load(d / "oracle_masks.npz")
-        h, w = oracle["shape"]
-        for o in meta["objects"]:
-            if o["status"] != "kept":
-                continue
-            om = np.unpackbits(oracle[f"oracle_{o['instance_id']}"])[: h * w].reshape(h, w).astype(bool)
-            rm = np.unpackbits(oracle[f"raster_{o['instance_id']}"])[: h * w].reshape(h, w).astype(bool)
-            iou = (om & rm).sum() / max(1, (om | rm).sum())
-            # one edge pixel of an 80-pixel object at 128 px is already 1.25 % of IoU
-            assert iou >= 0.99 or (om ^ rm).sum() <= 1, (d.name, o["name"], iou)
-            assert o["visible_px"] / om.sum() >= 1.0 - V_T - 1e-9, (d.name, o["role"], o["name"])
-            n_checked += 1
-    assert n_checked >= 2
+        for k, suffix in enumerate(_suffixes()):
+            oracle = np.load(d / f"oracle_masks{suffix}.npz")
+            h, w = oracle["shape"]
+            for o in meta["objects"]:
+                if o["status"] != "kept":
+                    continue
+                view = o["views"][k]
+                assert view["camera"] == f"cam_{k}"
+                om = np.unpackbits(oracle[f"oracle_{o['instance_id']}"])[: h * w].reshape(h, w).astype(bool)
+                rm = np.unpackbits(oracle[f"raster_{o['instance_id']}"])[: h * w].reshape(h, w).astype(bool)
+                iou = (om & rm).sum() / max(1, (om | rm).sum())
+                # one edge pixel of an 80-pixel object at 128 px is already 1.25 % of IoU
+                assert iou >= 0.99 or (om ^ rm).sum() <= 1, (d.name, k, o["name"], iou)
+                assert view["visible_px"] / om.sum() >= 1.0 - V_T - 1e-9, (d.name, k, o["role"], o["name"])
+                x, y = view["origin_px"]  # the origin lies in every camera's frame
+                assert 0 <= x < w and 0 <= y < h
+                n_checked += 1
+            if k == 0:  # cam_0's fields on the object itself; visibility is the worst camera's
+                for o in meta["objects"]:
+                    if o["status"] == "kept":
+                        assert o["visibility_min"] == pytest.approx(min(v["visibility"] for v in o["views"]))
+    assert n_checked >= 2 * N_CAMERAS
 
 
 def _decode(rle) -> np.ndarray:
@@ -178,49 +210,61 @@ def test_every_annotation_visible_points_amodal_and_ground_truth_agree(composed)
     for d in _scenes(out):
         meta = json.loads((d / "metadata.json").read_text())
         coco = json.loads((d / "coco.json").read_text())
-        inst = np.array(Image.open(d / "instance.png"))
-        oracle = np.load(d / "oracle_masks.npz")
-        h, w = oracle["shape"]
         assert not (d / "amodal.npz").exists()
-        for a in coco["annotations"]:
-            vis = _decode(a["segmentation"])
-            om = np.unpackbits(oracle[f"oracle_{a['id']}"])[: h * w].reshape(h, w).astype(bool)
-            ref_visibility = vis.sum() / (om | vis).sum()
-            assert ref_visibility >= 1.0 - V_T, (d.name, a["id"], a["is_distractor"], ref_visibility)
-            if a["is_distractor"]:
-                distractor_vis.append(float(ref_visibility))
-            x, y = a["point"]
-            assert inst[y, x] == a["id"] and a["keypoints"] == [x, y, 2] and a["num_keypoints"] == 1
-            am = _decode(a["segmentation_amodal"])
-            assert (am >= vis).all() and a["area_amodal"] == int(am.sum())
-            assert a["visibility"] == pytest.approx(a["area"] / a["area_amodal"], abs=1e-6)
-            assert (om & am).sum() / (om | am).sum() >= 0.98  # the amodal mask is the reference's silhouette
-            x0, y0, bw, bh = a["bbox_amodal"]
-            assert (x0, y0, x0 + bw, y0 + bh) == (np.nonzero(am.any(0))[0][0], np.nonzero(am.any(1))[0][0],
-                                                  np.nonzero(am.any(0))[0][-1] + 1, np.nonzero(am.any(1))[0][-1] + 1)
+        for image_id, suffix in zip(range(1, N_CAMERAS + 1), _suffixes()):
+            inst = np.array(Image.open(d / f"instance{suffix}.png"))
+            oracle = np.load(d / f"oracle_masks{suffix}.npz")
+            _check_annotations(d, [a for a in coco["annotations"] if a["image_id"] == image_id], inst, oracle,
+                               distractor_vis)
+            for p in meta["ground_truth"]:  # every camera shows the same kept objects
+                meta_pairs[(f"scenes/{d.name}/rgb{suffix}.png", p["category_id"])] = p["count"]
         kept_distractors = [o for o in meta["objects"] if o["role"] == "distractor" and o["status"] == "kept"]
-        assert len(kept_distractors) == meta["n_distractors"] == sum(a["is_distractor"] for a in coco["annotations"])
+        first = [a for a in coco["annotations"] if a["image_id"] == 1]
+        assert len(kept_distractors) == meta["n_distractors"] == sum(a["is_distractor"] for a in first)
         gone = [o for o in meta["objects"] if o["role"] == "distractor" and o["status"] != "kept"]
         removed += gone
         for o in gone:
             assert o["reason"] in ("below_floor", "flung_out", "interpenetration", "unstable",
-                                   "origin_outside_frame", "occluded")
-            assert not (inst == o["instance_id"]).any()  # removed before the final passes
-        for p in meta["ground_truth"]:
-            meta_pairs[(meta["scene_id"], p["category_id"])] = p["count"]
+                                   "origin_outside_frame", "occluded", "no_spot_in_view")
+            for suffix in _suffixes():  # removed before the final passes
+                assert not (np.array(Image.open(d / f"instance{suffix}.png")) == o["instance_id"]).any()
     assert distractor_vis, "the composed scenes must hold distractors"
     print(f"\ndistractors: {len(distractor_vis)} annotated, visibility (reference) min {min(distractor_vis):.3f} "
           f"mean {np.mean(distractor_vis):.3f}; removed {len(removed)}: {[o['reason'] for o in removed]}")
 
     gt_path = out / "annotations" / "instances_train.json"
     gt = load_ground_truth(gt_path, "train")
-    coco_pairs = {(gt.images[i]["scene_id"], c): n for (i, c), n in gt.counts.items()}
+    coco_pairs = {(gt.images[i]["file_name"], c): n for (i, c), n in gt.counts.items()}
     assert coco_pairs == meta_pairs
-    by_scene = {img["scene_id"]: img["id"] for img in gt.images.values()}
-    rows = [{"image_id": by_scene[s], "category_id": c, "count": n} for (s, c), n in meta_pairs.items()]
+    by_file = {img["file_name"]: img["id"] for img in gt.images.values()}
+    rows = [{"image_id": by_file[f], "category_id": c, "count": n} for (f, c), n in meta_pairs.items()]
     res = evaluate(gt, parse_predictions(rows)).overall
     assert (res.mae, res.pairs, res.missing, res.extra) == (0.0, len(coco_pairs), 0, 0)
+    _check_exemplars(gt_path, out, pool)
 
+
+def _check_annotations(d: Path, anns: list, inst: np.ndarray, oracle, distractor_vis: list) -> None:
+    """One image's annotations against its instance map and the one-render-per-object reference."""
+    h, w = oracle["shape"]
+    for a in anns:
+        vis = _decode(a["segmentation"])
+        om = np.unpackbits(oracle[f"oracle_{a['instance_id']}"])[: h * w].reshape(h, w).astype(bool)
+        ref_visibility = vis.sum() / (om | vis).sum()
+        assert ref_visibility >= 1.0 - V_T, (d.name, a["id"], a["is_distractor"], ref_visibility)
+        if a["is_distractor"]:
+            distractor_vis.append(float(ref_visibility))
+        x, y = a["point"]
+        assert inst[y, x] == a["instance_id"] and a["keypoints"] == [x, y, 2] and a["num_keypoints"] == 1
+        am = _decode(a["segmentation_amodal"])
+        assert (am >= vis).all() and a["area_amodal"] == int(am.sum())
+        assert a["visibility"] == pytest.approx(a["area"] / a["area_amodal"], abs=1e-6)
+        assert (om & am).sum() / (om | am).sum() >= 0.98  # the amodal mask is the reference's silhouette
+        x0, y0, bw, bh = a["bbox_amodal"]
+        assert (x0, y0, x0 + bw, y0 + bh) == (np.nonzero(am.any(0))[0][0], np.nonzero(am.any(1))[0][0],
+                                              np.nonzero(am.any(0))[0][-1] + 1, np.nonzero(am.any(1))[0][-1] + 1)
+
+
+def _check_exemplars(gt_path: Path, out: Path, pool) -> None:
     # external exemplars: every category's canonical render copied under OUT and referenced by path
     renders = {r.object_id: r.render_path for r in pool}
     doc = json.loads(gt_path.read_text())
@@ -240,7 +284,7 @@ def test_every_annotation_visible_points_amodal_and_ground_truth_agree(composed)
 
 
 def test_depth_normals_and_settled_poses(composed) -> None:
-    from pxr import Usd
+    from pxr import Usd, UsdGeom
 
     from mixcount.usd.read import labelled_prims
 
@@ -248,37 +292,12 @@ def test_depth_normals_and_settled_poses(composed) -> None:
     for d in _scenes(out):
         meta = json.loads((d / "metadata.json").read_text())
         h, w = meta["image"]["height"], meta["image"]["width"]
-        from mixcount.dataset import read_depth, read_normals
-
         assert meta["passes"]["depth"]["format"] == "png16" and meta["files"]["normal"] == "normal.png"
-        depth = read_depth(d / meta["files"]["depth"])
-        normal = read_normals(d)
-        assert depth.shape == (h, w) and depth.dtype == np.float32
-        assert normal.shape == (h, w, 3) and normal.dtype == np.float32
-        surf = depth > 0
-        assert surf.mean() > 0.5
-        norms = np.linalg.norm(normal[surf], axis=1)
-        assert np.median(np.abs(norms - 1.0)) < 1e-3
-        steps = depth[surf] / meta["passes"]["depth"]["unit_m"]  # 16-bit PNG: whole steps of the stored unit
-        assert np.abs(steps - np.rint(steps)).max() < 0.01
-        assert np.median(normal[surf][:, 2]) > 0  # camera space: surfaces face the camera (+z)
-        dist = np.linalg.norm(np.array(meta["camera"]["cam_to_world"])[:3, 3])
-        assert 0.2 * dist < np.median(depth[surf]) < 3.0 * dist
-        # planar depth: floor pixels (top face z = 0) equal the ray-plane intersection along the optical axis
-        from PIL import Image
-
-        inst = np.array(Image.open(d / "instance.png"))
-        K, C = np.array(meta["camera"]["K"]), np.array(meta["camera"]["cam_to_world"])
-        matches = 0
-        for r, c in ((1, 1), (1, w - 2), (h - 2, 1), (h - 2, w - 2)):
-            ray = C[:3, :3] @ np.array([(c + 0.5 - K[0, 2]) / K[0, 0], -(r + 0.5 - K[1, 2]) / K[1, 1], -1.0])
-            planar = -C[2, 3] / ray[2]
-            if inst[r, c] == 0 and planar > 0:
-                assert depth[r, c] <= planar * 1.01  # never farther than the floor
-                if abs(depth[r, c] - planar) < 0.01 * planar:
-                    matches += 1
-                    assert np.allclose(normal[r, c], C[:3, :3].T @ [0.0, 0.0, 1.0], atol=0.05)
-        assert matches >= 2
+        for k, suffix in enumerate(_suffixes()):
+            files = meta["files"]["cameras"][f"cam_{k}"]
+            assert files["depth"] == f"depth{suffix}.png" and files["normal"] == f"normal{suffix}.png"
+            _check_depth_normals(d, meta["cameras"][k]["record"], files, h, w, suffix,
+                                 meta["passes"]["depth"]["unit_m"] if k == 0 else None)
         kept = {o["name"]: o for o in meta["objects"] if o["status"] == "kept"}
         for o in kept.values():
             assert o["min_z"] >= -0.1 * o["size_m"], o  # nothing rests below the floor
@@ -289,11 +308,52 @@ def test_depth_normals_and_settled_poses(composed) -> None:
             assert p.instance_id == kept[name]["instance_id"]
             t = stage.GetPrimAtPath(p.path).GetAttribute("xformOp:translate").Get()
             assert np.allclose(list(t), kept[name]["pose"]["translate"], atol=1e-5)
+        for cam in meta["cameras"]:  # settled.usda holds the cameras as rendered, framed on the settled pile
+            prim = stage.GetPrimAtPath(f"/World/Cameras/{cam['name']}")
+            m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default())).T
+            assert np.allclose(m, np.array(cam["record"]["cam_to_world"]), atol=1e-4)
+            assert json.loads(prim.GetCustomDataByKey("mixcount:framing"))["framing"] == "paper"
         dropped = [o for o in meta["objects"] if o["status"] != "kept"]
         for o in dropped:
             assert not stage.GetPrimAtPath(o["path"])
             assert o["reason"] in ("below_floor", "flung_out", "interpenetration", "unstable",
-                                   "origin_outside_frame", "occluded")
+                                   "origin_outside_frame", "occluded", "no_spot_in_view")
+
+
+def _check_depth_normals(d: Path, camera: dict, files: dict, h: int, w: int, suffix: str,
+                         unit_m: float | None) -> None:
+    """One camera's depth and normal passes: shapes, unit normals facing it, planar depth of the floor."""
+    from PIL import Image
+
+    from mixcount.dataset import read_depth, read_normals
+
+    depth = read_depth(d / files["depth"])
+    normal = read_normals(d / files["normal"])
+    assert depth.shape == (h, w) and depth.dtype == np.float32
+    assert normal.shape == (h, w, 3) and normal.dtype == np.float32
+    surf = depth > 0
+    assert surf.mean() > 0.5
+    norms = np.linalg.norm(normal[surf], axis=1)
+    assert np.median(np.abs(norms - 1.0)) < 1e-3
+    if unit_m is not None:
+        steps = depth[surf] / unit_m  # 16-bit PNG: whole steps of the stored unit
+        assert np.abs(steps - np.rint(steps)).max() < 0.01
+    assert np.median(normal[surf][:, 2]) > 0  # camera space: surfaces face the camera (+z)
+    K, C = np.array(camera["K"]), np.array(camera["cam_to_world"])
+    target_dist = np.linalg.norm(C[:3, 3])
+    assert 0.1 * target_dist < np.median(depth[surf]) < 3.0 * target_dist
+    # planar depth: floor pixels (top face z = 0) equal the ray-plane intersection along the optical axis
+    inst = np.array(Image.open(d / f"instance{suffix}.png"))
+    matches = 0
+    for r, c in ((1, 1), (1, w - 2), (h - 2, 1), (h - 2, w - 2)):
+        ray = C[:3, :3] @ np.array([(c + 0.5 - K[0, 2]) / K[0, 0], -(r + 0.5 - K[1, 2]) / K[1, 1], -1.0])
+        planar = -C[2, 3] / ray[2]
+        if inst[r, c] == 0 and planar > 0:
+            assert depth[r, c] <= planar * 1.01  # never farther than the floor
+            if abs(depth[r, c] - planar) < 0.01 * planar:
+                matches += 1
+                assert np.allclose(normal[r, c], C[:3, :3].T @ [0.0, 0.0, 1.0], atol=0.05)
+    assert matches >= 2
 
 
 def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_path: Path,

@@ -661,7 +661,8 @@ def place_distractors_in_view(state: SceneState, cameras: list[PinholeCamera]) -
         spawn.append(m)
     centres = np.array([np.asarray(state.objects[i].matrix_world)[:3, 3] for i in counted]).reshape(-1, 3)
     centre = np.median(centres[:, :2], axis=0) if len(centres) else np.zeros(2)
-    reach = max(float(np.linalg.norm(np.asarray(f["camera"]["position"])[:2] - centre)) for f in state.framings)
+    # candidates within 1.5 x the farthest camera's distance of the pile (a low view sees floor far beyond it)
+    reach = 1.5 * max(float(f["camera"]["distance"]) for f in state.framings)
     rng = np.random.default_rng([state.spec.seed, PLACEMENT_STREAM])
     spots = place_distractors(rng, shapes, cameras, state.spec.floor, np.array(occupied).reshape(-1, 4),
                               counted_boxes, centre=centre, max_radius=reach, margin=placement.distractor_margin,
@@ -890,7 +891,7 @@ def _camera_record(cam_obj: Any, camera: PinholeCamera) -> dict[str, Any]:
     }
 
 
-def _place_after_physics(state: SceneState, settled: dict[str, np.ndarray], timer: Timer) -> list[PinholeCamera]:
+def place_after_physics(state: SceneState, settled: dict[str, np.ndarray], timer: Timer) -> list[PinholeCamera]:
     """Settle checks, then (specs with a placement) cameras framed on the settled pile and distractors
     placed in view; returns each camera's pixel model."""
     from mixcount.blender.visibility import camera_model
@@ -918,7 +919,7 @@ def run_scene(req: SceneRequest) -> SceneResult:
         state = load_scene(req)
     with timer.stage("physics"):
         settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
-    cameras = _place_after_physics(state, settled, timer)
+    cameras = place_after_physics(state, settled, timer)
     with timer.stage("frame_check"):
         check_frame(state, cameras)
     with timer.stage("silhouettes"):

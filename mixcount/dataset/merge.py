@@ -147,21 +147,25 @@ class _SplitWriter:
 
     def add(self, scene_dir: Path, rec: dict[str, Any]) -> None:
         coco = json.loads((scene_dir / "coco.json").read_text())
-        self.images += 1
-        image_id = self.images
+        # one image per camera (scene-local image ids 1..K), annotations in image order
+        new_image = {}
+        for img in coco["images"]:
+            self.images += 1
+            new_image[int(img["id"])] = self.images
         old_to_new = {}
-        for a in coco["annotations"]:
+        for a in sorted(coco["annotations"], key=lambda a: int(a.get("image_id", 1))):
             self.annotations += 1
             b = dict(a)
             old_to_new[a["id"]] = self.annotations
-            b["id"], b["image_id"] = self.annotations, image_id
+            b["id"], b["image_id"] = self.annotations, new_image[int(a.get("image_id", 1))]
             b["scene_id"] = scene_dir.name
             self.ann_fh.write(("," if self.annotations > 1 else "") + json.dumps(b))
-        img = dict(coco["images"][0])
-        img["id"] = image_id
-        img["exemplars"] = [{**e, "annotation_ids": [old_to_new[i] for i in e["annotation_ids"]]}
-                            for e in img.get("exemplars", [])]
-        self.img_fh.write(("," if image_id > 1 else "") + json.dumps(img))
+        for src in coco["images"]:
+            img = dict(src)
+            img["id"] = new_image[int(src["id"])]
+            img["exemplars"] = [{**e, "annotation_ids": [old_to_new[i] for i in e["annotation_ids"]]}
+                                for e in img.get("exemplars", [])]
+            self.img_fh.write(("," if img["id"] > 1 else "") + json.dumps(img))
         for c in coco["categories"]:
             known = self.categories.setdefault(c["id"], c)
             if known is not c and known.get("external_exemplar") is None and c.get("external_exemplar"):
