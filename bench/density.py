@@ -60,6 +60,17 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
+def _seed_ranges(seeds: list[int]) -> str:
+    """``[100, 101, 102, 120]`` -> ``100-102,120`` (the inverse of :func:`_seeds`)."""
+    parts: list[str] = []
+    for s in sorted(set(seeds)):
+        if parts and s == int(parts[-1].rpartition("-")[2]) + 1:
+            parts[-1] = f"{parts[-1].partition('-')[0]}-{s}"
+        else:
+            parts.append(str(s))
+    return ",".join(parts)
+
+
 def worker_mixcount_dir(worker: Any) -> str:
     """The mixcount package folder the bpy worker imported, read from the traceback of a request it
     must refuse (an empty scene request fails inside mixcount/blender/worker_main.py)."""
@@ -103,7 +114,7 @@ def run_pool(pool_name: str, args: Any, work: Path, worker: Any, density: Module
             scenes_out.flush()
     summary = density.summarise_density(rows)
     _table(pool_name, rows)
-    return {"bench": "density", "pool": pool_name, "seeds": f"{min(args.seeds)}-{max(args.seeds)}",
+    return {"bench": "density", "pool": pool_name, "seeds": _seed_ranges(args.seeds),
             "resolution": args.resolution, "samples": args.samples, "set": list(args.set),
             "environments": sorted({r["environment"] for r in rows}), **summary, "failed": failed}
 
