@@ -95,13 +95,13 @@ def test_license_txt_names_every_original() -> None:
     assert moved is not None and moved["original_url"] == "https://polyhaven.com/a/ninomaru_teien"
 
 
-def _compose(out: Path, assets: Path, pool: list, strength: float) -> Path:
+def _compose(out: Path, assets: Path, pool: list, strength: float, *extra: str) -> Path:
     from mixcount.config import load_config
     from mixcount.run.compose import compose_scenes
 
     cfg = load_config([PROJECT_ROOT / "configs" / "quick.toml"],
                       ["compose.render_threads=2", "compose.resolution=64", "compose.samples=2", "compose.seed=3",
-                       "scene.n_objects=[6,8]", f"scene.environment_strength=[{strength},{strength}]"])
+                       "scene.n_objects=[6,8]", f"scene.environment_strength=[{strength},{strength}]", *extra])
     summary = compose_scenes(pool=pool, config=cfg, out_dir=out, assets_dir=assets, n=1, progress=False)
     assert summary.written == 1 and summary.failed == 0
     return next(d for d in (out / "scenes").iterdir() if d.is_dir() and not d.name.startswith("."))
@@ -144,3 +144,24 @@ def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Pa
     md = (tmp_path / "export" / "ATTRIBUTION.md").read_text()
     assert "CC0, by Greg Zaal (Poly Haven https://polyhaven.com)" in md and e["original_url"] in md
     assert json.loads((tmp_path / "export" / "ATTRIBUTION.json").read_text())["environments"][0]["license"] == "CC0"
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_sky_config_still_renders_the_procedural_sky(tmp_path: Path) -> None:
+    from PIL import Image
+
+    from mixcount.dataset.attribution import collect_attribution
+    from mixcount.demo.library import generate_demo_library
+    from mixcount.demo.pool import pool_from_demo_library
+
+    generate_demo_library(tmp_path / "demo", seed=0, n_objects=6)
+    scene = _compose(tmp_path / "sky", tmp_path / "assets", pool_from_demo_library(tmp_path / "demo"), 1.0,
+                     "scene.default_environment=sky")
+    meta = json.loads((scene / "metadata.json").read_text())
+    env = meta["spec"]["environment"]
+    assert env["kind"] == "sky" and env["path"] is None
+    assert meta["lights"]["dome"]["kind"] == "uniform"  # the sky tint, no texture
+    assert meta["lights"]["sun"]["strength"] == pytest.approx(env["sun_strength"])
+    assert np.asarray(Image.open(scene / "rgb.png").convert("L"), dtype=np.float64).std() > 3.0
+    assert collect_attribution(tmp_path / "sky")["environments"] == []  # nothing to attribute
