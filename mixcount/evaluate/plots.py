@@ -116,6 +116,7 @@ def _kept_vs_spawned(density: dict[str, Any] | None, path: Path) -> Path:
     axes[0].legend(loc="upper right")
     axes[0].set(title=f"Counted objects per scene (retention {d['retention'] or 0:.2f})", xlabel="objects",
                 ylabel="scenes")
+    axes[0].yaxis.set_major_locator(MaxNLocator(integer=True))  # scenes are counted in whole numbers
     reasons = sorted(set(d["counted_drops"]) | set(d["distractor_drops"]))
     if reasons:
         counted = [d["counted_drops"].get(r, 0) for r in reasons]
