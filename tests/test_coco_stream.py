@@ -1,4 +1,4 @@
-"""Streaming reads of merged COCO files (mixcount/export/coco_stream.py) and the export reader on top."""
+"""Streaming reads of merged COCO files (mixcount/dataset/coco_stream.py) and the export reader on top."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mixcount.export.coco_stream import members
+from mixcount.dataset.coco_stream import members
 from mixcount.export.errors import ExportError
 from mixcount.export.reader import ComposedDataset
 

@@ -44,23 +44,9 @@ from mixcount.dataset.attribution import (
     write_attribution_document,
 )
 from mixcount.dataset.manifest import finished_but_unlisted, merge_problem
-from mixcount.dataset.scene_writer import is_complete
 
 INDEX_NAME = ".merge_index.jsonl"
 RECORD_KEYS = ("scene_id", "seed", "split", "n_counted", "n_distractors", "counts", "timings")
-
-
-def complete_scenes(out_dir: Path) -> list[Path]:
-    scenes = Path(out_dir) / "scenes"
-    if not scenes.is_dir():
-        return []
-    return sorted(d for d in scenes.iterdir() if d.is_dir() and not d.name.startswith(".") and is_complete(d))
-
-
-def _write_json(path: Path, obj: Any, indent: Optional[int] = None) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(obj, indent=indent))
-    os.replace(tmp, path)
 
 
 # ------------------------------------------------------------------------------------ the scene index

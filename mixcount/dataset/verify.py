@@ -10,7 +10,7 @@ Two checks, one pass each:
    ``coco.json``, and only image files that exist; ``dataset.json`` must list exactly those scenes;
    every ``external_exemplar`` a category names must exist.
 
-The merged COCO files are streamed (:mod:`mixcount.export.coco_stream`), so memory holds a few
+The merged COCO files are streamed (:mod:`mixcount.dataset.coco_stream`), so memory holds a few
 counters per scene, never the merged annotations. ``deep=False`` (``--quick``) checks sizes, and hashes
 only files whose modification time changed, as ``compose`` does when it resumes.
 """
@@ -84,7 +84,7 @@ def _scene_of(image: dict[str, Any]) -> Optional[str]:
 def _check_split_file(out_dir: Path, path: Path, split: str, shapes: dict[str, _SceneShape],
                       problems: list[str]) -> set[str]:
     """Stream one merged COCO file; append its problems; return the scene ids it holds."""
-    from mixcount.export.coco_stream import members
+    from mixcount.dataset.coco_stream import members
 
     rel = path.relative_to(out_dir).as_posix()
     images: dict[str, int] = {}
@@ -130,7 +130,7 @@ def _check_split_file(out_dir: Path, path: Path, split: str, shapes: dict[str, _
 
 
 def _dataset_scene_ids(path: Path) -> Optional[set[str]]:
-    from mixcount.export.coco_stream import members
+    from mixcount.dataset.coco_stream import members
 
     ids: set[str] = set()
     for key, value, streamed in members(path, ("scenes",)):

@@ -82,7 +82,7 @@ def read_coco(path: Path, error: type[Exception], keep: Optional[Collection[str]
     """A COCO file's top-level members, its annotations streamed and, with ``keep``, each reduced to those
     keys as it is read: a merged file of 58,000 scenes at 1024² is ~3.4 GB of RLE masks, which
     :func:`read_json` would hold whole (docs/evaluate.md)."""
-    from mixcount.export.coco_stream import members
+    from mixcount.dataset.coco_stream import members
 
     if not Path(path).is_file():
         raise error(f"{path}: file not found")

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Optional, Sequence
 
-from mixcount.export.coco_stream import members
+from mixcount.dataset.coco_stream import members
 from mixcount.export.errors import ExportError
 
 CAPTION_TIERS = ("short", "concise", "detailed")
@@ -123,7 +123,7 @@ class _SplitIndex:
 class ComposedDataset:
     """A ``mixcount compose`` output folder, opened read-only.
 
-    A split's merged COCO file is read in streaming passes (:mod:`mixcount.export.coco_stream`): one pass
+    A split's merged COCO file is read in streaming passes (:mod:`mixcount.dataset.coco_stream`): one pass
     keeps the images, categories and sample count; :meth:`images` then reads the annotations again,
     one image's at a time. At 58,000 scenes the file is ~3.4 GB of mostly RLE masks, which
     ``json.loads`` would hold whole (docs/export.md). A file whose annotations are not grouped by image

@@ -284,16 +284,3 @@ def _scene_split(scene_dir: Path) -> Optional[str]:
     except (OSError, ValueError):
         return None
 
-
-def compose_from_catalog(catalog: Any, config: Config, *, n: int, out_dir: Path,
-                         progress: ProgressReporter | bool | None = None) -> ComposeSummary:
-    """The CLI entry: load the sampler pool from the catalog and run :func:`compose_scenes`."""
-    from mixcount.catalog.pool import load_environments, load_materials, load_pool
-
-    with catalog.session() as session:
-        pool = load_pool(session)
-        envs = load_environments(session)
-        mats = load_materials(session)
-    return compose_scenes(pool=pool, config=config, out_dir=out_dir, assets_dir=Path(catalog.usd_assets_dir), n=n,
-                          environments=tuple(envs),
-                          materials=tuple(mats), progress=progress)

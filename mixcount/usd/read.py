@@ -30,12 +30,6 @@ def prim_ids(prim: Any) -> Optional[PrimIds]:
                    int(prim.GetCustomDataByKey("mixcount:instance_id")))
 
 
-def stage_metadata(stage: Any) -> dict[str, Any]:
-    """scene_id, seed, config_hash, split and spec (JSON string) from the stage's customLayerData."""
-    data = stage.GetRootLayer().customLayerData.get("mixcount", {})
-    return dict(data)
-
-
 def labelled_prims(stage: Any) -> list[PrimIds]:
     """Every prim with mixcount ids, in stage order (floor, container, counted, distractors)."""
     out = []
