@@ -55,11 +55,10 @@ def warm_mesh_cache(worker: Any, converted: dict[int, Any], mode: str) -> dict[s
     one-off per asset in a real run, like the conversion itself); returns asset name -> cache event."""
     if mode == "off":
         return {}
-    r = worker.request({"op": "cache_meshes", "assets": [str(a.visual) for a in converted.values()], "mode": mode},
-                       timeout=1800)
-    if not r.get("ok"):
-        raise RuntimeError(f"cache_meshes failed: {r.get('error')}")
-    return dict(r["assets"])
+    from mixcount.blender.contract import MeshCacheRequest
+
+    req = MeshCacheRequest(assets=tuple(str(a.visual) for a in converted.values()), mode=mode)
+    return dict(worker.cache_meshes(req, timeout=1800).assets)
 
 
 def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_s: float, threads: int,
@@ -69,11 +68,13 @@ def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_
     import json
     import shutil
 
-    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
+    from mixcount.config import load_config
+    from mixcount.run.scene_task import WRITTEN, SceneTask, compose_outputs, run_scene_task
 
     shutil.rmtree(out, ignore_errors=True)
     outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=timeout_s,
-                                       threads=threads, oracle=oracle, mesh_cache=mesh_cache), worker)
+                                       threads=threads, oracle=oracle,
+                                       **{**compose_outputs(load_config().compose), "mesh_cache": mesh_cache}), worker)
     if outcome.status != WRITTEN:
         return outcome, None, {}
     meta = json.loads((Path(outcome.path) / "metadata.json").read_text())

@@ -244,6 +244,12 @@ class SplitConfig:
 
 # Cycles' OpenImageDenoise prefilter of the albedo / normal guiding passes (docs/performance.md)
 DENOISE_PREFILTERS = ("ACCURATE", "FAST", "NONE")
+# the one list of passes `compose --passes` chooses from (rgb is always written); mixcount.annotate.passes
+# and the worker contract read it from here
+PASSES = ("instance", "class", "depth", "normal")
+# how the worker keeps imported asset meshes between scenes (mixcount.blender.mesh_cache): a compressed
+# or uncompressed .blend beside each converted asset, or no cache (every scene imports from USD)
+MESH_CACHE_MODES = ("zstd", "raw", "off")
 
 
 @dataclass(frozen=True)
@@ -278,15 +284,12 @@ class ComposeConfig:
         if self.denoise_prefilter not in DENOISE_PREFILTERS:
             raise ConfigError(f"compose.denoise_prefilter must be one of {', '.join(DENOISE_PREFILTERS)}, "
                               f"got {self.denoise_prefilter!r}")
-        from mixcount.blender.contract import MESH_CACHE_MODES
-
         if self.mesh_cache not in MESH_CACHE_MODES:
             raise ConfigError(f"compose.mesh_cache must be one of {', '.join(MESH_CACHE_MODES)}, "
                               f"got {self.mesh_cache!r}")
-        known = ("instance", "class", "depth", "normal")
-        unknown = [p for p in self.passes if p not in known]
+        unknown = [p for p in self.passes if p not in PASSES]
         if unknown:
-            raise ConfigError(f"compose.passes: unknown pass(es) {', '.join(unknown)}; expected some of {', '.join(known)}")
+            raise ConfigError(f"compose.passes: unknown pass(es) {', '.join(unknown)}; expected some of {', '.join(PASSES)}")
 
 
 def _tuples(value: Any) -> Any:

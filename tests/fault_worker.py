@@ -2,8 +2,8 @@
 :mod:`mixcount.blender.worker_main` plus faults the tests of timeouts and crashes need:
 
 * ``{"op": "sleep", "seconds": s}`` - a hung request;
-* a ``canonical`` job with ``"_test_hang_s": s`` hangs, one with ``"_test_crash": code`` kills the
-  process mid-job (``os._exit``); any other job renders normally;
+* a ``canonical`` request whose stem is ``hang_<s>`` hangs ``s`` seconds, one whose stem is
+  ``crash_<code>`` kills the process mid-job (``os._exit(code)``); any other renders normally;
 * ``{"op": "border_check", "stage": path, "out_dir": path, "drop": k}`` - the visibility loop's border
   re-render against a full one: a settled scene, its id pass, the ``k`` most visible objects removed, the
   changed region re-rendered and pasted, then a full render; answers which passes are identical.
@@ -24,12 +24,14 @@ Tests select it with ``monkeypatch.setattr("mixcount.blender.worker.WORKER_MODUL
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 import time
 from typing import Any
 
 from mixcount.blender import worker_main
+from mixcount.config import load_config
 
 
 def sleep(req: dict[str, Any]) -> dict[str, Any]:
@@ -38,12 +40,12 @@ def sleep(req: dict[str, Any]) -> dict[str, Any]:
 
 
 def canonical(req: dict[str, Any]) -> dict[str, Any]:
-    job = req["job"]
-    if job.get("_test_hang_s"):
-        time.sleep(float(job["_test_hang_s"]))
-    if job.get("_test_crash"):
-        os._exit(int(job["_test_crash"]))
-    return worker_main.handle_canonical(req)
+    kind, _, value = str(req["request"]["stem"]).partition("_")
+    if kind == "hang":
+        time.sleep(float(value))
+    if kind == "crash":
+        os._exit(int(value))
+    return worker_main.HANDLERS["canonical"](req)
 
 
 def border_check(req: dict[str, Any]) -> dict[str, Any]:
@@ -51,10 +53,12 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
 
     from mixcount.blender import decisions as D
     from mixcount.blender import passes as P
+    from mixcount.blender import scene_build as B
     from mixcount.blender import scene_job as J
     from mixcount.blender.contract import SceneRequest
 
-    state = J.load_scene(SceneRequest(stage=req["stage"], out_dir=req["out_dir"], threads=2, oracle=False))
+    state = B.load_scene(SceneRequest.from_config(load_config().compose, stage=req["stage"], out_dir=req["out_dir"],
+                                                  threads=2, oracle=False))
     J.check_frame(state, J.place_after_physics(state, J.settle(state), J.Timer()))
     exr = state.out_dir / "_border.exr"
     before = P.render_id_passes(state.scene, exr)
@@ -106,10 +110,9 @@ def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
         bodies += [Body(_cube(scene, f"falling{i}", (10.0 + 2 * i, 0.0, 30.0), 1.0), "active", "CONVEX_HULL")
                    for i in range(3)]
         bodies[0].obj.scale = (1.0, 1.0, 0.05)
-        stats: dict[str, Any] = {}
-        simulate(scene, bodies, frames=200, substeps=8, iterations=4, gravity=9.81, rest_speed=0.05, stats=stats,
-                 waited_for=(lambda c: np.asarray(c[:, 0] < 5.0)) if mode == "near" else None)
-        out[mode] = {"frames_run": stats["frames_run"], "waited_for": stats["waited_for"],
+        run = simulate(scene, bodies, frames=200, substeps=8, iterations=4, gravity=9.81, rest_speed=0.05,
+                       waited_for=(lambda c: np.asarray(c[:, 0] < 5.0)) if mode == "near" else None)
+        out[mode] = {"frames_run": run.frames_run, "waited_for": run.waited_for,
                      "falling_z": float(bpy.data.objects["falling0"].matrix_world.translation.z)}
     return out
 
@@ -133,12 +136,11 @@ def release_wave(req: dict[str, Any]) -> dict[str, Any]:
         seen.append([float(v) for v in centres[2]])
         return np.ones(len(centres), dtype=bool)
 
-    stats: dict[str, Any] = {}
-    settled = simulate(scene, bodies, frames=100, substeps=8, iterations=4, gravity=9.81, rest_speed=0.05,
-                       stats=stats, waited_for=record, releases={"held": 40})
+    run = simulate(scene, bodies, frames=100, substeps=8, iterations=4, gravity=9.81, rest_speed=0.05,
+                   waited_for=record, releases={"held": 40})
     held = bpy.data.objects["held"]
-    return {"ok": True, "centres": seen, "frames_run": stats["frames_run"], "last_release": stats["last_release"],
-            "settled": [float(v) for v in settled["held"][:3, 3]], "animation_left": held.animation_data is not None,
+    return {"ok": True, "centres": seen, "frames_run": run.frames_run, "last_release": run.last_release,
+            "settled": [float(v) for v in run.matrices["held"][:3, 3]], "animation_left": held.animation_data is not None,
             "pose": [float(v) for v in held.matrix_world.translation]}
 
 
@@ -150,15 +152,16 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
     from PIL import Image
 
     from mixcount.blender import passes as P
-    from mixcount.blender import scene_job as J
+    from mixcount.blender import scene_build as B
     from mixcount.blender.contract import SceneRequest
     from mixcount.blender.mesh_cache import CACHE_DIR, cache_file
 
     out = Path(req["out_dir"])
 
     def load(mode: str) -> tuple[Any, dict[str, Any]]:
-        state = J.load_scene(SceneRequest(stage=req["stage"], out_dir=str(out), threads=2, oracle=False,
-                                          mesh_cache=mode))
+        request = SceneRequest.from_config(load_config().compose, stage=req["stage"], out_dir=str(out), threads=2,
+                                           oracle=False)
+        state = B.load_scene(dataclasses.replace(request, mesh_cache=mode))
         state.scene.render.resolution_percentage = 50
         ids = P.render_id_passes(state.scene, out / "_ids.exr")
         P.configure_rgb(state.scene, samples=2, denoise=False)

@@ -12,7 +12,17 @@ import pytest
 
 from mixcount.annotate.raster import PinholeCamera
 from mixcount.blender import decisions as D
-from mixcount.blender.contract import ObjectResult, SceneRequest, SceneResult
+from mixcount.blender.contract import (
+    CameraView,
+    CanonicalRequest,
+    CanonicalResult,
+    CanonicalView,
+    MeshCacheRequest,
+    MeshCacheResult,
+    ObjectResult,
+    SceneRequest,
+    SceneResult,
+)
 
 
 def pose(x: float = 0.0, y: float = 0.0, z: float = 0.0, scale: float = 1.0) -> np.ndarray:
@@ -139,8 +149,22 @@ def test_pass_conversions() -> None:
 
 
 def test_contract_json_round_trip() -> None:
-    req = SceneRequest(stage="/x/scene.usda", out_dir="/x", threads=2, oracle=True)
+    req = SceneRequest(stage="/x/scene.usda", out_dir="/x", threads=2, oracle=True, passes=("instance", "depth"),
+                       depth_format="exr32", normal_format="png8", mesh_cache="raw")
     assert SceneRequest.from_dict(json.loads(json.dumps(req.to_dict()))) == req
+    with pytest.raises(ValueError, match=r"SceneRequest: missing fields \['mesh_cache'\]"):
+        SceneRequest.from_dict({k: v for k, v in req.to_dict().items() if k != "mesh_cache"})
+    canonical = CanonicalRequest(model_path="/m.glb", out_dir="/r", stem="obj_000001", threads=0, resolution=64,
+                                 samples=4, denoise=True, elevation_deg=30.0, azimuth_deg=10.0, extra_views=2,
+                                 margin=0.1, world_strength=0.5, sun_strength=2.0)
+    assert CanonicalRequest.from_dict(json.loads(json.dumps(canonical.to_dict()))) == canonical
+    assert canonical.views() == (("canonical", 10.0), ("view_1", 130.0), ("view_2", 250.0))
+    rendered = CanonicalResult(views=(CanonicalView(view="canonical", path="/r/a.png", mask_path="/r/a_mask.png",
+                                                    coverage=0.25, width=64, height=64),))
+    assert CanonicalResult.from_dict(json.loads(json.dumps(rendered.to_dict()))) == rendered
+    warm = MeshCacheRequest(assets=("/a.usdc",), mode="zstd")
+    assert MeshCacheRequest.from_dict(json.loads(json.dumps(warm.to_dict()))) == warm
+    assert MeshCacheResult.from_dict(MeshCacheResult(assets={"a.usdc": "hit"}).to_dict()).assets == {"a.usdc": "hit"}
     m = tuple(tuple(float(v) for v in r) for r in pose(1, 2, 3))
     kept = ObjectResult(name="obj_0001", path="/World/Objects/obj_0001", role="counted", instance_id=1, object_id=5,
                         class_index=0, asset="/a.usdc", size_m=0.5, spawn_matrix=m, matrix_world=m, min_z=0.0,
@@ -151,7 +175,9 @@ def test_contract_json_round_trip() -> None:
     res = SceneResult(status="ok", stage="/x/scene.usda", scene_id="scene_000001", seed=1, visibility_threshold=0.4,
                       id_pass_rounds=1, physics={"substeps": 8}, camera={"width": 128}, lights={},
                       objects=(kept, dropped), diagnostics=({"kind": "dropped", "object": "dist_01"},),
-                      timings={"rgb": 1.5})
+                      timings={"rgb": 1.5},
+                      views=(CameraView(name="cam_0", suffix="", camera={"width": 128}, framing={"framing": "fixed"},
+                                        passes={"depth": {"file": "depth.png", "format": "png16"}}),))
     back = SceneResult.from_json(res.to_json())
     assert back == res
     assert back.objects[0].kept and not back.objects[1].kept

@@ -382,6 +382,7 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
     normals and RGB, cold (files written) and warm (files appended); a truncated file is a miss that is
     rewritten, and a file that cannot be written is reported and costs nothing else. The unlit id pass
     equals a lit one."""
+    from mixcount.blender.contract import MeshCacheRequest, MeshCacheResult
     from mixcount.blender.worker import BlenderWorker
 
     out, _summary, _pool = composed
@@ -391,12 +392,12 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
         r = w.request({"op": "mesh_cache", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / "mc")},
                       timeout=300)
         paths = [str(library[1] / name) for name in r.get("assets", [])]
-        ahead = w.request({"op": "cache_meshes", "assets": paths, "mode": "zstd"}, timeout=300)
-        off = w.request({"op": "cache_meshes", "assets": paths, "mode": "off"}, timeout=300)
+        ahead = w.cache_meshes(MeshCacheRequest(assets=tuple(paths), mode="zstd"), timeout=300)
+        off = w.cache_meshes(MeshCacheRequest(assets=tuple(paths), mode="off"), timeout=300)
     assert r["ok"], r
     # the bench's warm-up: every file there, the one that could not be written made now
-    assert ahead == {"ok": True, "assets": {a: ("written" if a == r["blocked"] else "hit") for a in r["assets"]}}, ahead
-    assert off == {"ok": True, "assets": {}}
+    assert ahead == MeshCacheResult(assets={a: ("written" if a == r["blocked"] else "hit") for a in r["assets"]}), ahead
+    assert off == MeshCacheResult(assets={})
     assets, events = r["assets"], r["events"]
     assert len(assets) >= 2
     assert events["off"] == {}
@@ -453,6 +454,7 @@ def test_spawn_wave_body_is_held_then_falls_from_its_spot(tmp_path: Path, monkey
 def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from mixcount.blender.contract import SceneRequest
     from mixcount.blender.worker import BlenderWorker
+    from mixcount.config import load_config
     from mixcount.errors import RenderError
 
     monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds op "sleep"
@@ -464,8 +466,8 @@ def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPa
         second = w.request({"op": "ping"}, timeout=120)["pid"]
         assert second != first and w.restarts == 1
         with pytest.raises(RenderError, match="scene failed"):
-            w.render_scene(SceneRequest(stage=str(tmp_path / "missing.usda"), out_dir=str(tmp_path / "x"), threads=1,
-                                        oracle=False), timeout=60)
+            w.render_scene(SceneRequest.from_config(load_config().compose, stage=str(tmp_path / "missing.usda"),
+                                                    out_dir=str(tmp_path / "x"), threads=1, oracle=False), timeout=60)
         assert w.request({"op": "ping"}, timeout=60)["pid"] == second  # a failed scene keeps the worker
 
 

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "mixcount"
 MAX_FUNCTION_LINES = 120
 
 ROOMS: tuple[tuple[str, ...], ...] = (
-    ("mixcount", "errors", "progress", "resources", "frame", "config"),  # the foundation
+    ("mixcount", "errors", "progress", "resources", "frame", "atomic", "config"),  # the foundation
     ("annotate",),  # pure annotation maths and pass formats
     ("scene",),  # engine-free scene sampling
     ("catalog",),

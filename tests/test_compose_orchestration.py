@@ -18,12 +18,19 @@ import pytest
 import trimesh
 from PIL import Image
 
-from mixcount.blender.contract import STATUS_EMPTY, STATUS_OK, STATUS_REJECTED, ObjectResult, SceneResult
+from mixcount.blender.contract import (
+    STATUS_EMPTY,
+    STATUS_OK,
+    STATUS_REJECTED,
+    CameraView,
+    ObjectResult,
+    SceneResult,
+)
 from mixcount.config import load_config
 from mixcount.dataset.scene_writer import REJECTED_DIR
 from mixcount.run.compose import compose_scenes
 from mixcount.run.local import LocalExecutor
-from mixcount.run.scene_task import SceneTask, run_scene_task
+from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
 from mixcount.scene.pool import ObjectRecord, fallback_captions
 from mixcount.scene.spec import SceneSpec
 
@@ -64,9 +71,11 @@ class FakeWorker:
         np.save(out / "ids.npy", ids)
         Image.fromarray(((ids % 7) * 36).astype(np.uint8)).convert("RGB").save(out / "rgb.png")
         status = {"ok": STATUS_OK, "empty": STATUS_EMPTY, "rejected": STATUS_REJECTED}[what]
+        view = CameraView(name="cam_0", suffix="", camera={}, framing={"framing": "fixed"}, passes={})
         return SceneResult(status=status, stage=request.stage, scene_id=spec.scene_id, seed=spec.seed,
                            visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=1,
-                           physics=spec.physics.to_dict(), camera={}, lights={}, objects=tuple(objects))
+                           physics=spec.physics.to_dict(), camera={}, lights={}, objects=tuple(objects),
+                           views=(view,), diagnostics=(), timings={})
 
 
 def _pool(root: Path) -> list[ObjectRecord]:
@@ -151,5 +160,6 @@ def test_scene_task_is_picklable_plain_data(setup) -> None:
 
     config, pool = setup[0], setup[1]
     spec = sample_scene(7, "train", config, pool)
-    task = SceneTask(spec=spec, out_dir="o", assets_dir="a", timeout_s=5.0, threads=1)
+    task = SceneTask(spec=spec, out_dir="o", assets_dir="a", timeout_s=5.0, threads=1,
+                     **compose_outputs(load_config().compose))
     assert pickle.loads(pickle.dumps(task)) == task

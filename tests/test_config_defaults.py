@@ -2,7 +2,9 @@
 
 (a) Every TOML section loads into a frozen dataclass whose fields are exactly the section's keys and carry
 no default value. (b) No code under mixcount/ or bench/ re-defaults a config key: no ``x.get("<key>", d)``,
-no ``getattr(o, "<key>", d)`` and no literal default for a parameter named after a config key.
+no ``getattr(o, "<key>", d)``, no literal default for a parameter named after a config key, and no
+class-level field named after a config key with a literal default (``passes: tuple = (...)`` in a
+dataclass, ``field(default=...)``): a request or task dataclass carries what the configuration says.
 """
 
 from __future__ import annotations
@@ -48,6 +50,12 @@ NOT_CONFIG_PARAMS = {
     ("mixcount/evaluate/metrics.py", "split"),  # which ground-truth COCO file to score against
     ("mixcount/demo/pool.py", "min_faces"),  # faces of a heavy benchmark model, not the degenerate threshold
     ("bench/pools.py", "min_faces"),  # ... the same
+}
+# Class-level fields that share a config key's name but mean something else (checked by hand).
+NOT_CONFIG_FIELDS = {
+    ("mixcount/captions/stub.py", "provider"),  # the stub captioner's own name in caption records ("offline")
+    ("mixcount/captions/stub.py", "model"),  # ... and its model name ("stub")
+    ("mixcount/dataset/merge.py", "categories"),  # a merged split's COCO categories, not container categories
 }
 # ``.get(key, default)`` on data that is not configuration but shares a key's name (checked by hand).
 NOT_CONFIG_GETS = {
@@ -96,6 +104,14 @@ def _literal(node: ast.AST | None) -> bool:
     return False
 
 
+def _field_default(node: ast.AST | None) -> bool:
+    """``field(default=<literal>)`` or ``field(default_factory=...)`` (any factory: it makes a value)."""
+    return (isinstance(node, ast.Call) and isinstance(node.func, (ast.Name, ast.Attribute))
+            and (node.func.id if isinstance(node.func, ast.Name) else node.func.attr) == "field"
+            and any((kw.arg == "default" and _literal(kw.value)) or kw.arg == "default_factory"
+                    for kw in node.keywords))
+
+
 def code_defaults(path: Path, rel: str | None = None) -> list[str]:
     """Every place in ``path`` that supplies its own value for a config key."""
     rel = rel or path.relative_to(PROJECT_ROOT).as_posix()
@@ -112,6 +128,15 @@ def code_defaults(path: Path, rel: str | None = None) -> list[str]:
                 and len(node.args) == 3 and isinstance(node.args[1], ast.Constant) and node.args[1].value in KEYS \
                 and _literal(node.args[2]):
             found.append(f"{rel}:{node.lineno} getattr(..., {node.args[1].value!r}, default)")
+        if isinstance(node, ast.ClassDef):
+            for stmt in node.body:
+                target = stmt.target if isinstance(stmt, ast.AnnAssign) else (
+                    stmt.targets[0] if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1 else None)
+                if not isinstance(target, ast.Name) or target.id not in KEYS or (rel, target.id) in NOT_CONFIG_FIELDS:
+                    continue
+                if _literal(stmt.value) or _field_default(stmt.value):
+                    found.append(f"{rel}:{stmt.lineno} class {node.name}: field {target.id} = "
+                                 f"{ast.unparse(stmt.value)} re-defaults {KEYS[target.id]}")
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
             a = node.args
             positional = a.posonlyargs + a.args
@@ -140,9 +165,14 @@ def test_scan_catches_known_offender_shapes(tmp_path: Path):
         "def d(cfg, o):\n    return getattr(cfg, 'samples', 32), getattr(o, 'split', None)\n"
         "def e(scene, *, sun_strength=2.0):\n    return sun_strength\n"
         "def f(meta):\n    return meta.get('visibility_unrelated', 1), meta.get('samples')\n"
+        "@dataclass(frozen=True)\nclass Task:\n    spec: object\n    passes: tuple = ('instance', 'depth')\n"
+        "    mesh_cache: str = field(default='zstd')\n    seed: int = field(default_factory=int)\n"
+        "    captions: dict = field(default_factory=dict)\n    depth_format: str\n"
     )
     hits = code_defaults(probe, "mixcount/probe.py")
-    assert len(hits) == 5, hits
+    assert len(hits) == 8, hits
+    assert any("class Task: field passes = ('instance', 'depth') re-defaults compose.passes" in h for h in hits)
+    assert any("field mesh_cache" in h for h in hits) and any("field seed" in h for h in hits)
     assert any("compose.scene_timeout_s" in h for h in hits)
     assert any("scene.settle_penetration_fraction" in h for h in hits)
     assert any("render.sun_strength" in h for h in hits)

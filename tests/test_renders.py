@@ -4,7 +4,10 @@ worker runner killing a hung render and restarting after a crashed one."""
 
 from __future__ import annotations
 
+import dataclasses
+import types
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -95,24 +98,24 @@ def test_render_catalog_white_centred_resumable(tmp_path, catalog):
 
 def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
     from mixcount.blender.canonical_runner import run_jobs
-    from mixcount.curation.renders import render_settings
+    from mixcount.blender.contract import CanonicalRequest
+    from mixcount.curation.renders import canonical_request
 
     monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # hang / crash hooks
     glb = tmp_path / "box.glb"
     coloured(trimesh.creation.box(extents=(0.04, 0.04, 0.04)), (200, 200, 30)).export(glb)
-    base = {**render_settings(small_config(resolution=32, samples=1, denoise=False).render),
-            "model_path": str(glb), "out_dir": str(tmp_path / "out")}
-    jobs = [
-        {**base, "key": "first", "stem": "first"},
-        {**base, "key": "hang", "stem": "hang", "_test_hang_s": 300},
-        {**base, "key": "crash", "stem": "crash", "_test_crash": 3},
-        {**base, "key": "last", "stem": "last"},
-    ]
-    seen: dict[str, dict] = {}
-    run_jobs(jobs, on_result=lambda k, rec: seen.__setitem__(k, rec), workers=1, timeout_s=8.0,
+    obj = types.SimpleNamespace(model_path=str(glb), id=1)
+    base = canonical_request(small_config(resolution=32, samples=1, denoise=False).render, obj, tmp_path / "out")
+    assert isinstance(base, CanonicalRequest) and base.stem == "obj_000001"
+    jobs = [(key, dataclasses.replace(base, stem=stem))
+            for key, stem in (("first", "first"), ("hang", "hang_300"), ("crash", "crash_3"), ("last", "last"))]
+    seen: dict[str, Any] = {}
+    run_jobs(jobs, on_result=lambda o: seen.__setitem__(o.key, o), workers=1, timeout_s=8.0,
              threads_per_worker=0)
     assert set(seen) == {"first", "hang", "crash", "last"}
-    assert seen["first"]["event"] == "done" and seen["last"]["event"] == "done"
-    assert seen["hang"]["event"] == "failed" and "timed out" in seen["hang"]["error"]
-    assert seen["crash"]["event"] == "failed" and "worker died (exit code 3)" in seen["crash"]["error"]
+    assert seen["first"].result is not None and seen["last"].result is not None
+    assert [v.view for v in seen["last"].result.views] == ["canonical"]
+    assert seen["last"].result.views[0].path == str(tmp_path / "out" / "last.png")
+    assert seen["hang"].result is None and "timed out" in seen["hang"].error
+    assert seen["crash"].result is None and "worker died (exit code 3)" in seen["crash"].error
     assert (tmp_path / "out" / "last.png").is_file() and not (tmp_path / "out" / "hang.png").exists()

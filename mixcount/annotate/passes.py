@@ -20,16 +20,19 @@ compact formats existed (``.npy``), from a file or from a scene folder.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mixcount.atomic import atomic_path
+
+# re-exported: the passes `compose --passes` chooses from (rgb is always written)
+from mixcount.config import PASSES as PASSES
+
 DEPTH_FORMATS = {"png16": "depth.png", "exr32": "depth.exr", "npy": "depth.npy"}
 NORMAL_FORMATS = {"png8": "normal.png", "exr16": "normal.exr", "npy": "normal.npy"}
-PASSES = ("instance", "class", "depth", "normal")  # what `compose --passes` chooses from (rgb is always written)
 DEPTH_UNITS_M = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2)
 DEPTH_UNIT_KEY = "mixcount:depth_unit_m"
 
@@ -51,10 +54,9 @@ def depth_unit(max_depth_m: float) -> float:
     raise ValueError(f"depth {max_depth_m:.1f} m does not fit a 16-bit PNG at 1 cm steps: use depth_format exr32")
 
 
-def _atomic(path: Path, write) -> None:  # type: ignore[no-untyped-def]
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    write(tmp)
-    os.replace(tmp, path)
+def _atomic(path: Path, write: Callable[[Path], object]) -> None:
+    with atomic_path(path) as tmp:
+        write(tmp)
 
 
 def _write_exr(path: Path, channels: dict[str, NDArray[Any]]) -> None:
@@ -77,7 +79,7 @@ def suffixed(name: str, suffix: str) -> str:
     return f"{stem}{suffix}{dot}{ext}"
 
 
-def write_depth(folder: Path, depth: NDArray[Any], fmt: str = "png16", suffix: str = "") -> dict[str, object]:
+def write_depth(folder: Path, depth: NDArray[Any], fmt: str, suffix: str = "") -> dict[str, object]:
     """Write planar depth (H, W) metres, 0 = none, into ``folder`` (file name + ``suffix`` for a further
     camera); returns its metadata record."""
     from PIL import Image
@@ -101,7 +103,7 @@ def write_depth(folder: Path, depth: NDArray[Any], fmt: str = "png16", suffix: s
     return {"file": name, "format": "png16", "unit_m": unit, "max_error_m": unit / 2}
 
 
-def write_normals(folder: Path, normals: NDArray[Any], fmt: str = "png8", suffix: str = "") -> dict[str, object]:
+def write_normals(folder: Path, normals: NDArray[Any], fmt: str, suffix: str = "") -> dict[str, object]:
     """Write camera-space unit normals (H, W, 3), 0 = none, into ``folder`` (file name + ``suffix`` for a
     further camera); returns its metadata record."""
     from PIL import Image

@@ -20,6 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from mixcount.atomic import atomic_path
+from mixcount.blender.contract import CANONICAL, CanonicalRequest, CanonicalResult, CanonicalView
+
 IMPORTERS = {
     ".glb": "gltf", ".gltf": "gltf", ".obj": "obj", ".ply": "ply", ".stl": "stl",
     ".usd": "usd", ".usda": "usda", ".usdc": "usd", ".usdz": "usd",
@@ -209,44 +212,29 @@ def composite_on_white(rgba_path: Path, out_path: Path, mask_path: Path) -> dict
     rgb = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
     rgb[arr[..., 3] == 0] = 255
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_path.with_name(out_path.stem + ".tmp.png")
-    Image.fromarray(rgb, "RGB").save(tmp)
-    tmp.replace(out_path)
-    tmp_mask = mask_path.with_name(mask_path.stem + ".tmp.png")
-    Image.fromarray(arr[..., 3].astype(np.uint8), "L").save(tmp_mask)
-    tmp_mask.replace(mask_path)
+    with atomic_path(out_path) as tmp:
+        Image.fromarray(rgb, "RGB").save(tmp)
+    with atomic_path(mask_path) as tmp:
+        Image.fromarray(arr[..., 3].astype(np.uint8), "L").save(tmp)
     coverage = float((arr[..., 3] > 127).mean())
     return {"coverage": round(coverage, 6), "width": int(rgb.shape[1]), "height": int(rgb.shape[0])}
 
 
-def render_object(job: dict[str, Any]) -> dict[str, Any]:
-    """Render every view of one job; returns {"views": [{view, path, mask_path, coverage, width, height}]}.
-
-    ``job``: model_path, out_dir, stem, and the settings resolution, samples, denoise, threads,
-    elevation_deg, azimuth_deg, extra_views, margin, world_strength, sun_strength.
-    """
+def render_object(req: CanonicalRequest) -> CanonicalResult:
+    """Render every view of one request (:meth:`CanonicalRequest.views`), each composited on white."""
     import bpy
 
-    model = Path(job["model_path"])
-    out_dir = Path(job["out_dir"])
+    out_dir = Path(req.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = reset_scene()
-    objects = import_model(model)
+    objects = import_model(Path(req.model_path))
     pts = centre_objects(objects)
-    configure_render(scene, resolution=int(job["resolution"]), samples=int(job["samples"]),
-                     denoise=bool(job["denoise"]), threads=int(job["threads"]))
-    base_az = float(job["azimuth_deg"])
-    add_lighting(scene, world_strength=float(job["world_strength"]),
-                 sun_strength=float(job["sun_strength"]), azimuth_deg=base_az)
-    n_extra = int(job["extra_views"])
-    views = [("canonical", base_az)] + [
-        (f"view_{k}", base_az + 360.0 * k / (n_extra + 1)) for k in range(1, n_extra + 1)
-    ]
+    configure_render(scene, resolution=req.resolution, samples=req.samples, denoise=req.denoise, threads=req.threads)
+    add_lighting(scene, world_strength=req.world_strength, sun_strength=req.sun_strength, azimuth_deg=req.azimuth_deg)
     results = []
-    for view, az in views:
-        cam = add_camera(pts, elevation_deg=float(job["elevation_deg"]), azimuth_deg=az,
-                         margin=float(job["margin"]))
-        stem = job["stem"] if view == "canonical" else f"{job['stem']}_{view}"
+    for view, az in req.views():
+        cam = add_camera(pts, elevation_deg=req.elevation_deg, azimuth_deg=az, margin=req.margin)
+        stem = req.stem if view == CANONICAL else f"{req.stem}_{view}"
         raw = out_dir / f".{stem}.raw.png"
         scene.render.filepath = str(raw)
         bpy.ops.render.render(write_still=True)
@@ -256,6 +244,6 @@ def render_object(job: dict[str, Any]) -> dict[str, Any]:
         mask = out_dir / f"{stem}_mask.png"
         info = composite_on_white(raw, out, mask)
         raw.unlink()
-        results.append({"view": view, "path": str(out), "mask_path": str(mask), **info})
+        results.append(CanonicalView(view=view, path=str(out), mask_path=str(mask), **info))
         bpy.data.objects.remove(cam, do_unlink=True)
-    return {"views": results}
+    return CanonicalResult(views=tuple(results))

@@ -1,22 +1,33 @@
 """The typed contract between the parent process and the bpy worker (imports neither bpy nor pxr).
 
-* :class:`SceneRequest` - what the parent sends for one scene: the stage and the output folder plus
-  RUN-TIME settings only (render threads, whether to run the one-render-per-object reference). Everything
-  that describes the scene (samples, denoise, visibility threshold, physics frames / substeps / solver
-  iterations / gravity, settle fractions) travels in the stage (its SceneSpec), never here.
-* :class:`SceneResult` - what the worker answers (also written as ``worker.json`` in the scene folder):
-  status, camera, lights, the physics values actually used, diagnostics, timings and one
-  :class:`ObjectResult` per counted object / distractor.
+One frozen request / result pair per worker operation, each with a JSON round-trip (``to_dict`` /
+``from_dict``); :class:`~mixcount.blender.worker.BlenderWorker` sends ``{"op": <request>.OP, "request":
+...}`` and the worker answers ``{"ok": true, "result": ...}`` (:mod:`mixcount.blender.worker_main`):
 
-All three are frozen dataclasses with a JSON round-trip (``to_dict`` / ``from_dict``, ``to_json`` /
-``from_json``); ``dataset.scene_writer.finalize_scene`` reads the typed fields.
+* ``scene`` - :class:`SceneRequest` -> :class:`SceneResult`. The request carries the stage and the output
+  folder plus RUN-TIME settings only (render threads, the one-render-per-object reference, which passes
+  in which formats, the mesh cache). Everything that describes the scene (samples, denoise, visibility
+  threshold, physics) travels in the stage (its SceneSpec), never here. The result (also written as
+  ``worker.json`` in the scene folder) holds status, camera, lights, the physics values actually used,
+  one :class:`ObjectResult` per counted object / distractor, one :class:`CameraView` per camera with the
+  pass files it wrote, diagnostics and timings.
+* ``canonical`` - :class:`CanonicalRequest` -> :class:`CanonicalResult`: one catalog object's white-
+  background renders, one :class:`CanonicalView` per view (:func:`canonical_views` names them, for
+  both sides of the process boundary).
+* ``cache_meshes`` - :class:`MeshCacheRequest` -> :class:`MeshCacheResult`: each converted asset's .blend
+  mesh cache made ahead of the scenes.
+
+No request field has a default: every setting comes from the caller (from the configuration, read once).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
-from typing import Any, Mapping, Optional
+from dataclasses import asdict, dataclass, fields
+from typing import Any, ClassVar, Mapping, Optional
+
+from mixcount.config import MESH_CACHE_MODES as MESH_CACHE_MODES  # re-exported for the worker side
+from mixcount.config import ComposeConfig
 
 STATUS_OK = "ok"
 STATUS_EMPTY = "empty"  # no counted object survived: the caller regenerates from the next seed
@@ -25,30 +36,40 @@ STATUS_REJECTED = "rejected"  # the final visibility re-check failed
 KEPT = "kept"
 DROPPED = "dropped"
 
-Matrix = tuple[tuple[float, ...], ...]
+CANONICAL = "canonical"  # the first canonical render's view name (the external exemplar)
 
-# how the worker keeps imported asset meshes between scenes (mixcount.blender.mesh_cache): a compressed
-# or uncompressed .blend beside each converted asset, or no cache (every scene imports from USD)
-MESH_CACHE_MODES = ("zstd", "raw", "off")
+Matrix = tuple[tuple[float, ...], ...]
 
 
 def _matrix(m: Any) -> Optional[Matrix]:
     return None if m is None else tuple(tuple(float(v) for v in row) for row in m)
 
 
+def _known(cls: type, d: Mapping[str, Any]) -> dict[str, Any]:
+    """``d`` checked against ``cls``'s fields: a missing or unknown one is a ValueError that names it."""
+    names = [f.name for f in fields(cls)]
+    missing, unknown = [n for n in names if n not in d], sorted(set(d) - set(names))
+    if missing or unknown:
+        raise ValueError(f"{cls.__name__}: missing fields {missing}, unknown fields {unknown}")
+    return {n: d[n] for n in names}
+
+
 @dataclass(frozen=True)
 class SceneRequest:
     """One ``scene`` request: render ``stage`` into ``out_dir``."""
+
+    OP: ClassVar[str] = "scene"
 
     stage: str
     out_dir: str
     threads: int  # Cycles threads (0 = Blender's automatic choice)
     oracle: bool  # also run the one-render-per-object reference and write oracle_masks.npz
-    # which of depth / normal to write and how (mixcount.annotate.passes); the id map is always written
-    passes: tuple[str, ...] = ("instance", "class", "depth", "normal")
-    depth_format: str = "png16"
-    normal_format: str = "png8"
-    mesh_cache: str = "zstd"  # one of MESH_CACHE_MODES
+    # which of depth / normal to write and how (compose.passes / depth_format / normal_format, formats of
+    # mixcount.annotate.passes); the id map is always written
+    passes: tuple[str, ...]
+    depth_format: str
+    normal_format: str
+    mesh_cache: str  # compose.mesh_cache, one of MESH_CACHE_MODES
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -56,12 +77,20 @@ class SceneRequest:
         return d
 
     @classmethod
+    def from_config(cls, compose: ComposeConfig, *, stage: str, out_dir: str, threads: int,
+                    oracle: bool) -> "SceneRequest":
+        """A request with ``[compose]``'s passes, pass formats and mesh cache (tests and benchmarks)."""
+        return cls(stage=stage, out_dir=out_dir, threads=threads, oracle=oracle, passes=tuple(compose.passes),
+                   depth_format=compose.depth_format, normal_format=compose.normal_format,
+                   mesh_cache=compose.mesh_cache)
+
+    @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneRequest":
-        extra = {k: d[k] for k in ("depth_format", "normal_format", "mesh_cache") if k in d}
-        if "passes" in d:
-            extra["passes"] = tuple(d["passes"])
-        return cls(stage=str(d["stage"]), out_dir=str(d["out_dir"]), threads=int(d["threads"]),
-                   oracle=bool(d["oracle"]), **extra)
+        v = _known(cls, d)
+        return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
+                   oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
+                   depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
+                   mesh_cache=str(v["mesh_cache"]))
 
 
 @dataclass(frozen=True)
@@ -124,6 +153,27 @@ class ObjectResult:
 
 
 @dataclass(frozen=True)
+class CameraView:
+    """What one camera of a scene gave: its record, how the settled pile framed it, the files it wrote."""
+
+    name: str  # the camera prim's name (cam_0, cam_1, ...)
+    suffix: str  # file-name suffix of its outputs: "" for cam_0, "_cam_1", ... (view_suffix)
+    camera: dict[str, Any]  # the camera record (K, cam_to_world, lens, clip range); cam_0's is SceneResult.camera
+    framing: dict[str, Any]  # how the settled pile framed it ({"framing": "fixed"} for an unmoved camera)
+    passes: dict[str, dict[str, Any]]  # written depth / normal pass -> its record (file, format, unit, ...)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "suffix": self.suffix, "camera": dict(self.camera), "framing": dict(self.framing),
+                "passes": {k: dict(v) for k, v in self.passes.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "CameraView":
+        v = _known(cls, d)
+        return cls(name=str(v["name"]), suffix=str(v["suffix"]), camera=dict(v["camera"]),
+                   framing=dict(v["framing"]), passes={str(k): dict(r) for k, r in dict(v["passes"]).items()})
+
+
+@dataclass(frozen=True)
 class SceneResult:
     """The worker's answer for one scene (see module docstring)."""
 
@@ -137,27 +187,24 @@ class SceneResult:
     camera: dict[str, Any]
     lights: dict[str, Any]
     objects: tuple[ObjectResult, ...]
-    diagnostics: tuple[dict[str, Any], ...] = ()
-    timings: dict[str, float] = field(default_factory=dict)
-    # one per camera, in stage order: {"name", "suffix" (file-name suffix: "" for cam_0, "_cam_1", ...),
-    # "camera" (the record, as ``camera`` for cam_0), "framing" (how the settled pile framed it),
-    # "passes" (written depth / normal records)}
-    views: tuple[dict[str, Any], ...] = ()
+    views: tuple[CameraView, ...]  # one per camera, in stage order
+    diagnostics: tuple[dict[str, Any], ...]  # what happened: drops, cache events, physics rest, ...
+    timings: dict[str, float]
 
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["objects"] = [o.to_dict() for o in self.objects]
         d["diagnostics"] = [dict(x) for x in self.diagnostics]
-        d["views"] = [dict(x) for x in self.views]
+        d["views"] = [v.to_dict() for v in self.views]
         return d
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneResult":
-        v = dict(d)
+        v = _known(cls, d)
         v["objects"] = tuple(ObjectResult.from_dict(o) for o in d["objects"])
-        v["diagnostics"] = tuple(dict(x) for x in d.get("diagnostics", ()))
-        v["timings"] = dict(d.get("timings", {}))
-        v["views"] = tuple(dict(x) for x in d.get("views", ()))
+        v["diagnostics"] = tuple(dict(x) for x in d["diagnostics"])
+        v["timings"] = dict(d["timings"])
+        v["views"] = tuple(CameraView.from_dict(x) for x in d["views"])
         return cls(**v)
 
     def to_json(self) -> str:
@@ -172,3 +219,103 @@ def view_suffix(k: int) -> str:
     """File-name suffix of camera ``k``'s outputs: cam_0 writes ``rgb.png``, camera k ``rgb_cam_<k>.png``
     (the export reader's image key, mixcount.export.reader.DatasetImage.key, reads it the same way)."""
     return "" if k == 0 else f"_cam_{k}"
+
+
+# ------------------------------------------------------------------------------ canonical renders
+
+
+def canonical_views(extra_views: int, azimuth_deg: float) -> tuple[tuple[str, float], ...]:
+    """(view name, camera azimuth in degrees) of each canonical render: ``canonical`` at the configured
+    azimuth, then ``view_<k>`` spread evenly around the object."""
+    return ((CANONICAL, float(azimuth_deg)),) + tuple(
+        (f"view_{k}", float(azimuth_deg) + 360.0 * k / (extra_views + 1)) for k in range(1, extra_views + 1))
+
+
+@dataclass(frozen=True)
+class CanonicalRequest:
+    """One ``canonical`` request: render the model at ``model_path`` into ``out_dir`` as ``<stem>.png``
+    (+ ``<stem>_<view>.png`` for extra views), each with a ``_mask.png``. Settings are ``[render]``'s."""
+
+    OP: ClassVar[str] = "canonical"
+
+    model_path: str
+    out_dir: str
+    stem: str
+    threads: int  # Cycles threads (0 = Blender's automatic choice)
+    resolution: int
+    samples: int
+    denoise: bool
+    elevation_deg: float
+    azimuth_deg: float
+    extra_views: int
+    margin: float
+    world_strength: float
+    sun_strength: float
+
+    def views(self) -> tuple[tuple[str, float], ...]:
+        return canonical_views(self.extra_views, self.azimuth_deg)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalRequest":
+        return cls(**_known(cls, d))
+
+
+@dataclass(frozen=True)
+class CanonicalView:
+    """One written canonical render: RGB on white at ``path``, its coverage mask at ``mask_path``."""
+
+    view: str
+    path: str
+    mask_path: str
+    coverage: float  # share of pixels the object covers (alpha > 127)
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class CanonicalResult:
+    views: tuple[CanonicalView, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"views": [asdict(v) for v in self.views]}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalResult":
+        v = _known(cls, d)
+        return cls(views=tuple(CanonicalView(**_known(CanonicalView, x)) for x in v["views"]))
+
+
+# ------------------------------------------------------------------------------ mesh-cache warm-up
+
+
+@dataclass(frozen=True)
+class MeshCacheRequest:
+    """One ``cache_meshes`` request: make each converted asset's .blend mesh cache in ``mode`` now."""
+
+    OP: ClassVar[str] = "cache_meshes"
+
+    assets: tuple[str, ...]  # converted asset files (.usdc)
+    mode: str  # compose.mesh_cache, one of MESH_CACHE_MODES ("off": nothing to do)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"assets": list(self.assets), "mode": self.mode}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "MeshCacheRequest":
+        v = _known(cls, d)
+        return cls(assets=tuple(str(a) for a in v["assets"]), mode=str(v["mode"]))
+
+
+@dataclass(frozen=True)
+class MeshCacheResult:
+    assets: dict[str, str]  # asset file name -> "hit" | "written" | why not
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"assets": dict(self.assets)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "MeshCacheResult":
+        return cls(assets=dict(_known(cls, d)["assets"]))

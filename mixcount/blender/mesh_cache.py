@@ -19,10 +19,10 @@ interrupted runs leave either the whole file or none. A file that cannot be read
 from __future__ import annotations
 
 import hashlib
-import os
 from pathlib import Path
 from typing import Any, Optional
 
+from mixcount.atomic import atomic_path
 from mixcount.blender.contract import MESH_CACHE_MODES
 
 CACHE_VERSION = 1  # bump when what the worker builds from an asset changes (join, normals fix, ...)
@@ -79,17 +79,12 @@ def store(mesh: Any, path: Path, mode: str) -> Optional[str]:
 
     if mode not in MESH_CACHE_MODES or mode == "off":
         raise ValueError(f"mesh cache mode must be zstd or raw, got {mode!r}")
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.blend")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        bpy.data.libraries.write(str(tmp), {mesh}, fake_user=True, compress=(mode == "zstd"),
-                                 path_remap="ABSOLUTE")
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            bpy.data.libraries.write(str(tmp), {mesh}, fake_user=True, compress=(mode == "zstd"),
+                                     path_remap="ABSOLUTE")
     except Exception as exc:  # noqa: BLE001 - the cache is an optimisation; the scene must not fail on it
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
         return f"{type(exc).__name__}: {exc}"
     asset = path.parent.parent / path.stem.rsplit("-", 1)[0]  # the suffix does not matter to files_of
     for old in files_of(asset):  # the same asset converted or placed differently before

@@ -92,24 +92,19 @@ REST_ROLLING = 0.05  # fraction of bodies still allowed to move then: balls roll
 REST_ROLLING_MIN = 2  # ... and at least this many (they are mostly dropped as outside the frame)
 
 
-def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
-             gravity: float, rest_speed: float, speeds: dict[str, float] | None = None,
-             stats: dict[str, Any] | None = None,
-             waited_for: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-             releases: Optional[dict[str, int]] = None) -> dict[str, np.ndarray]:
-    """Run the simulation for at most ``frames`` frames; returns the settled 4x4 world matrix per active body.
+@dataclass(frozen=True)
+class Settled:
+    """What one simulation gave: the settled pose of every active body and how the run went."""
 
-    Every :data:`REST_WINDOW` frames the active bodies' mean speeds over the window are measured; with
-    ``rest_speed`` > 0 the run stops once all bodies but :data:`REST_ROLLING` of them, at least 2 (objects rolling
-    away over the floor, which Bullet's damping stops only slowly) have been slower than it (m/s) for
-    :data:`REST_WINDOWS` windows in a row: a settled pile costs no further frames. Only bodies that can
-    still be kept are waited for: by default those whose centre is above the floor's top (z = 0);
-    ``waited_for`` (active bodies' centres (N, 3) -> bool mask) replaces that rule, e.g. to add "origin
-    in the camera frame" (the scene job's). ``releases`` (active body name -> frame > 1) holds bodies
-    out until their frame (:func:`_hold_until_release`, spawn waves); ``frames`` then counts from the
-    last release, and the run does not stop before every held body has been let go and has slowed
-    below ``rest_speed`` once (or stopped being waited for). ``speeds`` (when given)
-    receives each body's speed over the last window, ``stats`` the frames actually simulated."""
+    matrices: dict[str, np.ndarray]  # active body name -> settled 4x4 world matrix
+    speeds: dict[str, float]  # active body name -> its mean speed (m/s) over the last rest window
+    frames_run: int  # frames actually simulated (fewer than asked when the pile came to rest)
+    waited_for: int  # bodies the last rest check waited for
+    last_release: int  # the latest release frame (1 without spawn waves)
+
+
+def _setup_world(scene: Any, *, frames: int, substeps: int, iterations: int, gravity: float) -> None:
+    """A rigid-body world over frames 1 .. ``frames`` + 1 with the stage's substeps, iterations, gravity."""
     import bpy
 
     if scene.rigidbody_world is None:
@@ -120,15 +115,58 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         world.collection = bpy.data.collections.new("RigidBodyWorld")
     world.substeps_per_frame = max(1, int(substeps))
     world.solver_iterations = max(1, int(iterations))
-    held = {name: int(f) for name, f in (releases or {}).items() if int(f) > 1}
-    last_release = max(held.values(), default=1)
-    frames = int(frames) + last_release - 1
     world.point_cache.frame_start = 1
     world.point_cache.frame_end = frames + 1
     scene.gravity = (0.0, 0.0, -abs(float(gravity)))
     scene.use_gravity = True
     scene.frame_start = 1
     scene.frame_end = frames + 1
+
+
+def _freeze(scene: Any, bodies: list[Body], held_objs: list[Any]) -> dict[str, np.ndarray]:
+    """The active bodies' evaluated poses, then the simulation dropped (one operator, not one per body)
+    and those poses kept as plain transforms; the bodies keep inert rigid-body settings, which nothing
+    reads without a world."""
+    import bpy
+    import mathutils
+
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
+               for b in bodies if b.kind == "active"}
+    with bpy.context.temp_override(scene=scene):
+        bpy.ops.rigidbody.world_remove()
+    for obj in held_objs:  # the parking animation would put them back at frame 1
+        obj.animation_data_clear()
+    scene.frame_set(1)
+    for body in bodies:
+        if body.obj.name in settled:
+            body.obj.matrix_world = mathutils.Matrix(settled[body.obj.name].tolist())
+    return settled
+
+
+def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
+             gravity: float, rest_speed: float,
+             waited_for: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+             releases: Optional[dict[str, int]] = None) -> Settled:
+    """Run the simulation for at most ``frames`` frames; returns the settled 4x4 world matrix per active
+    body and how the run went (:class:`Settled`).
+
+    Every :data:`REST_WINDOW` frames the active bodies' mean speeds over the window are measured; with
+    ``rest_speed`` > 0 the run stops once all bodies but :data:`REST_ROLLING` of them, at least 2 (objects rolling
+    away over the floor, which Bullet's damping stops only slowly) have been slower than it (m/s) for
+    :data:`REST_WINDOWS` windows in a row: a settled pile costs no further frames. Only bodies that can
+    still be kept are waited for: by default those whose centre is above the floor's top (z = 0);
+    ``waited_for`` (active bodies' centres (N, 3) -> bool mask) replaces that rule, e.g. to add "origin
+    in the camera frame" (the scene job's). ``releases`` (active body name -> frame > 1) holds bodies
+    out until their frame (:func:`_hold_until_release`, spawn waves); ``frames`` then counts from the
+    last release, and the run does not stop before every held body has been let go and has slowed
+    below ``rest_speed`` once (or stopped being waited for)."""
+    import bpy
+
+    held = {name: int(f) for name, f in (releases or {}).items() if int(f) > 1}
+    last_release = max(held.values(), default=1)
+    frames = int(frames) + last_release - 1
+    _setup_world(scene, frames=frames, substeps=substeps, iterations=iterations, gravity=gravity)
     _add_bodies(scene, bodies)
     held_objs = [b.obj for b in bodies if b.kind == "active" and b.obj.name in held]
     for slot, obj in enumerate(held_objs):
@@ -168,25 +206,6 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
         if calm >= REST_WINDOWS:
             ran = f - 1
             break
-    if speeds is not None:
-        speeds.update({o.name: float(v) for o, v in zip(active, window_speed)})
-    if stats is not None:
-        stats["frames_run"] = ran
-        stats["waited_for"] = len(waited)
-        stats["last_release"] = last_release
-    depsgraph = bpy.context.evaluated_depsgraph_get()
-    settled = {b.obj.name: np.array(b.obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
-               for b in bodies if b.kind == "active"}
-    # freeze: drop the simulation (one operator, not one per body) and keep the settled poses as plain
-    # transforms; the bodies keep inert rigid-body settings, which nothing reads without a world
-    with bpy.context.temp_override(scene=scene):
-        bpy.ops.rigidbody.world_remove()
-    for obj in held_objs:  # the parking animation would put them back at frame 1
-        obj.animation_data_clear()
-    scene.frame_set(1)
-    import mathutils
-
-    for body in bodies:
-        if body.obj.name in settled:
-            body.obj.matrix_world = mathutils.Matrix(settled[body.obj.name].tolist())
-    return settled
+    speeds = {o.name: float(v) for o, v in zip(active, window_speed)}
+    return Settled(matrices=_freeze(scene, bodies, held_objs), speeds=speeds, frames_run=ran,
+                   waited_for=len(waited), last_release=last_release)

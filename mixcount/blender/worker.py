@@ -20,7 +20,14 @@ import threading
 from pathlib import Path
 from typing import Any, Optional
 
-from mixcount.blender.contract import SceneRequest, SceneResult
+from mixcount.blender.contract import (
+    CanonicalRequest,
+    CanonicalResult,
+    MeshCacheRequest,
+    MeshCacheResult,
+    SceneRequest,
+    SceneResult,
+)
 from mixcount.errors import RenderError
 
 STARTUP_TIMEOUT_S = 180.0
@@ -161,19 +168,23 @@ class BlenderWorker:
         self._send(payload)
         return self._read(timeout, f"handling {payload.get('op')!r}")
 
-    def _answer(self, payload: dict[str, Any], timeout: float, what: str) -> dict[str, Any]:
-        answer = self.request(payload, timeout=timeout)
+    def _call(self, op: str, request: dict[str, Any], timeout: float, what: str) -> dict[str, Any]:
+        """One typed operation: ``{"op", "request"}`` out, the answer's ``result`` back (RenderError on
+        failure, crash or timeout)."""
+        answer = self.request({"op": op, "request": request}, timeout=timeout)
         if not answer.get("ok"):
             raise RenderError(f"{self.name}: {what} failed: {answer.get('error')}\n{answer.get('traceback', '')}")
-        return answer
+        result: dict[str, Any] = answer["result"]
+        return result
 
     def render_scene(self, req: SceneRequest, *, timeout: float) -> SceneResult:
         """Run one scene; returns its SceneResult. Raises RenderError on failure, crash or timeout."""
-        answer = self._answer({"op": "scene", "request": req.to_dict()}, timeout, "scene")
-        return SceneResult.from_json(Path(answer["result"]).read_text())
+        return SceneResult.from_dict(self._call(req.OP, req.to_dict(), timeout, "scene"))
 
-    def render_canonical(self, job: dict[str, Any], *, timeout: float) -> dict[str, Any]:
-        """Canonical renders of one object (``job``: see mixcount.blender.canonical.render_object);
-        returns ``{"views": [...]}``. Raises RenderError on failure, crash or timeout."""
-        answer = self._answer({"op": "canonical", "job": job}, timeout, "render")
-        return {"views": answer["views"]}
+    def render_canonical(self, req: CanonicalRequest, *, timeout: float) -> CanonicalResult:
+        """Canonical renders of one object. Raises RenderError on failure, crash or timeout."""
+        return CanonicalResult.from_dict(self._call(req.OP, req.to_dict(), timeout, "render"))
+
+    def cache_meshes(self, req: MeshCacheRequest, *, timeout: float) -> MeshCacheResult:
+        """Each asset's .blend mesh cache made now (a warm-up before timed scenes)."""
+        return MeshCacheResult.from_dict(self._call(req.OP, req.to_dict(), timeout, "mesh cache"))

@@ -2,18 +2,17 @@
 
 Protocol: one JSON object per line. The parent writes requests to the worker's stdin; the worker answers
 each with one JSON line on its ORIGINAL stdout. Everything bpy / Cycles print (C-level stdout) is
-redirected to stderr at start-up, so the protocol channel carries nothing else. Requests:
+redirected to stderr at start-up, so the protocol channel carries nothing else. The typed operations
+(:mod:`mixcount.blender.contract`) travel as ``{"op": OP, "request": <request>.to_dict()}`` and are
+answered ``{"ok": true, "result": <result>.to_dict(), "seconds": ...}``:
 
-* ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``
-* ``{"op": "scene", "request": SceneRequest}`` -> ``{"ok": true, "status": ..., "result": path of
-  worker.json}`` (the :class:`~mixcount.blender.contract.SceneResult`, see
-  :func:`mixcount.blender.scene_job.run_scene`)
-* ``{"op": "canonical", "job": {...}}`` -> ``{"ok": true, "views": [...]}`` (one catalog object's
-  canonical renders, see :func:`mixcount.blender.canonical.render_object`)
-* ``{"op": "cache_meshes", "assets": [paths], "mode": "zstd"}`` -> ``{"ok": true, "assets": {name:
-  "hit" | "written" | why not}}`` (each converted asset's .blend mesh cache made ahead of the scenes, see
-  :func:`mixcount.blender.scene_job.cache_asset_meshes`)
-* ``{"op": "exit"}`` -> ``{"ok": true}`` and the process ends.
+* ``scene``: SceneRequest -> SceneResult (:func:`mixcount.blender.scene_job.run_scene`)
+* ``canonical``: CanonicalRequest -> CanonicalResult (:func:`mixcount.blender.canonical.render_object`)
+* ``cache_meshes``: MeshCacheRequest -> MeshCacheResult
+  (:func:`mixcount.blender.scene_build.cache_asset_meshes`)
+
+and two plain ones: ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``; ``{"op": "exit"}`` ->
+``{"ok": true}`` and the process ends.
 
 A Python error in a handler answers ``{"ok": false, "error", "traceback"}`` and the worker stays up for
 the next request. The first line the worker writes is ``{"ready": true, "pid": ...}`` once bpy is imported.
@@ -32,31 +31,41 @@ from typing import Any, Callable, Mapping, Optional
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
 
 
-def handle_scene(req: dict[str, Any]) -> dict[str, Any]:
-    from mixcount.blender.contract import SceneRequest
+def _typed(request_type: Any, run: Callable[[Any], Any]) -> Handler:
+    """A handler that decodes ``req["request"]`` as ``request_type``, runs it and answers its result."""
+    def handle(req: dict[str, Any]) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        result = run(request_type.from_dict(req["request"]))
+        return {"ok": True, "result": result.to_dict(), "seconds": round(time.perf_counter() - t0, 3)}
+    return handle
+
+
+def _scene(req: Any) -> Any:
     from mixcount.blender.scene_job import run_scene
 
-    scene_req = SceneRequest.from_dict(req["request"])
-    t0 = time.perf_counter()
-    result = run_scene(scene_req)
-    return {"ok": True, "status": result.status, "result": os.path.join(scene_req.out_dir, "worker.json"),
-            "seconds": round(time.perf_counter() - t0, 3)}
+    return run_scene(req)
 
 
-def handle_canonical(req: dict[str, Any]) -> dict[str, Any]:
+def _canonical(req: Any) -> Any:
     from mixcount.blender.canonical import render_object
 
-    return {"ok": True, **render_object(req["job"])}
+    return render_object(req)
 
 
-def handle_cache_meshes(req: dict[str, Any]) -> dict[str, Any]:
-    from mixcount.blender.scene_job import cache_asset_meshes
+def _cache_meshes(req: Any) -> Any:
+    from mixcount.blender.scene_build import cache_asset_meshes
 
-    return {"ok": True, "assets": cache_asset_meshes(req["assets"], str(req["mode"]))}
+    return cache_asset_meshes(req)
 
 
-HANDLERS: dict[str, Handler] = {"scene": handle_scene, "canonical": handle_canonical,
-                                "cache_meshes": handle_cache_meshes}
+def _handlers() -> dict[str, Handler]:
+    from mixcount.blender.contract import CanonicalRequest, MeshCacheRequest, SceneRequest
+
+    return {SceneRequest.OP: _typed(SceneRequest, _scene), CanonicalRequest.OP: _typed(CanonicalRequest, _canonical),
+            MeshCacheRequest.OP: _typed(MeshCacheRequest, _cache_meshes)}
+
+
+HANDLERS: dict[str, Handler] = _handlers()
 
 
 def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import re
 import struct
 from dataclasses import asdict, dataclass
@@ -30,6 +29,7 @@ from urllib.parse import unquote
 
 import numpy as np
 
+from mixcount.atomic import atomic_path
 from mixcount.errors import IngestError
 from mixcount.frame import UNIT_SCALE, to_metres_z_up, walk_geometry
 
@@ -386,9 +386,8 @@ def build_collision_mesh(mesh: Any, out_path: Path, face_budget: int) -> int:
         ms.meshing_decimation_quadric_edge_collapse(
             targetfacenum=int(face_budget), preservenormal=True, planarquadric=True, autoclean=True
         )
-    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp.ply")
-    ms.save_current_mesh(str(tmp), binary=True, save_vertex_color=False, save_vertex_normal=False)
-    os.replace(tmp, out_path)
+    with atomic_path(out_path) as tmp:
+        ms.save_current_mesh(str(tmp), binary=True, save_vertex_color=False, save_vertex_normal=False)
     return int(ms.current_mesh().face_number())
 
 

@@ -19,13 +19,13 @@ reuses it. Pure numpy + scipy (qhull) + trimesh for the file; no bpy.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mixcount.atomic import atomic_path
 from mixcount.errors import IngestError
 
 # extreme points along the 3 axes, 6 face diagonals' halves and 4 body diagonals seed the selection
@@ -129,9 +129,8 @@ def write_proxy(proxy: Proxy, out_path: Path) -> None:
     import trimesh
 
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp.ply")
-    trimesh.Trimesh(vertices=proxy.vertices, faces=proxy.faces, process=False).export(str(tmp), file_type="ply")
-    os.replace(tmp, out_path)
+    with atomic_path(out_path) as tmp:
+        trimesh.Trimesh(vertices=proxy.vertices, faces=proxy.faces, process=False).export(str(tmp), file_type="ply")
 
 
 def read_proxy(path: Path) -> tuple[np.ndarray, np.ndarray]:

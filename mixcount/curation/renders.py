@@ -19,6 +19,7 @@ from typing import Any, Iterable
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from mixcount.blender.contract import CANONICAL, CanonicalRequest, canonical_views
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.hashing import json_hash
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
@@ -26,7 +27,6 @@ from mixcount.config import RenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
 
 RENDER_VERSION = "canonical-v1"  # bump when the renderer changes what a render looks like
-CANONICAL = "canonical"
 SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
                 "world_strength", "sun_strength")
 
@@ -56,7 +56,18 @@ def settings_hash(settings: dict[str, Any]) -> str:
 
 
 def view_names(extra_views: int) -> list[str]:
-    return [CANONICAL] + [f"view_{k}" for k in range(1, int(extra_views) + 1)]
+    """The views each object gets, named as the worker names them (one list: contract.canonical_views)."""
+    return [name for name, _ in canonical_views(int(extra_views), 0.0)]
+
+
+def canonical_request(config: RenderConfig, obj: CatalogObject, out_dir: Path) -> CanonicalRequest:
+    """The worker request for one object's renders, every setting from ``[render]`` (threads are the
+    runner's: it shares the cores among its workers)."""
+    return CanonicalRequest(
+        model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}", threads=config.threads,
+        resolution=config.resolution, samples=config.samples, denoise=config.denoise,
+        elevation_deg=config.elevation_deg, azimuth_deg=config.azimuth_deg, extra_views=config.extra_views,
+        margin=config.margin, world_strength=config.world_strength, sun_strength=config.sun_strength)
 
 
 def mask_path_for(render_path: Path | str) -> Path:
@@ -103,7 +114,7 @@ def render_catalog(
     progress: ProgressReporter | bool | None = None,
 ) -> RenderSummary:
     """Render every active (and optionally excluded) object whose render is missing or stale."""
-    from mixcount.blender.canonical_runner import run_jobs
+    from mixcount.blender.canonical_runner import RenderOutcome, run_jobs
 
     settings = render_settings(config)
     shash = settings_hash(settings)
@@ -111,8 +122,9 @@ def render_catalog(
     summary = RenderSummary(settings_hash=shash)
     out_dir = catalog.renders_dir
     statuses = [STATUS_ACTIVE, STATUS_EXCLUDED] if include_excluded else [STATUS_ACTIVE]
-    jobs: list[dict[str, Any]] = []
+    jobs: list[tuple[str, CanonicalRequest]] = []
     names: dict[str, str] = {}
+    hashes: dict[str, str] = {}
     with catalog.session() as session:
         query = select(CatalogObject).where(CatalogObject.status.in_(statuses)).order_by(CatalogObject.id)
         if object_ids is not None:
@@ -124,24 +136,23 @@ def render_catalog(
                 summary.skipped += 1
                 continue
             key = str(obj.id)
-            names[key] = obj.name
-            jobs.append({"key": key, "model_path": obj.model_path, "out_dir": str(out_dir),
-                         "stem": f"obj_{obj.id:06d}", "model_hash": obj.content_hash, **settings})
+            names[key], hashes[key] = obj.name, str(obj.content_hash)
+            jobs.append((key, canonical_request(config, obj, out_dir)))
     if not jobs:
         return summary
 
     bar = as_reporter(progress)
     bar.start("render", len(jobs))
-    hashes = {j["key"]: j["model_hash"] for j in jobs}
 
-    def on_result(key: str, rec: dict[str, Any]) -> None:
+    def on_result(outcome: RenderOutcome) -> None:
+        key = outcome.key
         oid = int(key)
         with catalog.session() as session:
-            if rec["event"] == "done":
-                for v in rec["views"]:
-                    row = _upsert(session, oid, v["view"])
-                    row.path = str(Path(v["path"]).resolve())
-                    row.width, row.height = int(v["width"]), int(v["height"])
+            if outcome.result is not None:
+                for v in outcome.result.views:
+                    row = _upsert(session, oid, v.view)
+                    row.path = str(Path(v.path).resolve())
+                    row.width, row.height = v.width, v.height
                     row.model_hash, row.settings_hash, row.error = hashes[key], shash, None
                     row.created_at = utcnow()
                 summary.rendered += 1
@@ -149,7 +160,7 @@ def render_catalog(
                 row = _upsert(session, oid, CANONICAL)
                 row.path, row.width, row.height = None, None, None
                 row.model_hash, row.settings_hash = hashes[key], shash
-                row.error = str(rec.get("error") or "unknown render failure")
+                row.error = str(outcome.error or "unknown render failure")
                 row.created_at = utcnow()
                 summary.failed += 1
                 summary.failures.append({"id": oid, "name": names[key], "error": row.error})

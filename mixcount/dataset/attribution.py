@@ -210,15 +210,13 @@ def attribution_markdown(doc: Mapping[str, Any]) -> str:
 
 def write_attribution_document(doc: Mapping[str, Any], out_dir: Path | str) -> None:
     """Write ``doc`` as ATTRIBUTION.json and ATTRIBUTION.md into ``out_dir`` (atomic renames)."""
-    import os
+    from mixcount.atomic import write_text_atomic
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for name, text in ((JSON_NAME, json.dumps(doc, indent=1, ensure_ascii=False) + "\n"),
                        (MD_NAME, attribution_markdown(doc))):
-        tmp = out / f".{name}.{os.getpid()}.tmp"
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, out / name)
+        write_text_atomic(out / name, text)
 
 
 def write_attribution(dataset_root: Path | str, out_dir: Path | str,

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Optional
 
+from mixcount.atomic import write_text_atomic
+
 MANIFEST_NAME = "manifest.json"
 DAMAGED_DIR = ".damaged"
 DAMAGE_REPORT = "DAMAGE.json"
@@ -73,9 +75,7 @@ def record_scene_files(scene_dir: Path) -> dict[str, Any]:
         st = path.stat()
         files[rel] = {"size": st.st_size, "sha256": file_sha256(path), "mtime_ns": st.st_mtime_ns}
     record = {"version": MANIFEST_VERSION, "algorithm": "sha256", "files": files, "digest": _files_digest(files)}
-    tmp = scene_dir / f".{MANIFEST_NAME}.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(record, indent=1))
-    os.replace(tmp, scene_dir / MANIFEST_NAME)
+    write_text_atomic(scene_dir / MANIFEST_NAME, json.dumps(record, indent=1))
     return record
 
 

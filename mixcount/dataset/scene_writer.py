@@ -16,7 +16,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 
 from mixcount.annotate.coco import build_scene_coco, category_id, class_map, ground_truth_pairs
-from mixcount.blender.contract import KEPT, ObjectResult, SceneResult
+from mixcount.blender.contract import KEPT, CameraView, ObjectResult, SceneResult
 from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spec import SceneSpec
 
@@ -111,22 +111,22 @@ def decompose(matrix: Any) -> dict[str, list[float]]:
     return {"translate": m[:3, 3].tolist(), "orient": list(quat_from_matrix(rot)), "scale": scale.tolist()}
 
 
-def _set_camera_pose(stage: Any, view: Mapping[str, Any]) -> None:
+def _set_camera_pose(stage: Any, view: CameraView) -> None:
     """A camera prim moved to the pose the worker framed (``view``: one of SceneResult.views), with the
     framing's derivation in its customData (``mixcount:framing``, JSON)."""
     from pxr import Gf, UsdGeom
 
-    prim = stage.GetPrimAtPath(f"/World/Cameras/{view['name']}")
-    if not prim or not prim.IsValid() or "cam_to_world" not in view["camera"]:
+    prim = stage.GetPrimAtPath(f"/World/Cameras/{view.name}")
+    if not prim or not prim.IsValid() or "cam_to_world" not in view.camera:
         return
-    pose = decompose(view["camera"]["cam_to_world"])
+    pose = decompose(view.camera["cam_to_world"])
     for op in UsdGeom.Xformable(prim).GetOrderedXformOps():
         if op.GetOpType() == UsdGeom.XformOp.TypeTranslate:
             op.Set(Gf.Vec3d(*pose["translate"]))
         elif op.GetOpType() == UsdGeom.XformOp.TypeOrient:
             w, x, y, z = pose["orient"]
             op.Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)))
-    framing = dict(view.get("framing") or {})
+    framing = dict(view.framing)
     cam = framing.pop("camera", None)
     if cam is not None:
         prim.SetCustomDataByKey("mixcount:look_at", Gf.Vec3d(*cam["look_at"]))
@@ -135,7 +135,7 @@ def _set_camera_pose(stage: Any, view: Mapping[str, Any]) -> None:
 
 
 def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectResult],
-                        views: Sequence[Mapping[str, Any]] = ()) -> None:
+                        views: Sequence[CameraView]) -> None:
     """scene.usda -> settled.usda: dropped prims removed, kept ones at their settled pose (same names and
     customData, plus mixcount:visibility and mixcount:status on each kept instance), every camera at the
     pose it was rendered from (``views``: SceneResult.views)."""
@@ -218,15 +218,6 @@ def read_amodal_masks(path: Path) -> Optional[dict[int, np.ndarray]]:
 ANNOTATION_ID_STRIDE = 100_000  # camera k's annotation ids in a scene's coco.json: k * stride + instance id
 
 
-def _views(worker: SceneResult) -> list[dict[str, Any]]:
-    """The worker's per-camera records; a result without them (one camera) as one view."""
-    if worker.views:
-        return [dict(v) for v in worker.views]
-    pass_files = next((dict(d["passes"]) for d in worker.diagnostics if d.get("kind") == "passes"), {})
-    return [{"name": worker.camera.get("name", "cam_0"), "suffix": "", "camera": worker.camera,
-             "framing": {"framing": "fixed"}, "passes": pass_files}]
-
-
 def _offset_annotation_ids(coco: dict[str, Any], offset: int) -> dict[str, Any]:
     if offset:
         for a in coco["annotations"]:
@@ -266,7 +257,7 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
 
     One COCO image per camera: cam_0's is ``rgb.png`` (image id 1, annotation ids = instance ids), camera
     k's ``rgb_cam_<k>.png`` (image id k + 1, annotation ids k * ANNOTATION_ID_STRIDE + instance id)."""
-    views = _views(worker)
+    views = worker.views
     cats, class_cat = scene_categories(spec, captions, external_exemplars)
     objects = []
     for rec in worker.objects:
@@ -277,7 +268,7 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
     coco: dict[str, Any] = {"images": [], "annotations": [], "categories": []}
     images, files, exemplars = [], {}, []
     for k, view in enumerate(views):
-        suffix = str(view["suffix"])
+        suffix = view.suffix
         ids = np.load(tmp / f"ids{suffix}.npy")
         amodal = read_amodal_masks(tmp / f"amodal{suffix}.npz")
         if "instance" in passes:
@@ -287,7 +278,7 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         file_name = f"scenes/{spec.scene_id}/rgb{suffix}.png"
         one = _offset_annotation_ids(build_scene_coco(ids, kept, cats, image_id=k + 1, file_name=file_name,
                                                       scene_id=spec.scene_id, amodal=amodal), k * ANNOTATION_ID_STRIDE)
-        one["images"][0]["camera"] = view["name"]
+        one["images"][0]["camera"] = view.name
         coco["images"] += one["images"]
         coco["annotations"] += one["annotations"]
         coco["categories"] = one["categories"]
@@ -307,10 +298,10 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         exemplars += write_exemplar_crops(tmp / f"rgb{suffix}.png", coco, tmp / "exemplars", image_index=k,
                                           suffix=suffix)
         images.append({"file_name": file_name, "width": int(ids.shape[1]), "height": int(ids.shape[0]),
-                       "camera": view["name"], "image_id": k + 1})
-        files[view["name"]] = {"rgb": f"rgb{suffix}.png",
-                               **{p: f"{p}{suffix}.png" for p in ("instance", "class") if p in passes},
-                               **{name: rec["file"] for name, rec in dict(view.get("passes") or {}).items()}}
+                       "camera": view.name, "image_id": k + 1})
+        files[view.name] = {"rgb": f"rgb{suffix}.png",
+                            **{p: f"{p}{suffix}.png" for p in ("instance", "class") if p in passes},
+                            **{name: rec["file"] for name, rec in view.passes.items()}}
         os.remove(tmp / f"ids{suffix}.npy")
         if amodal is not None:
             os.remove(tmp / f"amodal{suffix}.npz")  # the masks are in coco.json as segmentation_amodal
@@ -333,7 +324,7 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         "image": {k: v for k, v in images[0].items() if k in ("file_name", "width", "height")},
         "images": images,
         "camera": worker.camera, "lights": worker.lights, "physics": worker.physics,
-        "cameras": [{"name": v["name"], "record": v["camera"], "framing": v.get("framing")} for v in views],
+        "cameras": [{"name": v.name, "record": v.camera, "framing": v.framing} for v in views],
         "visibility_threshold": worker.visibility_threshold,
         "counts": counts, "n_counted": sum(counts.values()),
         "n_distractors": sum(1 for a in first if a["is_distractor"]),
@@ -347,9 +338,9 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         "diagnostics": list(worker.diagnostics),
         "timings": {**timings, **{f"worker.{k}": v for k, v in worker.timings.items()}},
         "spec": spec.to_dict(),
-        "files": {**files[views[0]["name"]], "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json",
+        "files": {**files[views[0].name], "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json",
                   **({"cameras": files} if len(views) > 1 else {})},
-        "passes": dict(views[0].get("passes") or {}),
+        "passes": {name: dict(rec) for name, rec in views[0].passes.items()},
         "conventions": {
             "instance.png": "uint16 instance id of counted objects and distractors; 0 = floor, container, background",
             "class.png": "uint16 COCO category id (4 * object_id + q; q 0 none, 1 larger, 2 smaller); 0 = none",

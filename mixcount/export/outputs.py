@@ -19,6 +19,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Optional, Sequence
 
+from mixcount.atomic import atomic_path, write_bytes_atomic
 from mixcount.export.errors import ExportError
 
 MANIFEST = "mixcount_export.json"
@@ -98,15 +99,8 @@ class ExportFolder:
         p.parent.mkdir(parents=True, exist_ok=True)
         return p
 
-    def _tmp(self, target: Path) -> Path:
-        return target.with_name(f".{target.name}.{os.getpid()}.tmp")
-
     def write_bytes(self, rel: str | Path, data: bytes) -> Path:
-        target = self.path(rel)
-        tmp = self._tmp(target)
-        tmp.write_bytes(data)
-        os.replace(tmp, target)
-        return target
+        return write_bytes_atomic(self.path(rel), data)
 
     def write_text(self, rel: str | Path, text: str) -> Path:
         return self.write_bytes(rel, text.encode("utf-8"))
@@ -143,13 +137,8 @@ class ExportFolder:
     def write_with(self, rel: str | Path, writer: Any) -> Path:
         """Call ``writer(tmp_path)`` and rename the result into place (for PIL, numpy, parquet writers)."""
         target = self.path(rel)
-        tmp = self._tmp(target)
-        try:
+        with atomic_path(target) as tmp:
             writer(tmp)
-            os.replace(tmp, target)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
         return target
 
     def copy_file(self, src: Path, rel: str | Path) -> Path:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from mixcount.blender.contract import STATUS_EMPTY, STATUS_OK, SceneRequest
+from mixcount.config import ComposeConfig
 from mixcount.scene.spec import SceneSpec
 
 WRITTEN = "written"
@@ -32,14 +33,20 @@ class SceneTask:
     assets_dir: str
     timeout_s: float
     threads: int  # Cycles threads in the worker (run-time only; the scene's settings travel in the stage)
+    passes: tuple[str, ...]  # besides rgb (compose.passes / --passes)
+    depth_format: str  # compose.depth_format / normal_format (mixcount.annotate.passes formats)
+    normal_format: str
+    mesh_cache: str  # the worker's .blend cache of imported asset meshes (compose.mesh_cache)
     oracle: bool = False  # also run the one-render-per-object reference (tests, benchmarks)
     captions: dict[int, dict[str, str]] = field(default_factory=dict)  # distractor captions by object id
     external_exemplars: dict[int, str] = field(default_factory=dict)  # object id -> render copy, relative to OUT
     keep_failed: bool = False
-    passes: tuple[str, ...] = ("instance", "class", "depth", "normal")  # besides rgb (compose --passes)
-    depth_format: str = "png16"  # mixcount.annotate.passes formats
-    normal_format: str = "png8"
-    mesh_cache: str = "zstd"  # the worker's .blend cache of imported asset meshes (compose.mesh_cache)
+
+
+def compose_outputs(compose: ComposeConfig) -> dict[str, Any]:
+    """A SceneTask's output fields as ``[compose]`` sets them (passes, their formats, the mesh cache)."""
+    return {"passes": tuple(compose.passes), "depth_format": compose.depth_format,
+            "normal_format": compose.normal_format, "mesh_cache": compose.mesh_cache}
 
 
 @dataclass

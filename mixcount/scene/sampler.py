@@ -584,8 +584,9 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         config_hash=cfg.hash, classes=tuple(classes), objects=tuple(objects),
         distractors=tuple(distractors), container=container, floor=floor, environment=environment,
         cameras=tuple(cameras), physics=_physics_spec(config),
-        render=RenderSpec(compose.resolution, compose.samples, compose.denoise, compose.visibility_threshold,
-                          compose.denoise_prefilter),
+        render=RenderSpec(resolution=compose.resolution, samples=compose.samples, denoise=compose.denoise,
+                          visibility_threshold=compose.visibility_threshold,
+                          denoise_prefilter=compose.denoise_prefilter),
         assets=_asset_refs([d.obj for d in drafts] + picks + ([container_obj] if container_obj else [])),
         placement=PlacementSpec(
             frame_margin=config.camera_frame_margin, distractor_margin=round(config.distractor_margin * s, _R),

@@ -307,19 +307,22 @@ class PhysicsSpec:
     gravity: float
     settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.blender.decisions)
     settle_penetration_fraction: float
-    collision_proxies: bool = True  # counted objects / distractors collide through their convex proxy
-    rest_speed: float = 0.0  # m/s: stop the simulation once every body is slower (0 = all frames)
-    floor_collider_depth: float = 0.0  # m below the floor's top that the floor collides (0 = its thickness)
+    collision_proxies: bool  # counted objects / distractors collide through their convex proxy
+    rest_speed: float  # m/s: stop the simulation once every body is slower (0 = all frames)
+    floor_collider_depth: float  # m below the floor's top that the floor collides (0 = its thickness)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "PhysicsSpec":
-        return cls(int(d["frames"]), int(d["substeps"]), int(d["solver_iterations"]),
-                   str(d["collision_shape"]), float(d["gravity"]), float(d["settle_below_floor_fraction"]),
-                   float(d["settle_penetration_fraction"]), bool(d.get("collision_proxies", True)),
-                   float(d.get("rest_speed", 0.0)), float(d.get("floor_collider_depth", 0.0)))
+        return cls(frames=int(d["frames"]), substeps=int(d["substeps"]), solver_iterations=int(d["solver_iterations"]),
+                   collision_shape=str(d["collision_shape"]), gravity=float(d["gravity"]),
+                   settle_below_floor_fraction=float(d["settle_below_floor_fraction"]),
+                   settle_penetration_fraction=float(d["settle_penetration_fraction"]),
+                   collision_proxies=bool(d.get("collision_proxies", True)),
+                   rest_speed=float(d.get("rest_speed", 0.0)),
+                   floor_collider_depth=float(d.get("floor_collider_depth", 0.0)))
 
 
 @dataclass(frozen=True)
@@ -328,15 +331,16 @@ class RenderSpec:
     samples: int
     denoise: bool
     visibility_threshold: float
-    denoise_prefilter: str = "ACCURATE"  # Cycles' OIDN prefilter; specs written before it existed used this
+    denoise_prefilter: str  # Cycles' OIDN prefilter (specs written before it existed read as "ACCURATE")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RenderSpec":
-        return cls(int(d["resolution"]), int(d["samples"]), bool(d["denoise"]), float(d["visibility_threshold"]),
-                   str(d.get("denoise_prefilter", "ACCURATE")))
+        return cls(resolution=int(d["resolution"]), samples=int(d["samples"]), denoise=bool(d["denoise"]),
+                   visibility_threshold=float(d["visibility_threshold"]),
+                   denoise_prefilter=str(d.get("denoise_prefilter", "ACCURATE")))
 
 
 @dataclass(frozen=True)
