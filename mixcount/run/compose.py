@@ -66,18 +66,57 @@ def compose_scenes(
 ) -> ComposeSummary:
     """Render until ``n`` scenes of ``compose.split`` are complete in ``out_dir`` (see module docstring).
 
-    Seeds start at ``compose.seed``; without an ``executor`` a local pool of ``compose.workers`` runs."""
-    from mixcount.dataset.external_exemplars import copy_external_exemplars
-    from mixcount.dataset.manifest import check_scene, is_finished, recorded_size, set_aside
-    from mixcount.dataset.merge import finalize_dataset
-    from mixcount.dataset.scene_writer import REJECTED_DIR, clean_stale_tmp
-    from mixcount.run.faults import check_output, classify_failure, missing_inputs, scene_bytes_needed
+    Seeds start at ``compose.seed``; without an ``executor`` a local pool of ``compose.workers`` runs.
+    Steps: check the output folder and the inputs, draw and run scenes (:class:`_ComposeRun`), stop with
+    one error after a fault no seed can fix, merge."""
     from mixcount.scene.environments import environments_to_draw
-    from mixcount.scene.sampler import container_warning, sample_scene, scene_id_for
+    from mixcount.scene.sampler import container_warning
 
     comp = config.compose
-    split, base, workers = comp.split, comp.seed, comp.workers
     out_dir = Path(out_dir)
+    _prepare_output(out_dir)
+    if not any(getattr(o, "split", None) == comp.split for o in pool):
+        raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog first")
+    # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
+    # without them stops the run here with one clear error instead of failing every scene's sampling
+    environments = tuple(environments_to_draw(config.scene, environments))
+    outputs = _scene_outputs(config, passes)
+    summary = ComposeSummary(requested=n)
+    t0 = time.perf_counter()
+    own_executor = executor is None
+    if own_executor:
+        from mixcount.run.local import LocalExecutor
+
+        executor = LocalExecutor(comp.workers, log_dir=out_dir / "logs", recycle_after=comp.recycle_after)
+    bar = as_reporter(progress)
+    run = _ComposeRun(config=config, pool=pool, out_dir=out_dir, assets_dir=Path(assets_dir), n=n,
+                      environments=environments, materials=materials, oracle=oracle, outputs=outputs,
+                      summary=summary, bar=bar)
+    warning = container_warning(pool, comp.split, config.scene)
+    if warning:  # once per run, not once per scene
+        summary.warnings.append(warning)
+        bar.note(warning)
+    bar.start("compose", n)
+    try:
+        run.drive(executor, on_outcome)
+    finally:
+        bar.stop()
+        if own_executor:
+            executor.close()
+    summary.seconds = round(time.perf_counter() - t0, 3)
+    run.raise_if_stopped()
+    if summary.written < n:
+        bar.note(f"only {summary.written} of {n} scenes written after {run.attempts} attempts")
+    if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
+        _merge(out_dir, config, summary, bar)
+    return summary
+
+
+def _prepare_output(out_dir: Path) -> None:
+    """``OUT/scenes`` made, both folders writable with space to spare, stale temporary scenes removed."""
+    from mixcount.dataset.scene_writer import clean_stale_tmp
+    from mixcount.run.faults import check_output
+
     try:
         (out_dir / "scenes").mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -87,184 +126,218 @@ def compose_scenes(
         if problem:
             raise StorageError(f"{problem}; nothing was rendered")
     clean_stale_tmp(out_dir)
-    if not any(getattr(o, "split", None) == split for o in pool):
-        raise CompositionError(f"no active objects in split {split!r}: ingest, caption and split the catalog first")
-    # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
-    # without them stops the run here with one clear error instead of failing every scene's sampling
-    environments = tuple(environments_to_draw(config.scene, environments))
-    captions = {int(o.object_id): o.captions.to_dict() for o in pool}
-    renders = {int(o.object_id): o.render_path for o in pool}
-    external: dict[int, str] = {}  # object id -> its render's copy under OUT/exemplars/external
-    threads = render_threads(config, workers)
-    timeout = comp.scene_timeout_s
-    max_attempts = int(math.ceil(n * comp.max_attempts_factor)) + 4
+
+
+def _scene_outputs(config: Config, passes: Optional[str | list[str]]) -> dict[str, Any]:
+    """SceneTask's output fields: the chosen passes (``passes`` or ``compose.passes``), checked formats
+    and the mesh cache; a bad value is a CompositionError."""
     from mixcount.annotate.passes import DEPTH_FORMATS, NORMAL_FORMATS, parse_passes
 
+    comp = config.compose
     try:
         chosen = parse_passes(comp.passes if passes is None else passes)
     except ValueError as exc:
         raise CompositionError(str(exc)) from None
-    depth_format, normal_format = comp.depth_format, comp.normal_format
-    if depth_format not in DEPTH_FORMATS or normal_format not in NORMAL_FORMATS:
+    if comp.depth_format not in DEPTH_FORMATS or comp.normal_format not in NORMAL_FORMATS:
         raise CompositionError(f"compose.depth_format must be one of {', '.join(DEPTH_FORMATS)} and "
                                f"compose.normal_format one of {', '.join(NORMAL_FORMATS)}")
+    return {"passes": chosen, "depth_format": comp.depth_format, "normal_format": comp.normal_format,
+            "mesh_cache": comp.mesh_cache}
 
-    summary = ComposeSummary(requested=n)
-    t0 = time.perf_counter()
-    own_executor = executor is None
-    if own_executor:
-        from mixcount.run.local import LocalExecutor
 
-        executor = LocalExecutor(workers, log_dir=out_dir / "logs", recycle_after=comp.recycle_after)
-    next_seed = base
-    attempts = 0
-    in_flight = 0
+def _merge(out_dir: Path, config: Config, summary: ComposeSummary, bar: ProgressReporter) -> None:
+    """The merged dataset files from every finished scene (a full disk: one StorageError, scenes kept)."""
+    from mixcount.dataset.merge import finalize_dataset
+
+    try:
+        summary.outputs = finalize_dataset(
+            out_dir, config=config.to_dict(), config_hash=config.hash,
+            run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
+            preview_scenes=config.compose.preview_scenes,
+        )
+    except OSError as exc:
+        raise StorageError(f"cannot merge the dataset: {os_error_line(exc)}; the {summary.written} finished "
+                           "scene(s) are kept: free space, then run `mixcount merge` on the folder") from None
+    for line in summary.outputs.get("damaged", []):
+        bar.note(f"left out of the merge: {line}")
+
+
+@dataclass
+class _ComposeRun:
+    """One compose run's state: the next seed, the scenes in flight and the fault that stopped it."""
+
+    config: Config
+    pool: list[Any]
+    out_dir: Path
+    assets_dir: Path
+    n: int
+    environments: tuple
+    materials: tuple
+    oracle: bool
+    outputs: dict[str, Any]  # SceneTask's passes, formats and mesh cache
+    summary: ComposeSummary
+    bar: ProgressReporter
+    attempts: int = 0
+    in_flight: int = 0
     fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
-    largest_scene = 0  # bytes of the largest scene written by this run (how much free space one needs)
+    largest_scene: int = 0  # bytes of the largest scene written by this run (how much free space one needs)
+    external: dict[int, str] = field(default_factory=dict)  # object id -> its render's copy under OUT/exemplars
 
-    def stop(error: MixcountError) -> None:
-        nonlocal fatal
+    def __post_init__(self) -> None:
+        comp = self.config.compose
+        self.split = comp.split
+        self.next_seed = comp.seed
+        self.max_attempts = int(math.ceil(self.n * comp.max_attempts_factor)) + 4
+        self.threads = render_threads(self.config, comp.workers)
+        self.captions = {int(o.object_id): o.captions.to_dict() for o in self.pool}
+        self.renders = {int(o.object_id): o.render_path for o in self.pool}
+
+    def stop(self, error: MixcountError) -> None:
+        if self.fatal is None:
+            self.fatal = error
+            self.summary.stopped = str(error)
+
+    def raise_if_stopped(self) -> None:
+        """After a fault: one error that says what stopped the run, what was kept and what to do."""
+        fatal = self.fatal
         if fatal is None:
-            fatal = error
-            summary.stopped = str(error)
+            return
+        advice = ("restore the file or re-ingest its library" if isinstance(fatal, AssetError)
+                  else "free space or make the folder writable")
+        raise type(fatal)(f"{fatal}; compose stopped with {self.summary.written} of {self.n} scene(s) finished "
+                          f"and kept, no new seed drawn: {advice}, then run the same command again")
 
-    def finished_scene_counts(sdir: Path, sid: str) -> bool:
+    def finished_scene_counts(self, sdir: Path, sid: str) -> bool:
         """Whether the seed's folder holds a sound finished scene (count it, draw no task); a damaged one
         of this split (or of no readable split) is set aside first and then rendered again."""
+        from mixcount.dataset.manifest import check_scene, is_finished, set_aside
+
         if not is_finished(sdir):
             return False
         meta_split = _scene_split(sdir)
         check = check_scene(sdir, deep=False)
-        if check.damaged and meta_split in (split, None):
+        if check.damaged and meta_split in (self.split, None):
             try:
                 moved = set_aside(sdir, check)
             except OSError as exc:
-                stop(StorageError(f"cannot set damaged scene {sid} aside: {os_error_line(exc)}"))
+                self.stop(StorageError(f"cannot set damaged scene {sid} aside: {os_error_line(exc)}"))
                 return True
-            summary.damaged.append({"scene_id": sid, "problems": check.describe(),
-                                    "moved_to": None if moved is None else str(moved)})
-            bar.note(f"scene {sid} is damaged ({check.describe()}): set aside as "
-                     f"{moved if moved is not None else 'by another run'}; rendering it again")
+            self.summary.damaged.append({"scene_id": sid, "problems": check.describe(),
+                                         "moved_to": None if moved is None else str(moved)})
+            self.bar.note(f"scene {sid} is damaged ({check.describe()}): set aside as "
+                          f"{moved if moved is not None else 'by another run'}; rendering it again")
             return False
         if check.damaged:
-            bar.note(f"scene {sid} of split {meta_split} is damaged ({check.describe()}): "
-                     f"left for a compose of split {meta_split} to repair")
+            self.bar.note(f"scene {sid} of split {meta_split} is damaged ({check.describe()}): "
+                          f"left for a compose of split {meta_split} to repair")
             return True
-        if meta_split == split:
-            summary.skipped += 1
-            summary.written += 1
+        if meta_split == self.split:
+            self.summary.skipped += 1
+            self.summary.written += 1
         return True
 
-    def next_task() -> Optional[SceneTask]:
-        nonlocal next_seed, attempts
-        while attempts < max_attempts and fatal is None:
-            s = next_seed
-            next_seed += 1
+    def next_task(self) -> Optional[SceneTask]:
+        """The next seed's task: finished and rejected seeds are passed over, a seed that cannot be sampled
+        is a failed scene, a missing asset or an unwritable exemplar copy stops the run (None)."""
+        from mixcount.dataset.scene_writer import REJECTED_DIR
+        from mixcount.scene.sampler import scene_id_for
+
+        summary = self.summary
+        while self.attempts < self.max_attempts and self.fatal is None:
+            s = self.next_seed
+            self.next_seed += 1
             sid = scene_id_for(s)
-            if finished_scene_counts(out_dir / "scenes" / sid, sid):
-                if summary.written >= n or fatal is not None:
+            if self.finished_scene_counts(self.out_dir / "scenes" / sid, sid):
+                if summary.written >= self.n or self.fatal is not None:
                     return None
                 continue
-            if (out_dir / "scenes" / REJECTED_DIR / f"{sid}.json").exists():
+            if (self.out_dir / "scenes" / REJECTED_DIR / f"{sid}.json").exists():
                 continue
-            attempts += 1
-            try:
-                spec = sample_scene(s, split, config, pool, environments=environments, materials=materials)
-            except Exception as exc:  # noqa: BLE001 - a seed that cannot be sampled is a failed scene
-                summary.failed += 1
-                summary.failures.append({"scene_id": sid, "seed": s, "error": f"sampling: {exc}"})
-                continue
-            problem = missing_inputs(spec, Path(assets_dir))
-            if problem:
-                stop(AssetError(f"scene {sid} cannot be rendered: {problem}"))
-                return None
-            used = {c.object_id for c in spec.classes} | {d.object_id for d in spec.distractors}
-            try:
-                external.update(copy_external_exemplars(out_dir, renders, used - set(external)))
-            except OSError as exc:
-                stop(StorageError(f"cannot copy external exemplars: {os_error_line(exc)}"))
-                return None
-            return SceneTask(spec=spec, out_dir=str(out_dir), assets_dir=str(assets_dir), timeout_s=timeout,
-                             threads=threads, oracle=oracle, captions={k: v for k, v in captions.items()
-                                                            if k in {d.object_id for d in spec.distractors}},
-                             external_exemplars={k: external[k] for k in sorted(used) if k in external},
-                             passes=chosen, depth_format=depth_format, normal_format=normal_format,
-                             mesh_cache=comp.mesh_cache)
+            self.attempts += 1
+            task = self._task(s, sid)
+            if task is not None or self.fatal is not None:
+                return task
         return None
 
-    bar = as_reporter(progress)
-    warning = container_warning(pool, split, config.scene)
-    if warning:  # once per run, not once per scene
-        summary.warnings.append(warning)
-        bar.note(warning)
+    def _task(self, seed: int, sid: str) -> Optional[SceneTask]:
+        from mixcount.dataset.external_exemplars import copy_external_exemplars
+        from mixcount.run.faults import missing_inputs
+        from mixcount.scene.sampler import sample_scene
 
-    def info() -> str:
-        return f"failed {summary.failed}  regenerated {summary.empty + summary.rejected}"
+        try:
+            spec = sample_scene(seed, self.split, self.config, self.pool, environments=self.environments,
+                                materials=self.materials)
+        except Exception as exc:  # noqa: BLE001 - a seed that cannot be sampled is a failed scene
+            self.summary.failed += 1
+            self.summary.failures.append({"scene_id": sid, "seed": seed, "error": f"sampling: {exc}"})
+            return None
+        problem = missing_inputs(spec, self.assets_dir)
+        if problem:
+            self.stop(AssetError(f"scene {sid} cannot be rendered: {problem}"))
+            return None
+        used = {c.object_id for c in spec.classes} | {d.object_id for d in spec.distractors}
+        try:
+            self.external.update(copy_external_exemplars(self.out_dir, self.renders, used - set(self.external)))
+        except OSError as exc:
+            self.stop(StorageError(f"cannot copy external exemplars: {os_error_line(exc)}"))
+            return None
+        distractors = {d.object_id for d in spec.distractors}
+        return SceneTask(spec=spec, out_dir=str(self.out_dir), assets_dir=str(self.assets_dir),
+                         timeout_s=self.config.compose.scene_timeout_s, threads=self.threads, oracle=self.oracle,
+                         captions={k: v for k, v in self.captions.items() if k in distractors},
+                         external_exemplars={k: self.external[k] for k in sorted(used) if k in self.external},
+                         **self.outputs)
 
-    bar.start("compose", n)
-    try:
-        while summary.written < n or (fatal is not None and in_flight):  # after a fault: drain, draw none
-            while fatal is None and in_flight < executor.slots and summary.written + in_flight < n:
-                task = next_task()
+    def info(self) -> str:
+        return f"failed {self.summary.failed}  regenerated {self.summary.empty + self.summary.rejected}"
+
+    def drive(self, executor: Any, on_outcome: Optional[Callable[[SceneOutcome], None]]) -> None:
+        """Keep the executor's slots full until ``n`` scenes are written; after a fault drain, draw none."""
+        summary, bar = self.summary, self.bar
+        while summary.written < self.n or (self.fatal is not None and self.in_flight):
+            while self.fatal is None and self.in_flight < executor.slots and summary.written + self.in_flight < self.n:
+                task = self.next_task()
                 if task is None:
                     break
                 executor.submit(task)
-                in_flight += 1
-            bar.update(completed=summary.written, info=info())
-            if in_flight == 0:
+                self.in_flight += 1
+            bar.update(completed=summary.written, info=self.info())
+            if self.in_flight == 0:
                 break
             outcome = executor.next_outcome()
-            in_flight -= 1
-            summary.outcomes.append(outcome.to_dict())
-            if outcome.status == WRITTEN:
-                summary.written += 1
-                largest_scene = max(largest_scene, recorded_size(Path(outcome.path or "")))
-            elif outcome.status == SKIPPED:
-                summary.written += 1
-                summary.skipped += 1
-            elif outcome.status == EMPTY:
-                summary.empty += 1
-            elif outcome.status == REJECTED:
-                summary.rejected += 1
-            else:
-                summary.failed += 1
-                summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed,
-                                         "error": outcome.error})
-                need = scene_bytes_needed(comp.resolution, largest_scene)
-                problem = classify_failure(outcome.error, out_dir=out_dir, assets_dir=Path(assets_dir),
-                                           need_bytes=need)
-                if problem:
-                    stop(StorageError(problem))
-                elif fatal is None:
-                    bar.note(f"scene {outcome.scene_id} failed: {(outcome.error or '').splitlines()[0][:300]}")
+            self.in_flight -= 1
+            self.record(outcome)
             if on_outcome is not None:
                 on_outcome(outcome)
-            bar.update(completed=summary.written, info=info())
-    finally:
-        bar.stop()
-        if own_executor:
-            executor.close()
-    summary.seconds = round(time.perf_counter() - t0, 3)
-    if fatal is not None:
-        advice = ("restore the file or re-ingest its library" if isinstance(fatal, AssetError)
-                  else "free space or make the folder writable")
-        raise type(fatal)(f"{fatal}; compose stopped with {summary.written} of {n} scene(s) finished and kept, "
-                          f"no new seed drawn: {advice}, then run the same command again")
-    if summary.written < n:
-        bar.note(f"only {summary.written} of {n} scenes written after {attempts} attempts")
-    if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
-        try:
-            summary.outputs = finalize_dataset(
-                out_dir, config=config.to_dict(), config_hash=config.hash,
-                run={k: v for k, v in summary.to_dict().items() if k not in ("outcomes", "outputs")},
-                preview_scenes=comp.preview_scenes,
-            )
-        except OSError as exc:
-            raise StorageError(f"cannot merge the dataset: {os_error_line(exc)}; the {summary.written} finished "
-                               "scene(s) are kept: free space, then run `mixcount merge` on the folder") from None
-        for line in summary.outputs.get("damaged", []):
-            bar.note(f"left out of the merge: {line}")
-    return summary
+            bar.update(completed=summary.written, info=self.info())
+
+    def record(self, outcome: SceneOutcome) -> None:
+        """Count one outcome; a failure whose cause no seed can fix (a full disk, ...) stops the run."""
+        from mixcount.dataset.manifest import recorded_size
+        from mixcount.run.faults import classify_failure, scene_bytes_needed
+
+        summary = self.summary
+        summary.outcomes.append(outcome.to_dict())
+        if outcome.status == WRITTEN:
+            summary.written += 1
+            self.largest_scene = max(self.largest_scene, recorded_size(Path(outcome.path or "")))
+        elif outcome.status == SKIPPED:
+            summary.written += 1
+            summary.skipped += 1
+        elif outcome.status == EMPTY:
+            summary.empty += 1
+        elif outcome.status == REJECTED:
+            summary.rejected += 1
+        else:
+            summary.failed += 1
+            summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed, "error": outcome.error})
+            need = scene_bytes_needed(self.config.compose.resolution, self.largest_scene)
+            problem = classify_failure(outcome.error, out_dir=self.out_dir, assets_dir=self.assets_dir,
+                                       need_bytes=need)
+            if problem:
+                self.stop(StorageError(problem))
+            elif self.fatal is None:
+                self.bar.note(f"scene {outcome.scene_id} failed: {(outcome.error or '').splitlines()[0][:300]}")
 
 
 def merge_is_stale(out_dir: Path) -> bool:
