@@ -122,11 +122,17 @@ def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Pa
     bright = _compose(tmp_path / "bright", tmp_path / "assets", pool, 2.0)
     meta = json.loads((dim / "metadata.json").read_text())
     env = meta["spec"]["environment"]
-    assert env["kind"] == "hdri" and is_bundled_path(env["path"]) and Path(env["path"]).is_file()
-    # the worker built the world from the stage's dome light: that texture, strength and turn
+    # recorded portably (docs/usd.md): "bpy:<path in the bpy package>", resolved on any machine with bpy
+    from mixcount.usd.portable import resolve_bpy_path
+
+    assert env["kind"] == "hdri" and env["path"].startswith("bpy:") and is_bundled_path(env["path"])
+    assert resolve_bpy_path(env["path"]).is_file()
+    # the worker built the world from the stage's dome light: that texture (the dataset's entry, a link to
+    # bpy's map until `mixcount package` copies it), strength and turn
     dome = meta["lights"]["dome"]
-    assert dome == {"kind": "hdri", "path": env["path"], "strength": pytest.approx(0.3),
-                    "rotation_deg": pytest.approx(env["rotation_deg"])}
+    assert dome == {"kind": "hdri", "path": f"assets/environments/{Path(env['path']).name}",
+                    "strength": pytest.approx(0.3), "rotation_deg": pytest.approx(env["rotation_deg"])}
+    assert (tmp_path / "dim" / dome["path"]).resolve() == resolve_bpy_path(env["path"]).resolve()
     assert "sun" not in meta["lights"]  # the sun lamp belongs to the procedural sky
     assert json.loads((bright / "metadata.json").read_text())["spec"]["environment"]["path"] == env["path"]
     a = np.asarray(Image.open(dim / "rgb.png").convert("RGB"), dtype=np.float64)

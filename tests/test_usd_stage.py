@@ -136,7 +136,12 @@ def test_demo_stage_opens_clean_in_fresh_usd_process(demo):
     assert info["physics_ok"] and info["physics_scene"] and info["container_collider"] and info["floor_collider"]
     assert info["floor_material"] and info["dome"] == 1
     assert info["meta"] == {"scene_id": "scene_000007", "seed": 7, "config_hash": conf.hash, "split": "train"}
-    assert json.loads(info["spec"]) == json.loads(spec.to_json())
+    # the spec as recorded: no absolute path (catalog assets as assets/<name>, source files by name)
+    from mixcount.usd.portable import PathRoots, portable_paths
+
+    assert json.loads(info["spec"]) == portable_paths(spec.to_dict(), PathRoots(root / "out", (Path(cat.usd_assets_dir),)))
+    assert all(a["model_path"].startswith("source:") for a in json.loads(info["spec"])["assets"])
+    assert "/" + str(root).strip("/").split("/")[0] not in path.read_text()  # no path of this machine
     assert info["mpu"] == 1.0 and info["up"] == "Z" and info["default_prim"] == "/World"
     assert info["camera"] == pytest.approx([conf.scene.focal_length_mm, conf.scene.sensor_width_mm])  # millimetres
     classes = json.loads(info["spec"])["classes"]
@@ -175,5 +180,7 @@ def test_stage_without_container_and_with_hdri(demo, tmp_path):
     assert info["roles"].get("container") is None
     stage = Usd.Stage.Open(str(path))
     dome = UsdLux.DomeLight(stage.GetPrimAtPath("/World/Lights/Dome"))
-    assert Path(dome.GetTextureFileAttr().Get().resolvedPath) == hdr.resolve()
+    texture = dome.GetTextureFileAttr().Get()
+    assert texture.path == "../../assets/environments/sky.hdr"  # relative: the dataset's entry
+    assert Path(texture.resolvedPath).resolve() == hdr.resolve()  # a link to the catalog's map until packaged
     assert not stage.GetPrimAtPath("/World/Lights/Sun")  # the sun belongs to the procedural sky only

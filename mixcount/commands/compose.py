@@ -104,6 +104,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor ray (default: start a local cluster)."),
         passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes written besides rgb.png: instance, class, depth, normal (default: config compose.passes, all four)."),
         no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
+        package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
         st = state(ctx)
@@ -145,6 +146,12 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         finally:
             if executor is not None:
                 executor.close()
+        if package_assets:
+            from mixcount.dataset.package import package_assets as copy_assets
+
+            packaged = copy_assets(out_dir, assets_dirs=[Path(catalog.usd_assets_dir)])
+            console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} "
+                          f"({packaged.bytes / 1e6:.1f} MB)", highlight=False)
         repaired = f", {len(summary.damaged)} damaged set aside and rendered again" if summary.damaged else ""
         console.print(f"wrote {summary.written} scene(s) ({summary.skipped} already there, {summary.failed} failed, "
                       f"{summary.empty + summary.rejected} regenerated{repaired}) in {summary.seconds:.0f} s; "

@@ -142,7 +142,9 @@ def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectRes
     from pxr import Gf, Sdf, Usd, UsdGeom
 
     src = Sdf.Layer.FindOrOpen(str(scene_usda))
-    layer = Sdf.Layer.CreateAnonymous(".usda")
+    # named by a temporary file beside ``out`` (anonymous, its relative asset paths would not resolve)
+    tmp = Path(out).with_name(f".{Path(out).name}.{os.getpid()}.tmp.usda")
+    layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(tmp))
     layer.TransferContent(src)
     stage = Usd.Stage.Open(layer)
     for rec in objects:
@@ -171,8 +173,12 @@ def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectRes
     mc["settled"] = True
     data["mixcount"] = mc
     layer.customLayerData = data
-    if not layer.Export(str(out)):
-        raise OSError(f"could not write {out}")
+    try:
+        if not layer.Save():
+            raise OSError(f"could not write {out}")
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _png16(arr: np.ndarray, path: Path) -> None:
@@ -199,6 +205,9 @@ def write_exemplar_crops(rgb_path: Path, coco: Mapping[str, Any], out: Path, mar
                    min(im.height, int(np.ceil(y + h + my))))
             name = f"{ex['category_id']}_{rank}{suffix}.png"
             im.crop(box).save(out / name)
+            # the crop beside the exemplar in coco.json, relative to OUT like file_name (the merge lists
+            # other scenes' crops as each category's cross-scene exemplars: mixcount.dataset.external_exemplars)
+            ex.setdefault("crops", []).append((Path(str(image["file_name"])).parent / "exemplars" / name).as_posix())
             written.append({"category_id": ex["category_id"], "annotation_id": aid, "rank": rank,
                             "image_id": image["id"], "file": f"exemplars/{name}",
                             "exemplar_score": anns[aid]["exemplar_score"]})
@@ -353,5 +362,11 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         **(extra or {}),
         "complete": True,
     }
+    # no absolute path leaves the machine (docs/usd.md, "Portable datasets"): the worker's resolved asset
+    # paths (into the catalog), the dome's map, the spec's source files
+    from mixcount.usd.portable import PathRoots, portable_paths
+
+    asset_dirs = tuple(sorted({Path(r.asset).parent for r in worker.objects if r.asset}))
+    meta = portable_paths(meta, PathRoots(tmp.parent.parent, asset_dirs))
     (tmp / "metadata.json").write_text(json.dumps(meta, indent=1))
     return meta

@@ -78,8 +78,10 @@ def bundled_environments(package_dir: Optional[Path] = None) -> tuple[Environmen
 
 
 def is_bundled_path(path: str | Path) -> bool:
-    """True for a path inside a ``<version>/datafiles/studiolights/world`` folder of a bpy install."""
-    parts = Path(path).parts
+    """True for a path inside a ``<version>/datafiles/studiolights/world`` folder of a bpy install (also
+    as a dataset records it, ``bpy:<version>/datafiles/...``: mixcount.dataset.package)."""
+    text = str(path)
+    parts = Path(text[len("bpy:"):] if text.startswith("bpy:") else text).parts
     return len(parts) >= 5 and tuple(parts[-4:-1]) == WORLD_SUBDIR and re.fullmatch(r"\d+\.\d+", parts[-5]) is not None
 
 

@@ -8,14 +8,22 @@ the cameras, and customData on every prim that matters. ``customLayerData`` reco
 seed, config hash, split and the whole spec as JSON.
 
 Deterministic bytes: prims and properties are authored in a fixed order, dictionaries are sorted by
-USD itself, catalog assets are referenced by their absolute (stable) paths and scene-local files by
-paths relative to the stage, and nothing time-dependent is written.
+USD itself, and nothing time-dependent is written.
+
+Portable (docs/usd.md, "Portable datasets"): no path in the stage is absolute. Catalog assets, environment
+maps and floor textures are entries of the dataset's ``OUT/assets/`` (relative links to the catalog's files
+until ``mixcount package`` copies them, :mod:`mixcount.dataset.package`), referenced relative to the stage
+(``@../../assets/<hash>.usdc@``); scene-local files are relative too; the spec in ``customLayerData``
+records paths by :func:`mixcount.dataset.package.portable_paths`.
 """
 
 from __future__ import annotations
 
+import itertools
+import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -27,11 +35,20 @@ from mixcount.scene.environments import write_pattern_png
 from mixcount.scene.sampler import look_at_rotation
 from mixcount.scene.spec import ROLE_CONTAINER, PlacedObject, SceneSpec
 from mixcount.usd.assets import AssetPaths, convert_asset
+from mixcount.usd.portable import (
+    PathRoots,
+    environment_entry,
+    link_into_dataset,
+    material_entry,
+    portable_paths,
+    stage_reference,
+)
 
 TEMPLATES_DIR = data_dir("usd_templates")
 TEMPLATE_LAYERS = ("scene_root.usda", "floor.usda", "camera_rig.usda", "lights.usda")
 STAGE_NAME = "scene.usda"
 CYLINDER_SEGMENTS = 64
+_TMP_COUNTER = itertools.count()
 MM_TO_LENS_UNITS = 1.0  # written in mm; strict USD units would be 0.01 (tenths of a metre)
 
 
@@ -138,12 +155,28 @@ def _set_pose(xf: Any, position: Any, orientation: Any, scale: Any) -> None:
     xf.AddScaleOp(UsdGeom.XformOp.PrecisionFloat).Set(Gf.Vec3f(*[float(v) for v in scale]))
 
 
-def _asset_ref(paths: AssetPaths) -> str:
-    return str(paths.visual.resolve())
+@dataclass(frozen=True)
+class _Links:
+    """Where the stage is written and the dataset root whose ``assets/`` its references point into."""
+
+    out_dir: Path
+    stage_dir: Path
+
+    def ref(self, src: Path, rel: str) -> str:
+        """Link ``src`` in as ``assets/<rel>``; the stage's relative path to it."""
+        link_into_dataset(self.out_dir, src, rel)
+        return stage_reference(self.out_dir, self.stage_dir, rel)
+
+    def asset(self, paths: AssetPaths) -> str:
+        """The visual asset (and its texture folder) linked in; its reference."""
+        tex = paths.visual.with_name(f"{paths.visual.stem}_tex")
+        if tex.is_dir():
+            link_into_dataset(self.out_dir, tex, tex.name)
+        return self.ref(paths.visual, paths.visual.name)
 
 
 def _add_instance(stage: Any, path: str, obj: PlacedObject, asset: AssetPaths, approximation: str,
-                  proxies: bool = True) -> Any:
+                  links: _Links, proxies: bool = True) -> Any:
     """An instance prim: a rigid body referencing its asset. When the asset holds a collision proxy, the
     proxy child (``<path>/Proxy``, purpose guide) is the collider; with ``proxies`` off its collision is
     disabled and the instance collides by ``approximation`` of its render mesh (the hull of every vertex)."""
@@ -151,7 +184,7 @@ def _add_instance(stage: Any, path: str, obj: PlacedObject, asset: AssetPaths, a
 
     xf = UsdGeom.Xform.Define(stage, path)
     prim = xf.GetPrim()
-    prim.GetReferences().AddReference(_asset_ref(asset))
+    prim.GetReferences().AddReference(links.asset(asset))
     _set_ids(prim, obj.role, obj.object_id, obj.class_index, obj.instance_id)
     prim.SetCustomDataByKey("mixcount:size_m", float(obj.size_m))
     _set_pose(xf, obj.position, obj.orientation, obj.scale)
@@ -166,7 +199,7 @@ def _add_instance(stage: Any, path: str, obj: PlacedObject, asset: AssetPaths, a
     return prim
 
 
-def _bind_floor_material(stage: Any, spec: SceneSpec, scene_dir: Path) -> None:
+def _bind_floor_material(stage: Any, spec: SceneSpec, scene_dir: Path, links: _Links) -> None:
     from pxr import Gf, Sdf, UsdShade
 
     mat = spec.floor.material
@@ -183,14 +216,12 @@ def _bind_floor_material(stage: Any, spec: SceneSpec, scene_dir: Path) -> None:
         write_pattern_png(params, px, scene_dir / rel)
         tex.GetInput("file").Set(Sdf.AssetPath(f"./{rel}"))
         surf.GetInput("roughness").Set(float(params.get("roughness", 0.6)))
-        import json
-
         mprim.SetCustomDataByKey("mixcount:params", json.dumps(params, sort_keys=True))
     else:
         maps = dict(mat.maps)
         base = maps.get("base_color") or maps.get("albedo") or maps.get("diffuse")
         if base:
-            tex.GetInput("file").Set(Sdf.AssetPath(str(Path(base).resolve())))
+            tex.GetInput("file").Set(Sdf.AssetPath(links.ref(Path(base), material_entry(base))))
         else:
             surf.GetInput("diffuseColor").GetAttr().GetConnections()
             surf.GetInput("diffuseColor").DisconnectSource()
@@ -202,7 +233,8 @@ def _bind_floor_material(stage: Any, spec: SceneSpec, scene_dir: Path) -> None:
                 continue
             sh = UsdShade.Shader.Define(stage, f"{shader_root}/{key.capitalize()}Tex")
             sh.CreateIdAttr("UsdUVTexture")
-            sh.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(str(Path(maps[key]).resolve())))
+            sh.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(
+                links.ref(Path(maps[key]), material_entry(maps[key]))))
             sh.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(space)
             sh.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st_out)
             sh.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
@@ -216,7 +248,7 @@ def _bind_floor_material(stage: Any, spec: SceneSpec, scene_dir: Path) -> None:
                 surf.GetInput("roughness").ConnectToSource(sh.CreateOutput(out, typ))
 
 
-def _write_floor(stage: Any, spec: SceneSpec, scene_dir: Path) -> None:
+def _write_floor(stage: Any, spec: SceneSpec, scene_dir: Path, links: _Links) -> None:
     from pxr import Sdf, UsdGeom, Vt
 
     f = spec.floor
@@ -232,10 +264,10 @@ def _write_floor(stage: Any, spec: SceneSpec, scene_dir: Path) -> None:
     prim = mesh.GetPrim()
     prim.SetCustomDataByKey("mixcount:shape", f.shape)
     prim.SetCustomDataByKey("mixcount:uv_scale_m", float(f.uv_scale_m))
-    _bind_floor_material(stage, spec, scene_dir)
+    _bind_floor_material(stage, spec, scene_dir, links)
 
 
-def _write_lights(stage: Any, spec: SceneSpec) -> None:
+def _write_lights(stage: Any, spec: SceneSpec, links: _Links) -> None:
     from pxr import Gf, Sdf, UsdGeom, UsdLux
 
     env = spec.environment
@@ -247,7 +279,10 @@ def _write_lights(stage: Any, spec: SceneSpec) -> None:
     prim.SetCustomDataByKey("mixcount:strength", float(env.strength))
     prim.SetCustomDataByKey("mixcount:rotation_deg", float(env.rotation_deg))
     if env.kind == "hdri":
-        dome.CreateTextureFileAttr(Sdf.AssetPath(str(Path(env.path or "").resolve())))
+        src = Path(env.path or "")
+        if not src.is_file():
+            raise CompositionError(f"environment map {env.path} of scene {spec.scene_id} does not exist")
+        dome.CreateTextureFileAttr(Sdf.AssetPath(links.ref(src, environment_entry(src))))
         prim.SetCustomDataByKey("mixcount:environment_id", int(env.environment_id or 0))
         return
     # procedural sky: the dome is a uniform sky tint, the sun a distant light; the exact sky model
@@ -320,7 +355,7 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
 
     ``catalog`` supplies ``usd_assets_dir`` for the converted assets (``assets_dir`` overrides it).
     """
-    from pxr import Usd, UsdGeom, UsdPhysics
+    from pxr import Sdf, Usd, UsdGeom, UsdPhysics
 
     if assets_dir is None:
         if catalog is None:
@@ -329,9 +364,16 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
     scene_dir = Path(scene_dir) if scene_dir is not None else scene_dir_for(Path(out_dir), spec.scene_id)
     scene_dir.mkdir(parents=True, exist_ok=True)
     assets = convert_scene_assets(spec, Path(assets_dir))
+    links = _Links(Path(out_dir), scene_dir)
+    roots = PathRoots(Path(out_dir), (Path(assets_dir),))
 
     skip = () if spec.environment.kind == "sky" else ("/World/Lights/Sun",)
-    layer = _template_layer(skip)
+    # authored in a layer named by the temporary file beside the stage (an anonymous layer would anchor the
+    # relative asset paths at the working directory: every reference unresolved while authoring)
+    path = scene_dir / STAGE_NAME
+    tmp = scene_dir / f".{STAGE_NAME}.{os.getpid()}.{next(_TMP_COUNTER)}.tmp.usda"
+    layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(tmp))
+    layer.TransferContent(_template_layer(skip))
     stage = Usd.Stage.Open(layer)
     # nested like every mixcount customData: read with stage.GetMetadataByDictKey("customLayerData",
     # "mixcount:seed") or layer.customLayerData["mixcount"]["seed"] (see mixcount.usd.read)
@@ -339,7 +381,7 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
         "config_hash": spec.config_hash,
         "scene_id": spec.scene_id,
         "seed": int(spec.seed),
-        "spec": spec.to_json(),
+        "spec": json.dumps(portable_paths(spec.to_dict(), roots), sort_keys=True, separators=(",", ":")),
         "split": spec.split,
     }}
     # the physics run as the stage's time range (Blender's importer sets its frame range from it)
@@ -351,23 +393,26 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
     pprim.SetCustomDataByKey("mixcount:substeps", int(spec.physics.substeps))
     pprim.SetCustomDataByKey("mixcount:solver_iterations", int(spec.physics.solver_iterations))
 
-    _write_floor(stage, spec, scene_dir)
+    _write_floor(stage, spec, scene_dir, links)
     _set_ids(stage.GetPrimAtPath("/World/Floor"), "floor", -1, -1, 0)
 
     if spec.container is not None:
         c = spec.container
         xf = UsdGeom.Xform.Define(stage, "/World/Container")
         prim = xf.GetPrim()
-        prim.GetReferences().AddReference(_asset_ref(assets[c.object_id]))
+        prim.GetReferences().AddReference(links.asset(assets[c.object_id]))
         _set_ids(prim, ROLE_CONTAINER, c.object_id, -1, c.instance_id)
         _set_pose(xf, c.position, c.orientation, c.scale)
         coll_paths = assets[c.object_id].collision
         if coll_paths is not None:
-            prim.SetCustomDataByKey("mixcount:collision_asset", str(coll_paths.resolve()))
+            coll_ref = links.ref(coll_paths, coll_paths.name)
+            # relative to the stage like every asset path (mixcount.usd.read.convex_parts finds it among the
+            # layers of the open stage that references it, /World/Container/Collision)
+            prim.SetCustomDataByKey("mixcount:collision_asset", coll_ref)
             cxf = UsdGeom.Xform.Define(stage, "/World/Container/Collision")
             cxf.CreatePurposeAttr(UsdGeom.Tokens.guide)  # collides, never rendered
             cprim = cxf.GetPrim()
-            cprim.GetReferences().AddReference(str(coll_paths.resolve()))
+            cprim.GetReferences().AddReference(coll_ref)
             UsdPhysics.CollisionAPI.Apply(cprim)
             UsdPhysics.MeshCollisionAPI.Apply(cprim).CreateApproximationAttr(UsdPhysics.Tokens.none)
         else:  # no decimated mesh recorded: the visual mesh itself is the static collider
@@ -377,16 +422,17 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
     approx, proxies = spec.physics.collision_shape, spec.physics.collision_proxies
     for obj in spec.objects:
         _add_instance(stage, f"/World/Objects/obj_{obj.instance_id:04d}", obj, assets[obj.object_id], approx,
-                      proxies)
+                      links, proxies)
     for k, obj in enumerate(spec.distractors, start=1):
-        _add_instance(stage, f"/World/Distractors/dist_{k:02d}", obj, assets[obj.object_id], approx, proxies)
+        _add_instance(stage, f"/World/Distractors/dist_{k:02d}", obj, assets[obj.object_id], approx, links, proxies)
 
     _write_cameras(stage, spec)
-    _write_lights(stage, spec)
+    _write_lights(stage, spec, links)
 
-    path = scene_dir / STAGE_NAME
-    tmp = scene_dir / f".{STAGE_NAME}.{os.getpid()}.tmp.usda"
-    if not layer.Export(str(tmp)):
-        raise CompositionError(f"could not write {path}")
-    os.replace(tmp, path)
+    try:
+        if not layer.Save():
+            raise CompositionError(f"could not write {path}")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path

@@ -1,0 +1,33 @@
+"""``mixcount package OUT``: copy every asset file the dataset's stages use into ``OUT/assets/`` so that the
+dataset opens and re-renders anywhere (docs/usd.md, "Portable datasets")."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from mixcount.commands.common import console, out
+from mixcount.errors import DatasetError
+
+
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    @app.command("package")
+    def package(
+        out_dir: Path = typer.Argument(..., help="Compose output folder (OUT/scenes/<scene_id>/...)."),
+        search: Optional[list[Path]] = typer.Option(None, "--search", help="Folder to look in (by file name) for "
+                                                    "an asset whose link is broken; repeatable, searched before "
+                                                    "$MIXCOUNT_ASSETS."),
+    ) -> None:
+        """Replace the links in OUT/assets/ (to the catalog's converted assets, environment maps and floor
+        textures) by copies; an asset whose link is broken is found by name in --search and $MIXCOUNT_ASSETS."""
+        from mixcount.dataset.package import package_assets
+
+        if not (out_dir / "scenes").is_dir():
+            raise DatasetError(f"{out_dir} holds no scenes/ folder: nothing to package")
+        report = package_assets(out_dir, search=search or ())
+        console.print(f"packaged {out_dir / 'assets'}: {len(report.copied)} copied ({report.bytes / 1e6:.1f} MB), "
+                      f"{len(report.kept)} already copies, {len(report.searched)} found by search", highlight=False)
+        out.print(json.dumps(report.to_dict(), indent=2))

@@ -1,0 +1,227 @@
+"""Datasets that open anywhere: the files a dataset's stages use live under ``OUT/assets/`` and every
+recorded path is relative (docs/usd.md, "Portable datasets").
+
+Layout under ``OUT/assets/``:
+
+- ``<hash>.usdc``, ``<hash>_tex/``, ``<hash>_collision.usdc``: the converted catalog assets
+  (:mod:`mixcount.usd.assets`) the stages reference;
+- ``environments/<file>``: the environment maps of the dome lights (ingested HDRIs, bpy's bundled ones);
+- ``materials/<digest>/<file>``: the texture maps of PBR floors;
+- ``sources/<hash>/<file>``: a USD source model that a wrapped asset references.
+
+Stages reference these by paths relative to the stage (``@../../assets/<hash>.usdc@``), so a dataset
+opens wherever it is copied. While composing, each entry is a *relative symbolic link* to the catalog's
+file (no copy, no absolute path; the Blender worker resolves links, so its mesh cache stays in the
+catalog). :func:`package_assets` (``mixcount package OUT`` or ``compose --package-assets``) turns every
+link into a real copy, so the dataset holds everything needed to re-render it. A dataset moved before it
+was packaged finds its files again through ``MIXCOUNT_ASSETS`` (folders holding the catalog's
+``usd_assets`` and the environment maps, ``:``-separated), which ``package`` searches by file name.
+
+Recorded paths (``metadata.json``, the spec in each stage's ``customLayerData``) are written by
+:func:`mixcount.usd.portable.portable_paths` (``assets/<name>``, ``bpy:<path>``, ``source:<file name>``).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Optional
+
+from mixcount.errors import DatasetError
+from mixcount.usd.portable import ASSETS_DIR, SOURCES_DIR, PathRoots, portable_paths
+
+SEARCH_ENV = "MIXCOUNT_ASSETS"
+STAGE_SUFFIXES = (".usda", ".usdc", ".usd")
+
+
+class PackageError(DatasetError):
+    """A dataset's assets cannot be packaged (a file is missing everywhere it was looked for)."""
+
+
+# ------------------------------------------------------------------------------------ packaging
+
+
+@dataclass
+class PackageReport:
+    """What :func:`package_assets` did: entries copied, already real files, found via the search path."""
+
+    copied: list[str] = field(default_factory=list)
+    kept: list[str] = field(default_factory=list)
+    searched: list[str] = field(default_factory=list)
+    rewritten: list[str] = field(default_factory=list)
+    bytes: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"copied": len(self.copied), "kept": len(self.kept), "found_by_search": len(self.searched),
+                "layers_rewritten": len(self.rewritten), "bytes": self.bytes}
+
+
+def search_roots(extra: Iterable[Path] = ()) -> list[Path]:
+    """Folders searched for an entry whose link is broken: ``extra``, then ``$MIXCOUNT_ASSETS``, then the
+    bundled HDRIs of this machine's bpy (an environment map of bpy's is found on any machine with bpy)."""
+    env = [Path(p) for p in os.environ.get(SEARCH_ENV, "").split(os.pathsep) if p]
+    bundled: list[Path] = []
+    try:
+        from mixcount.scene.bundled_environments import bundled_hdri_dir
+
+        bundled = [bundled_hdri_dir()]
+    except Exception:  # no bpy here: only the given folders
+        pass
+    return [Path(p) for p in extra] + env + bundled
+
+
+def _find(rel: str, roots: list[Path]) -> Optional[Path]:
+    name = Path(rel).name
+    for root in roots:
+        for cand in (root / rel, root / name):
+            if cand.exists():
+                return cand
+    return None
+
+
+def _copy(src: Path, dest: Path) -> int:
+    tmp = dest.with_name(f".{dest.name}.{os.getpid()}.copy")
+    if tmp.is_dir():
+        shutil.rmtree(tmp)
+    if src.is_dir():
+        shutil.copytree(src, tmp, symlinks=False)
+        size = sum(f.stat().st_size for f in tmp.rglob("*") if f.is_file())
+    else:
+        shutil.copyfile(src, tmp)
+        size = tmp.stat().st_size
+    if dest.is_symlink() or dest.is_file():
+        dest.unlink()
+    elif dest.is_dir():
+        shutil.rmtree(dest)
+    os.replace(tmp, dest)
+    return size
+
+
+def _referenced_entries(out_dir: Path) -> set[str]:
+    """Entries of OUT/assets the stages name (a moved, never-packaged dataset may have lost its links)."""
+    from pxr import Sdf
+
+    assets = (out_dir / ASSETS_DIR).absolute()
+    found: set[str] = set()
+    for stage in sorted((out_dir / "scenes").glob("*/*.usda")):
+        layer = Sdf.Layer.OpenAsAnonymous(str(stage))
+        if layer is None:
+            continue
+        for ref in layer.GetCompositionAssetDependencies() + _asset_values(layer):
+            p = Path(os.path.normpath(stage.parent.absolute() / ref)) if not Path(ref).is_absolute() else Path(ref)
+            if assets in p.parents:
+                rel = p.relative_to(assets).as_posix()
+                found.add(rel)
+                if rel.endswith(".usdc") and not rel.endswith("_collision.usdc"):
+                    found.add(rel[: -len(".usdc")] + "_tex")
+    return found
+
+
+def _asset_values(layer: Any) -> list[str]:
+    """Asset-valued attribute defaults of a layer (the dome light's texture, floor textures)."""
+    from pxr import Sdf
+
+    out: list[str] = []
+
+    def visit(path: Any) -> None:
+        if not path.IsPropertyPath():
+            return
+        spec = layer.GetPropertyAtPath(path)
+        value = getattr(spec, "default", None)
+        if isinstance(value, Sdf.AssetPath) and value.path:
+            out.append(value.path)
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return out
+
+
+def _sanitize_layer(path: Path, out_dir: Path, roots: PathRoots, report: PackageReport) -> None:
+    """A copied asset layer: its customLayerData paths made portable; a reference to a USD source model
+    outside the dataset copied into ``sources/`` and re-pointed relatively."""
+    from pxr import Sdf
+
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    if layer is None:
+        raise PackageError(f"{path}: not a USD layer")
+    changed = False
+    data = dict(layer.customLayerData)
+    portable = portable_paths(data, roots)
+    if portable != data:
+        layer.customLayerData = portable
+        changed = True
+    for prim in [layer.GetPrimAtPath(p) for p in ("/Asset/Source",)]:
+        if prim is None:
+            continue
+        items = list(prim.referenceList.prependedItems)
+        new_items = []
+        for ref in items:
+            src = Path(ref.assetPath)
+            if src.is_absolute():
+                rel = f"{SOURCES_DIR}/{path.stem}/{src.name}"
+                dest = out_dir / ASSETS_DIR / rel
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                if not dest.exists():
+                    report.bytes += _copy(src, dest)
+                ref = Sdf.Reference(Path(os.path.relpath(dest, path.parent)).as_posix(), ref.primPath,
+                                    ref.layerOffset, ref.customData)
+                changed = True
+            new_items.append(ref)
+        prim.referenceList.prependedItems = new_items
+    if changed:
+        # exported whole to a new file: saving a .usdc in place appends, and its old strings (the
+        # generating machine's paths) would stay in the file
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+        if not layer.Export(str(tmp)):
+            raise PackageError(f"could not write {path}")
+        os.replace(tmp, path)
+        report.rewritten.append(path.name)
+
+
+def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: Iterable[Path] = ()) -> PackageReport:
+    """Make ``OUT/assets/`` hold real copies of every file the dataset's stages use.
+
+    Each symbolic link is replaced by a copy of its target; an entry whose link is broken, or that a
+    stage names and that is missing, is looked for by name in ``search`` and ``$MIXCOUNT_ASSETS``. Copied
+    USD layers get portable customLayerData. Raises :class:`PackageError` naming every entry found
+    nowhere (what was copied before stays; a rerun finishes the job)."""
+    out_dir = Path(out_dir)
+    assets = out_dir / ASSETS_DIR
+    roots = search_roots(search)
+    path_roots = PathRoots(out_dir, tuple(Path(a) for a in assets_dirs) + tuple(roots))
+    report = PackageReport()
+    wanted = _referenced_entries(out_dir) if (out_dir / "scenes").is_dir() else set()
+    present: set[str] = set()
+    if assets.is_dir():
+        for entry in sorted(assets.rglob("*")):
+            rel = entry.relative_to(assets).as_posix()
+            if entry.name.startswith(".") or any(rel.startswith(p + "/") for p in present if (assets / p).is_dir()):
+                continue
+            if entry.is_symlink() or entry.is_file() or (entry.is_dir() and rel.endswith("_tex")):
+                present.add(rel)
+    missing: list[str] = []
+    for rel in sorted(present | wanted):
+        dest = assets / rel
+        if dest.exists() and not dest.is_symlink():
+            report.kept.append(rel)
+            continue
+        src: Optional[Path] = dest.resolve() if dest.is_symlink() and dest.exists() else None
+        if src is None:
+            src = _find(rel, roots)
+            if src is not None:
+                report.searched.append(rel)
+        if src is None:
+            if rel.endswith("_tex"):
+                continue  # an asset without textures has no texture folder
+            missing.append(rel)
+            continue
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        report.bytes += _copy(src, dest)
+        report.copied.append(rel)
+        if dest.suffix in STAGE_SUFFIXES:
+            _sanitize_layer(dest, out_dir, path_roots, report)
+    if missing:
+        raise PackageError(f"{len(missing)} asset(s) of {out_dir} found nowhere (links broken and not in "
+                           f"${SEARCH_ENV} {os.environ.get(SEARCH_ENV, '')!r}): {', '.join(missing[:10])}")
+    return report
