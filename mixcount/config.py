@@ -174,6 +174,7 @@ class FilterConfig:
     look_layout: float
     look_d2: float
     look_proportions: float
+    look_exposure_gain: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float

@@ -12,7 +12,9 @@ import pytest
 import trimesh
 
 from mixcount.catalog.ingest import DTC_NAME
-from mixcount.demo.library import CONTAINER_CATEGORIES, generate_demo_library
+from mixcount.demo.library import CONTAINER_CATEGORIES, REPUBLISHED_KINDS, generate_demo_library
+
+REPUBLISHED_SCALED = ("remeshed", "rebaked", "split")  # turned and rescaled x0.5-2 as well
 
 
 def tree_digest(root: Path) -> dict[str, str]:
@@ -59,7 +61,8 @@ def test_full_library_layout_variety_and_traps(tmp_path):
         meta = json.loads((folder / "metadata.json").read_text())
         assert meta["category"] == o["category"]
         if o["source"] == "folder":  # another name and source: a plain folder with an OBJ in centimetres
-            assert o["kind"] == "other_source" and meta["units"] == "cm" and "up_axis" not in meta
+            assert o["kind"] in ("other_source", "units") and "up_axis" not in meta
+            assert meta.get("units") == ("cm" if o["kind"] == "other_source" else None)  # units: cm, undeclared
             assert {p.name for p in folder.iterdir()} >= {"mesh.obj", "mesh.mtl", "texture_0.png", "metadata.json", "LICENSE"}
             continue
         assert DTC_NAME.match(o["folder"]), o["folder"]
@@ -70,7 +73,7 @@ def test_full_library_layout_variety_and_traps(tmp_path):
         size = max(o["dims_m"])
         if o["container"]:
             assert 0.20 <= max(o["dims_m"][:2]) <= 0.35 and o["dims_m"][2] < 0.1, o
-        elif o["kind"] not in ("rescale", "turned"):
+        elif o["kind"] not in ("rescale", "turned", "units") + REPUBLISHED_SCALED:
             assert 0.02 <= size <= 0.25, o
         doc = glb_json(folder / "3d-asset.glb")
         assert doc["materials"], o["folder"]
@@ -127,6 +130,34 @@ def test_full_library_layout_variety_and_traps(tmp_path):
     for a, b in truth["other_source"]:  # OBJ in cm, 1.25x: area scales by 1.25^2 and 100^2
         ma, mb = loaded(by[a]), loaded(by[b])
         assert mb.area == pytest.approx(ma.area * 1.25 ** 2 * 1e4, rel=1e-4)
+    # copies rebuilt from the surface: each kind twice, none sharing the original's mesh data
+    republished = {"remeshed": "remeshed", "unit_changes": "units", "rebaked": "rebaked", "split_parts": "split"}
+    assert set(republished.values()) == set(REPUBLISHED_KINDS)
+    originals = {e[0] for key in ("exact_copies", "recolours", "rescales", "turned_rescales", "retessellated",
+                                  "other_source") for e in truth[key]}
+    for key, kind in republished.items():
+        assert len(truth[key]) == 2, key
+        for a, b, factor in truth[key]:
+            assert a in originals and by[b]["kind"] == kind and by[b]["of"] == a  # clean objects stay the same set
+            ma, mb = loaded(by[a]), loaded(by[b])
+            original = {tuple(x) for x in np.round(ma.vertices * factor, 5)}
+            shared = sum(tuple(x) in original for x in np.round(mb.vertices, 5))
+            assert shared < 0.05 * len(mb.vertices), (key, b)  # turned (and remeshed): no vertex of the original
+            doc = glb_json(root / b / "3d-asset.glb") if by[b]["source"] == "dtc" else None
+            if doc is not None:
+                assert "images" in doc and len(doc["meshes"]) == by[b]["n_parts"]
+            if kind == "remeshed":
+                ratio = len(mb.faces) / len(ma.faces)
+                assert ratio > 2.5 or ratio <= 0.5, (b, ratio)  # a very different face count
+            if kind == "units":
+                assert factor in (100.0, 1000.0)
+                assert mb.area == pytest.approx(ma.area * factor ** 2, rel=0.1)
+            elif kind == "split":
+                assert by[b]["n_parts"] == by[b]["parts"] in (3, 5)
+            else:
+                assert mb.area == pytest.approx(ma.area * factor ** 2, rel=0.1)
+            if kind == "rebaked":
+                assert len(mb.faces) == len(ma.faces) and by[b]["gain"] in (1.0, 0.88)
     (tote,) = truth["mesh_quality"]
     from mixcount.catalog.mesh import load_normalised
     from mixcount.curation.descriptors import boundary_fraction, nonmanifold_fraction

@@ -150,7 +150,49 @@ def _describe(catalog: Catalog, session: Session, items: list[_Item], summary: F
             summary.descriptor_failures.append({"id": obj.id, "name": obj.name, "error": f"render unreadable: {exc}"})
 
 
-def _pair_flags(items: list[_Item], th: FilterConfig) -> list[_Found]:
+class LayoutCache:
+    """Principal-frame layout distances of pairs already compared (the rotation search of a cube or a
+    ball costs ~0.1-1 s a pair), kept as JSON beside the descriptors, keyed by both content hashes,
+    the brightness factor (the file is named by the sample and layout versions), so a re-run only
+    compares new pairs."""
+
+    def __init__(self, path: Path | None) -> None:
+        self.path = path
+        self.values: dict[str, float] = {}
+        self.dirty = False
+        if path is not None and path.is_file():
+            try:
+                self.values = {str(k): float(v) for k, v in json.loads(path.read_text()).items()}
+            except (OSError, ValueError, TypeError, AttributeError):
+                self.values = {}
+
+    @staticmethod
+    def key(x: _Item, y: _Item, gain: float) -> str | None:
+        a, b = (x.obj.content_hash or "")[:32], (y.obj.content_hash or "")[:32]
+        return f"{a}:{b}:{gain:.4f}" if a and b else None
+
+    def layout(self, x: _Item, y: _Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float, search_above: float) -> float:
+        key = self.key(x, y, gain)
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = A.layout_distance(first, other, search_above=search_above)
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
+    def save(self) -> None:
+        if self.path is None or not self.dirty:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(self.values, sort_keys=True))
+        tmp.replace(self.path)
+        self.dirty = False
+
+
+def _pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None = None) -> list[_Found]:
+    layouts = layouts or LayoutCache(None)
     found: list[_Found] = []
     for x, y in combinations(items, 2):
         a, b = x.obj, y.obj
@@ -186,32 +228,45 @@ def _pair_flags(items: list[_Item], th: FilterConfig) -> list[_Found]:
             found.append(_Found(a.id, b.id, NEAR_APPEARANCE, round(max(0.0, score), 4),
                                 f"canonical renders look alike (pHash {ph:.3f}, colour {col:.3f}){extra}"))
             continue
-        surface = _surface_match(x, y, th)
+        surface = _surface_match(x, y, th, layouts)
         if surface is not None:
             found.append(_Found(a.id, b.id, NEAR_APPEARANCE, *surface))
     return found
 
 
-def _surface_match(x: _Item, y: _Item, th: FilterConfig) -> tuple[float, str] | None:
-    """(score, reason) when two objects look the same from every side and have the same shape at any
-    scale (the orientation-free rule), else None. Cheap tests first: colours, then shape, then layout."""
+def _surface_match(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, str] | None:
+    """(score, reason) when two objects have the same shape at any scale and look the same from every
+    side (the orientation-free rule), else None. Cheap tests first: shape numbers, then colours (after
+    one bounded exposure factor), then the colour layout (with a rotation search where axes tie)."""
     if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
-        return None
-    col = A.colour_distance(x.surface, y.surface)
-    if col > th.look_colour:
         return None
     d2, mom = D.d2_distance(x.shape, y.shape), D.moment_distance(x.shape, y.shape)
     if d2 > th.look_d2 or mom > th.look_proportions:
         return None
-    lay = A.layout_distance(x.surface, y.surface, search_above=th.look_layout)
+    # colours as stored, or after one bounded exposure factor (a re-bake under other light), whichever
+    # is closer (a factor estimated from two means is noisy near 1)
+    gain = A.exposure_gain(x.surface, y.surface, th.look_exposure_gain)
+    col = A.colour_transport(x.surface, y.surface)
+    if gain != 1.0:
+        col_relit = A.colour_transport(x.surface, y.surface, gain)
+        if col_relit < col:
+            col = col_relit
+        else:
+            gain = 1.0
+    if col > th.look_colour:
+        return None
+    first = A.relit(x.surface, 1.0 / gain) if gain > 1.0 else x.surface  # the brighter side darkened
+    other = A.relit(y.surface, gain) if gain < 1.0 else y.surface
+    lay = layouts.layout(x, y, first, other, gain, th.look_layout)
     if lay > th.look_layout:
         return None
     score = 1.0 - max(col / th.look_colour, lay / th.look_layout, d2 / th.look_d2,
                       mom / th.look_proportions) / 2
     size = max(D.size_ratio(x.shape, y.shape), D.size_ratio(y.shape, x.shape))
+    exposure = f", exposure x{gain:.2f}" if abs(gain - 1.0) >= 0.005 else ""
     return (round(max(0.0, score), 4),
-            f"same surface colours and layout from every side (colour {col:.3f}, principal-frame layout {lay:.3f}) "
-            f"and the same shape at any scale (D2 {d2:.4f}, proportions {mom:.3f}); real sizes differ {size:.2f}x")
+            f"same surface colours and layout from every side (colour {col:.3f}, principal-frame layout {lay:.3f}"
+            f"{exposure}) and the same shape at any scale (D2 {d2:.4f}, proportions {mom:.3f}); real sizes differ {size:.2f}x")
 
 
 def mesh_quality_score(fraction: float) -> float:
@@ -314,7 +369,9 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
         items = [_Item(o) for o in live]
         _describe(catalog, session, items, summary)
         item_of = {it.obj.id: it for it in items}
-        found = _pair_flags(items, th) + _quality_flags(items, broken, th)
+        layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{A.LAYOUT_VERSION}.json")
+        found = _pair_flags(items, th, layouts) + _quality_flags(items, broken, th)
+        layouts.save()
 
         decisions = latest_decisions(session)
         accepted = {oid for oid, rd in decisions.items() if rd.decision == "accept"}
@@ -398,6 +455,7 @@ def find_ground_truth(objects: Iterable[CatalogObject]) -> Path | None:
 TRAP_KINDS = (  # ground_truth.json key -> trap kind
     ("exact_copies", "exact"), ("recolours", "recolour"), ("rescales", "rescale"),
     ("turned_rescales", "turned_rescale"), ("retessellated", "retessellated"), ("other_source", "other_source"),
+    ("remeshed", "remeshed"), ("unit_changes", "units"), ("rebaked", "rebaked"), ("split_parts", "split"),
 )
 
 

@@ -774,6 +774,101 @@ def _png(image: Image.Image | None) -> bytes:
     return buf.getvalue()
 
 
+REPUBLISHED_KINDS = ("remeshed", "units", "rebaked", "split")
+
+
+def _republished_traps(root: Path, originals: list[tuple[str, Spec, bytes]], n_traps: int, seed: int,
+                       emit: Callable[..., str], objects: list[dict[str, Any]]) -> tuple[list[Any], ...]:
+    """Copies of ``originals`` rebuilt from their surface only (:mod:`mixcount.demo.traps`), ``n_traps`` of
+    each kind, each also turned by a random rotation, rescaled (x0.5-0.8 or x1.25-2, other than ``units``)
+    and with its origin moved off the object, as another source would store it:
+
+    * ``remeshed``: pymeshlab isotropic remeshing to ~6x the faces, or quadric decimation to 1/4, texture
+      re-baked into a new atlas;
+    * ``units``: remeshed and re-baked, then stored in millimetres read as metres (a GLB 1000x the size)
+      or in centimetres read as metres (an OBJ in a plain folder declaring no units, 100x, Z-up read as
+      Y-up);
+    * ``rebaked``: the same surface in a new UV atlas, vertex colours or texture re-baked into 512 texels
+      a side, or into 128 and 12 % darker (re-baked under other lighting);
+    * ``split``: re-baked and cut into 3 or 5 parts, each with its own origin.
+
+    Returns the four ground-truth lists of ``[original, copy, scale]``."""
+    from scipy.spatial.transform import Rotation
+
+    from mixcount.demo import traps as T
+
+    out: dict[str, list[Any]] = {kind: [] for kind in REPUBLISHED_KINDS}
+    if not originals:
+        return tuple(out.values())
+    rng = np.random.default_rng([seed, 5])
+    order = [originals[int(i)] for i in rng.permutation(len(originals))]
+    for k in range(len(REPUBLISHED_KINDS) * n_traps):
+        kind, t = REPUBLISHED_KINDS[k // n_traps], k % n_traps
+        name, spec, _ = order[k % len(order)]
+        colour = T.surface_colour(spec.parts, seed=seed * 1000 + k)
+        vertices, faces = T.weld(spec.parts)
+        look = {"roughness": spec.parts[0].roughness, "metallic": spec.parts[0].metallic}
+        size = float(np.ptp(vertices, axis=0).max())
+        origin = tuple(float(x) for x in rng.uniform(-0.6, 0.6, 3) * size)
+        detail: dict[str, Any] = {}
+        if kind == "remeshed":
+            method = ("isotropic", "decimate")[t % 2]
+            target = min(20_000, max(4_000, 6 * len(faces))) if method == "isotropic" else max(60, len(faces) // 4)
+            vertices, faces = T.remesh(vertices, faces, method=method, target_faces=target)
+            parts = [T.bake(vertices, faces, colour, size=512, **look)]
+            detail = {"method": method, "faces": int(len(faces))}
+        elif kind == "units":
+            method = ("isotropic", "decimate")[t % 2]
+            target = max(2_000, 2 * len(faces)) if method == "isotropic" else max(120, len(faces) // 2)
+            vertices, faces = T.remesh(vertices, faces, method=method, target_faces=min(20_000, target))
+            parts = [T.bake(vertices, faces, colour, size=512, **look)]
+            detail = {"method": method, "faces": int(len(faces))}
+        elif kind == "rebaked":
+            side, gain = ((512, 1.0), (128, 0.88))[t % 2]
+            parts = [T.bake(vertices, faces, colour, size=side, gain=gain, **look)]
+            detail = {"texture_px": int(parts[0].image.size[0]), "gain": gain}  # type: ignore[union-attr]
+        else:
+            pieces = (3, 5)[t % 2]
+            if t % 2 == 0:
+                vertices, faces = T.remesh(vertices, faces, method="decimate", target_faces=max(120, len(faces) // 2))
+            parts = T.split(T.bake(vertices, faces, colour, size=256, **look), pieces)
+            detail = {"parts": pieces, "faces": int(len(faces))}
+        turn = Rotation.random(random_state=int(rng.integers(2 ** 31))).as_matrix()
+        factor = {"units": 1.0}.get(kind, float(rng.choice([rng.uniform(0.5, 0.8), rng.uniform(1.25, 2.0)])))
+        parts = [Part(p.vertices, p.faces, p.uv, image=p.image, colors=p.colors, roughness=p.roughness, metallic=p.metallic,
+                      offset=tuple(a + b for a, b in zip(p.offset, origin))) for p in parts]  # type: ignore[arg-type]
+        parts = _baked(parts, turn, factor)
+        if kind == "split":  # each part its own origin: its centre, stored as the node's offset
+            parts = [Part(p.vertices - p.vertices.mean(axis=0), p.faces, p.uv, image=p.image, roughness=p.roughness,
+                          metallic=p.metallic, offset=tuple(float(x) for x in p.vertices.mean(axis=0)))  # type: ignore[arg-type]
+                     for p in parts]
+        detail["rotation_quat"] = [round(float(x), 6) for x in Rotation.from_matrix(turn).as_quat()]
+        if kind == "units" and t % 2 == 1:  # centimetres in an OBJ that declares none: read as metres, Y-up
+            folder = f"{spec.category}-{spec.variant.lower()}-export-{t + 1}"
+            path = root / folder
+            path.mkdir(parents=True, exist_ok=True)
+            export_obj(parts, path, scale=100.0)
+            meta = {"name": f"{spec.variant} {spec.category} (export)", "category": spec.category,
+                    "description": spec.description, "source": "another package", "generator": GENERATOR, "seed": seed}
+            (path / "metadata.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+            (path / "LICENSE").write_text(LICENSE_TEXT)
+            z_up = np.vstack([p.vertices + np.asarray(p.offset) for p in parts]) * 100.0
+            read = z_up @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T
+            objects.append({"folder": folder, "category": spec.category, "kind": "units", "container": False,
+                            "dims_m": [round(float(x), 6) for x in np.ptp(read, axis=0)], "textured": True,
+                            "appearance": "image", "n_parts": len(parts), "of": name, "model": f"{folder}/mesh.obj",
+                            "source": "folder", "name": meta["name"], "scale": 100.0, "units": "m", "up_axis": "Y",
+                            **detail})
+            out[kind].append([name, folder, 100.0])
+        elif kind == "units":  # millimetres in a GLB (read as metres)
+            twin = emit(spec, kind, parts=parts, scale=1000.0, of=name, extra={"scale": 1000.0, **detail})
+            out[kind].append([name, twin, 1000.0])
+        else:
+            twin = emit(spec, kind, parts=parts, of=name, extra={"scale": round(factor, 6), **detail})
+            out[kind].append([name, twin, round(factor, 6)])
+    return tuple(out.values())
+
+
 def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None) -> dict[str, Any]:
     """Write the demo library under ``root`` (replacing a previous one) and return the ground truth.
 
@@ -897,6 +992,14 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
                         "textured": False, "appearance": None, "n_parts": 0, "of": None, "expected_error": reason})
         broken.append({"folder": name, "expected_error": reason})
 
+    # copies rebuilt from the surface, as another source publishes a scan (mixcount.demo.traps): planted
+    # last and from their own random stream, so every object above keeps its name and bytes; their
+    # originals are those of the traps above, so the clean objects stay the same set
+    remeshed, unit_changes, rebaked, split_parts = _republished_traps(
+        root, [b for b in bases if b[0] in {pair[0] for group in (exact, recolours, rescales, turned, retessellated,
+                                                                   other_source) for pair in group}],
+        n_traps, seed, emit, objects)
+
     n_broken = len(broken)
     categories = sorted({o["category"] for o in objects if o["kind"] != "broken"})
     truth = {
@@ -905,6 +1008,7 @@ def generate_demo_library(root: Path, *, seed: int, n_objects: int | None = None
         "containers": [o["folder"] for o in objects if o["container"]],
         "exact_copies": exact, "recolours": recolours, "rescales": rescales, "turned_rescales": turned,
         "retessellated": retessellated, "other_source": other_source, "broken": broken,
+        "remeshed": remeshed, "unit_changes": unit_changes, "rebaked": rebaked, "split_parts": split_parts,
         "mesh_quality": mesh_quality,
         "categories": categories,
         "expected": {"total": len(objects), "active": len(objects) - n_broken, "broken": n_broken,
