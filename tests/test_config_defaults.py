@@ -59,7 +59,7 @@ NOT_CONFIG_FIELDS = {
 }
 # ``.get(key, default)`` on data that is not configuration but shares a key's name (checked by hand).
 NOT_CONFIG_GETS = {
-    ("mixcount/catalog/layouts.py", "categories"),  # the ``categories`` field of a GSO metadata.pbtxt
+    ("mixcount/catalog/layouts/gso.py", "categories"),  # the ``categories`` field of a GSO metadata.pbtxt
     ("mixcount/scene/spec.py", "collision_proxies"),  # a stage written before proxies existed: none
     ("mixcount/scene/spec.py", "rest_speed"),  # ... and before early stopping: all frames
     ("mixcount/scene/spec.py", "floor_collider_depth"),  # ... and before the deep floor collider: the floor

@@ -1,0 +1,183 @@
+"""What every layout reader shares: the :class:`Candidate` it returns, the walker it reads through
+(:class:`Walker`: the root, the forced layout, side metadata, inherited licences) and small readers of
+folders, metadata records and licence files."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from mixcount.catalog.mesh import MESH_EXTENSIONS
+from mixcount.catalog.naming import DTC_NAME, safe_text, singular
+
+SOURCE_DTC = "dtc"
+SOURCE_GSO = "gso"
+SOURCE_OBJAVERSE = "objaverse"
+SOURCE_OMNI = "omniobject3d"
+SOURCE_FOLDER = "folder"
+# LICENSE, LICENCE.txt, COPYING, LICENSE-CC-BY-NC-4.0.txt (Amazon Berkeley Objects), license.md ...
+LICENCE_NAMES = re.compile(r"^(licen[cs]e|copying)([-_.][\w.-]*)?$", re.IGNORECASE)
+MODEL_PREFERENCE = (".glb", ".gltf", ".usdz", ".usd", ".usdc", ".usda", ".obj", ".ply", ".stl")
+NAME_FIELDS = ("name", "title", "item_name", "display_name", "object_name")
+CATEGORY_FIELDS = ("category", "class", "label", "lvis_category", "categories", "product_type", "super_category")
+LICENCE_FIELDS = ("license", "licence", "license_name", "licenseName", "license_url")
+# Sketchfab licence slugs as Objaverse's annotations carry them.
+LICENCE_SLUGS = {
+    "by": "CC BY 4.0", "by-sa": "CC BY-SA 4.0", "by-nd": "CC BY-ND 4.0", "by-nc": "CC BY-NC 4.0",
+    "by-nc-sa": "CC BY-NC-SA 4.0", "by-nc-nd": "CC BY-NC-ND 4.0", "cc0": "CC0 1.0",
+}
+LICENCE_CHARS = 4000
+
+
+@dataclass
+class Candidate:
+    """One object found on disk, before hashing."""
+
+    source: str
+    source_id: str
+    name: str
+    category: str
+    model_path: Path | None = None
+    sidecars: dict[str, Path] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)
+    license: str | None = None
+    units: str | None = None
+    up_axis: str | None = None
+    error: str | None = None  # a problem found during discovery: the object is broken
+    layout: str = SOURCE_FOLDER
+    # files a model loader must find side by side (reference name -> real file); ingest links them
+    # into one folder under the catalog's data folder and analyses, renders and converts that copy
+    staged: dict[str, Path] = field(default_factory=dict)
+
+
+class Walker(Protocol):
+    """What a layout reader may ask of the walk (:class:`mixcount.catalog.layouts.walk.TreeWalker`)."""
+
+    root: Path  # the path given; licences are inherited up to it
+    layout: str  # the forced layout, or "auto"
+    side: Any  # the side metadata files (mixcount.catalog.layouts.objaverse.SideMetadata)
+
+    def apply_licence(self, cand: Candidate, folder: Path) -> None: ...
+
+    def file_object(self, path: Path) -> Candidate: ...
+
+
+def _model_files(entries: list[os.DirEntry]) -> list[Path]:
+    out = []
+    for e in entries:
+        if e.name.startswith(".") or Path(e.name).suffix.lower() not in MESH_EXTENSIONS:
+            continue
+        try:
+            if e.is_file():
+                out.append(Path(e.path))
+        except OSError:
+            continue
+    return out
+
+
+def _preferred(files: list[Path]) -> Path:
+    """The main model among several files of one object: GLB first, STL last, then by name."""
+    return min(files, key=lambda p: (MODEL_PREFERENCE.index(p.suffix.lower()), p.name))
+
+
+def _scan(folder: Path) -> list[os.DirEntry]:
+    return sorted(os.scandir(folder), key=lambda e: e.name)
+
+
+def is_dir(entry: os.DirEntry) -> bool:
+    try:
+        return entry.is_dir()
+    except OSError:
+        return False
+
+
+def _text(value: Any) -> str | None:
+    """A display string from a metadata value: str, number, {value|name|label}, or a list of them
+    (language-tagged lists such as ABO's ``item_name`` prefer English)."""
+    if isinstance(value, str):
+        return value.strip() or None
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return str(value)
+    if isinstance(value, dict):
+        for key in ("value", "name", "label", "title"):
+            if key in value:
+                return _text(value[key])
+        return None
+    if isinstance(value, list) and value:
+        english = [v for v in value if isinstance(v, dict) and str(v.get("language_tag", "")).startswith("en")]
+        for item in english + list(value):
+            text = _text(item)
+            if text:
+                return text
+    return None
+
+
+def _first(record: dict[str, Any], keys: tuple[str, ...]) -> str | None:
+    for key in keys:
+        if key in record:
+            text = _text(record[key])
+            if text:
+                return text
+    return None
+
+
+def record_identity(record: dict[str, Any]) -> dict[str, str | None]:
+    """name, category, licence, units, up axis from a metadata record (any of the usual field names)."""
+    lic = _first(record, LICENCE_FIELDS)
+    if lic is not None:
+        lic = LICENCE_SLUGS.get(lic.strip().lower(), lic)
+    category = _first(record, CATEGORY_FIELDS)
+    if category is not None and category.strip().lower() in ("none", "null", "unknown", "other", ""):
+        category = None
+    units = record.get("units") if isinstance(record.get("units"), str) else None
+    up = record.get("up_axis") if isinstance(record.get("up_axis"), str) else None
+    return {"name": _first(record, NAME_FIELDS), "category": category, "license": lic, "units": units, "up_axis": up}
+
+
+def _read_licence(path: Path) -> str:
+    return path.read_text(encoding="utf-8", errors="replace")[:LICENCE_CHARS].strip()
+
+
+def json_object(path: Path, cand: Candidate) -> dict[str, Any] | None:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        cand.error = f"{path.name} does not parse: {exc}"
+        return None
+    if not isinstance(data, dict):
+        cand.error = f"{path.name} is not a JSON object"
+        return None
+    return data
+
+
+def read_licence_into(cand: Candidate, path: Path) -> None:
+    cand.sidecars[path.name] = path
+    try:
+        cand.license = _read_licence(path)
+    except OSError as exc:
+        cand.error = f"unreadable licence file {path.name}: {exc.strerror}"
+
+
+def _licence_file(entries: list[os.DirEntry]) -> Path | None:
+    for e in entries:
+        if LICENCE_NAMES.match(e.name):
+            try:
+                if e.is_file():
+                    return Path(e.path)
+            except OSError:
+                continue
+    return None
+
+
+def broken_path_candidate(path: Path, exc: OSError) -> Candidate:
+    looks_dtc = bool(DTC_NAME.match(path.name))
+    source = SOURCE_DTC if looks_dtc else SOURCE_FOLDER
+    source_id = safe_text(path.name if looks_dtc else str(path))
+    category = singular(DTC_NAME.match(path.name).group("category")) if looks_dtc else "unknown"  # type: ignore[union-attr]
+    kind = "folder" if looks_dtc or not path.suffix else "path"
+    return Candidate(source, source_id, safe_text(path.name), category,
+                     error=f"unreadable {kind}: {exc.strerror or exc}", layout=source)

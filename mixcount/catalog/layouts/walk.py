@@ -1,0 +1,212 @@
+"""The walk: every folder under a path is offered to the folder layouts in their order (the first whose
+``detect`` claims it reads it); the model files of a folder none claims go to the file-level readers
+(Objaverse's side metadata, then the plain folder reading). Licences are inherited from the nearest
+licence file up to the path given.
+
+Folder layouts are the modules of this package that define ``detect`` and ``read`` (with ``NAME`` and
+``PRIORITY``), found when the package is imported: a new folder layout is one new module."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import os
+import pkgutil
+import shutil
+from pathlib import Path
+from types import ModuleType
+from typing import Iterable, Iterator
+
+from mixcount.catalog.layouts import folder as folder_layout
+from mixcount.catalog.layouts import objaverse
+from mixcount.catalog.layouts.base import (
+    LICENCE_NAMES,
+    SOURCE_FOLDER,
+    Candidate,
+    _read_licence,
+    _scan,
+    broken_path_candidate,
+)
+from mixcount.catalog.mesh import MESH_EXTENSIONS
+from mixcount.catalog.naming import DTC_NAME, odd_name_reason, safe_text
+from mixcount.errors import CatalogError
+
+
+def _folder_layouts() -> tuple[ModuleType, ...]:
+    """The layout modules that recognise an object folder by itself, in ``PRIORITY`` order."""
+    import mixcount.catalog.layouts as package
+
+    found = []
+    for info in pkgutil.iter_modules(package.__path__):
+        module = importlib.import_module(f"{package.__name__}.{info.name}")
+        if hasattr(module, "detect") and hasattr(module, "read"):
+            found.append(module)
+    return tuple(sorted(found, key=lambda m: m.PRIORITY))
+
+
+FOLDER_LAYOUTS = _folder_layouts()
+# every layout name ``discover`` accepts ("auto" reads each folder by itself)
+LAYOUTS = ("auto", *sorted(m.NAME for m in FOLDER_LAYOUTS + (objaverse,)), folder_layout.NAME)
+
+
+class TreeWalker:
+    """Walks one root path and yields candidates (see the module docstring for the rules)."""
+
+    def __init__(self, root: Path, layout: str, side: objaverse.SideMetadata) -> None:
+        self.root = root
+        self.layout = layout
+        self.side = side
+        self._licences: dict[Path, tuple[str, Path] | None] = {}
+
+    def _folder_licence(self, folder: Path) -> tuple[str, Path] | None:
+        if folder not in self._licences:
+            found = None
+            try:
+                for e in _scan(folder):
+                    if LICENCE_NAMES.match(e.name) and e.is_file():
+                        found = (_read_licence(Path(e.path)), Path(e.path))
+                        break
+            except OSError:
+                pass
+            self._licences[folder] = found
+        return self._licences[folder]
+
+    def inherited_licence(self, folder: Path) -> tuple[str, Path] | None:
+        """The nearest licence file in ``folder`` or above it, up to the root (and the root's parent
+        when the root is itself an object folder)."""
+        cur = folder
+        top = self.root if self.root != folder else self.root.parent
+        while True:
+            lic = self._folder_licence(cur)
+            if lic is not None:
+                return lic
+            if cur == top or cur.parent == cur or (top not in cur.parents):
+                return None
+            cur = cur.parent
+
+    def apply_licence(self, cand: Candidate, folder: Path) -> None:
+        if cand.license is None:
+            lic = self.inherited_licence(folder)
+            if lic is not None:
+                cand.license = lic[0]
+                cand.sidecars.setdefault(f"licence:{lic[1].name}", lic[1])
+
+    def folder_object(self, folder: Path, entries: list[os.DirEntry]) -> Candidate | None:
+        """The object a folder layout reads ``folder`` as, or None when no folder layout claims it."""
+        for layout in FOLDER_LAYOUTS:
+            if layout.detect(self, folder, entries):
+                cand: Candidate = layout.read(self, folder, entries)
+                return cand
+        return None
+
+    def file_object(self, path: Path) -> Candidate:
+        """One model file as an object: Objaverse's reading when its side metadata knows it, else a plain one."""
+        cand = objaverse.read_file(self, path) or folder_layout.read_file(self, path)
+        reason = odd_name_reason(path.name)
+        if reason:
+            cand.error = reason
+        elif path.suffix.lower() not in MESH_EXTENSIONS:
+            cand.error = f"unsupported file type {path.suffix or '(none)'}"
+        if not cand.error:
+            self.apply_licence(cand, path.parent)
+        return cand
+
+    def object_at(self, folder: Path) -> Candidate | None:
+        """The object a folder is by itself (a path given directly), or None to walk it."""
+        try:
+            entries = _scan(folder)
+        except OSError as exc:
+            return broken_path_candidate(folder, exc)
+        return self.folder_object(folder, entries)
+
+    def walk(self, folder: Path) -> Iterator[Candidate]:
+        try:
+            entries = [e for e in _scan(folder) if not e.name.startswith(".")]
+        except OSError as exc:
+            yield broken_path_candidate(folder, exc)
+            return
+        own = self.folder_object(folder, entries)
+        if own is not None:
+            yield own
+            return
+        models: list[Path] = []
+        subdirs: list[Path] = []
+        for entry in entries:
+            path = Path(entry.path)
+            try:
+                is_dir, is_file = entry.is_dir(), entry.is_file()
+                if not is_dir and not is_file and entry.is_symlink():
+                    os.stat(path)  # raises for a dangling or looping link
+            except OSError as exc:
+                if DTC_NAME.match(entry.name) or path.suffix.lower() in MESH_EXTENSIONS:
+                    yield broken_path_candidate(path, exc)
+                continue
+            if is_dir:
+                subdirs.append(path)
+            elif is_file and path.suffix.lower() in MESH_EXTENSIONS:
+                models.append(path)
+        if models:
+            yield from folder_layout.read_models(self, folder, entries, models)
+        for sub in subdirs:
+            yield from self.walk(sub)
+
+
+def discover(paths: Iterable[Path | str], *, layout: str = "auto",
+             metadata_files: Iterable[Path | str] = ()) -> list[Candidate]:
+    """Every object under ``paths`` (sorted walk, duplicates removed); a missing path, an unknown
+    layout or an unusable ``--metadata`` file is a CatalogError."""
+    if layout not in LAYOUTS:
+        raise CatalogError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
+    side = objaverse.SideMetadata(Path(p) for p in metadata_files)
+    found: dict[tuple[str, str], Candidate] = {}
+    for raw in paths:
+        path = Path(raw).expanduser()
+        if not os.path.lexists(path):
+            raise CatalogError(f"path not found: {raw}")
+        path = path.resolve()
+        if path.is_dir():
+            walker = TreeWalker(path, layout, side)
+            own = walker.object_at(path)
+            items: Iterable[Candidate] = [own] if own is not None else walker.walk(path)
+        elif path.is_file():
+            walker = TreeWalker(path.parent, layout, side)
+            items = [walker.file_object(path)]
+        else:
+            try:
+                os.stat(path)
+                items = [Candidate(SOURCE_FOLDER, safe_text(str(path)), safe_text(path.name), "unknown",
+                                   error="not a regular file or folder")]
+            except OSError as exc:
+                items = [broken_path_candidate(path, exc)]
+        for cand in items:
+            found.setdefault((cand.source, cand.source_id), cand)
+    return list(found.values())
+
+
+def stage(cand: Candidate, staging_root: Path) -> None:
+    """Link ``cand.staged`` side by side under ``staging_root`` and point ``model_path`` at the link.
+
+    Symbolic links (a copy where links are not allowed); a stale link is replaced. The folder name is
+    a hash of (source, source_id), so reruns reuse it."""
+    if not cand.staged or cand.model_path is None or cand.error:
+        return
+    key = hashlib.sha256(f"{cand.source}\0{cand.source_id}".encode()).hexdigest()[:20]
+    folder = staging_root / cand.source / key
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, real in cand.staged.items():
+            link = folder / name
+            link.parent.mkdir(parents=True, exist_ok=True)
+            if link.is_symlink() or link.exists():
+                if link.is_symlink() and Path(os.readlink(link)) == real.resolve():
+                    continue
+                link.unlink()
+            try:
+                link.symlink_to(real.resolve())
+            except OSError:
+                shutil.copyfile(real, link)
+    except OSError as exc:
+        cand.error = f"cannot stage the model's files under {folder}: {exc.strerror or exc}"
+        return
+    cand.metadata["source_model_path"] = str(cand.model_path)
+    cand.model_path = folder / cand.model_path.name
