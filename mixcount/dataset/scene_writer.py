@@ -255,6 +255,57 @@ def classes_without_instances(spec: SceneSpec, objects: Sequence[Mapping[str, An
     return out
 
 
+def _write_view(tmp: Path, spec: SceneSpec, k: int, view: Any, objects: list[dict[str, Any]],
+                cats: list[dict[str, Any]], passes: Sequence[str]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Camera ``k``'s files (instance / class PNGs from its id map, exemplar crops) and its COCO part;
+    annotation fields go onto ``objects`` (cam_0's on the record itself, every camera's in its ``views``).
+    Returns the COCO part and the exemplar records; the worker's ids / amodal files are removed."""
+    suffix = view.suffix
+    kept = [r for r in objects if r["status"] == KEPT]
+    ids = np.load(tmp / f"ids{suffix}.npy")
+    amodal = read_amodal_masks(tmp / f"amodal{suffix}.npz")
+    if "instance" in passes:
+        _png16(ids.astype(np.uint16), tmp / f"instance{suffix}.png")
+    if "class" in passes:
+        _png16(class_map(ids, {int(r["instance_id"]): int(r["category_id"]) for r in kept}), tmp / f"class{suffix}.png")
+    file_name = f"scenes/{spec.scene_id}/rgb{suffix}.png"
+    one = _offset_annotation_ids(build_scene_coco(ids, kept, cats, image_id=k + 1, file_name=file_name,
+                                                  scene_id=spec.scene_id, amodal=amodal), k * ANNOTATION_ID_STRIDE)
+    one["images"][0]["camera"] = view.name
+    by_inst = {a["instance_id"]: a for a in one["annotations"]}
+    for r in objects:
+        a = by_inst.get(int(r["instance_id"]))
+        if a is None:
+            continue
+        fields = dict(bbox=a["bbox"], area=a["area"], point=a["point"], visibility=a["visibility"],
+                      exemplar_score=a["exemplar_score"], annotation_id=a["id"])
+        if "bbox_amodal" in a:
+            fields.update(bbox_amodal=a["bbox_amodal"], area_amodal=a["area_amodal"])
+        if k == 0:
+            r.update(fields)
+        if k < len(r.get("views") or []):
+            r["views"][k].update(fields)
+    exemplars = write_exemplar_crops(tmp / f"rgb{suffix}.png", one, tmp / "exemplars", suffix=suffix)
+    os.remove(tmp / f"ids{suffix}.npy")
+    if amodal is not None:
+        os.remove(tmp / f"amodal{suffix}.npz")  # the masks are in coco.json as segmentation_amodal
+    one["image_record"] = {"file_name": file_name, "width": int(ids.shape[1]), "height": int(ids.shape[0]),
+                           "camera": view.name, "image_id": k + 1}
+    one["files"] = {"rgb": f"rgb{suffix}.png", **{p: f"{p}{suffix}.png" for p in ("instance", "class") if p in passes},
+                    **{name: rec["file"] for name, rec in view.passes.items()}}
+    return one, exemplars
+
+
+CONVENTIONS = {
+    "instance.png": "uint16 instance id of counted objects and distractors; 0 = floor, container, background",
+    "class.png": "uint16 COCO category id (4 * object_id + q; q 0 none, 1 larger, 2 smaller); 0 = none",
+    "depth": "planar depth along the optical axis, metres; 0 = no surface (mixcount.dataset.read_depth)",
+    "normal": "unit normals in camera space (x right, y up, z toward the camera); 0 = none "
+              "(mixcount.dataset.read_normals)",
+    "cameras": "camera k > 0 writes rgb_cam_<k>.png, instance_cam_<k>.png, ...; coco.json holds one image per camera",
+}
+
+
 def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions: Mapping[int, Mapping[str, str]],
                    timings: dict[str, float], extra: Optional[dict[str, Any]] = None,
                    external_exemplars: Optional[Mapping[int, str]] = None,
@@ -264,56 +315,16 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
     box, pose of cam_0's image, and per camera the same under ``views``; its ``ground_truth`` the
     evaluation pairs of cam_0's image, distractors included: every camera shows the same kept objects).
 
-    One COCO image per camera: cam_0's is ``rgb.png`` (image id 1, annotation ids = instance ids), camera
-    k's ``rgb_cam_<k>.png`` (image id k + 1, annotation ids k * ANNOTATION_ID_STRIDE + instance id)."""
+    One COCO image per camera (:func:`_write_view`): cam_0's is ``rgb.png`` (image id 1, annotation ids =
+    instance ids), camera k's ``rgb_cam_<k>.png`` (image id k + 1, annotation ids k * ANNOTATION_ID_STRIDE
+    + instance id)."""
     views = worker.views
     cats, class_cat = scene_categories(spec, captions, external_exemplars)
-    objects = []
-    for rec in worker.objects:
-        cid = class_cat[rec.class_index] if rec.role == "counted" else category_id(rec.object_id, None)
-        objects.append({**rec.to_dict(), "category_id": cid})
-    kept = [r for r in objects if r["status"] == KEPT]
-    inst_cat = {int(r["instance_id"]): int(r["category_id"]) for r in kept}
-    coco: dict[str, Any] = {"images": [], "annotations": [], "categories": []}
-    images, files, exemplars = [], {}, []
-    for k, view in enumerate(views):
-        suffix = view.suffix
-        ids = np.load(tmp / f"ids{suffix}.npy")
-        amodal = read_amodal_masks(tmp / f"amodal{suffix}.npz")
-        if "instance" in passes:
-            _png16(ids.astype(np.uint16), tmp / f"instance{suffix}.png")
-        if "class" in passes:
-            _png16(class_map(ids, inst_cat), tmp / f"class{suffix}.png")
-        file_name = f"scenes/{spec.scene_id}/rgb{suffix}.png"
-        one = _offset_annotation_ids(build_scene_coco(ids, kept, cats, image_id=k + 1, file_name=file_name,
-                                                      scene_id=spec.scene_id, amodal=amodal), k * ANNOTATION_ID_STRIDE)
-        one["images"][0]["camera"] = view.name
-        coco["images"] += one["images"]
-        coco["annotations"] += one["annotations"]
-        coco["categories"] = one["categories"]
-        by_inst = {a["instance_id"]: a for a in one["annotations"]}
-        for r in objects:
-            a = by_inst.get(int(r["instance_id"]))
-            if a is None:
-                continue
-            fields = dict(bbox=a["bbox"], area=a["area"], point=a["point"], visibility=a["visibility"],
-                          exemplar_score=a["exemplar_score"], annotation_id=a["id"])
-            if "bbox_amodal" in a:
-                fields.update(bbox_amodal=a["bbox_amodal"], area_amodal=a["area_amodal"])
-            if k == 0:
-                r.update(fields)
-            if k < len(r.get("views") or []):
-                r["views"][k].update(fields)
-        exemplars += write_exemplar_crops(tmp / f"rgb{suffix}.png", coco, tmp / "exemplars", image_index=k,
-                                          suffix=suffix)
-        images.append({"file_name": file_name, "width": int(ids.shape[1]), "height": int(ids.shape[0]),
-                       "camera": view.name, "image_id": k + 1})
-        files[view.name] = {"rgb": f"rgb{suffix}.png",
-                            **{p: f"{p}{suffix}.png" for p in ("instance", "class") if p in passes},
-                            **{name: rec["file"] for name, rec in view.passes.items()}}
-        os.remove(tmp / f"ids{suffix}.npy")
-        if amodal is not None:
-            os.remove(tmp / f"amodal{suffix}.npz")  # the masks are in coco.json as segmentation_amodal
+    objects = [{**rec.to_dict(), "category_id": class_cat[rec.class_index] if rec.role == "counted"
+                else category_id(rec.object_id, None)} for rec in worker.objects]
+    parts = [_write_view(tmp, spec, k, view, objects, cats, passes) for k, view in enumerate(views)]
+    coco = {"images": [img for one, _ in parts for img in one["images"]],
+            "annotations": [a for one, _ in parts for a in one["annotations"]], "categories": parts[0][0]["categories"]}
     for r in objects:
         if r["status"] == KEPT:
             r["pose"] = decompose(r["matrix_world"])
@@ -324,14 +335,15 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
     if (tmp / "worker.json").exists():
         os.remove(tmp / "worker.json")  # everything in it is in metadata.json
     counts: dict[str, int] = {}
-    for r in kept:
-        if r["role"] == "counted":
+    for r in objects:
+        if r["status"] == KEPT and r["role"] == "counted":
             counts[str(r["category_id"])] = counts.get(str(r["category_id"]), 0) + 1
-    first = [a for a in coco["annotations"] if a["image_id"] == 1]
+    first = parts[0][0]["annotations"]
+    files = {v.name: one["files"] for v, (one, _) in zip(views, parts)}
     meta = {
         "scene_id": spec.scene_id, "seed": spec.seed, "split": spec.split, "config_hash": spec.config_hash,
-        "image": {k: v for k, v in images[0].items() if k in ("file_name", "width", "height")},
-        "images": images,
+        "image": {k: v for k, v in parts[0][0]["image_record"].items() if k in ("file_name", "width", "height")},
+        "images": [one["image_record"] for one, _ in parts],
         "camera": worker.camera, "lights": worker.lights, "physics": worker.physics,
         "cameras": [{"name": v.name, "record": v.camera, "framing": v.framing} for v in views],
         "visibility_threshold": worker.visibility_threshold,
@@ -343,22 +355,14 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
         "spawned": {"counted": sum(1 for r in objects if r["role"] == "counted"),
                     "distractors": sum(1 for r in objects if r["role"] == "distractor")},
         "classes_without_instances": classes_without_instances(spec, objects, class_cat),
-        "categories": cats, "objects": objects, "exemplars": exemplars,
+        "categories": cats, "objects": objects, "exemplars": [e for _, ex in parts for e in ex],
         "diagnostics": list(worker.diagnostics),
         "timings": {**timings, **{f"worker.{k}": v for k, v in worker.timings.items()}},
         "spec": spec.to_dict(),
         "files": {**files[views[0].name], "stage": "scene.usda", "settled": "settled.usda", "coco": "coco.json",
                   **({"cameras": files} if len(views) > 1 else {})},
         "passes": {name: dict(rec) for name, rec in views[0].passes.items()},
-        "conventions": {
-            "instance.png": "uint16 instance id of counted objects and distractors; 0 = floor, container, background",
-            "class.png": "uint16 COCO category id (4 * object_id + q; q 0 none, 1 larger, 2 smaller); 0 = none",
-            "depth": "planar depth along the optical axis, metres; 0 = no surface (mixcount.dataset.read_depth)",
-            "normal": "unit normals in camera space (x right, y up, z toward the camera); 0 = none "
-                      "(mixcount.dataset.read_normals)",
-            "cameras": "camera k > 0 writes rgb_cam_<k>.png, instance_cam_<k>.png, ...; coco.json holds one "
-                       "image per camera",
-        },
+        "conventions": CONVENTIONS,
         **(extra or {}),
         "complete": True,
     }
