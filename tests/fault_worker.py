@@ -117,6 +117,48 @@ def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def scaled_drop(req: dict[str, Any]) -> dict[str, Any]:
+    """A 2.2 cm cube proxy at x51 (a 1.12 m body) dropped 15 m onto a hull floor, collided the worker's way
+    (scale baked into the collider's mesh, ``scaled_proxy_collider``) and the naive way (object scale)."""
+    import bpy
+    import mathutils
+    import numpy as np
+
+    from mixcount.blender.physics import Body, simulate
+    from mixcount.blender.scene_build import pose_with_scale, scaled_proxy_collider
+
+    h = 0.011
+    corners = np.array([(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)])
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    out: dict[str, Any] = {"ok": True}
+    for mode in ("baked", "object_scale"):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        floor_mesh = bpy.data.meshes.new("floor")
+        floor_mesh.from_pydata((corners / h * [20.0, 20.0, 2.5] - [0.0, 0.0, 2.5]).tolist(), [], faces)
+        floor = bpy.data.objects.new("floor", floor_mesh)
+        scene.collection.objects.link(floor)
+        proxy = bpy.data.meshes.new("proxy")
+        proxy.from_pydata(corners.tolist(), [], faces)
+        m = np.eye(4)
+        m[:3, :3] = np.array(mathutils.Euler((0.3, 0.2, 0.0)).to_matrix()) * 51.1
+        m[:3, 3] = (3.0, 0.0, 15.0)
+        scale = None
+        if mode == "baked":
+            die, scale = scaled_proxy_collider(scene, "die", proxy, m)
+        else:
+            die = bpy.data.objects.new("die", proxy)
+            scene.collection.objects.link(die)
+            die.matrix_world = mathutils.Matrix(m.tolist())
+        run = simulate(scene, [Body(floor, "passive", "CONVEX_HULL"), Body(die, "active", "CONVEX_HULL")],
+                       frames=300, substeps=8, iterations=4, gravity=9.81, rest_speed=0.0)
+        pose = run.matrices[die.name] if scale is None else pose_with_scale(run.matrices[die.name], scale)
+        world = np.c_[corners, np.ones(8)] @ pose.T
+        out[mode] = {"lowest": float(world[:, 2].min()), "centre_z": float(pose[2, 3]),
+                     "size": float(np.linalg.norm(pose[:3, 0]) * 2 * h)}
+    return out
+
+
 def release_wave(req: dict[str, Any]) -> dict[str, Any]:
     import bpy
     import numpy as np
@@ -201,4 +243,5 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
 if __name__ == "__main__":
     sys.exit(worker_main.main({**worker_main.HANDLERS, "sleep": sleep, "canonical": canonical,
                                       "border_check": border_check, "rest_stop": rest_stop,
-                                      "release_wave": release_wave, "mesh_cache": mesh_cache}))
+                                      "release_wave": release_wave, "mesh_cache": mesh_cache,
+                                      "scaled_drop": scaled_drop}))

@@ -346,6 +346,7 @@ class SceneState:
     blender_objects: dict[str, Any]  # prim path -> bpy object (removed from the scene when dropped)
     diagnostics: list[dict[str, Any]] = field(default_factory=list)
     proxies: dict[str, Any] = field(default_factory=dict)  # render object name -> its hidden collision proxy
+    proxy_scales: dict[str, np.ndarray] = field(default_factory=dict)  # render object name -> scale baked in its proxy
     framings: list[dict[str, Any]] = field(default_factory=list)  # per camera: how it was framed
     views: dict[int, list[dict[str, Any]]] = field(default_factory=dict)  # object index -> per-camera records
 
@@ -409,6 +410,33 @@ def load_scene(req: SceneRequest) -> SceneState:
     return state
 
 
+def _split_scale(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 4x4 pose (column vectors, no shear) -> its per-axis scale and the pose without it."""
+    scale = np.linalg.norm(m[:3, :3], axis=0)
+    unscaled = np.array(m, dtype=np.float64)
+    unscaled[:3, :3] = m[:3, :3] / np.where(scale == 0, 1.0, scale)
+    return scale, unscaled
+
+
+def scaled_proxy_collider(scene: Any, name: str, proxy: Any, matrix: np.ndarray) -> tuple[Any, np.ndarray]:
+    """A hidden collider of the proxy mesh at ``matrix`` with the scale baked into its own copy of the mesh
+    (the object itself unscaled); returns it and the scale, which the render object's pose gets back
+    (``pose_with_scale``). Bullet's convex hulls misbehave under a large object scale: in bpy 5.0.1 a
+    2.2 cm cube at x51 dropped 15 m came back up to 8 m and from 30 m went through the floor, while the
+    same cube with the scale in its vertices rests at the margin (docs/blender.md)."""
+    import mathutils
+
+    scale, unscaled = _split_scale(np.asarray(matrix, dtype=np.float64))
+    data = proxy.copy()
+    data.transform(mathutils.Matrix.Diagonal((*scale.tolist(), 1.0)))
+    return _hidden_collider(scene, name, data, unscaled), scale
+
+
+def pose_with_scale(matrix: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The render object's pose from its unscaled collider's pose and the scale baked into the collider."""
+    return np.asarray(matrix, dtype=np.float64) @ np.diag([*np.asarray(scale, dtype=np.float64).tolist(), 1.0])
+
+
 def _add_instances(state: SceneState, stage: Any) -> None:
     """The floor and every labelled prim as Blender objects and physics bodies; an ObjectResult each for
     counted objects and distractors. With after-physics placement distractors get no body: the paper
@@ -448,9 +476,12 @@ def _add_instances(state: SceneState, stage: Any) -> None:
         elif (proxy_prim and proxy_prim.HasAPI(UsdPhysics.CollisionAPI)
                 and UsdPhysics.CollisionAPI(proxy_prim).GetCollisionEnabledAttr().Get() is not False):
             # collide through the convex proxy: a hidden object that the simulation moves; settle()
-            # copies its pose onto the render object
-            pobj = _hidden_collider(scene, prim.GetName() + "_proxy", state.cache.proxy(asset, proxy_prim), m)
+            # copies its pose onto the render object. The instance's scale is baked into its own copy of the
+            # proxy: under a large object scale Bullet's hulls misbehave (a 2.2 cm die at x51 came back up
+            # from a 15 m drop and went through the floor from 30 m; baked, it rests), docs/blender.md
+            pobj, scale = scaled_proxy_collider(scene, prim.GetName() + "_proxy", state.cache.proxy(asset, proxy_prim), m)
             state.proxies[obj.name] = pobj
+            state.proxy_scales[obj.name] = scale
             state.bodies.append(Body(pobj, kind, "CONVEX_HULL"))
         else:
             approx = str(prim.GetAttribute("physics:approximation").Get() or state.spec.physics.collision_shape)

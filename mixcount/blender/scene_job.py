@@ -31,7 +31,7 @@ import numpy as np
 from mixcount.annotate.raster import PinholeCamera
 from mixcount.blender import decisions as D
 from mixcount.blender.contract import STATUS_OK, CameraView, SceneRequest, SceneResult, view_suffix
-from mixcount.blender.scene_build import SceneState, load_scene
+from mixcount.blender.scene_build import SceneState, load_scene, pose_with_scale
 
 
 class Timer:
@@ -90,9 +90,12 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
                               "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(run.speeds.items())}})
     proxy_objs = set(state.proxies.values())
     state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]
-    for name, pobj in state.proxies.items():  # proxy pose -> render object; the proxies are done
+    for name, pobj in state.proxies.items():  # proxy pose (x the scale baked into it) -> render object
         mat = settled.pop(pobj.name, None)
         if mat is not None:
+            scale = state.proxy_scales.get(name)
+            if scale is not None:
+                mat = pose_with_scale(mat, scale)
             settled[name] = mat
             bpy.data.objects[name].matrix_world = mathutils.Matrix(mat.tolist())
         bpy.data.objects.remove(pobj, do_unlink=True)
