@@ -2,12 +2,13 @@
 
 Usage: .venv/bin/python bench/capture.py [--faces 300000] [--workers 2]
 Writes, in a temporary folder, a textured scan-like object (a lumpy, image-textured blob of about
-``--faces`` triangles, one GLB), a copy of it turned over and rescaled (another GLB), and the same scan
-subdivided once more (x4 faces, a "re-tessellated" export), ingests them into a fresh catalog and runs the
-filter (shape, mesh-quality and surface-appearance descriptors, no renders). Prints human lines to stderr
-and one JSON line to stdout:
+``--faces`` triangles, one GLB), a copy of it turned over and rescaled (another GLB), the same scan
+subdivided once more (x4 faces, a "re-tessellated" export) and another source's copy (isotropically
+remeshed by pymeshlab to a fifth of the faces, texture re-baked into a new atlas, x0.01, turned), ingests
+them into a fresh catalog and runs the filter (shape, mesh-quality and surface-appearance descriptors,
+no renders). Prints human lines to stderr and one JSON line to stdout:
 {"faces": [...], "ingest_s": ..., "filter_s": ..., "peak_rss_mb": ..., "pairs": [...], "mesh_quality": ...}
-The copies must come out as one duplicate group.
+The four must come out as one duplicate group (all 6 pairs).
 """
 
 from __future__ import annotations
@@ -31,23 +32,7 @@ from mixcount.catalog.models import CatalogObject, Flag  # noqa: E402
 from mixcount.config import load_config  # noqa: E402
 from mixcount.curation.flags import run_filter  # noqa: E402
 from mixcount.demo import library as L  # noqa: E402
-
-
-def scan_like(faces: int, rng: np.random.Generator) -> L.Part:
-    """An icosphere with enough subdivisions for ``faces``, pushed into a lumpy potato shape, with a
-    striped texture through spherical UVs."""
-    import trimesh
-    from PIL import Image
-
-    level = max(1, int(round(np.log(faces / 20) / np.log(4))))
-    mesh = trimesh.creation.icosphere(subdivisions=level, radius=0.05)
-    v = np.asarray(mesh.vertices)
-    d = v / np.linalg.norm(v, axis=1, keepdims=True)
-    bumps = sum(a * np.sin(k * d @ rng.normal(size=3)) for a, k in ((0.12, 3.0), (0.05, 7.0), (0.02, 15.0)))
-    v = v * (1.0 + bumps)[:, None] * np.array([1.6, 1.0, 0.8])
-    uv = np.c_[0.5 + np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi), 0.5 + np.arcsin(d[:, 2].clip(-1, 1)) / np.pi]
-    img = Image.fromarray(np.uint8(rng.integers(0, 255, (64, 64, 3)))).resize((256, 256), Image.Resampling.NEAREST)
-    return L.Part(v, np.asarray(mesh.faces), uv, image=img, roughness=0.6)
+from mixcount.demo import traps as T  # noqa: E402
 
 
 def main() -> int:
@@ -56,20 +41,24 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     rng = np.random.default_rng(0)
-    part = scan_like(args.faces, rng)
+    part = T.scan_like(args.faces, rng)
     with tempfile.TemporaryDirectory(prefix="mixcount-capture-") as tmp:
         root = Path(tmp) / "lib"
         objects = {
             "scan": [part],
             "scan_turned": L._baked([part], L.rotation_xyz((90.0, 0.0, 37.0)), 1.7),
             "scan_retessellated": L.subdivide([part]),
+            # another source: isotropically remeshed to a fifth of the faces, texture re-baked, x0.01, turned
+            "scan_remeshed_scaled_turned": T.republish([part], method="isotropic", target_faces=len(part.faces) // 5,
+                                                       texture_px=2048, rotation=L.rotation_xyz((0.0, 90.0, 120.0)),
+                                                       scale=0.01, seed=0),
         }
         for name, parts in objects.items():
             (root / name).mkdir(parents=True)
             (root / name / "model.glb").write_bytes(L.export_glb(parts))
         faces = [int(len(p.faces)) for parts in objects.values() for p in parts]
         print(f"faces: {faces}", file=sys.stderr)
-        catalog = open_catalog(str(Path(tmp) / "catalog.db"))
+        catalog = open_catalog(str(Path(tmp) / "catalog.db"), data_dir="")
         config = load_config([], [f"ingest.workers={args.workers}"])
         t0 = time.perf_counter()
         summary = ingest_paths(catalog, [root], config=config)
@@ -90,7 +79,7 @@ def main() -> int:
            "broken": summary.broken, "pairs": pairs, "quality_flags": quality,
            "descriptor_failures": result.descriptor_failures}
     print(json.dumps(out))
-    return 0 if summary.broken == 0 and len({p[:2] for p in pairs}) == 3 else 1
+    return 0 if summary.broken == 0 and len({p[:2] for p in pairs}) == 6 else 1
 
 
 if __name__ == "__main__":
