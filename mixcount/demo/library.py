@@ -13,7 +13,13 @@
   split in four), the same object under another name from another source (a plain folder holding an OBJ
   in centimetres, 1.25x larger, stored Z-up but undeclared, so it is read lying on its side), broken
   files (a truncated GLB, non-mesh bytes named ``3d-asset.glb``), and a clean object whose mesh is
-  non-manifold and open (a tote with a flat strap welded to its rim: usable, a ``mesh_quality`` warning).
+  non-manifold and open (a tote with a flat strap welded to its rim: usable, a ``mesh_quality`` warning);
+* copies as another source publishes a scan, rebuilt from the original's surface rather than its mesh
+  data (:mod:`mixcount.demo.traps`), two of each: remeshed (pymeshlab isotropic / quadric decimation),
+  stored in other units (mm or cm read as m), texture re-baked into a new atlas, split into parts; each
+  also turned, rescaled and with its origin moved (``remeshed``, ``unit_changes``, ``rebaked``,
+  ``split_parts`` in the ground truth). They are written after everything else from their own random
+  stream, so the older objects keep their names and bytes.
 
 Geometry is built Z-up in metres and stored the glTF way (Y-up): each part's node carries the Z-up ->
 Y-up rotation and its placement, so ingest has to apply node transforms to measure it correctly.
