@@ -219,6 +219,7 @@ def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.Mo
     assert by_seed[99].status == FAILED and "not visible on this node" in (by_seed[99].error or "")
     for s in (0, 3, 4, 5):  # the restarted actor kept working; the executor's thread count reached the task
         assert by_seed[s].status == WRITTEN and by_seed[s].timings["threads"] == 1.0
+    assert all("scenes" in i for i in info), info
     assert sum(i["scenes"] for i in info) >= 4 and sum(i["recycled"] for i in info) >= 1
 
 

@@ -30,6 +30,7 @@ from typing import Any, Callable, Optional
 from mixcount.config import Config
 from mixcount.errors import AssetError, CompositionError, MixcountError, StorageError, os_error_line
 from mixcount.progress import ProgressReporter, as_reporter
+from mixcount.run.local import Executor
 from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 
 
@@ -59,7 +60,7 @@ def render_threads(config: Config, workers: int) -> int:
 
 
 def compose_scenes(
-    *, pool: list[Any], config: Config, out_dir: Path, assets_dir: Path, n: int, executor: Any = None,
+    *, pool: list[Any], config: Config, out_dir: Path, assets_dir: Path, n: int, executor: Optional[Executor] = None,
     environments: tuple = (), materials: tuple = (), progress: ProgressReporter | bool | None = None, oracle: bool = False,
     on_outcome: Optional[Callable[[SceneOutcome], None]] = None, passes: Optional[str | list[str]] = None,
     merge: Optional[bool] = None,
@@ -291,7 +292,7 @@ class _ComposeRun:
     def info(self) -> str:
         return f"failed {self.summary.failed}  regenerated {self.summary.empty + self.summary.rejected}"
 
-    def drive(self, executor: Any, on_outcome: Optional[Callable[[SceneOutcome], None]]) -> None:
+    def drive(self, executor: Executor, on_outcome: Optional[Callable[[SceneOutcome], None]]) -> None:
         """Keep the executor's slots full until ``n`` scenes are written; after a fault drain, draw none."""
         summary, bar = self.summary, self.bar
         while summary.written < self.n or (self.fatal is not None and self.in_flight):

@@ -12,12 +12,13 @@ from typing import Any, Optional
 
 from mixcount.config import ComposeConfig
 from mixcount.errors import MixcountError
+from mixcount.run.local import Executor
 
 EXECUTORS = ("local", "ray")
 
 
 def make_executor(kind: str = "local", workers: Optional[int] = None, address: Optional[str] = None, *,
-                  config: ComposeConfig, log_dir: Optional[Path] = None, **extra: Any) -> Any:
+                  config: ComposeConfig, log_dir: Optional[Path] = None, **extra: Any) -> Executor:
     """A started executor of ``kind`` ("local" or "ray"); close it (or use ``with``) when done.
 
     ``config``: the ``[compose]`` section. ``workers`` (None: ``compose.workers``) sets the slots; on a Ray
