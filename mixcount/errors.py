@@ -1,17 +1,28 @@
-"""One exception tree for mixcount.
+"""One exception tree for mixcount: every error it raises on purpose is a :class:`MixcountError`.
 
-MixcountError
-  ConfigError        unknown key, wrong type, unreadable config file
-  CatalogError       database unreachable/unwritable, missing object, bad ingest path
-    IngestError      one object could not be ingested (recorded as `broken`, batch goes on)
-  CaptionError       captioner failure for one object (recorded, batch goes on)
-  CompositionError   scene sampling / USD writing failed
-  RenderError        Blender worker failed, timed out or produced invalid output
-  StorageError       an output folder cannot take the run's files: no space, read-only, no permission
-  AssetError         a file a scene needs (model, texture, environment map) is missing or unreadable
-  DatasetError       a dataset's files do not match their record, or a scene cannot be merged
+Like httpx's own list, each class says when it is raised; catch the narrowest one you can handle::
+
+    MixcountError               base of everything below; the CLI prints its message, exit code 2
+    ├── ConfigError             unknown key, wrong type, unreadable config file
+    ├── CatalogError            database unreachable / unwritable / another program's, missing object,
+    │   │                       bad ingest path, unknown layout, unusable --metadata file
+    │   └── IngestError         one object could not be ingested (recorded as `broken`, batch goes on)
+    ├── CaptionError            a captioner could not caption one object (recorded, batch goes on)
+    │   └── CaptionRequestError an HTTP captioning request failed (``attempts``, ``retryable``)
+    ├── CompositionError        scene sampling / USD writing failed, bad compose options
+    ├── RenderError             a Blender worker failed, timed out, died or answered nonsense
+    ├── ExecutorError           the Ray cluster could not be reached or set up
+    ├── StorageError            an output folder cannot take the run's files: no space, read-only, no permission
+    ├── AssetError              a file a scene needs (model, texture, environment map) is missing or unreadable
+    ├── DatasetError            a dataset's files do not match their record, or a scene cannot be merged
+    ├── ExportError             a dataset could not be exported (not a composed dataset, unknown split or
+    │                           format, bad output folder)
+    └── EvaluationError         evaluation or statistics could not be computed from the given files
+        ├── GroundTruthError    the ground-truth COCO file or dataset folder is missing or malformed
+        └── PredictionError     the prediction file is missing or malformed
 
 StorageError and AssetError stop a compose run: no other seed could succeed (docs/faults.md).
+``RayExecutorError`` is the old name of ExecutorError (mixcount.run.ray_executor keeps it).
 
 Only ``mixcount.cli`` turns these into messages and exit codes.
 """
@@ -43,12 +54,25 @@ class CaptionError(MixcountError):
     """A captioner could not produce a valid caption set for one object."""
 
 
+class CaptionRequestError(CaptionError):
+    """Captioning one object failed; ``attempts`` = HTTP requests made, ``retryable`` = transient cause."""
+
+    def __init__(self, message: str, *, attempts: int, retryable: bool = False) -> None:
+        super().__init__(message)
+        self.attempts = attempts
+        self.retryable = retryable
+
+
 class CompositionError(MixcountError):
     """A scene could not be sampled or written."""
 
 
 class RenderError(MixcountError):
     """A Blender worker failed, timed out or produced invalid output."""
+
+
+class ExecutorError(MixcountError):
+    """The Ray cluster could not be reached or set up."""
 
 
 class StorageError(MixcountError):
@@ -63,6 +87,22 @@ class AssetError(MixcountError):
 
 class DatasetError(MixcountError):
     """A dataset's files do not match their record (``mixcount verify``), or a scene cannot be merged."""
+
+
+class ExportError(MixcountError):
+    """A dataset could not be exported: not a composed dataset, unknown split or format, bad output folder."""
+
+
+class EvaluationError(MixcountError):
+    """Evaluation or statistics could not be computed from the given files."""
+
+
+class GroundTruthError(EvaluationError):
+    """The ground-truth COCO file (or dataset folder) is missing or malformed."""
+
+
+class PredictionError(EvaluationError):
+    """The prediction file is missing or malformed."""
 
 
 def os_error_line(exc: OSError) -> str:

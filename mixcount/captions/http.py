@@ -45,7 +45,7 @@ import numpy as np
 
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
 from mixcount.config import CaptionsConfig
-from mixcount.errors import CaptionError, ConfigError
+from mixcount.errors import CaptionRequestError, ConfigError
 
 log = logging.getLogger("mixcount.captions.http")
 
@@ -75,15 +75,6 @@ GEMINI_SCHEMA: dict[str, Any] = {
     "required": list(TIERS),
     "propertyOrdering": list(TIERS),
 }
-
-
-class CaptionRequestError(CaptionError):
-    """Captioning one object failed; ``attempts`` = HTTP requests made, ``retryable`` = transient cause."""
-
-    def __init__(self, message: str, *, attempts: int, retryable: bool = False) -> None:
-        super().__init__(message)
-        self.attempts = attempts
-        self.retryable = retryable
 
 
 class _BadAnswer(Exception):

@@ -1,22 +1,12 @@
-"""Errors of the evaluation area; all are MixcountError, so the CLI reports them as messages.
+"""The evaluation area's errors, defined in the one exception tree (:mod:`mixcount.errors`):
 
-EvaluationError      base of this module's errors
+EvaluationError      base of the evaluation errors
   GroundTruthError   the COCO file or dataset folder is missing or malformed
   PredictionError    the prediction file is missing or malformed
 """
 
 from __future__ import annotations
 
-from mixcount.errors import MixcountError
+from mixcount.errors import EvaluationError, GroundTruthError, PredictionError
 
-
-class EvaluationError(MixcountError):
-    """Evaluation or statistics could not be computed from the given files."""
-
-
-class GroundTruthError(EvaluationError):
-    """The ground-truth COCO file (or dataset folder) is missing or malformed."""
-
-
-class PredictionError(EvaluationError):
-    """The prediction file is missing or malformed."""
+__all__ = ["EvaluationError", "GroundTruthError", "PredictionError"]

@@ -1,9 +1,7 @@
-"""Errors of the export area; MixcountErrors, so the CLI prints them as messages (exit code 2)."""
+"""The export area's error, defined in the one exception tree (:mod:`mixcount.errors`)."""
 
 from __future__ import annotations
 
-from mixcount.errors import MixcountError
+from mixcount.errors import ExportError
 
-
-class ExportError(MixcountError):
-    """A dataset could not be exported: not a composed dataset, unknown split or format, bad output folder."""
+__all__ = ["ExportError"]

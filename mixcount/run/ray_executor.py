@@ -34,15 +34,15 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-from mixcount.errors import MixcountError
+from mixcount.blender.pool import MAX_ERROR_CHARS, WorkerSlot, error_text
+from mixcount.errors import ExecutorError
 from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
 
 #: seconds a call may run beyond its task's ``timeout_s`` before the driver gives up on the actor
 CALL_GRACE_S = 120.0
 
 
-class RayExecutorError(MixcountError):
-    """The Ray cluster could not be reached or set up."""
+RayExecutorError = ExecutorError  # the name this module has always raised (mixcount.errors.ExecutorError)
 
 
 def default_worker_factory(name: str, log_dir: Optional[str]) -> Any:
@@ -60,7 +60,7 @@ def default_worker_factory(name: str, log_dir: Optional[str]) -> Any:
 
 
 def failed_outcome(task: SceneTask, error: str, seconds: float = 0.0) -> SceneOutcome:
-    return SceneOutcome(task.spec.scene_id, task.spec.seed, FAILED, seconds, error=error[:4000])
+    return SceneOutcome(task.spec.scene_id, task.spec.seed, FAILED, seconds, error=error[:MAX_ERROR_CHARS])
 
 
 class SceneActor:
@@ -70,20 +70,11 @@ class SceneActor:
                  runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task,
                  worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory) -> None:
         self.name = name
-        self.recycle_after = max(0, int(recycle_after))
         self.log_dir = log_dir
         self.runner = runner
-        self.worker_factory = worker_factory
-        self.worker: Any = None
-        self.scenes = 0  # scenes handled by the current worker
-        self.total = 0
-        self.recycled = 0
-
-    def _worker(self) -> Any:
-        if self.worker is None:
-            self.worker = self.worker_factory(f"{self.name}-{os.getpid()}", self.log_dir)
-            self.scenes = 0
-        return self.worker
+        # one BlenderWorker, recycled after recycle_after scenes: the pool's one rule
+        self.slot = WorkerSlot(lambda: worker_factory(f"{self.name}-{os.getpid()}", self.log_dir),
+                               recycle_after=recycle_after)
 
     def run(self, task: SceneTask) -> SceneOutcome:
         t0 = time.perf_counter()
@@ -93,31 +84,18 @@ class SceneActor:
                                         "not visible on this node; every node needs the output, asset and model "
                                         "folders at the same paths (shared filesystem, see docs/ray.md)")
         try:
-            outcome = self.runner(task, self._worker())
+            return self.slot.run(lambda worker: self.runner(task, worker))
         except Exception as exc:  # noqa: BLE001 - a runner that raises fails one scene
-            outcome = failed_outcome(task, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
-        self.scenes += 1
-        self.total += 1
-        if self.recycle_after and self.scenes >= self.recycle_after:
-            self._close_worker()
-            self.recycled += 1
-        return outcome
-
-    def _close_worker(self) -> None:
-        if self.worker is not None:
-            try:
-                self.worker.close()
-            finally:
-                self.worker = None
+            return failed_outcome(task, error_text(exc), time.perf_counter() - t0)
 
     def info(self) -> dict[str, Any]:
-        w = self.worker
+        w = self.slot.current
         pid = getattr(w, "pid", None) if w is not None else None
         return {"name": self.name, "host": socket.gethostname(), "pid": os.getpid(), "worker_pid": pid,
-                "worker_rss_kb": _rss_kb(pid), "scenes": self.total, "recycled": self.recycled}
+                "worker_rss_kb": _rss_kb(pid), "scenes": self.slot.total, "recycled": self.slot.recycled}
 
     def close(self) -> bool:
-        self._close_worker()
+        self.slot.close()
         return True
 
 
