@@ -74,8 +74,8 @@ def test_dtc_layout_facts_match_ground_truth(tmp_path, catalog):
     for entry in truth["objects"]:
         obj = objs[entry["folder"]]
         assert obj.source == entry["source"] and obj.category == entry["category"]
-        if entry["source"] == "folder":  # another source: OBJ in cm read Y-up, named by its metadata.json
-            assert obj.status == "active" and obj.name == entry["name"] and obj.source_units == "cm"
+        if entry["source"] == "folder":  # another source: OBJ in cm (or undeclared: m) read Y-up, named by its metadata.json
+            assert obj.status == "active" and obj.name == entry["name"] and obj.source_units == entry["units"]
             assert obj.dims == pytest.approx(tuple(entry["dims_m"]), abs=2e-5) and obj.textured
             continue
         assert obj.source_id == entry["folder"]
