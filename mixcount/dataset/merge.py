@@ -43,6 +43,7 @@ from mixcount.dataset.attribution import (
     attribution_extract,
     write_attribution_document,
 )
+from mixcount.dataset.external_exemplars import CrossSceneExemplars
 from mixcount.dataset.manifest import finished_but_unlisted, merge_problem
 
 INDEX_NAME = ".merge_index.jsonl"
@@ -126,6 +127,7 @@ class _SplitWriter:
     count_n: int = 0
     count_min: Optional[int] = None
     count_max: Optional[int] = None
+    cross_scene: CrossSceneExemplars = field(default_factory=CrossSceneExemplars)
 
     def __post_init__(self) -> None:
         self.img_fh = open(self.tmp / f"{self.split}.images", "w")
@@ -139,18 +141,22 @@ class _SplitWriter:
             self.images += 1
             new_image[int(img["id"])] = self.images
         old_to_new = {}
+        merged_anns: dict[int, dict[str, Any]] = {}
         for a in sorted(coco["annotations"], key=lambda a: int(a.get("image_id", 1))):
             self.annotations += 1
             b = dict(a)
             old_to_new[a["id"]] = self.annotations
             b["id"], b["image_id"] = self.annotations, new_image[int(a.get("image_id", 1))]
             b["scene_id"] = scene_dir.name
+            merged_anns[self.annotations] = b
             self.ann_fh.write(("," if self.annotations > 1 else "") + json.dumps(b))
+        merged_images = []
         for src in coco["images"]:
             img = dict(src)
             img["id"] = new_image[int(src["id"])]
             img["exemplars"] = [{**e, "annotation_ids": [old_to_new[i] for i in e["annotation_ids"]]}
                                 for e in img.get("exemplars", [])]
+            merged_images.append(img)
             self.img_fh.write(("," if img["id"] > 1 else "") + json.dumps(img))
         for c in coco["categories"]:
             known = self.categories.setdefault(c["id"], c)
@@ -167,6 +173,9 @@ class _SplitWriter:
             self.count_n += 1
             self.count_min = v if self.count_min is None else min(self.count_min, v)
             self.count_max = v if self.count_max is None else max(self.count_max, v)
+        # last: nothing after it can fail, so an undone scene never leaves a candidate behind
+        self.cross_scene.add_scene(scene_dir.name, merged_images, merged_anns,
+                                   {int(c["id"]): c for c in coco["categories"]})
 
     def finish(self, out_dir: Path) -> Path:
         """Concatenate header, images, annotations and categories into the split's COCO file."""
@@ -182,7 +191,9 @@ class _SplitWriter:
             out.write('], "annotations": [')
             with open(self.tmp / f"{self.split}.annotations") as fh:
                 shutil.copyfileobj(fh, out, 1 << 20)
-            out.write('], "categories": ' + json.dumps([self.categories[k] for k in sorted(self.categories)]) + "}")
+            cats = [{**self.categories[k], "cross_scene_exemplars": self.cross_scene.for_category(self.categories[k])}
+                    for k in sorted(self.categories)]
+            out.write('], "categories": ' + json.dumps(cats) + "}")
         os.replace(tmp, path)
         return path
 

@@ -8,7 +8,10 @@ through ``datasets/coco.py::CocoDetection``. Written here:
   of every category in the exported splits, distractor categories included.
 - ``<split>_odvg.jsonl``: one record per (image, class) sample: ``filename``, ``height``, ``width``,
   ``exemplars`` (three [x1, y1, x2, y2] integer boxes of the sample's class) and ``detection.instances``
-  (``bbox`` [x1, y1, x2, y2], ``label``, ``category``). The instances are the sample's class first, then
+  (``bbox`` [x1, y1, x2, y2], ``label``, ``category``), and ``external_exemplars``: the paper's crops of the
+  same object from other scenes of the split, as boxes on those (exported) images
+  ``[{filename, exemplar: [x1, y1, x2, y2], scene_id, exemplar_score}]`` (up to three). The instances are
+  the sample's class first, then
   **every other annotation of the image** (other classes and distractors). ODVGDataset samples negative
   caption labels from the label map minus the labels of the record's instances, so listing every object
   of the image guarantees that a class present in the image is never offered as a negative for it; and
@@ -34,7 +37,7 @@ from typing import Any, Mapping, Optional
 from mixcount.dataset.attribution import write_attribution
 from mixcount.export.outputs import ExportFolder
 from mixcount.export.points import object_point
-from mixcount.export.reader import ComposedDataset, DatasetImage, caption, check_tier
+from mixcount.export.reader import ComposedDataset, DatasetImage, caption, check_tier, image_key
 from mixcount.progress import ProgressReporter
 
 IMAGES = "images"
@@ -62,6 +65,19 @@ def build_labels(ds: ComposedDataset, splits: list[str], tier: str) -> tuple[dic
     return {str(i): t for t, i in label_of_text.items()}, cat_label, shared
 
 
+def cross_scene(img: DatasetImage, category_id: int) -> list[dict[str, Any]]:
+    """The class's cross-scene exemplars as CountGD takes exemplars, boxes on an image: ``filename`` (an
+    image of this export: same split), ``exemplar`` [x1, y1, x2, y2] integer box there, ``scene_id`` and
+    ``exemplar_score``."""
+    out = []
+    for c in img.cross_scene_exemplars(category_id):
+        x, y, w, h = (float(v) for v in c["bbox"])
+        out.append({"filename": f"{image_key(str(c['scene_id']), str(c['file_name']))}{Path(str(c['file_name'])).suffix}",
+                    "exemplar": [int(round(x)), int(round(y)), int(round(x + w)), int(round(y + h))],
+                    "scene_id": c["scene_id"], "exemplar_score": c["exemplar_score"]})
+    return out
+
+
 def odvg_record(img: DatasetImage, category_id: int, filename: str, cat_label: Mapping[int, int],
                 label_map: Mapping[str, str]) -> dict[str, Any]:
     own = img.of_category(category_id)
@@ -73,8 +89,10 @@ def odvg_record(img: DatasetImage, category_id: int, filename: str, cat_label: M
         label = cat_label[int(a["category_id"])]
         instances.append({"bbox": xyxy(a), "label": label, "category": label_map[str(label)]})
     exemplars = [[int(round(v)) for v in xyxy(a)] for a in img.exemplars(category_id)]
+    external = cross_scene(img, category_id)
     return {
         "filename": filename, "height": img.height, "width": img.width, "exemplars": exemplars,
+        "external_exemplars": external,
         "detection": {"instances": instances},
         "mixcount": {"scene_id": img.scene_id, "image_id": img.id, "category_id": category_id,
                      "label": cat_label[category_id], "count": len(own)},
@@ -116,7 +134,8 @@ def export_countgd(ds: ComposedDataset, out: Path | str, *, split: Optional[str]
                         image_id = len(coco_images) + 1
                         coco_images.append({"id": image_id, "file_name": filename, "width": img.width,
                                             "height": img.height, "scene_id": img.scene_id, "source_image_id": img.id,
-                                            "source_category_id": cid})
+                                            "source_category_id": cid,
+                                            "cross_scene_exemplars": cross_scene(img, cid)})
                         label = cat_label[cid]
                         for a in img.of_category(cid):
                             x, y = object_point(a)

@@ -7,7 +7,10 @@ FSC-147 labels one class per image, so every (image, class) pair of the dataset 
 - ``images_384_VarV2/<sample>.jpg``: the render resized to height 384 (width in proportion, bicubic).
 - ``annotation_FSC147_384.json``: ``{sample: {H, W, points, box_examples_coordinates, ratio_h, ratio_w,
   img_path, density_path, negative_points, negative_box_exemples_coordinates, positive_prompt,
-  negative_prompt, mixcount}}``; coordinates in the 384-high image.
+  negative_prompt, cross_scene_exemplars, mixcount}}``; coordinates in the 384-high image.
+- ``cross_scene_exemplars/<scene>_<crop>.png``: the paper's second kind of external exemplar, crops of the
+  sample's object from other scenes of the same split; each sample lists up to three as
+  ``cross_scene_exemplars`` ``[{file, scene_id, category_id, exemplar_score}]``.
 - ``Train_Test_Val_FSC_147.json``: ``{"train": [...], "val": [...], "test": [...]}`` (+ any other split).
 - ``ImageClasses_FSC147.txt``: ``sample<TAB>class text`` (the chosen caption tier).
 - ``gt_density_map_adaptive_384_VarV2/<sample>.npy`` and ``gt_density_map_adaptive_512_512_object_VarV2/
@@ -43,6 +46,7 @@ DENSITY_512 = "gt_density_map_adaptive_512_512_object_VarV2"
 ANNOTATIONS = "annotation_FSC147_384.json"
 SPLITS = "Train_Test_Val_FSC_147.json"
 CLASSES = "ImageClasses_FSC147.txt"
+CROSS_SCENE = "cross_scene_exemplars"  # crops of the class's object from other scenes of the split
 STANDARD_SPLITS = ("train", "val", "test")
 
 
@@ -97,6 +101,22 @@ def sample_name(img: DatasetImage, category_id: int) -> str:
     return f"{img.key}_{category_id}.jpg"
 
 
+def _cross_scene(folder: ExportFolder, root: Path, img: DatasetImage, category_id: int, crops: set[str]
+                 ) -> list[dict[str, Any]]:
+    """The sample's cross-scene exemplars: crops of its object from other scenes of the split, copied to
+    ``cross_scene_exemplars/<scene>_<crop>.png`` (CounTR-style external exemplars: images of the object
+    that are not this image), each with its source scene and exemplar score."""
+    out = []
+    for c in img.cross_scene_exemplars(category_id):
+        name = f"{c['scene_id']}_{Path(str(c['crop'])).name}"
+        if name not in crops:
+            folder.copy_if_stale(Path(root) / str(c["crop"]), f"{CROSS_SCENE}/{name}")
+            crops.add(name)
+        out.append({"file": f"{CROSS_SCENE}/{name}", "scene_id": c["scene_id"], "category_id": c["category_id"],
+                    "exemplar_score": c["exemplar_score"]})
+    return out
+
+
 def export_fsc147(ds: ComposedDataset, out: Path | str, *, split: Optional[str] = None, tier: str = "concise",
                   progress: Optional[ProgressReporter] = None) -> dict[str, Any]:
     """Write the FSC-147 export of ``ds`` into ``out``; returns the manifest (figures included)."""
@@ -114,6 +134,7 @@ def export_fsc147(ds: ComposedDataset, out: Path | str, *, split: Optional[str] 
     coco_by_split: dict[str, dict[str, Any]] = {}
     worst_384 = worst_512 = 0.0
     objects = 0
+    crops: set[str] = set()
     bar.start("export fsc147", ds.count_samples(splits))
     try:
         for s in splits:
@@ -151,6 +172,7 @@ def export_fsc147(ds: ComposedDataset, out: Path | str, *, split: Optional[str] 
                     "negative_box_exemples_coordinates": [corners(b) for b in neg_boxes],
                     "positive_prompt": text,
                     "negative_prompt": caption(img.categories[neg], tier) if neg is not None else "",
+                    "cross_scene_exemplars": _cross_scene(folder, ds.root, img, cid, crops),
                     "mixcount": {"split": s, "scene_id": img.scene_id, "image_id": img.id, "category_id": cid,
                                  "negative_category_id": neg, "count": len(anns),
                                  "exemplar_annotation_ids": [int(a["id"]) for a in exemplars]},
@@ -186,6 +208,7 @@ def export_fsc147(ds: ComposedDataset, out: Path | str, *, split: Optional[str] 
     folder.prune(IMAGES, names)
     folder.prune(DENSITY_384, [f"{Path(n).stem}.npy" for n in names])
     folder.prune(DENSITY_512, [f"{Path(n).stem}.npy" for n in names])
+    folder.prune(CROSS_SCENE, crops)
     folder.write_json(ANNOTATIONS, annotations)
     folder.write_json(SPLITS, split_lists, indent=1)
     folder.write_text(CLASSES, "".join(class_lines))

@@ -30,6 +30,12 @@ _SPLIT_FILE = re.compile(r"^instances_(?P<split>.+)\.json$")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 
 
+def image_key(scene_id: str, file_name: str) -> str:
+    """The file-safe name of a dataset image (:attr:`DatasetImage.key`) from its scene id and file name."""
+    stem = Path(str(file_name)).stem
+    return _UNSAFE.sub("_", scene_id if stem == "rgb" else f"{scene_id}_{stem}")
+
+
 def check_tier(tier: str) -> str:
     if tier not in CAPTION_TIERS:
         raise ExportError(f"unknown caption tier {tier!r} (choose one of {', '.join(CAPTION_TIERS)})")
@@ -74,9 +80,7 @@ class DatasetImage:
     def key(self) -> str:
         """File-safe name unique across the dataset: the scene id, plus the RGB file's stem when a scene
         has several cameras (``scenes/<id>/rgb.png`` -> ``<id>``; ``.../rgb_cam_1.png`` -> ``<id>_rgb_cam_1``)."""
-        stem = Path(str(self.record["file_name"])).stem
-        base = self.scene_id if stem == "rgb" else f"{self.scene_id}_{stem}"
-        return _UNSAFE.sub("_", base)
+        return image_key(self.scene_id, str(self.record["file_name"]))
 
     def classes(self) -> list[int]:
         """Category ids with a counted annotation in this image, ascending."""
@@ -108,6 +112,14 @@ class DatasetImage:
         if not ranked:
             raise ExportError(f"image {self.id} ({self.scene_id}) has no annotation of category {category_id}")
         return [ranked[k % len(ranked)] for k in range(n)]
+
+    def cross_scene_exemplars(self, category_id: int, n: int = N_EXEMPLARS) -> list[Mapping[str, Any]]:
+        """Up to ``n`` of the class's cross-scene exemplars (the paper's crops of the same object from other
+        scenes of the split; :mod:`mixcount.dataset.external_exemplars`) that come from other scenes than
+        this image's; fewer when the object is in fewer other scenes, none in a dataset merged before."""
+        from mixcount.dataset.external_exemplars import cross_scene_for_image
+
+        return cross_scene_for_image(self.categories[category_id], self.scene_id, n)
 
 
 @dataclass
