@@ -4,7 +4,8 @@
 The files a dataset's stages use are entries of ``OUT/assets/`` (converted assets ``<hash>.usdc`` with
 ``<hash>_tex/`` and ``<hash>_collision.usdc``, ``environments/<file>``, ``materials/<digest>/<file>``),
 referenced relative to the stage (``@../../assets/<hash>.usdc@``). While composing each entry is a relative
-symbolic link to the catalog's file (:func:`link_into_dataset`).
+symbolic link to the catalog's file (:func:`link_into_dataset`; bpy's bundled HDRIs are hard-linked or
+copied).
 
 Recorded paths (metadata.json, the spec in each stage's customLayerData) go through :func:`portable_paths`:
 a path inside OUT becomes relative to OUT, a catalog asset ``assets/<name>``, a file of bpy's install
@@ -18,6 +19,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
@@ -44,17 +46,27 @@ def _same_target(link: Path, src: Path) -> bool:
 
 def link_into_dataset(out_dir: Path, src: Path, rel: str) -> Path:
     """``OUT/assets/<rel>`` as a relative symbolic link to ``src`` (created atomically; kept when it is
-    already there: a link to the same file, or a packaged copy); returns the entry's path."""
+    already there: a link to the same file, or a packaged copy); returns the entry's path.
+
+    A file of bpy's install (a bundled HDRI, a few MB) is hard-linked or copied instead: a relative link
+    from the dataset into the Python environment would spell out this machine's folders."""
     dest = Path(out_dir) / ASSETS_DIR / rel
     if dest.is_symlink() and _same_target(dest, src):
         return dest
     if dest.exists() and not dest.is_symlink():
-        return dest  # packaged: a real copy stays
+        return dest  # packaged (or bpy's file, copied): a real file stays
     dest.parent.mkdir(parents=True, exist_ok=True)
-    target = os.path.relpath(Path(src).resolve(), dest.parent.resolve())
     tmp = dest.with_name(f".{dest.name}.{os.getpid()}.link")
     tmp.unlink(missing_ok=True)
-    os.symlink(target, tmp)
+    real = Path(src).resolve()
+    bpy = bpy_dir()
+    if bpy is not None and bpy in real.parents:
+        try:
+            os.link(real, tmp)
+        except OSError:  # another file system
+            shutil.copyfile(real, tmp)
+    else:
+        os.symlink(os.path.relpath(real, dest.parent.resolve()), tmp)
     os.replace(tmp, dest)
     return dest
 
@@ -83,6 +95,7 @@ def material_entry(path: str | Path) -> str:
 # ------------------------------------------------------------------------------------ recorded paths
 
 
+@functools.lru_cache(maxsize=1)
 def bpy_dir() -> Optional[Path]:
     """bpy's package folder (found without importing bpy), or None without bpy."""
     try:
