@@ -27,7 +27,7 @@ ROOMS: tuple[tuple[str, ...], ...] = (
     ("evaluate",),
     ("run",),
     ("commands",),
-    ("cli", "__main__"),
+    ("cli", "__main__", "api"),  # api: the Python facade over every job (mixcount.__init__ imports it lazily)
 )
 LEVEL = {name: i for i, names in enumerate(ROOMS) for name in names}
 
