@@ -283,6 +283,24 @@ def _check_exemplars(gt_path: Path, out: Path, pool) -> None:
             assert scores == sorted(scores, reverse=True)
 
 
+def test_every_camera_exports_as_its_own_image(composed, tmp_path: Path) -> None:
+    """Each camera's image is a sample of every export, read back the way the counting loaders read it."""
+    from mixcount.export import export_dataset
+
+    out, _, _ = composed
+    n_images = 2 * N_CAMERAS
+    fsc = export_dataset(out, "fsc147", tmp_path / "fsc147")
+    annotation = json.loads((tmp_path / "fsc147" / "annotation_FSC147_384.json").read_text())
+    keys = sorted(annotation)
+    assert fsc["figures"]["samples"] == len(keys) >= n_images  # one sample per (image, class)
+    assert any("_rgb_cam_1" in k for k in keys) and any("_rgb_cam_1" not in k for k in keys)
+    for k in keys:  # LOCA / CounTR read the image file named by the key
+        assert (tmp_path / "fsc147" / "images_384_VarV2" / k).is_file()
+    export_dataset(out, "countgd", tmp_path / "countgd")
+    odvg = [json.loads(line) for line in (tmp_path / "countgd" / "train_odvg.jsonl").read_text().splitlines()]
+    assert len({r["filename"] for r in odvg}) == n_images
+
+
 def test_depth_normals_and_settled_poses(composed) -> None:
     from pxr import Usd, UsdGeom
 
