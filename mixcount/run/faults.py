@@ -69,6 +69,10 @@ def check_output(folder: Path, *, need_bytes: int = 0) -> Optional[str]:
     folder with less free space than that counts as full."""
     folder = Path(folder)
     probe = folder / f".probe-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    try:  # the folder's times are put back after the probe: compose reads "a scene appeared" off its mtime
+        before = folder.stat()
+    except OSError:
+        before = None
     try:
         with open(probe, "wb") as fh:
             fh.write(b"\0" * min(PROBE_BYTES, max(need_bytes, 1)))
@@ -82,6 +86,8 @@ def check_output(folder: Path, *, need_bytes: int = 0) -> Optional[str]:
     finally:
         try:
             probe.unlink()
+            if before is not None:
+                os.utime(folder, ns=(before.st_atime_ns, before.st_mtime_ns))
         except OSError:
             pass
     free = free_bytes(folder)
