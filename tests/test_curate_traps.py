@@ -27,12 +27,17 @@ def test_weld_merges_seams_and_keeps_the_surface():
     assert area(v, f) == pytest.approx(area(part.vertices, part.faces), rel=1e-9)
 
 
-@pytest.mark.parametrize("method,target", [("isotropic", 6000), ("decimate", 300)])
+@pytest.mark.parametrize("method,target", [("isotropic", 6000), ("decimate", 120)])
 def test_remesh_reaches_another_face_count_on_the_same_surface(method, target):
     v, f = T.weld(can().parts)
     nv, nf = T.remesh(v, f, method=method, target_faces=target)
     assert 0.5 * target < len(nf) < 2.0 * target and len(nf) != len(f)
-    assert not np.isin(np.round(nv, 9), np.round(v, 9)).all(axis=1).all()  # new vertices, not the old ones
+    old = {tuple(x) for x in np.round(v, 9)}
+    shared = sum(tuple(x) in old for x in np.round(nv, 9))
+    if method == "isotropic":  # a new triangulation: mostly new vertices
+        assert shared < 0.5 * len(nv)
+    else:  # edge collapses keep a subset of the vertices (the can: 62 of its 182)
+        assert len(nv) < 0.5 * len(v)
     assert np.allclose(np.ptp(nv, axis=0), np.ptp(v, axis=0), rtol=0.05)
     with pytest.raises(ValueError, match="unknown remesh method"):
         T.remesh(v, f, method="smooth", target_faces=10)
