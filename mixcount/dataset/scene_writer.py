@@ -16,6 +16,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 
 from mixcount.annotate.coco import build_scene_coco, category_id, class_map, ground_truth_pairs
+from mixcount.atomic import atomic_path
 from mixcount.blender.contract import KEPT, CameraView, ObjectResult, SceneResult
 from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spec import SceneSpec
@@ -143,42 +144,38 @@ def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectRes
 
     src = Sdf.Layer.FindOrOpen(str(scene_usda))
     # named by a temporary file beside ``out`` (anonymous, its relative asset paths would not resolve)
-    tmp = Path(out).with_name(f".{Path(out).name}.{os.getpid()}.tmp.usda")
-    layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(tmp))
-    layer.TransferContent(src)
-    stage = Usd.Stage.Open(layer)
-    for rec in objects:
-        if not rec.kept:
-            stage.RemovePrim(rec.path)
-            continue
-        prim = stage.GetPrimAtPath(rec.path)
-        pose = decompose(rec.matrix_world)
-        xf = UsdGeom.Xformable(prim)
-        for op in xf.GetOrderedXformOps():
-            kind = op.GetOpType()
-            if kind == UsdGeom.XformOp.TypeTranslate:
-                op.Set(Gf.Vec3d(*pose["translate"]))
-            elif kind == UsdGeom.XformOp.TypeOrient:
-                w, x, y, z = pose["orient"]
-                op.Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)) if op.GetPrecision() == UsdGeom.XformOp.PrecisionFloat
-                       else Gf.Quatd(w, Gf.Vec3d(x, y, z)))
-            elif kind == UsdGeom.XformOp.TypeScale:
-                op.Set(Gf.Vec3f(*pose["scale"]))
-        if rec.visibility is not None:
-            prim.SetCustomDataByKey("mixcount:visibility", float(rec.visibility))
-    for view in views:
-        _set_camera_pose(stage, view)
-    data = dict(layer.customLayerData)
-    mc = dict(data.get("mixcount", {}))
-    mc["settled"] = True
-    data["mixcount"] = mc
-    layer.customLayerData = data
-    try:
+    with atomic_path(out) as tmp:
+        layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(tmp))
+        layer.TransferContent(src)
+        stage = Usd.Stage.Open(layer)
+        for rec in objects:
+            if not rec.kept:
+                stage.RemovePrim(rec.path)
+                continue
+            prim = stage.GetPrimAtPath(rec.path)
+            pose = decompose(rec.matrix_world)
+            xf = UsdGeom.Xformable(prim)
+            for op in xf.GetOrderedXformOps():
+                kind = op.GetOpType()
+                if kind == UsdGeom.XformOp.TypeTranslate:
+                    op.Set(Gf.Vec3d(*pose["translate"]))
+                elif kind == UsdGeom.XformOp.TypeOrient:
+                    w, x, y, z = pose["orient"]
+                    op.Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)) if op.GetPrecision() == UsdGeom.XformOp.PrecisionFloat
+                           else Gf.Quatd(w, Gf.Vec3d(x, y, z)))
+                elif kind == UsdGeom.XformOp.TypeScale:
+                    op.Set(Gf.Vec3f(*pose["scale"]))
+            if rec.visibility is not None:
+                prim.SetCustomDataByKey("mixcount:visibility", float(rec.visibility))
+        for view in views:
+            _set_camera_pose(stage, view)
+        data = dict(layer.customLayerData)
+        mc = dict(data.get("mixcount", {}))
+        mc["settled"] = True
+        data["mixcount"] = mc
+        layer.customLayerData = data
         if not layer.Save():
             raise OSError(f"could not write {out}")
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def _png16(arr: np.ndarray, path: Path) -> None:

@@ -19,16 +19,15 @@ records paths by :func:`mixcount.dataset.package.portable_paths`.
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
+from mixcount.atomic import atomic_path
 from mixcount.errors import CompositionError
 from mixcount.resources import data_dir
 from mixcount.scene.environments import write_pattern_png
@@ -48,7 +47,6 @@ TEMPLATES_DIR = data_dir("usd_templates")
 TEMPLATE_LAYERS = ("scene_root.usda", "floor.usda", "camera_rig.usda", "lights.usda")
 STAGE_NAME = "scene.usda"
 CYLINDER_SEGMENTS = 64
-_TMP_COUNTER = itertools.count()
 MM_TO_LENS_UNITS = 1.0  # written in mm; strict USD units would be 0.01 (tenths of a metre)
 
 
@@ -355,7 +353,7 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
 
     ``catalog`` supplies ``usd_assets_dir`` for the converted assets (``assets_dir`` overrides it).
     """
-    from pxr import Sdf, Usd, UsdGeom, UsdPhysics
+    from pxr import Sdf
 
     if assets_dir is None:
         if catalog is None:
@@ -368,12 +366,24 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
     roots = PathRoots(Path(out_dir), (Path(assets_dir),))
 
     skip = () if spec.environment.kind == "sky" else ("/World/Lights/Sun",)
+    path = scene_dir / STAGE_NAME
     # authored in a layer named by the temporary file beside the stage (an anonymous layer would anchor the
     # relative asset paths at the working directory: every reference unresolved while authoring)
-    path = scene_dir / STAGE_NAME
-    tmp = scene_dir / f".{STAGE_NAME}.{os.getpid()}.{next(_TMP_COUNTER)}.tmp.usda"
-    layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(tmp))
-    layer.TransferContent(_template_layer(skip))
+    with atomic_path(path) as tmp:
+        layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(tmp))
+        layer.TransferContent(_template_layer(skip))
+        _author_stage(layer, spec, scene_dir, assets, links, roots)
+        if not layer.Save():
+            raise CompositionError(f"could not write {path}")
+    return path
+
+
+def _author_stage(layer: Any, spec: SceneSpec, scene_dir: Path, assets: dict[int, AssetPaths], links: "_Links",
+                  roots: PathRoots) -> None:
+    """The scene's prims into ``layer``: layer metadata, physics scene, floor, container, instances,
+    cameras and lights."""
+    from pxr import Usd, UsdGeom, UsdPhysics
+
     stage = Usd.Stage.Open(layer)
     # nested like every mixcount customData: read with stage.GetMetadataByDictKey("customLayerData",
     # "mixcount:seed") or layer.customLayerData["mixcount"]["seed"] (see mixcount.usd.read)
@@ -429,10 +439,3 @@ def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_d
     _write_cameras(stage, spec)
     _write_lights(stage, spec, links)
 
-    try:
-        if not layer.Save():
-            raise CompositionError(f"could not write {path}")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
