@@ -1,7 +1,7 @@
 """Run by tests/test_export_fiftyone.py in its own process (FiftyOne reads its database settings from the
 environment at import): load one split of a ``--format fiftyone`` export into FiftyOne, backed by the
-MongoDB that FIFTYONE_DATABASE_URI names, and write what came back as JSON (``OUT.json``) and the masks,
-pasted into full-frame arrays, as ``OUT.npz``.
+MongoDB that FIFTYONE_DATABASE_URI names, and write what came back as JSON (``OUT.json``) and each
+detection's mask as FiftyOne holds it (the instance mask cropped to its box) in ``OUT.npz``.
 
     python fiftyone_load.py EXPORT_DIR SPLIT OUT
 """
@@ -29,8 +29,7 @@ def main(export_dir: str, split: str, out: str) -> None:
         for k, det in enumerate(field.detections if field else []):
             key = f"{Path(sample.filepath).name}:{k}"
             if det.mask is not None:
-                full = det.to_segmentation(frame_size=(w, h), target=1).mask.astype(bool)
-                masks[key] = full
+                masks[key] = np.asarray(det.mask).astype(bool)  # as FiftyOne stores it: cropped to the box
             dets.append({"label": det.label, "bounding_box": list(det.bounding_box), "mask": key if det.mask is not None else None,
                          **{a: det[a] for a in ("visibility", "is_distractor", "exemplar_score", "exemplar_rank", "point",
                                                "scene_instance_id", "count") if det.has_field(a)}})

@@ -216,6 +216,15 @@ def test_readme_python_api_example_runs_as_written(two_splits: tuple[Path, Path]
     assert ds["counts"]["scenes"] == 1
     for line in lines[1:]:
         assert re.fullmatch(r"  \d+ x .+: \d+ exemplar crops", line), line
+    api_out = tmp_path / "out" / "api"
+    assert any(p.is_symlink() for p in (api_out / "assets").iterdir())  # links into the catalog so far
+
+    # the same compose again with --package-assets: the finished scene is kept, the assets are copied in
+    rc = main(["--db", str(tmp_path / "catalog" / "catalog.db"), "--config", "quick", "compose", "--n", "1",
+               "--split", "train", "--resolution", "96", "--out", str(api_out), "--package-assets"])
+    assert rc == 0
+    assert not any(p.is_symlink() for p in (api_out / "assets").rglob("*"))
+    assert json.loads((api_out / "dataset.json").read_text())["counts"]["scenes"] == 1
 
     # reading needs neither bpy nor pxr; every array matches the merged COCO
     check = f"""
