@@ -206,7 +206,8 @@ def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, t
             kept = {o["name"]: o for o in meta["objects"] if o["status"] == "kept"}
             for o in kept.values():
                 assert o["min_z"] >= -0.02 * o["size_m"], (proxies, o["name"], o["min_z"])  # no sinking
-            speeds = [rest["speed_m_s"][name] for name in kept]
+            # distractors are placed after physics on the floor (not simulated): speeds of counted bodies
+            speeds = [rest["speed_m_s"][name] for name, o in kept.items() if o["role"] == "counted"]
             assert np.median(speeds) < 0.05, (proxies, speeds)  # the pile is at rest ...
             moving[proxies] += sum(v > 0.1 for v in speeds)  # ... but for a body still rolling here and there
 
@@ -247,7 +248,7 @@ def test_deep_floor_collider_settles_as_well_as_the_thin_floor(proxy_library, tm
                 for o in kept:
                     assert o["min_z"] >= -0.02 * o["size_m"], (name, o["name"], o["min_z"])  # no sinking
                 rest = next(d for d in meta["diagnostics"] if d["kind"] == "rest")
-                assert np.median([rest["speed_m_s"][o["name"]] for o in kept]) < 0.05, name
+                assert np.median([rest["speed_m_s"][o["name"]] for o in kept if o["role"] == "counted"]) < 0.05, name
                 drops[name] += sum(1 for o in meta["objects"] if o.get("reason") in settle_reasons)
                 if meta["spec"]["container"] is not None:  # it collides through its convex parts
                     coll = [d for d in meta["diagnostics"] if d["kind"] == "container_collision"]

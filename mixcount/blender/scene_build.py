@@ -502,6 +502,8 @@ def _add_container_collision(state: SceneState, prim: Any, obj: Any, asset: Path
     from mixcount.usd.read import convex_parts
 
     coll = prim.GetCustomDataByKey("mixcount:collision_asset")
+    if coll and not Path(str(coll)).is_absolute():  # stage-relative (portable datasets, docs/usd.md)
+        coll = str((state.stage_path.parent / str(coll)).resolve())
     parts = convex_parts(str(coll)) if coll else []
     if parts:  # the container's convex decomposition: one static convex body per part
         for k, (pts, tris) in enumerate(parts):
