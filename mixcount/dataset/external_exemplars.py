@@ -11,10 +11,11 @@ parallel and resumed runs write each file once.
 from __future__ import annotations
 
 import filecmp
-import os
 import shutil
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Optional
+
+from mixcount.atomic import atomic_path
 
 EXTERNAL_DIR = Path("exemplars") / "external"
 
@@ -34,9 +35,8 @@ def copy_external_exemplar(out_dir: Path, object_id: int, source: str | Path) ->
     if dest.is_file() and filecmp.cmp(src, dest, shallow=False):
         return rel
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")
-    shutil.copyfile(src, tmp)
-    os.replace(tmp, dest)
+    with atomic_path(dest) as tmp:
+        shutil.copyfile(src, tmp)
     return rel
 
 

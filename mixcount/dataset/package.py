@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Optional
 
+from mixcount.atomic import atomic_path
 from mixcount.errors import DatasetError
 from mixcount.usd.portable import ASSETS_DIR, SOURCES_DIR, PathRoots, portable_paths
 
@@ -172,10 +173,9 @@ def _sanitize_layer(path: Path, out_dir: Path, roots: PathRoots, report: Package
     if changed:
         # exported whole to a new file: saving a .usdc in place appends, and its old strings (the
         # generating machine's paths) would stay in the file
-        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-        if not layer.Export(str(tmp)):
-            raise PackageError(f"could not write {path}")
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            if not layer.Export(str(tmp)):
+                raise PackageError(f"could not write {path}")
         report.rewritten.append(path.name)
 
 

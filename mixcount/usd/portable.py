@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+from mixcount.atomic import atomic_path
 from mixcount.errors import DatasetError
 
 ASSETS_DIR = "assets"
@@ -56,18 +57,16 @@ def link_into_dataset(out_dir: Path, src: Path, rel: str) -> Path:
     if dest.exists() and not dest.is_symlink():
         return dest  # packaged (or bpy's file, copied): a real file stays
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.{os.getpid()}.link")
-    tmp.unlink(missing_ok=True)
     real = Path(src).resolve()
     bpy = bpy_dir()
-    if bpy is not None and bpy in real.parents:
-        try:
-            os.link(real, tmp)
-        except OSError:  # another file system
-            shutil.copyfile(real, tmp)
-    else:
-        os.symlink(os.path.relpath(real, dest.parent.resolve()), tmp)
-    os.replace(tmp, dest)
+    with atomic_path(dest) as tmp:
+        if bpy is not None and bpy in real.parents:
+            try:
+                os.link(real, tmp)
+            except OSError:  # another file system
+                shutil.copyfile(real, tmp)
+        else:
+            os.symlink(os.path.relpath(real, dest.parent.resolve()), tmp)
     return dest
 
 
