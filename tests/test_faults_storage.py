@@ -239,8 +239,8 @@ def test_read_only_output_folder_is_one_line_and_keeps_scenes(composed_dataset: 
     """A finished dataset on a read-only file system (or a folder without write permission), asked for
     more scenes: one line, exit 2, nothing rendered, the scenes untouched."""
     out = tmp_path / "ro"
-    shutil.copytree(composed_dataset, out, symlinks=True)
-    before = {p.relative_to(out).as_posix(): p.stat().st_mtime_ns for p in out.rglob("*")}
+    shutil.copytree(composed_dataset, out, symlinks=True)  # OUT/assets' links to the catalog: broken here
+    before = {p.relative_to(out).as_posix(): p.lstat().st_mtime_ns for p in out.rglob("*")}
     db = composed_dataset.parent / "catalog.db"
     args = ["--db", str(db), "--config", "quick", "compose", "--n", "3", "--split", "train", "--seed", "5",
             "--resolution", "96", "--out", str(out)]
@@ -265,6 +265,6 @@ def test_read_only_output_folder_is_one_line_and_keeps_scenes(composed_dataset: 
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
     assert errors == [f"error: {cause}: {out / 'scenes'}; nothing was rendered"], res.stderr
-    assert {p.relative_to(out).as_posix(): p.stat().st_mtime_ns for p in out.rglob("*")} == before
+    assert {p.relative_to(out).as_posix(): p.lstat().st_mtime_ns for p in out.rglob("*")} == before
     assert verify_dataset(out).problems == 0
     assert json.loads((out / "dataset.json").read_text())["counts"]["scenes"] == 2

@@ -64,7 +64,10 @@ def link_into_dataset(out_dir: Path, src: Path, rel: str) -> Path:
             try:
                 os.link(real, tmp)
             except OSError:  # another file system
-                shutil.copyfile(real, tmp)
+                try:
+                    shutil.copyfile(real, tmp)
+                except OSError as exc:  # named by the dataset's file: a full disk is the output's, not bpy's
+                    raise OSError(exc.errno, exc.strerror, str(dest)) from exc
         else:
             os.symlink(os.path.relpath(real, dest.parent.resolve()), tmp)
     return dest
