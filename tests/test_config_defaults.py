@@ -45,6 +45,7 @@ NOT_CONFIG_PARAMS = {
     ("mixcount/captions/colours.py", "seed"),  # seed of that point sampling
     ("mixcount/dataset/scene_writer.py", "margin"),  # exemplar crop margin, not the canonical render's
     ("mixcount/demo/library.py", "scale"),  # glTF node scale of a generated model
+    ("mixcount/demo/writers.py", "scale"),  # ... the same, where the GLB is written
     ("mixcount/demo/pool.py", "seed"),  # fixture pool for tests and benchmarks: a fixed generator seed
     ("mixcount/demo/pool.py", "split"),  # ... and the split label it gives every object
     ("mixcount/evaluate/metrics.py", "split"),  # which ground-truth COCO file to score against

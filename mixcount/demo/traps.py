@@ -35,7 +35,7 @@ from PIL import Image
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
-    from mixcount.demo.library import Part
+    from mixcount.demo.geometry import Part
 
 
 @dataclass
@@ -156,7 +156,7 @@ def bake(vertices: np.ndarray, faces: np.ndarray, colour: SurfaceColour, *, size
     about ``size`` texels a side (at least 6 texels per cell, so a fine mesh gets a larger texture) whose
     every texel holds the colour of the original surface nearest to the point it maps to (barycentrics
     clamped into the texel's own triangle), times ``gain`` (a re-bake under other lighting)."""
-    from mixcount.demo.library import Part
+    from mixcount.demo.geometry import Part
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -193,7 +193,7 @@ def bake(vertices: np.ndarray, faces: np.ndarray, colour: SurfaceColour, *, size
 def split(part: Part, pieces: int) -> list[Part]:
     """``part`` cut into ``pieces`` parts by face centroid along its longest principal axis (equal face
     counts); each piece keeps its vertices' UVs / colours and stores its centre as its offset."""
-    from mixcount.demo.library import Part
+    from mixcount.demo.geometry import Part
 
     v = np.asarray(part.vertices, dtype=np.float64) + np.asarray(part.offset)
     centroids = v[part.faces].mean(axis=1)
@@ -217,7 +217,7 @@ def scan_like(faces: int, rng: np.random.Generator) -> Part:
     spherical UVs."""
     import trimesh
 
-    from mixcount.demo.library import Part
+    from mixcount.demo.geometry import Part
 
     level = max(1, int(round(np.log(faces / 20) / np.log(4))))
     mesh = trimesh.creation.icosphere(subdivisions=level, radius=0.05)
@@ -236,7 +236,7 @@ def republish(parts: list[Part], *, method: str | None, target_faces: int, textu
     None to keep the surface's triangles), re-baked into a new atlas of about ``texture_px`` texels a
     side (times ``gain``), turned by ``rotation`` (3x3) about the origin, times ``scale`` (units), and
     cut into ``pieces`` parts with their own origins."""
-    from mixcount.demo.library import Part
+    from mixcount.demo.geometry import Part
 
     colour = surface_colour(parts, seed=seed)
     vertices, faces = weld(parts)
