@@ -118,31 +118,13 @@ def _corner_normals(mesh: Any) -> Any:
 CONVEX_PARTS_PRIM = "/Asset/ConvexParts"  # a container's convex decomposition inside its collision asset
 
 
-def _open_layer_path(asset_path: str) -> str:
-    """``asset_path`` as given when it exists; a relative path that does not (a stage's relative
-    ``mixcount:collision_asset``, relative to that stage, not to the working directory) is the layer of
-    that name that an open stage has already loaded through its reference."""
-    from pathlib import Path
-
-    from pxr import Sdf
-
-    p = Path(asset_path)
-    if p.is_absolute() or p.exists():
-        return asset_path
-    for layer in Sdf.Layer.GetLoadedLayers():
-        real = layer.realPath
-        if real and Path(real).name == p.name and not layer.anonymous:
-            return str(real)
-    return asset_path
-
-
 def convex_parts(asset_path: str) -> list[tuple[Any, Any]]:
     """The convex collision parts of an asset (``/Asset/ConvexParts/*`` meshes with approximation
     convexHull): (points (V, 3) in the asset's frame, triangles (T, 3)) each; empty when it has none."""
     import numpy as np
     from pxr import Usd, UsdGeom, UsdPhysics
 
-    stage = Usd.Stage.Open(_open_layer_path(str(asset_path)))
+    stage = Usd.Stage.Open(str(asset_path))
     if stage is None:
         raise RuntimeError(f"cannot open asset {asset_path}")
     root = stage.GetPrimAtPath(CONVEX_PARTS_PRIM)

@@ -416,8 +416,7 @@ def _author_stage(layer: Any, spec: SceneSpec, scene_dir: Path, assets: dict[int
         coll_paths = assets[c.object_id].collision
         if coll_paths is not None:
             coll_ref = links.ref(coll_paths, coll_paths.name)
-            # relative to the stage like every asset path (mixcount.usd.read.convex_parts finds it among the
-            # layers of the open stage that references it, /World/Container/Collision)
+            # relative to the stage like every asset path (the worker resolves it against the stage's folder)
             prim.SetCustomDataByKey("mixcount:collision_asset", coll_ref)
             cxf = UsdGeom.Xform.Define(stage, "/World/Container/Collision")
             cxf.CreatePurposeAttr(UsdGeom.Tokens.guide)  # collides, never rendered
