@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from mixcount.atomic import atomic_path
 from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
 
 APPEARANCE_VERSION = "look3d-v1"  # the surface samples
@@ -207,9 +208,8 @@ def load_samples(model_path: str, *, cache_dir: Path | None, key: str | None) ->
     points, colours = surface_samples(model_path)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache.with_name(cache.stem + ".tmp.npz")
-        np.savez_compressed(tmp, points=points.astype(np.float32), colours=colours.astype(np.float32))
-        tmp.replace(cache)
+        with atomic_path(cache) as tmp:
+            np.savez_compressed(tmp, points=points.astype(np.float32), colours=colours.astype(np.float32))
     return points, colours
 
 

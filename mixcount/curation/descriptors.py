@@ -39,12 +39,13 @@ a handle pushed into a mug, are an assembly, not a defect).
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from mixcount.atomic import write_text_atomic
 
 DESCRIPTOR_VERSION = "shape-v5"  # v5: D2 quantiles from a fine histogram (d2_quantiles)
 D2_QUANTILES = 64
@@ -248,9 +249,7 @@ def load_shape(model_path: str, *, units: str | None, up_axis: str | None, cache
                             volume=float(abs(mesh.volume)) if watertight else None)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache.with_suffix(".tmp")
-        tmp.write_text(json.dumps(desc.as_dict(), sort_keys=True))
-        tmp.replace(cache)
+        write_text_atomic(cache, json.dumps(desc.as_dict(), sort_keys=True))
     return desc
 
 
@@ -326,8 +325,3 @@ def edge_similarity(a: AppearanceDescriptor, b: AppearanceDescriptor) -> float:
     """Cosine similarity of the normalised gradient-magnitude maps, in [0, 1]."""
     return float(np.dot(np.asarray(a.edges), np.asarray(b.edges)))
 
-
-def aspect_ratio(extents: list[float]) -> float:
-    """Largest over smallest extent (inf when flat)."""
-    small = min(extents)
-    return math.inf if small <= 0 else max(extents) / small
