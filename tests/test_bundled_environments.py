@@ -127,12 +127,13 @@ def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Pa
 
     assert env["kind"] == "hdri" and env["path"].startswith("bpy:") and is_bundled_path(env["path"])
     assert resolve_bpy_path(env["path"]).is_file()
-    # the worker built the world from the stage's dome light: that texture (the dataset's entry, a link to
-    # bpy's map until `mixcount package` copies it), strength and turn
+    # the worker built the world from the stage's dome light: that texture (the dataset's entry, a copy or
+    # hard link of bpy's map), strength and turn
     dome = meta["lights"]["dome"]
     assert dome == {"kind": "hdri", "path": f"assets/environments/{Path(env['path']).name}",
                     "strength": pytest.approx(0.3), "rotation_deg": pytest.approx(env["rotation_deg"])}
-    assert (tmp_path / "dim" / dome["path"]).resolve() == resolve_bpy_path(env["path"]).resolve()
+    entry = tmp_path / "dim" / dome["path"]
+    assert not entry.is_symlink() and entry.read_bytes() == resolve_bpy_path(env["path"]).read_bytes()
     assert "sun" not in meta["lights"]  # the sun lamp belongs to the procedural sky
     assert json.loads((bright / "metadata.json").read_text())["spec"]["environment"]["path"] == env["path"]
     a = np.asarray(Image.open(dim / "rgb.png").convert("RGB"), dtype=np.float64)
