@@ -129,6 +129,10 @@ def test_empty_rejected_and_failed_seeds_are_replaced_and_finalized(setup) -> No
     assert n_counted == sum(1 for a in merged["annotations"] if not a["is_distractor"]) > 0
     summary_json = json.loads((out / "dataset.json").read_text())
     assert summary_json["splits"]["train"]["scenes"] == 3
+    metas = [json.loads((out / "scenes" / s / "metadata.json").read_text()) for s in scenes]
+    split = summary_json["splits"]["train"]  # spawned objects and empty classes summed from every scene
+    assert split["counted_spawned"] == sum(m["spawned"]["counted"] for m in metas) >= n_counted
+    assert split["classes_without_instances"] == sum(len(m["classes_without_instances"]) for m in metas)
     assert summary_json["counts"] == {"scenes": 3, "counted_objects": n_counted}
     assert (out / "preview.png").is_file()
 

@@ -47,7 +47,8 @@ from mixcount.dataset.external_exemplars import CrossSceneExemplars
 from mixcount.dataset.manifest import finished_but_unlisted, merge_problem
 
 INDEX_NAME = ".merge_index.jsonl"
-RECORD_KEYS = ("scene_id", "seed", "split", "n_counted", "n_distractors", "counts", "timings")
+RECORD_KEYS = ("scene_id", "seed", "split", "n_counted", "n_distractors", "counts", "timings", "spawned",
+               "classes_without_instances")
 
 
 # ------------------------------------------------------------------------------------ the scene index
@@ -87,7 +88,10 @@ def scan_scenes(out_dir: Path, index_out: Optional[TextIO] = None
             continue
         key = [st.st_mtime_ns, st.st_size]
         spec: Optional[dict[str, Any]] = None
-        if head is not None and head.get("scene_id") == name and head.get("key") == key and "attribution" in head:
+        # a cached record is reused only when it holds every key this version records (an index written by
+        # an older version is re-read scene by scene, once)
+        if (head is not None and head.get("scene_id") == name and head.get("key") == key and "attribution" in head
+                and all(k in head for k in RECORD_KEYS)):
             rec = head
         else:
             try:
@@ -122,6 +126,9 @@ class _SplitWriter:
     scenes: int = 0
     counted: int = 0
     distractors: int = 0
+    spawned_counted: int = 0
+    spawned_distractors: int = 0
+    empty_classes: int = 0  # counted classes that ended with no visible instance
     category_ids: set[str] = field(default_factory=set)
     count_sum: int = 0
     count_n: int = 0
@@ -165,6 +172,10 @@ class _SplitWriter:
         self.scenes += 1
         self.counted += int(rec.get("n_counted") or 0)
         self.distractors += int(rec.get("n_distractors") or 0)
+        spawned = rec.get("spawned") or {}
+        self.spawned_counted += int(spawned.get("counted") or 0)
+        self.spawned_distractors += int(spawned.get("distractors") or 0)
+        self.empty_classes += len(rec.get("classes_without_instances") or [])
         counts = rec.get("counts") or {}
         self.category_ids.update(counts)
         for v in counts.values():
@@ -200,6 +211,8 @@ class _SplitWriter:
     def summary(self) -> dict[str, Any]:
         n = max(1, self.count_n)
         return {"scenes": self.scenes, "counted_objects": self.counted, "distractors": self.distractors,
+                "counted_spawned": self.spawned_counted, "distractors_spawned": self.spawned_distractors,
+                "classes_without_instances": self.empty_classes,
                 "categories": len(self.category_ids), "class_count_mean": round(self.count_sum / n, 3),
                 "class_count_min": int(self.count_min or 0), "class_count_max": int(self.count_max or 0),
                 "annotations": f"annotations/instances_{self.split}.json"}
