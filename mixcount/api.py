@@ -24,11 +24,16 @@ from numpy.typing import NDArray
 CAPTION_TIERS = ("short", "concise", "detailed")
 
 
-def open_catalog(db: str | Path, *, data_dir: str = "") -> Any:
+def open_catalog(db: str | Path, *, data_dir: Optional[str] = None) -> Any:
     """Open (creating and migrating when needed) the catalog at ``db`` (a SQLite path or SQLAlchemy URL);
-    ``data_dir`` as ``catalog.data_dir`` ("" = beside the SQLite file). Close it with ``.close()``."""
+    ``data_dir`` as ``catalog.data_dir`` (None: configs/default.toml's, "" = beside the SQLite file). Close
+    it with ``.close()``."""
     from mixcount.catalog.db import open_catalog as _open
 
+    if data_dir is None:
+        from mixcount.config import load_config
+
+        data_dir = load_config().catalog.data_dir
     return _open(str(db), data_dir=data_dir)
 
 

@@ -169,7 +169,10 @@ def test_compose_and_export_carry_attribution_for_every_object(fsc, composed_dat
     assert {o["object_id"] for o in doc["objects"]} == used and doc["scenes"] == 2
     texts = {lic["id"]: lic["text"] for lic in doc["licenses"]}
     for o in doc["objects"]:
-        assert o["source"] == "dtc" and o["source_id"] == o["name"]  # demo library: DTC-style folders
+        if o["source"] == "folder":  # the demo's plain-folder scans (unit traps): keyed by their file, portably
+            assert o["source_id"].startswith("source:") and "/" not in o["source_id"]
+        else:  # the rest of the demo library: DTC-style folders
+            assert o["source"] == "dtc" and o["source_id"] == o["name"]
         assert "CC-BY-4.0" in texts[o["license_id"]]  # the LICENSE file found at ingest
     assert doc["missing_license"] == []
     assert json.loads((out / "ATTRIBUTION.json").read_text()) == doc  # the export covers the same scenes
