@@ -190,8 +190,9 @@ def sample_environment(rng: np.random.Generator, config: Any, environments: Sequ
     """An HDRI (uniform over ``environments``, random Z rotation) or the procedural sky.
 
     Without ingested ``environments``, ``config.default_environment`` decides: ``bundled_hdri`` draws
-    from bpy's bundled CC0 Poly Haven HDRIs (:func:`~mixcount.scene.bundled_environments.bundled_environments`,
-    found in bpy's install), ``sky`` gives the procedural sky. The strength is drawn first either way."""
+    one of the CC0 Poly Haven HDRIs that ship with bpy (found in its install without importing it,
+    :func:`~mixcount.scene.bundled_environments.bundled_environments`), ``sky`` gives the procedural sky.
+    The strength is drawn first either way."""
     strength = round(_u(rng, config.environment_strength), 6)
     environments = environments_to_draw(config, environments)
     if environments:
