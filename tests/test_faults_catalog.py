@@ -58,6 +58,22 @@ def version_rows(db: Path) -> list[tuple]:
         return con.execute("select version_num from alembic_version").fetchall()
 
 
+def _catalog_at_revision(db: Path, revision: str) -> Path:
+    """A catalog file migrated by alembic up to ``revision`` only (an older mixcount's catalog)."""
+    from alembic import command
+    from sqlalchemy import create_engine
+
+    from mixcount.catalog.db import alembic_config
+
+    engine = create_engine(f"sqlite:///{db}")
+    cfg = alembic_config(f"sqlite:///{db}")
+    with engine.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, revision)
+    engine.dispose()
+    return db
+
+
 def test_concurrent_first_open_of_a_fresh_catalog(tmp_path: Path) -> None:
     db = tmp_path / "fresh.db"
     results = race(db, 6)
@@ -67,18 +83,7 @@ def test_concurrent_first_open_of_a_fresh_catalog(tmp_path: Path) -> None:
 
 
 def test_concurrent_open_of_an_old_schema_migrates_it_once(tmp_path: Path) -> None:
-    from alembic import command
-    from sqlalchemy import create_engine
-
-    from mixcount.catalog.db import alembic_config
-
-    db = tmp_path / "old.db"
-    engine = create_engine(f"sqlite:///{db}")
-    cfg = alembic_config(f"sqlite:///{db}")
-    with engine.begin() as conn:
-        cfg.attributes["connection"] = conn
-        command.upgrade(cfg, "0001")
-    engine.dispose()
+    db = _catalog_at_revision(tmp_path / "old.db", "0001")
     assert version_rows(db) == [("0001",)] and head_revision() != "0001"
     results = race(db, 5)
     assert [r.get("error") for r in results if not r["ok"]] == []
@@ -185,19 +190,9 @@ def test_a_migration_failing_half_way_leaves_the_old_schema(tmp_path: Path) -> N
     """The migration runs in one transaction: a step failing half-way (here the last revision's second
     column is already there) rolls every step back, so the catalog stays at its old revision instead of
     half-built (which no later run could migrate), and the error is one line."""
-    from alembic import command
-    from sqlalchemy import create_engine
-
-    from mixcount.catalog.db import alembic_config
     from mixcount.errors import CatalogError
 
-    db = tmp_path / "half.db"
-    engine = create_engine(f"sqlite:///{db}")
-    cfg = alembic_config(f"sqlite:///{db}")
-    with engine.begin() as conn:
-        cfg.attributes["connection"] = conn
-        command.upgrade(cfg, "0001")
-    engine.dispose()
+    db = _catalog_at_revision(tmp_path / "half.db", "0001")
     with sqlite3.connect(db) as con:
         con.execute("alter table objects add column proxy_vertex_count integer")  # what 0003 adds last
     before = columns(db, "objects")

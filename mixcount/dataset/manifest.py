@@ -31,22 +31,12 @@ from pathlib import Path
 from typing import Any, Iterator, Optional
 
 from mixcount.atomic import write_text_atomic
+from mixcount.catalog.hashing import file_sha256
 
 MANIFEST_NAME = "manifest.json"
 DAMAGED_DIR = ".damaged"
 DAMAGE_REPORT = "DAMAGE.json"
 MANIFEST_VERSION = 1
-HASH_CHUNK = 1 << 20
-
-
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while True:
-            block = fh.read(HASH_CHUNK)
-            if not block:
-                return h.hexdigest()
-            h.update(block)
 
 
 def _walk_files(root: Path) -> Iterator[str]:

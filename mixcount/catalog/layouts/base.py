@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from mixcount.catalog.mesh import MESH_EXTENSIONS
-from mixcount.catalog.naming import DTC_NAME, safe_text, singular
+from mixcount.catalog.naming import DTC_NAME, category_from_name, category_text, safe_text, singular
 
 SOURCE_DTC = "dtc"
 SOURCE_GSO = "gso"
@@ -136,6 +136,19 @@ def record_identity(record: dict[str, Any]) -> dict[str, str | None]:
     units = record.get("units") if isinstance(record.get("units"), str) else None
     up = record.get("up_axis") if isinstance(record.get("up_axis"), str) else None
     return {"name": _first(record, NAME_FIELDS), "category": category, "license": lic, "units": units, "up_axis": up}
+
+
+def apply_identity(cand: Candidate, ident: dict[str, str | None]) -> None:
+    """A metadata record's identity (:func:`record_identity`) onto ``cand``: its name and category when it
+    names them (a name alone refines the category), its units and up axis. Licences are the caller's:
+    layouts differ in whether a record without one clears the candidate's."""
+    if ident["name"]:
+        cand.name = safe_text(ident["name"])
+    if ident["category"]:
+        cand.category = category_text(ident["category"])
+    elif ident["name"]:
+        cand.category = category_from_name(ident["name"], cand.category)
+    cand.units, cand.up_axis = ident["units"], ident["up_axis"]
 
 
 def _read_licence(path: Path) -> str:

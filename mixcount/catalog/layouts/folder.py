@@ -11,8 +11,15 @@ import re
 from pathlib import Path
 from typing import Any, Iterator
 
-from mixcount.catalog.layouts.base import SOURCE_FOLDER, Candidate, Walker, _preferred, record_identity
-from mixcount.catalog.naming import GENERIC_STEMS, category_from_name, category_from_stem, category_text, safe_text
+from mixcount.catalog.layouts.base import (
+    SOURCE_FOLDER,
+    Candidate,
+    Walker,
+    _preferred,
+    apply_identity,
+    record_identity,
+)
+from mixcount.catalog.naming import GENERIC_STEMS, category_from_name, category_from_stem, safe_text
 
 NAME = SOURCE_FOLDER
 
@@ -64,13 +71,7 @@ def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], r
         cand.sidecars["metadata.json"] = meta_path
         cand.metadata.update(record)
         ident = record_identity(record)
-        if ident["name"]:
-            cand.name = safe_text(ident["name"])
-        if ident["category"]:
-            cand.category = category_text(ident["category"])
-        elif ident["name"]:
-            cand.category = category_from_name(ident["name"], cand.category)
-        cand.units, cand.up_axis = ident["units"], ident["up_axis"]
+        apply_identity(cand, ident)
         if ident["license"]:
             cand.license = ident["license"]
     ctx.apply_licence(cand, folder)

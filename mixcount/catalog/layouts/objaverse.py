@@ -15,8 +15,16 @@ import json
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Optional
 
-from mixcount.catalog.layouts.base import SOURCE_OBJAVERSE, Candidate, Walker, _model_files, _scan, record_identity
-from mixcount.catalog.naming import category_from_name, category_from_stem, category_text, safe_text
+from mixcount.catalog.layouts.base import (
+    SOURCE_OBJAVERSE,
+    Candidate,
+    Walker,
+    _model_files,
+    _scan,
+    apply_identity,
+    record_identity,
+)
+from mixcount.catalog.naming import category_from_stem, safe_text
 from mixcount.errors import CatalogError
 
 NAME = SOURCE_OBJAVERSE
@@ -40,14 +48,8 @@ def read_file(ctx: Walker, path: Path) -> Optional[Candidate]:
     rec, side_file = found
     ident = record_identity(rec)
     cand.metadata = {"record": rec, "metadata_file": str(side_file)}
-    if ident["name"]:
-        cand.name = safe_text(ident["name"])
-    if ident["category"]:
-        cand.category = category_text(ident["category"])
-    elif ident["name"]:
-        cand.category = category_from_name(ident["name"], cand.category)
+    apply_identity(cand, ident)
     cand.license = ident["license"]
-    cand.units, cand.up_axis = ident["units"], ident["up_axis"]
     return cand
 
 
