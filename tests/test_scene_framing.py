@@ -139,3 +139,15 @@ def test_specs_carry_the_framing_draws_and_the_placement() -> None:
         assert 1 - conf.scene.camera_distance_jitter <= c.distance_scale <= 1 + conf.scene.camera_distance_jitter
         assert max(abs(v) for v in c.lookat_offset) <= conf.scene.camera_lookat_jitter * conf.scene.scale + 1e-9
     assert type(spec).from_json(spec.to_json()) == spec
+
+
+def test_matrix_from_quat_inverts_quat_from_matrix() -> None:
+    from mixcount.scene.rotation import matrix_from_quat, quat_from_matrix
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        m = matrix_from_quat(q)
+        np.testing.assert_allclose(m @ m.T, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(matrix_from_quat(quat_from_matrix(m)), m, atol=1e-8)

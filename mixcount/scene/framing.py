@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.annotate.raster import PinholeCamera
-from mixcount.scene.rotation import quat_from_matrix
+from mixcount.scene.rotation import matrix_from_quat, quat_from_matrix
 from mixcount.scene.spec import CameraSpec, FloorSpec
 
 FRAMINGS = ("paper", "fit", "fixed")
@@ -75,12 +75,7 @@ def pinhole_of(cam: CameraSpec) -> PinholeCamera:
 
 def rotation_of(cam: CameraSpec) -> NDArray[Any]:
     """Camera-to-world rotation of the spec's orientation quaternion (w, x, y, z)."""
-    w, x, y, z = cam.orientation
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return matrix_from_quat(cam.orientation)
 
 
 def in_frame(camera: PinholeCamera, points: NDArray[Any], margin: float) -> NDArray[Any]:

@@ -30,3 +30,13 @@ def quat_from_matrix(m: NDArray[Any]) -> tuple[float, float, float, float]:
     if qa[0] < 0:
         qa = -qa
     return tuple(round(float(v), 9) for v in qa)  # type: ignore[return-value]
+
+
+def matrix_from_quat(q: tuple[float, float, float, float] | NDArray[Any]) -> NDArray[Any]:
+    """3x3 rotation matrix of a unit quaternion (w, x, y, z): the inverse of :func:`quat_from_matrix`."""
+    w, x, y, z = (float(v) for v in q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])

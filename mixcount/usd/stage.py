@@ -31,7 +31,7 @@ from mixcount.atomic import atomic_path
 from mixcount.errors import CompositionError
 from mixcount.resources import data_dir
 from mixcount.scene.environments import write_pattern_png
-from mixcount.scene.sampler import look_at_rotation
+from mixcount.scene.framing import look_at_rotation
 from mixcount.scene.spec import ROLE_CONTAINER, PlacedObject, SceneSpec
 from mixcount.usd.assets import AssetPaths, convert_asset
 from mixcount.usd.portable import (
