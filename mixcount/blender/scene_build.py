@@ -349,6 +349,7 @@ class SceneState:
     proxy_scales: dict[str, np.ndarray] = field(default_factory=dict)  # render object name -> scale baked in its proxy
     framings: list[dict[str, Any]] = field(default_factory=list)  # per camera: how it was framed
     views: dict[int, list[dict[str, Any]]] = field(default_factory=dict)  # object index -> per-camera records
+    bounds: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # object index -> settled world AABB
 
     @property
     def placed_after_physics(self) -> bool:

@@ -115,6 +115,7 @@ def check_settled(state: SceneState, settled: dict[str, np.ndarray], roles: tupl
         obj = state.blender_objects[o.path]
         mat = settled.get(obj.name, np.array(obj.matrix_world))
         lo, hi = D.world_bounds(state.cache.columns[o.asset], mat)
+        state.bounds[i] = (lo, hi)
         min_z = float(lo[2])
         state.update(i, matrix_world=tuple(tuple(float(v) for v in row) for row in mat), min_z=min_z)
         reason = D.settle_verdict(mat, min_z, o.size_m, floor_shape=floor.shape,
@@ -170,11 +171,10 @@ def place_distractors_in_view(state: SceneState, cameras: list[PinholeCamera]) -
     if not distractors:
         return
     counted = state.kept("counted")
-    bounds = [D.world_bounds(state.cache.columns[state.objects[i].asset], np.asarray(state.objects[i].matrix_world))
-              for i in counted]
+    bounds = [state.bounds[i] for i in counted]  # the settle checks' AABBs: the poses have not moved since
     occupied = [[lo[0], lo[1], hi[0], hi[1]] for lo, hi in bounds]
     if state.spec.container is not None:
-        cobj = next(o for p, o in state.blender_objects.items() if o.pass_index == state.spec.container.instance_id)
+        cobj = next(o for o in state.blender_objects.values() if o.pass_index == state.spec.container.instance_id)
         corners = np.array(cobj.matrix_world) @ np.c_[np.array([list(c) for c in cobj.bound_box]), np.ones(8)].T
         occupied.append([corners[0].min(), corners[1].min(), corners[0].max(), corners[1].max()])
     counted_boxes = []

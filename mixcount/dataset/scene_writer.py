@@ -185,14 +185,15 @@ def _png16(arr: np.ndarray, path: Path) -> None:
 
 
 def write_exemplar_crops(rgb_path: Path, coco: Mapping[str, Any], out: Path, margin: float = 0.1,
-                         image_index: int = 0, suffix: str = "") -> list[dict[str, Any]]:
-    """Crops of the internal exemplars of image ``image_index`` (``exemplars/<category_id>_<rank><suffix>.png``)."""
+                         suffix: str = "") -> list[dict[str, Any]]:
+    """Crops of the internal exemplars of one camera's image (``coco`` holds that image alone):
+    ``exemplars/<category_id>_<rank><suffix>.png``."""
     from PIL import Image
 
     out.mkdir(exist_ok=True)
     im = Image.open(rgb_path).convert("RGB")
-    image = coco["images"][image_index]
-    anns = {a["id"]: a for a in coco["annotations"] if a["image_id"] == image["id"]}
+    (image,) = coco["images"]
+    anns = {a["id"]: a for a in coco["annotations"]}
     written = []
     for ex in image["exemplars"]:
         for rank, aid in enumerate(ex["annotation_ids"]):
