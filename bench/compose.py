@@ -48,6 +48,9 @@ def main() -> int:
                     help="extra config override (repeatable), e.g. --set scene.physics_substeps=2")
     ap.add_argument("--cold-mesh-cache", action="store_true",
                     help="do not make the .blend mesh cache before the clock (each asset's first scene)")
+    ap.add_argument("--no-warmup", action="store_true",
+                    help="measure the worker's first scene cold (by default a 64 px, 1 spp scene runs first, "
+                         "outside the clock: Cycles' and OIDN's one-off start-up in a worker)")
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
@@ -84,6 +87,15 @@ def main() -> int:
                             f.unlink()
                 else:
                     warm_mesh_cache(worker, converted, cfg.compose.mesh_cache)
+                if not args.no_warmup and not rows:
+                    warm_cfg = load_config([], [f"scene.n_objects=[{n},{n}]", "compose.resolution=64",
+                                                "compose.samples=1", *args.set])
+                    warm = sample_scene(args.seed, "train", warm_cfg, pool)
+                    if not args.no_proxies:
+                        warm = with_proxies(warm, work / "proxies", cfg.ingest.proxy_max_vertices)
+                    convert_scene_assets(warm, work / "assets")
+                    run_fresh_scene(worker, warm, work / "warmup", work / "assets", timeout_s=7200, threads=threads,
+                                    mesh_cache=warm_cfg.compose.mesh_cache)
                 out = work / (f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
                               f"{'_noproxy' if args.no_proxies else ''}{'_set' if args.set else ''}")
                 outcome, meta, stages = run_fresh_scene(worker, spec, out, work / "assets", timeout_s=7200,

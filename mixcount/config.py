@@ -23,7 +23,7 @@ from typing import Any, Mapping, Optional, Sequence
 
 from mixcount.errors import ConfigError
 from mixcount.resources import data_dir
-from mixcount.scene.config import SceneConfig
+from mixcount.scene.config import CyclesConfig, SceneConfig
 
 CONFIG_DIR = data_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"
@@ -326,6 +326,7 @@ class Config:
     split: SplitConfig
     scene: SceneConfig
     compose: ComposeConfig
+    cycles: CyclesConfig
     sources: tuple[str, ...]
     data: Mapping[str, Any]
 
@@ -344,7 +345,7 @@ class Config:
 SECTIONS: dict[str, type] = {
     "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "containers": ContainersConfig, "render": RenderConfig,
     "filter": FilterConfig, "captions": CaptionsConfig, "split": SplitConfig, "scene": SceneConfig,
-    "compose": ComposeConfig,
+    "compose": ComposeConfig, "cycles": CyclesConfig,
 }
 
 

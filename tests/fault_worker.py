@@ -206,7 +206,7 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
         state = B.load_scene(dataclasses.replace(request, mesh_cache=mode))
         state.scene.render.resolution_percentage = 50
         ids = P.render_id_passes(state.scene, out / "_ids.exr")
-        P.configure_rgb(state.scene, samples=2, denoise=False)
+        P.configure_rgb(state.scene, dataclasses.replace(state.spec.render, samples=2, denoise=False))
         P.render_to(state.scene, out / "_rgb.png")
         ids["rgb"] = np.asarray(Image.open(out / "_rgb.png"))
         events = next((d["assets"] for d in state.diagnostics if d["kind"] == "mesh_cache"), {})

@@ -116,8 +116,19 @@ def test_compose_writes_n_complete_scenes(composed) -> None:
         assert meta["physics"]["frames"] == scene_cfg.physics_frames
         # the RGB render used the spec's render settings, as Cycles reports them back
         rgb = [x for x in meta["diagnostics"] if x["kind"] == "rgb"]
-        assert rgb == [{"kind": "rgb", "samples": 4, "denoise": True, "denoiser": "OPENIMAGEDENOISE", "prefilter": "FAST"}]
+        assert len(rgb) == 1 and (rgb[0]["samples"], rgb[0]["use_denoising"], rgb[0]["denoiser"],
+                                  rgb[0]["denoising_prefilter"]) == (4, True, "OPENIMAGEDENOISE", "FAST")
         assert meta["spec"]["render"]["denoise_prefilter"] == "FAST"
+        cy = meta["spec"]["render"]["cycles"]  # every [cycles] value recorded in the spec, and used
+        assert cy == _config().cycles.to_dict()
+        assert rgb[0]["use_adaptive_sampling"] == (cy["adaptive_threshold"] > 0)
+        for spec_key, blender_key in (("max_bounces", "max_bounces"), ("diffuse_bounces", "diffuse_bounces"),
+                                      ("light_tree", "use_light_tree"), ("denoising_quality", "denoising_quality"),
+                                      ("texture_limit", "texture_limit_render"), ("pixel_filter", "pixel_filter_type")):
+            assert rgb[0][blender_key] == cy[spec_key], spec_key
+        if cy["adaptive_threshold"] > 0:
+            assert abs(rgb[0]["adaptive_threshold"] - cy["adaptive_threshold"]) < 1e-6
+            assert rgb[0]["adaptive_min_samples"] == cy["adaptive_min_samples"]
         assert (d / "exemplars").is_dir() and any((d / "exemplars").iterdir())
     summary_json = json.loads((out / "dataset.json").read_text())
     assert summary_json["counts"]["scenes"] == 2

@@ -70,25 +70,42 @@ def configure_id_pass(scene: Any) -> None:
     s.exr_codec = "NONE"  # a temporary file read back at once: ZIP cost ~0.3-0.5 s a render at 1024²
 
 
-def configure_rgb(scene: Any, *, samples: int, denoise: bool, prefilter: str = "ACCURATE") -> None:
-    """The final image: configured samples and denoiser, default filter, light bounces back on.
+def configure_rgb(scene: Any, render: Any) -> dict[str, Any]:
+    """The final image with a :class:`~mixcount.scene.spec.RenderSpec`'s settings: samples, denoiser and
+    every :class:`~mixcount.scene.spec.CyclesSpec` field; returns what Cycles holds afterwards, read back
+    (recorded beside the spec in the scene's diagnostics).
 
-    ``prefilter`` is OIDN's treatment of the albedo / normal guiding passes. ACCURATE (Blender's default)
-    denoises them first, i.e. runs the network three times: 13.4 s of a 1024² render on 2 cores; FAST
-    (guides denoised with the colour) 2.3 s (docs/performance.md)."""
-    c = scene.cycles
-    c.samples = int(samples)
-    c.use_denoising = bool(denoise)
-    if denoise:
+    ``denoise_prefilter`` is OIDN's treatment of the albedo / normal guiding passes. ACCURATE (Blender's
+    default) denoises them first, i.e. runs the network three times: 13.4 s of a 1024² render on 2 cores;
+    FAST (guides denoised with the colour) 2.3 s (docs/performance.md)."""
+    c, cy = scene.cycles, render.cycles
+    c.samples = int(render.samples)
+    c.use_denoising = bool(render.denoise)
+    if render.denoise:
         c.denoiser = "OPENIMAGEDENOISE"
-        c.denoising_prefilter = prefilter
-    c.pixel_filter_type = "BLACKMAN_HARRIS"
-    c.filter_width = 1.5
-    c.max_bounces = 8
-    c.diffuse_bounces = 3
-    c.glossy_bounces = 3
-    c.transmission_bounces = 4
-    c.transparent_max_bounces = 8
+        c.denoising_prefilter = render.denoise_prefilter
+        c.denoising_quality = cy.denoising_quality
+    c.use_adaptive_sampling = cy.adaptive_threshold > 0
+    if cy.adaptive_threshold > 0:
+        c.adaptive_threshold = float(cy.adaptive_threshold)
+        c.adaptive_min_samples = int(cy.adaptive_min_samples)
+    for name in ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces",
+                 "transparent_max_bounces", "volume_bounces"):
+        setattr(c, name, int(getattr(cy, name)))
+    c.use_light_tree = bool(cy.light_tree)
+    c.caustics_reflective = bool(cy.caustics_reflective)
+    c.caustics_refractive = bool(cy.caustics_refractive)
+    c.blur_glossy = float(cy.blur_glossy)
+    c.sample_clamp_direct = float(cy.sample_clamp_direct)
+    c.sample_clamp_indirect = float(cy.sample_clamp_indirect)
+    c.texture_limit_render = cy.texture_limit
+    c.pixel_filter_type = cy.pixel_filter
+    c.filter_width = float(cy.filter_width)
+    c.sampling_pattern = cy.sampling_pattern
+    world = scene.world
+    if world is not None:  # the environment light's importance map
+        world.cycles.sampling_method = cy.world_sampling
+        world.cycles.sample_map_resolution = int(cy.world_map_resolution)
     vl = scene.view_layers[0]
     vl.use_pass_combined = True
     vl.use_pass_object_index = False
@@ -99,6 +116,24 @@ def configure_rgb(scene: Any, *, samples: int, denoise: bool, prefilter: str = "
     s.file_format = "PNG"
     s.color_mode = "RGB"
     s.color_depth = "8"
+    applied = {name: _plain(getattr(c, name)) for name in RGB_READBACK}
+    if world is not None:
+        applied.update(world_sampling_method=str(world.cycles.sampling_method),
+                       world_sample_map_resolution=int(world.cycles.sample_map_resolution))
+    return applied
+
+
+# scene.cycles properties read back after configure_rgb (what the RGB render really used)
+RGB_READBACK = ("samples", "use_denoising", "denoiser", "denoising_prefilter", "denoising_quality",
+                "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "max_bounces",
+                "diffuse_bounces", "glossy_bounces", "transmission_bounces", "transparent_max_bounces",
+                "volume_bounces", "use_light_tree", "caustics_reflective", "caustics_refractive", "blur_glossy",
+                "sample_clamp_direct", "sample_clamp_indirect", "texture_limit_render", "pixel_filter_type",
+                "filter_width", "seed", "sampling_pattern")
+
+
+def _plain(value: Any) -> Any:
+    return round(value, 6) if isinstance(value, float) else value
 
 
 def render_to(scene: Any, path: Path) -> None:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import functools
 import time
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 
@@ -370,11 +370,9 @@ def render_rgb(state: SceneState) -> None:
     """The final image of every camera (``rgb.png``, ``rgb_cam_1.png``, ...) with the stage's samples and denoiser."""
     from mixcount.blender import passes as P
 
-    P.configure_rgb(state.scene, samples=state.spec.render.samples, denoise=state.spec.render.denoise,
-                    prefilter=state.spec.render.denoise_prefilter)
-    c = state.scene.cycles  # what Cycles was set to, read back (a diagnostic, not the spec's wish)
-    state.diagnostics.append({"kind": "rgb", "samples": int(c.samples), "denoise": bool(c.use_denoising),
-                              "denoiser": str(c.denoiser), "prefilter": str(c.denoising_prefilter)})
+    applied = P.configure_rgb(state.scene, state.spec.render)
+    # what Cycles was set to, read back (a diagnostic beside the spec's wish)
+    state.diagnostics.append({"kind": "rgb", **applied})
     for k, cam_obj in enumerate(state.cam_objs):
         state.scene.camera = cam_obj
         P.render_to(state.scene, state.out_dir / f"rgb{view_suffix(k)}.png")
@@ -439,8 +437,11 @@ def place_after_physics(state: SceneState, settled: dict[str, np.ndarray], timer
     return cameras
 
 
-def run_scene(req: SceneRequest) -> SceneResult:
-    """Handle one scene request (see module docstring); writes and returns the SceneResult."""
+def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] = None) -> SceneResult:
+    """Handle one scene request (see module docstring); writes and returns the SceneResult.
+
+    ``render`` replaces :func:`render_rgb` (``bench/render_quality.py`` renders the finished scene with
+    several Cycles settings through :mod:`mixcount.blender.render_sweep`)."""
     from mixcount.blender.visibility import camera_model
 
     timer = Timer()
@@ -462,7 +463,7 @@ def run_scene(req: SceneRequest) -> SceneResult:
                 view_passes[k] = write_passes(state, id_passes[k], cam, req, k)
                 write_amodal_masks(state, masks[k], id_passes[k], k)
         with timer.stage("rgb"):
-            render_rgb(state)
+            (render or render_rgb)(state)
         if req.oracle:
             with timer.stage("oracle"):
                 for k, cam in enumerate(cameras):

@@ -11,6 +11,10 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from mixcount.errors import ConfigError
+from mixcount.scene.spec import CyclesSpec
+
+# ``[cycles]``: the RGB render's Cycles settings, recorded in every spec as they are (RenderSpec.cycles)
+CyclesConfig = CyclesSpec
 
 Range = tuple[float, float]
 IntRange = tuple[int, int]

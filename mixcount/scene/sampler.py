@@ -586,7 +586,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         cameras=tuple(cameras), physics=_physics_spec(config),
         render=RenderSpec(resolution=compose.resolution, samples=compose.samples, denoise=compose.denoise,
                           visibility_threshold=compose.visibility_threshold,
-                          denoise_prefilter=compose.denoise_prefilter),
+                          denoise_prefilter=compose.denoise_prefilter, cycles=cfg.cycles),
         assets=_asset_refs([d.obj for d in drafts] + picks + ([container_obj] if container_obj else [])),
         placement=PlacementSpec(
             frame_margin=config.camera_frame_margin, distractor_margin=round(config.distractor_margin * s, _R),
