@@ -1,6 +1,6 @@
 """RGB render time against image quality: Cycles settings measured on settled heavy stages vs a converged reference.
 
-    .venv/bin/python bench/render_quality.py --quick --work W     # 2 stages, 256-spp reference (~15 min here)
+    .venv/bin/python bench/render_quality.py --quick --work W     # 2 stages, 256-spp reference (~25 min on 2 cores)
     .venv/bin/python bench/render_quality.py --work W             # 6 stages, 1024-spp reference (docs/performance.md)
     .venv/bin/python bench/render_quality.py --quick --try "b4:max_bounces=4,diffuse_bounces=2"   # one more setting
 
@@ -153,7 +153,7 @@ def build_stage(label: str, seed: int, n: int, container: bool, extra: list[str]
     return out / "scene.usda", hashlib.sha256(json.dumps(scene, sort_keys=True).encode()).hexdigest()
 
 
-def main() -> int:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="2 stages, one single change, 256-spp reference")
     ap.add_argument("--stages", default=None, help="comma-separated stage labels (default: all, or the quick two)")
@@ -173,8 +173,56 @@ def main() -> int:
     ap.add_argument("--pool", default="heavy", help="heavy (captures' size, the default) or light (the demo library)")
     ap.add_argument("--objects", type=int, default=None, help="counted objects of every stage (default: the stage's)")
     ap.add_argument("--work", type=Path, default=None)
-    args = ap.parse_args()
+    return ap.parse_args()
 
+
+def _settings(args: argparse.Namespace, cfg: Any, before: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
+    """``previous``, ``default``, the chosen candidates and ``--try`` ones; and each setting equal to an
+    earlier one -> that one (rendered once: before the defaults change, ``default`` is ``previous``)."""
+    names = (args.only.split(",") if args.only is not None else list(QUICK_CANDIDATES if args.quick else CANDIDATES))
+    settings = {"previous": candidate("previous", PREVIOUS, before),
+                "default": {"name": "default", "samples": cfg.compose.samples,
+                            "denoise_prefilter": cfg.compose.denoise_prefilter, "cycles": cfg.cycles.to_dict()}}
+    for n in filter(None, names):
+        settings[n] = candidate(n, CANDIDATES[n], before)
+    for t in args.tries:
+        name, over = parse_try(t)
+        settings[name] = candidate(name, over, before)
+    same_as: dict[str, str] = {}
+    order = list(settings)
+    for name, setting in settings.items():
+        twin = next((k for k in order[:order.index(name)] if k not in same_as
+                     and {**settings[k], "name": ""} == {**setting, "name": ""}), None)
+        if twin is not None:
+            same_as[name] = twin
+    return settings, same_as
+
+
+def _reference(args: argparse.Namespace, before: dict[str, Any]) -> dict[str, Any]:
+    spp = args.reference_spp or (256 if args.quick else 1024)
+    ref = candidate("reference", {"samples": spp, "cycles": {**REFERENCE_CYCLES, "adaptive_min_samples": max(16, spp // 4)}},
+                    before)
+    ref["border"] = window(args.resolution, args.reference_window)[0] if args.reference_window < 1 else None
+    ref["seed"] = 1  # not the candidates' seed 0: its first samples would be theirs
+    ref["once"] = True
+    return ref
+
+
+def _sweep_stage(job: dict[str, Any], job_path: Path, label: str) -> dict[str, Any]:
+    """Run mixcount.blender.render_sweep on ``job`` in its own bpy process; its sweep.json."""
+    job_path.write_text(json.dumps(job))
+    proc = subprocess.run([sys.executable, "-m", "mixcount.blender.render_sweep", str(job_path)],
+                          cwd=str(ROOT), capture_output=True, text=True, timeout=6 * 3600)
+    if proc.returncode != 0:
+        print(proc.stdout[-3000:], proc.stderr[-3000:], file=sys.stderr)
+        raise SystemExit(f"render sweep of stage {label} failed (rc {proc.returncode})")
+    sweep: dict[str, Any] = json.loads((Path(job["out"]) / "sweep.json").read_text())
+    return sweep
+
+
+def main() -> int:
+    args = _arguments()
+    from PIL import Image
     from pools import load_pool
 
     from mixcount.blender.contract import SceneRequest
@@ -184,33 +232,11 @@ def main() -> int:
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-rq-"))
     threads = args.threads or os.cpu_count() or 1
     labels = (args.stages.split(",") if args.stages else list(QUICK_STAGES if args.quick else [s[0] for s in STAGES]))
-    ref_spp = args.reference_spp or (256 if args.quick else 1024)
-    names = (args.only.split(",") if args.only is not None else list(QUICK_CANDIDATES if args.quick else CANDIDATES))
-    names = [n for n in names if n]
     cfg = load_config()
     before = CYCLES_BEFORE.to_dict()
-    settings = {"previous": candidate("previous", PREVIOUS, before),
-                "default": {"name": "default", "samples": cfg.compose.samples,
-                            "denoise_prefilter": cfg.compose.denoise_prefilter, "cycles": cfg.cycles.to_dict()}}
-    for n in names:
-        settings[n] = candidate(n, CANDIDATES[n], before)
-    for t in args.tries:
-        name, over = parse_try(t)
-        settings[name] = candidate(name, over, before)
-    # a setting equal to an earlier one is rendered once (the default before it is changed is `previous`)
-    same_as: dict[str, str] = {}
-    for name, setting in settings.items():
-        twin = next((k for k, v in settings.items() if k != name and k not in same_as and k != name
-                     and {**v, "name": ""} == {**setting, "name": ""} and list(settings).index(k) < list(settings).index(name)), None)
-        if twin is not None:
-            same_as[name] = twin
-    border, (rows, cols) = window(args.resolution, args.reference_window)
-    reference = candidate("reference", {"samples": ref_spp, "cycles": {**REFERENCE_CYCLES,
-                                                                       "adaptive_min_samples": max(16, ref_spp // 4)}},
-                          before)
-    reference["border"] = border if args.reference_window < 1 else None
-    reference["seed"] = 1  # not the candidates' seed 0: its first samples would be theirs
-
+    settings, same_as = _settings(args, cfg, before)
+    reference = _reference(args, before)
+    _, (rows, cols) = window(args.resolution, args.reference_window)
     pool = load_pool(args.pool, work, min_faces=args.min_faces)
     per: dict[str, dict[str, list[float]]] = {k: {"rgb_s": [], "psnr": [], "ssim": []} for k in settings}
     stage_rows = []
@@ -222,43 +248,19 @@ def main() -> int:
         out = work / "renders" / label
         request = SceneRequest.from_config(cfg.compose, stage=str(stage), out_dir=str(stage.parent),
                                            threads=threads, oracle=False)
-        ref_key = {"scene_sha256": stage_hash, "reference": reference}
-        ref_json = out / "reference.json"
+        ref_key, ref_json = {"scene_sha256": stage_hash, "reference": reference}, out / "reference.json"
         reuse = (args.reuse_reference and ref_json.is_file() and (out / "reference.png").is_file()
                  and json.loads(ref_json.read_text())["key"] == ref_key)
         rendered = [v for k, v in settings.items() if k not in same_as]
-        job = {"request": request.to_dict(), "candidates": [*rendered, *([] if reuse else [reference])],
-               "repeats": 1, "out": str(out)}
-        if args.repeats > 1:  # the reference once, the settings `repeats` times
-            job["candidates"] = rendered
-            job["repeats"] = args.repeats
-        job_path = work / f"job_{label}.json"
-        job_path.write_text(json.dumps(job))
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "mixcount.blender.render_sweep", str(job_path)],
-                              cwd=str(ROOT), capture_output=True, text=True, timeout=6 * 3600)
-        if args.repeats > 1 and proc.returncode == 0 and not reuse:  # the reference as one more run of the stage
-            job.update(candidates=[reference], repeats=1, out=str(out / "ref"))
-            job_path.write_text(json.dumps(job))
-            proc = subprocess.run([sys.executable, "-m", "mixcount.blender.render_sweep", str(job_path)],
-                                  cwd=str(ROOT), capture_output=True, text=True, timeout=6 * 3600)
-        if proc.returncode != 0:
-            print(proc.stdout[-3000:], proc.stderr[-3000:], file=sys.stderr)
-            raise SystemExit(f"render sweep of stage {label} failed (rc {proc.returncode})")
-        sweep = json.loads((out / "sweep.json").read_text())
-        ref_dir = out / "ref" if args.repeats > 1 and not reuse else out
+        sweep = _sweep_stage({"request": request.to_dict(), "candidates": [*rendered, *([] if reuse else [reference])],
+                              "repeats": args.repeats, "out": str(out)}, work / f"job_{label}.json", label)
         if not reuse:
-            ref_s = json.loads((ref_dir / "sweep.json").read_text())["candidates"]["reference"]["seconds"][0]
-            if ref_dir != out:
-                (ref_dir / "reference.png").replace(out / "reference.png")
-            ref_json.write_text(json.dumps({"key": ref_key, "seconds": ref_s}))
-        ref_s = json.loads(ref_json.read_text())["seconds"]
-        from PIL import Image
-
+            ref_json.write_text(json.dumps({"key": ref_key, "seconds": sweep["candidates"]["reference"]["seconds"][0]}))
         ref = np.asarray(Image.open(out / "reference.png").convert("RGB"))[rows, cols]
         stage_rows.append({"stage": label, "seed": seed, "objects": n, "container": container,
                            "counted_kept": sweep["counted_kept"], "distractors_kept": sweep["distractors_kept"],
-                           "reference_s": ref_s, "reference_reused": reuse,
+                           "reference_s": json.loads(ref_json.read_text())["seconds"], "reference_reused": reuse,
                            "sweep_s": round(time.perf_counter() - t0, 1)})
         print(json.dumps(stage_rows[-1]), file=sys.stderr)
         for name in settings:
@@ -269,6 +271,13 @@ def main() -> int:
             per[name]["ssim"].append(round(ssim(img, ref), 5))
             print(f"  {label:20s} {name:24s} {per[name]['rgb_s'][-1]:7.2f} s  PSNR {per[name]['psnr'][-1]:6.2f} dB"
                   f"  SSIM {per[name]['ssim'][-1]:.5f}", file=sys.stderr)
+    _report(args, settings, per, stage_rows, before, threads)
+    return 0
+
+
+def _report(args: argparse.Namespace, settings: dict[str, Any], per: dict[str, dict[str, list[float]]],
+            stage_rows: list[dict[str, Any]], before: dict[str, Any], threads: int) -> None:
+    """One JSON line per setting, then the summary line (``previous`` and ``default``)."""
     for name, setting in settings.items():
         print(json.dumps({"setting": name, **per[name], "median_rgb_s": statistics.median(per[name]["rgb_s"]),
                           "time_vs_previous": round(statistics.median(
@@ -278,7 +287,8 @@ def main() -> int:
     prev, new = per["previous"], per["default"]
     ratios = [a / b for a, b in zip(new["rgb_s"], prev["rgb_s"])]
     print(json.dumps({
-        "bench": "render_quality", "quick": args.quick, "pool": args.pool, "resolution": args.resolution, "reference_spp": ref_spp,
+        "bench": "render_quality", "quick": args.quick, "pool": args.pool, "resolution": args.resolution,
+        "reference_spp": args.reference_spp or (256 if args.quick else 1024),
         "reference_window": args.reference_window, "threads": threads, "cpu_count": os.cpu_count(),
         "stages": stage_rows, "previous": prev, "default": new,
         "default_time_ratio": {"median": round(statistics.median(ratios), 3), "max": round(max(ratios), 3)},
@@ -286,7 +296,6 @@ def main() -> int:
                                                zip(new["psnr"], prev["psnr"], new["ssim"], prev["ssim"])),
         "default_cycles": settings["default"]["cycles"], "default_samples": settings["default"]["samples"],
         "default_denoise_prefilter": settings["default"]["denoise_prefilter"]}))
-    return 0
 
 
 if __name__ == "__main__":

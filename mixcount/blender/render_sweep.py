@@ -8,12 +8,13 @@ exactly as the ``scene`` operation does (:func:`mixcount.blender.scene_job.run_s
 visibility drops, passes); then, in place of its RGB render, every candidate renders cam_0 at the stage's
 resolution into ``DIR/<name>.png`` (``repeats`` rounds, candidates in the same order each round, so a slow
 spell of this shared machine hits them alike). ``cycles`` maps :class:`mixcount.scene.spec.CyclesSpec`
-field names to values, applied over the stage's own settings; the denoiser switch stays the stage's. ``border`` renders only that normalised
-window of the frame (Blender's border, y from the bottom; the reference of a stage can be a window);
-``seed`` Cycles' sampling seed (0, the worker's, when absent: a reference needs another one, or its first
+field names to values, applied over the stage's own settings; the denoiser switch stays the stage's.
+``border`` renders only that normalised window of the frame (Blender's border, y from the bottom; the reference of a stage can be a window);
+``once`` renders it in the first round only; ``seed`` Cycles' sampling seed (0, the worker's, when absent: a reference needs another one, or its first
 samples are the candidates' own and it favours them).
 
-Writes ``DIR/sweep.json``: per candidate the seconds of each round and what Cycles was set to, read back.
+Writes ``DIR/sweep.json``: per candidate the seconds of each round, what Cycles was set to (read back) and
+its border. Outside a border the image holds whatever the render buffer held (docs/blender.md).
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ def sweep(job: dict[str, Any]) -> dict[str, Any]:
         base = state.spec.render
         for rnd in range(int(job.get("repeats", 1))):
             for cand in job["candidates"]:
+                if rnd > 0 and cand.get("once"):  # a reference: one round is enough
+                    continue
                 render = dataclasses.replace(base, samples=int(cand["samples"]),
                                              denoise_prefilter=str(cand["denoise_prefilter"]),
                                              cycles=dataclasses.replace(base.cycles, **cand["cycles"]))
@@ -58,7 +61,8 @@ def sweep(job: dict[str, Any]) -> dict[str, Any]:
                 finally:
                     r.use_border = False
                 seconds = time.perf_counter() - t0
-                entry = results["candidates"].setdefault(cand["name"], {"seconds": [], "applied": applied})
+                entry = results["candidates"].setdefault(cand["name"], {"seconds": [], "applied": applied,
+                                                                        "border": border or None})
                 entry["seconds"].append(round(seconds, 3))
                 print(json.dumps({"round": rnd, "candidate": cand["name"], "seconds": round(seconds, 3)}), flush=True)
 
