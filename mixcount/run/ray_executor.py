@@ -231,14 +231,29 @@ class RayExecutor:
                 self._idle.append(k)
 
     def info(self, timeout: float = 30.0) -> list[dict[str, Any]]:
-        """Per-actor host, pids, scenes done, recycles and worker memory (for benchmarks and logs)."""
+        """Per-actor host, pids, scenes done, recycles and worker memory (for benchmarks and logs).
+
+        An actor Ray is restarting answers ``ActorUnavailableError`` for a moment; ``info`` has no side
+        effects, so it asks that actor again until ``timeout`` rather than report a transient error.
+        """
+        from ray.exceptions import ActorUnavailableError
+
+        deadline = time.monotonic() + timeout
         refs = [a.info.remote() for a in self._actors]
         out: list[dict[str, Any]] = []
-        for ref in refs:
-            try:
-                out.append(self._ray.get(ref, timeout=timeout))
-            except Exception as exc:  # noqa: BLE001
-                out.append({"error": f"{type(exc).__name__}: {exc}"})
+        for actor, ref in zip(self._actors, refs):
+            while True:
+                try:
+                    out.append(self._ray.get(ref, timeout=max(0.1, deadline - time.monotonic())))
+                except ActorUnavailableError as exc:
+                    if time.monotonic() < deadline:
+                        time.sleep(0.5)
+                        ref = actor.info.remote()
+                        continue
+                    out.append({"error": f"{type(exc).__name__}: {exc}"})
+                except Exception as exc:  # noqa: BLE001
+                    out.append({"error": f"{type(exc).__name__}: {exc}"})
+                break
         return out
 
     def close(self) -> None:
