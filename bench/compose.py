@@ -25,6 +25,7 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -67,6 +68,14 @@ def main() -> int:
     pools = [p.strip() for p in args.pools.split(",") if p.strip()]
     threads = args.threads or os.cpu_count() or 1
     rows = []
+
+    def staged(cfg: Any, pool: Any) -> tuple[Any, dict]:
+        """The bench's scene for ``cfg``: sampled at --seed, proxies attached, its assets converted."""
+        spec = sample_scene(args.seed, "train", cfg, pool)
+        if not args.no_proxies:
+            spec = with_proxies(spec, work / "proxies", cfg.ingest.proxy_max_vertices)
+        return spec, convert_scene_assets(spec, work / "assets")
+
     with BlenderWorker(name="bench", log_dir=work) as worker:
         worker.request({"op": "ping"}, timeout=300)  # start-up is not part of a scene
         for pool_name in pools:
@@ -77,10 +86,7 @@ def main() -> int:
                                        f"compose.render_threads={threads}",
                                        f"scene.collision_proxies={str(not args.no_proxies).lower()}",
                                        *args.set])
-                spec = sample_scene(args.seed, "train", cfg, pool)
-                if not args.no_proxies:
-                    spec = with_proxies(spec, work / "proxies", cfg.ingest.proxy_max_vertices)
-                converted = convert_scene_assets(spec, work / "assets")
+                spec, converted = staged(cfg, pool)
                 if args.cold_mesh_cache:
                     for a in converted.values():
                         for f in mesh_cache.files_of(a.visual):
@@ -90,10 +96,7 @@ def main() -> int:
                 if not args.no_warmup and not rows:
                     warm_cfg = load_config([], [f"scene.n_objects=[{n},{n}]", "compose.resolution=64",
                                                 "compose.samples=1", *args.set])
-                    warm = sample_scene(args.seed, "train", warm_cfg, pool)
-                    if not args.no_proxies:
-                        warm = with_proxies(warm, work / "proxies", cfg.ingest.proxy_max_vertices)
-                    convert_scene_assets(warm, work / "assets")
+                    warm, _ = staged(warm_cfg, pool)
                     run_fresh_scene(worker, warm, work / "warmup", work / "assets", timeout_s=7200, threads=threads,
                                     mesh_cache=warm_cfg.compose.mesh_cache)
                 out = work / (f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"

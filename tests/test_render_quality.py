@@ -31,6 +31,10 @@ def test_cycles_settings_round_trip_and_old_specs_read_as_before() -> None:
     assert CYCLES_BEFORE.max_bounces == 8 and CYCLES_BEFORE.adaptive_threshold == 0.0
     with pytest.raises(ValueError, match="unknown Cycles setting"):
         CyclesSpec.from_dict({**cfg.cycles.to_dict(), "max_bounce": 3})
+    partial = cfg.cycles.to_dict()
+    del partial["light_tree"]
+    with pytest.raises(ValueError, match=r"lacks setting\(s\) \['light_tree'\]"):
+        CyclesSpec.from_dict(partial)
     from mixcount.errors import ConfigError
 
     with pytest.raises(ConfigError, match="cycles.denoising_quality"):

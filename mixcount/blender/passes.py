@@ -19,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import os
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Iterator, Optional, Sequence
 
 import numpy as np
 
@@ -187,6 +187,30 @@ class _Unlit:
             o.hide_render = False
 
 
+def region_window(region: tuple[int, int, int, int], width: int, height: int) -> tuple[float, float, float, float]:
+    """Pixel rows/columns ``(row0, col0, row1, col1)`` (inclusive, top-down) -> Blender's normalised border
+    ``(min_x, max_x, min_y, max_y)`` (y from the bottom), with one pixel of slack on each side."""
+    row0, col0, row1, col1 = region
+    return (max(0.0, (col0 - 1) / width), min(1.0, (col1 + 2) / width),
+            max(0.0, (height - row1 - 2) / height), min(1.0, (height - row0 + 1) / height))
+
+
+@contextlib.contextmanager
+def border(scene: Any, window: Optional[Sequence[float]]) -> Iterator[None]:
+    """Render only the normalised ``window`` ``(min_x, max_x, min_y, max_y)`` inside this block (not
+    cropped: the image keeps its size, pixels outside are undefined); ``None`` renders the whole frame."""
+    r = scene.render
+    if window is None:
+        yield
+        return
+    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = (float(b) for b in window)
+    r.use_border, r.use_crop_to_border = True, False
+    try:
+        yield
+    finally:
+        r.use_border = False
+
+
 def render_id_passes(scene: Any, path: Path, region: Optional[tuple[int, int, int, int]] = None,
                      unlit: bool = True) -> dict[str, np.ndarray]:
     """Render the id pass and return ``index`` (int32), ``depth`` (float32, metres along the view ray
@@ -199,18 +223,9 @@ def render_id_passes(scene: Any, path: Path, region: Optional[tuple[int, int, in
     """
     configure_id_pass(scene)
     r = scene.render
-    if region is not None:
-        h, w = r.resolution_y, r.resolution_x
-        row0, col0, row1, col1 = region
-        # Blender's border is normalised, with y from the bottom; one pixel of slack on each side
-        r.border_min_x, r.border_max_x = max(0.0, (col0 - 1) / w), min(1.0, (col1 + 2) / w)
-        r.border_min_y, r.border_max_y = max(0.0, (h - row1 - 2) / h), min(1.0, (h - row0 + 1) / h)
-        r.use_border, r.use_crop_to_border = True, False
-    try:
-        with _Unlit(scene) if unlit else contextlib.nullcontext():
-            render_to(scene, path)
-    finally:
-        r.use_border = False
+    window = None if region is None else region_window(region, r.resolution_x, r.resolution_y)
+    with border(scene, window), (_Unlit(scene) if unlit else contextlib.nullcontext()):
+        render_to(scene, path)
     layers = read_exr_layers(path)
     missing = [k for k in (PASS_INDEX, PASS_DEPTH, PASS_NORMAL) if k not in layers]
     if missing:

@@ -50,19 +50,13 @@ def sweep(job: dict[str, Any]) -> dict[str, Any]:
                 applied = P.configure_rgb(scene, render)
                 scene.cycles.seed = int(cand["seed"]) if "seed" in cand else 0  # the worker renders with seed 0
                 applied["seed"] = int(scene.cycles.seed)
-                r = scene.render
-                border = cand.get("border")
-                if border:
-                    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = (float(b) for b in border)
-                    r.use_border, r.use_crop_to_border = True, False
-                t0 = time.perf_counter()
-                try:
+                border = cand.get("border") or None
+                with P.border(scene, border):
+                    t0 = time.perf_counter()
                     P.render_to(scene, out / f"{cand['name']}.png")
-                finally:
-                    r.use_border = False
-                seconds = time.perf_counter() - t0
+                    seconds = time.perf_counter() - t0
                 entry = results["candidates"].setdefault(cand["name"], {"seconds": [], "applied": applied,
-                                                                        "border": border or None})
+                                                                        "border": border})
                 entry["seconds"].append(round(seconds, 3))
                 print(json.dumps({"round": rnd, "candidate": cand["name"], "seconds": round(seconds, 3)}), flush=True)
 

@@ -391,6 +391,9 @@ class CyclesSpec:
         unknown = sorted(set(d) - set(kinds))
         if unknown:
             raise ValueError(f"unknown Cycles setting(s) {unknown}; known: {sorted(kinds)}")
+        missing = sorted(set(kinds) - set(d))
+        if missing:
+            raise ValueError(f"the Cycles record lacks setting(s) {missing} (written by another mixcount version?)")
         return cls(**{k: cast[str(kinds[k])](d[k]) for k in kinds})
 
 
