@@ -248,7 +248,9 @@ def main() -> int:
         out = work / "renders" / label
         request = SceneRequest.from_config(cfg.compose, stage=str(stage), out_dir=str(stage.parent),
                                            threads=threads, oracle=False)
-        ref_key, ref_json = {"scene_sha256": stage_hash, "reference": reference}, out / "reference.json"
+        # keyed by what shapes the reference image; ``once`` only schedules it (one round of --repeats)
+        ref_key = {"scene_sha256": stage_hash, "reference": {k: v for k, v in reference.items() if k != "once"}}
+        ref_json = out / "reference.json"
         reuse = (args.reuse_reference and ref_json.is_file() and (out / "reference.png").is_file()
                  and json.loads(ref_json.read_text())["key"] == ref_key)
         rendered = [v for k, v in settings.items() if k not in same_as]
