@@ -6,7 +6,8 @@
   ``crash_<code>`` kills the process mid-job (``os._exit(code)``); any other renders normally;
 * ``{"op": "border_check", "stage": path, "out_dir": path, "drop": k}`` - the visibility loop's border
   re-render against a full one: a settled scene, its id pass, the ``k`` most visible objects removed, the
-  changed region re-rendered and pasted, then a full render; answers which passes are identical.
+  changed region re-rendered and pasted (Cycles' sync kept between the two, as in the loop), then a full
+  render from a fresh sync; answers which passes are identical.
 * ``{"op": "rest_stop"}`` - the simulation's early stop: two cubes resting on a floor and three falling
   from 30 m at x >= 10, simulated with every body waited for and with only those at x < 5; answers the
   frames each run simulated.
@@ -61,17 +62,19 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
                                                   threads=2, oracle=False))
     J.check_frame(state, J.place_after_physics(state, J.settle(state), J.Timer()))
     exr = state.out_dir / "_border.exr"
-    before = P.render_id_passes(state.scene, exr)
-    kept = state.kept()
-    seen = {state.objects[i].instance_id: int((before["index"] == state.objects[i].instance_id).sum()) for i in kept}
-    drop = sorted(seen, key=lambda k: -seen[k])[: int(req["drop"])]
-    region = D.changed_region(before["index"], drop)
-    for i in kept:
-        if state.objects[i].instance_id in drop:
-            state.drop(i, D.OCCLUDED, "test")
-    assert region is not None
-    pasted = D.paste_region(before, P.render_id_passes(state.scene, exr, region), region)
-    full = P.render_id_passes(state.scene, exr)
+    with P.synced_between_renders(state.scene):  # as the visibility loop renders: Cycles' sync kept
+        before = P.render_id_passes(state.scene, exr)
+        kept = state.kept()
+        seen = {state.objects[i].instance_id: int((before["index"] == state.objects[i].instance_id).sum())
+                for i in kept}
+        drop = sorted(seen, key=lambda k: -seen[k])[: int(req["drop"])]
+        region = D.changed_region(before["index"], drop)
+        for i in kept:
+            if state.objects[i].instance_id in drop:
+                state.drop(i, D.OCCLUDED, "test")
+        assert region is not None
+        pasted = D.paste_region(before, P.render_id_passes(state.scene, exr, region), region)
+    full = P.render_id_passes(state.scene, exr)  # a fresh sync of the scene without them
     return {"ok": True, "region": list(region), "dropped_px": sum(seen[k] for k in drop),
             "changed_px": int((full["index"] != before["index"]).sum()),
             "equal": {k: bool(np.array_equal(pasted[k], full[k])) for k in ("index", "depth", "normal")},

@@ -48,6 +48,42 @@ def test_rasterize_large_and_clipped_triangles() -> None:
     assert (mask == expect).all()
 
 
+def _centres_inside_brute_force(pts: np.ndarray, tris: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Every pixel centre in a triangle's box against the triangle (both windings, edges included): the
+    rasteriser's rule (the box matters only for a degenerate triangle, whose edge functions are all 0)."""
+    h, w = shape
+    cy, cx = np.mgrid[0:h, 0:w] + 0.5
+    mask = np.zeros(shape, dtype=bool)
+    for t in tris:
+        (ax, ay), (bx, by), (qx, qy) = pts[t]
+        e0 = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        e1 = (qx - bx) * (cy - by) - (qy - by) * (cx - bx)
+        e2 = (ax - qx) * (cy - qy) - (ay - qy) * (cx - qx)
+        box = (cx >= min(ax, bx, qx)) & (cx <= max(ax, bx, qx)) & (cy >= min(ay, by, qy)) & (cy <= max(ay, by, qy))
+        mask |= box & (((e0 >= 0) & (e1 >= 0) & (e2 >= 0)) | ((e0 <= 0) & (e1 <= 0) & (e2 <= 0)))
+    return mask
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_dense_sub_pixel_mesh_marks_exactly_the_centres_a_brute_force_finds(seed: int) -> None:
+    # a capture seen small: most triangles lie between pixel centres (culled by cell before the box
+    # arithmetic); some corners sit exactly on centre lines, some triangles reach past the frame, a few
+    # are large (the bucketed windows)
+    rng = np.random.default_rng(seed)
+    h, w = 23, 31
+    base = rng.uniform([-4, -4], [w + 4, h + 4], size=(600, 2))
+    pts = np.concatenate([base, base + rng.normal(scale=0.4, size=base.shape),
+                          base + rng.normal(scale=0.4, size=base.shape)])
+    on = rng.random(len(pts)) < 0.2
+    pts[on] = np.floor(pts[on]) + 0.5  # corners exactly on a centre line in both axes
+    tris = np.stack([np.arange(600), np.arange(600, 1200), np.arange(1200, 1800)], axis=1)
+    big = rng.integers(0, len(pts), size=(6, 3))
+    tris = np.concatenate([tris, big])
+    got = rasterize_triangles(pts, tris, (h, w))
+    assert got.sum() > 0
+    assert (got == _centres_inside_brute_force(pts, tris, (h, w))).all()
+
+
 def test_silhouette_of_a_cube_matches_convex_hull_of_its_projection() -> None:
     from matplotlib.path import Path as MplPath
     from scipy.spatial import ConvexHull

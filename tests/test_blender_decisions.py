@@ -121,6 +121,10 @@ def test_visibility_occlusion_and_status() -> None:
     # a visible pixel the rasteriser missed (a silhouette edge) still counts in the amodal mask
     index[2, 4] = 1
     assert D.measure_visibility(index, {1: sil[1]})[1] == (5, 6, 5 / 6)
+    # an id map with a negative value (no bincount) counts the same
+    negative = index.copy()
+    negative[3, 4] = -1
+    assert D.measure_visibility(negative, sil) == D.measure_visibility(index, sil)
     am = D.amodal_mask(sil[1], index, 1)
     assert am.sum() == 6 and am[2, 4] and (am >= (index == 1)).all()
     visibility = {k: v.visibility for k, v in vis.items()}

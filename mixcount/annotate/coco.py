@@ -43,8 +43,11 @@ def mask_to_rle(mask: NDArray[Any]) -> dict[str, Any]:
     """COCO compressed RLE (counts as str) of a boolean (H, W) mask."""
     from pycocotools import mask as mask_util
 
-    # a mask that is already column-major (see build_scene_coco) is not copied twice here
-    rle = mask_util.encode(np.asfortranarray(mask).astype(np.uint8, order="F"))
+    # a mask that is already column-major (see build_scene_coco) is not copied here at all: a boolean
+    # mask is read as the uint8 0 / 1 pycocotools wants (same bytes); anything else is converted
+    arr = np.asfortranarray(mask)
+    arr = arr.view(np.uint8) if arr.dtype == np.bool_ else (arr != 0).astype(np.uint8, order="F")
+    rle = mask_util.encode(arr)
     rle["counts"] = rle["counts"].decode("ascii")
     return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"]}
 
@@ -132,7 +135,7 @@ def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], ca
         amodal_fields: dict[str, Any] = {}
         if amodal is not None:
             am = np.logical_or(np.asarray(amodal[inst], dtype=bool), m, order="F")
-            area_amodal = int(am.sum())
+            area_amodal = int(np.count_nonzero(am))
             vis = area / area_amodal
             amodal_fields = {"segmentation_amodal": mask_to_rle(am), "bbox_amodal": bbox_of(am),
                              "area_amodal": area_amodal}

@@ -230,13 +230,20 @@ def measure_visibility(index: np.ndarray, silhouettes: Mapping[int, np.ndarray])
 
     Both counts are pixels of the frame: the part of an object outside the image is in neither, so
     truncation by the frame border does not lower visibility (only occlusion does)."""
-    idx = np.asarray(index)
+    # visible pixels of every id from one bincount; amodal = silhouette + visible - both, where "both"
+    # reads the id map at the silhouette's pixels only (two 1M-pixel passes per object fewer at 1024²)
+    flat = np.asarray(index).ravel()
+    counts = np.bincount(flat) if flat.size and flat.min() >= 0 else None
     out = {}
     for inst, sil in silhouettes.items():
-        visible = idx == int(inst)
-        v = int(visible.sum())
-        a = int((np.asarray(sil, dtype=bool) | visible).sum())
-        out[int(inst)] = Visibility(v, a, float(v / a) if a > 0 else 0.0)
+        inst = int(inst)
+        if counts is not None:
+            v = int(counts[inst]) if 0 <= inst < len(counts) else 0
+        else:
+            v = int(np.count_nonzero(flat == inst))
+        s = np.asarray(sil, dtype=bool).ravel()
+        a = int(np.count_nonzero(s)) + v - int(np.count_nonzero(flat[s] == inst))
+        out[inst] = Visibility(v, a, float(v / a) if a > 0 else 0.0)
     return out
 
 

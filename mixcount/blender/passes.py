@@ -187,6 +187,23 @@ class _Unlit:
             o.hide_render = False
 
 
+@contextlib.contextmanager
+def synced_between_renders(scene: Any) -> Iterator[None]:
+    """Keep Cycles' synced scene (geometry, BVH) from one render to the next inside this block
+    (``render.use_persistent_data``); off again afterwards, so the next render outside starts fresh.
+
+    The visibility loop's re-renders differ from the render before only by the objects it dropped;
+    without this each one re-synced the whole heavy scene (~0.3-0.5 s of a ~1.1 s border re-render
+    at 200 heavy objects, docs/performance.md). The RGB render runs outside the block, as before."""
+    r = scene.render
+    before = r.use_persistent_data
+    r.use_persistent_data = True
+    try:
+        yield
+    finally:
+        r.use_persistent_data = before
+
+
 def region_window(region: tuple[int, int, int, int], width: int, height: int) -> tuple[float, float, float, float]:
     """Pixel rows/columns ``(row0, col0, row1, col1)`` (inclusive, top-down) -> Blender's normalised border
     ``(min_x, max_x, min_y, max_y)`` (y from the bottom), with one pixel of slack on each side."""

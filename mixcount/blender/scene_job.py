@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import time
+from pathlib import Path
 from typing import Any, Callable, Optional
 
 import numpy as np
@@ -267,11 +268,25 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
     that removing them changes, and a border render gives them exactly as a full one does."""
     from mixcount.blender import passes as P
 
-    v_t = state.spec.render.visibility_threshold
     n_cams = len(state.cam_objs)
     exrs = [state.out_dir / f"_ids{view_suffix(k)}.exr" for k in range(n_cams)]
-    rounds = renders = 0
     id_passes: list[Optional[dict[str, np.ndarray]]] = [None] * n_cams
+    with P.synced_between_renders(state.scene):
+        renders = _visibility_rounds(state, masks, timer, exrs, id_passes)
+    for exr in exrs:
+        P.remove_quiet(exr)
+    out = [p for p in id_passes if p is not None]
+    return out, renders
+
+
+def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer, exrs: list[Path],
+                       id_passes: list[Optional[dict[str, np.ndarray]]]) -> int:
+    """:func:`visibility_loop`'s rounds: fills ``id_passes`` per camera, returns the number of renders."""
+    from mixcount.blender import passes as P
+
+    v_t = state.spec.render.visibility_threshold
+    n_cams = len(state.cam_objs)
+    rounds = renders = 0
     regions: list[Optional[tuple[int, int, int, int]]] = [None] * n_cams
     while True:
         with timer.stage("id_pass"):
@@ -316,10 +331,7 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
             for inst in low:
                 state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(worst[inst], 4))
             rounds += 1
-    for exr in exrs:
-        P.remove_quiet(exr)
-    out = [p for p in id_passes if p is not None]
-    return out, renders
+    return renders
 
 
 def final_status(state: SceneState) -> str:

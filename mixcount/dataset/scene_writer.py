@@ -218,7 +218,8 @@ def read_amodal_masks(path: Path) -> Optional[dict[int, np.ndarray]]:
         return None
     with np.load(path) as z:
         h, w = (int(v) for v in z["shape"])
-        return {int(k[len("amodal_"):]): np.unpackbits(z[k])[: h * w].reshape(h, w).astype(bool)
+        # unpacked bits are 0 / 1 bytes: read as bool in place, not copied
+        return {int(k[len("amodal_"):]): np.unpackbits(z[k])[: h * w].reshape(h, w).view(bool)
                 for k in z.files if k.startswith("amodal_")}
 
 
