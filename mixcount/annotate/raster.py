@@ -115,10 +115,9 @@ def _cull_between_centres(x: NDArray[Any], y: NDArray[Any], corners: NDArray[Any
     for coord, size in ((x, shape[1]), (y, shape[0])):
         if corners.shape[1] == 0:
             break
-        culled = _between_centre_lines(coord, size, corners)
-        n = int(np.count_nonzero(culled))
-        if 3 * n >= corners.shape[1]:
-            corners = corners[:, np.nonzero(~culled)[0]]
+        kept = ~_between_centre_lines(coord, size, corners)
+        if 3 * int(np.count_nonzero(kept)) <= 2 * corners.shape[1]:
+            corners = np.compress(kept, corners, axis=1)
     return corners
 
 
