@@ -125,6 +125,7 @@ def test_visibility_occlusion_and_status() -> None:
     negative = index.copy()
     negative[3, 4] = -1
     assert D.measure_visibility(negative, sil) == D.measure_visibility(index, sil)
+    assert D.measure_visibility(index.astype(np.float32), sil) == D.measure_visibility(index, sil)  # as read from EXR
     am = D.amodal_mask(sil[1], index, 1)
     assert am.sum() == 6 and am[2, 4] and (am >= (index == 1)).all()
     visibility = {k: v.visibility for k, v in vis.items()}
