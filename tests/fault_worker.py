@@ -62,7 +62,7 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
                                                   threads=2, oracle=False))
     J.check_frame(state, J.place_after_physics(state, J.settle(state), J.Timer()))
     exr = state.out_dir / "_border.exr"
-    with P.synced_between_renders(state.scene):  # as the visibility loop renders: Cycles' sync kept
+    with P.id_pass_series(state.scene):  # as the visibility loop renders: Cycles' sync kept
         before = P.render_id_passes(state.scene, exr)
         kept = state.kept()
         seen = {state.objects[i].instance_id: int((before["index"] == state.objects[i].instance_id).sum())

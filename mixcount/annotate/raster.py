@@ -66,23 +66,34 @@ class PinholeCamera:
         return np.stack([x, y], axis=1), depth
 
 
-def _fill_batch(mask: NDArray[Any], tri: NDArray[Any], x0: NDArray[Any], y0: NDArray[Any], b: int) -> None:
-    """Mark pixels of a b x b window at (x0, y0) whose centres lie inside each triangle."""
+def _fill_batch(mask: NDArray[Any], xs: list[NDArray[Any]], ys: list[NDArray[Any]], x0: NDArray[Any],
+                y0: NDArray[Any], b: int) -> None:
+    """Mark pixels of a b x b window at (x0, y0) whose centres lie inside each triangle (corner
+    coordinates ``xs``, ``ys``: three (T,) rows each). With ``b = 1`` (a box holding one centre, nearly
+    all of a dense capture's triangles) the same arithmetic runs on the 1-D rows, without windows."""
     h, w = mask.shape
-    d = np.arange(b)
-    px = x0[:, None, None] + d[None, None, :] + 0.5  # (T, 1, b)
-    py = y0[:, None, None] + d[None, :, None] + 0.5  # (T, b, 1)
-    a, bb, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    if b == 1:
+        def at(a: NDArray[Any]) -> NDArray[Any]:
+            return a
+        px, py = x0 + 0.5, y0 + 0.5
+    else:
+        def at(a: NDArray[Any]) -> NDArray[Any]:
+            return a[:, None, None]
+        d = np.arange(b)
+        px = x0[:, None, None] + d[None, None, :] + 0.5  # (T, 1, b)
+        py = y0[:, None, None] + d[None, :, None] + 0.5  # (T, b, 1)
 
-    def edge(p: NDArray[Any], q: NDArray[Any]) -> NDArray[Any]:
-        return np.asarray((q[:, 0] - p[:, 0])[:, None, None] * (py - p[:, 1][:, None, None])
-                - (q[:, 1] - p[:, 1])[:, None, None] * (px - p[:, 0][:, None, None]))
+    def edge(p: int, q: int) -> NDArray[Any]:
+        return np.asarray(at(xs[q] - xs[p]) * (py - at(ys[p])) - at(ys[q] - ys[p]) * (px - at(xs[p])))
 
-    e0, e1, e2 = edge(a, bb), edge(bb, c), edge(c, a)
+    e0, e1, e2 = edge(0, 1), edge(1, 2), edge(2, 0)
     inside = ((e0 >= 0) & (e1 >= 0) & (e2 >= 0)) | ((e0 <= 0) & (e1 <= 0) & (e2 <= 0))
-    t, ry, rx = np.nonzero(inside)
-    cols = x0[t] + rx
-    rows = y0[t] + ry
+    if b == 1:
+        t = np.nonzero(inside)[0]
+        cols, rows = x0[t], y0[t]
+    else:
+        t, ry, rx = np.nonzero(inside)
+        cols, rows = x0[t] + rx, y0[t] + ry
     ok = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
     mask[rows[ok], cols[ok]] = True
 
@@ -121,21 +132,6 @@ def _cull_between_centres(x: NDArray[Any], y: NDArray[Any], corners: NDArray[Any
     return corners
 
 
-def _fill_centres(mask: NDArray[Any], xs: list[NDArray[Any]], ys: list[NDArray[Any]], x0: NDArray[Any],
-                  y0: NDArray[Any]) -> None:
-    """:func:`_fill_batch` with ``b = 1`` on 1-D arrays: each triangle's box holds one pixel centre
-    (x0, y0), inside the frame; the same arithmetic, so the same pixels, without (T, 1, 1) windows."""
-    px = x0 + 0.5
-    py = y0 + 0.5
-
-    def edge(p: int, q: int) -> NDArray[Any]:
-        return np.asarray((xs[q] - xs[p]) * (py - ys[p]) - (ys[q] - ys[p]) * (px - xs[p]))
-
-    e0, e1, e2 = edge(0, 1), edge(1, 2), edge(2, 0)
-    inside = np.nonzero(((e0 >= 0) & (e1 >= 0) & (e2 >= 0)) | ((e0 <= 0) & (e1 <= 0) & (e2 <= 0)))[0]
-    mask[y0[inside], x0[inside]] = True
-
-
 def rasterize_triangles(points2d: NDArray[Any], triangles: NDArray[Any], shape: tuple[int, int],
                         valid: NDArray[Any] | None = None) -> NDArray[Any]:
     """Boolean (H, W) mask of the union of 2-D triangles (pixel centres inside any triangle).
@@ -162,8 +158,7 @@ def _rasterize(x: NDArray[Any], y: NDArray[Any], corners: NDArray[Any], shape: t
         corners = corners[:, v[corners[0]] & v[corners[1]] & v[corners[2]]]
     corners = _cull_between_centres(x, y, corners, (h, w))
     # per-corner coordinate rows: element-wise min/max over three arrays is ~10x faster than a
-    # reduction over a length-3 axis; triangles whose box holds no centre are culled before any
-    # (T, 3, 2) array is gathered
+    # reduction over a length-3 axis, and the windows are filled from the same rows (no (T, 3, 2) array)
     xs = [x[corners[k]] for k in range(3)]
     ys = [y[corners[k]] for k in range(3)]
     x0 = np.ceil(np.minimum(np.minimum(xs[0], xs[1]), xs[2]) - 0.5).astype(np.int64)
@@ -175,32 +170,26 @@ def _rasterize(x: NDArray[Any], y: NDArray[Any], corners: NDArray[Any], shape: t
     np.minimum(x1, w - 1, out=x1)
     np.minimum(y1, h - 1, out=y1)
     keep = np.nonzero((x1 >= x0) & (y1 >= y0))[0]
-    size = np.maximum(x1[keep] - x0[keep], y1[keep] - y0[keep]) + 1
-    # boxes holding one pixel centre (nearly all of a dense capture's survivors): tested in 1-D arrays
-    one = keep[size == 1]
-    if len(one):
-        _fill_centres(mask, [a[one] for a in xs], [a[one] for a in ys], x0[one], y0[one])
-    keep = keep[size > 1]
-    size = size[size > 1]
-    # (K, 3, 2): the larger boxes
-    tri = np.stack([np.stack([xs[k][keep], ys[k][keep]], axis=1) for k in range(3)], axis=1)
+    xs, ys = [a[keep] for a in xs], [a[keep] for a in ys]
     x0c, y0c, x1c, y1c = x0[keep], y0[keep], x1[keep], y1[keep]
-    done = np.zeros(len(tri), dtype=bool)
-    for b in _BUCKETS[1:]:
+    size = np.maximum(x1c - x0c, y1c - y0c) + 1
+    done = np.zeros(len(keep), dtype=bool)
+    for b in _BUCKETS:
         sel = np.nonzero(~done & (size <= b))[0]
         done[sel] = True
         step = max(1, _BATCH_PIXELS // (b * b))
         for k in range(0, len(sel), step):
             s = sel[k:k + step]
-            _fill_batch(mask, tri[s], x0c[s], y0c[s], b)
+            _fill_batch(mask, [a[s] for a in xs], [a[s] for a in ys], x0c[s], y0c[s], b)
     for i in np.nonzero(~done)[0]:  # large triangles: one window each
         bw = int(x1c[i] - x0c[i] + 1)
         bh = int(y1c[i] - y0c[i] + 1)
         b = max(bw, bh)
+        one_x, one_y = [a[i:i + 1] for a in xs], [a[i:i + 1] for a in ys]
         # split big windows into 64-pixel tiles to bound memory
         for ty in range(0, bh, 64):
             for tx in range(0, bw, 64):
-                _fill_batch(mask, tri[i:i + 1], x0c[i:i + 1] + tx, y0c[i:i + 1] + ty, min(64, b))
+                _fill_batch(mask, one_x, one_y, x0c[i:i + 1] + tx, y0c[i:i + 1] + ty, min(64, b))
     return mask
 
 

@@ -169,7 +169,11 @@ def read_exr_layers(path: Path) -> dict[str, np.ndarray]:
 
 
 class _Unlit:
-    """Lamps hidden from the render and no world for the duration of a ``with`` block; both restored."""
+    """Lamps hidden from the render and no world for the duration of a ``with`` block; both restored.
+
+    Re-entrant: inside an outer block (a series of id passes, :func:`id_pass_series`) there is nothing
+    left to switch off, so an inner one changes nothing. Swapping the world out and back costs a heavy
+    scene ~0.7 s of Cycles re-sync even with persistent data (docs/blender.md)."""
 
     def __init__(self, scene: Any) -> None:
         self.scene = scene
@@ -179,27 +183,31 @@ class _Unlit:
         self.lamps = [o for o in self.scene.objects if o.type == "LIGHT" and not o.hide_render]
         for o in self.lamps:
             o.hide_render = True
-        self.scene.world = None
+        if self.world is not None:
+            self.scene.world = None
 
     def __exit__(self, *exc: Any) -> None:
-        self.scene.world = self.world
+        if self.world is not None:
+            self.scene.world = self.world
         for o in self.lamps:
             o.hide_render = False
 
 
 @contextlib.contextmanager
-def synced_between_renders(scene: Any) -> Iterator[None]:
-    """Keep Cycles' synced scene (geometry, BVH) from one render to the next inside this block
-    (``render.use_persistent_data``); off again afterwards, so the next render outside starts fresh.
+def id_pass_series(scene: Any) -> Iterator[None]:
+    """A series of id-pass renders: lamps and world off once for the whole block (:class:`_Unlit`),
+    and Cycles' synced scene (geometry, BVH) kept from one render to the next
+    (``render.use_persistent_data``); both undone afterwards, so the next render outside starts fresh.
 
     The visibility loop's re-renders differ from the render before only by the objects it dropped;
-    without this each one re-synced the whole heavy scene (~0.3-0.5 s of a ~1.1 s border re-render
-    at 200 heavy objects, docs/performance.md). The RGB render runs outside the block, as before."""
+    without this each one re-synced the whole heavy scene (docs/performance.md, "Container heaps: the
+    time outside the render cut"). The RGB render runs outside the block, as before."""
     r = scene.render
     before = r.use_persistent_data
     r.use_persistent_data = True
     try:
-        yield
+        with _Unlit(scene):
+            yield
     finally:
         r.use_persistent_data = before
 

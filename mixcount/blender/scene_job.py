@@ -269,25 +269,23 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
     that removing them changes, and a border render gives them exactly as a full one does."""
     from mixcount.blender import passes as P
 
-    n_cams = len(state.cam_objs)
-    exrs = [state.out_dir / f"_ids{view_suffix(k)}.exr" for k in range(n_cams)]
-    id_passes: list[Optional[dict[str, np.ndarray]]] = [None] * n_cams
-    with P.synced_between_renders(state.scene):
-        renders = _visibility_rounds(state, masks, timer, exrs, id_passes)
+    exrs = [state.out_dir / f"_ids{view_suffix(k)}.exr" for k in range(len(state.cam_objs))]
+    with P.id_pass_series(state.scene):
+        id_passes, renders = _visibility_rounds(state, masks, timer, exrs)
     for exr in exrs:
         P.remove_quiet(exr)
-    out = [p for p in id_passes if p is not None]
-    return out, renders
+    return id_passes, renders
 
 
-def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer, exrs: list[Path],
-                       id_passes: list[Optional[dict[str, np.ndarray]]]) -> int:
-    """:func:`visibility_loop`'s rounds: fills ``id_passes`` per camera, returns the number of renders."""
+def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer,
+                       exrs: list[Path]) -> tuple[list[dict[str, np.ndarray]], int]:
+    """:func:`visibility_loop`'s rounds, rendering camera k's id pass into ``exrs[k]``."""
     from mixcount.blender import passes as P
 
     v_t = state.spec.render.visibility_threshold
     n_cams = len(state.cam_objs)
     rounds = renders = 0
+    id_passes: list[Optional[dict[str, np.ndarray]]] = [None] * n_cams
     regions: list[Optional[tuple[int, int, int, int]]] = [None] * n_cams
     while True:
         with timer.stage("id_pass"):
@@ -332,7 +330,7 @@ def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], ti
             for inst in low:
                 state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(worst[inst], 4))
             rounds += 1
-    return renders
+    return [p for p in id_passes if p is not None], renders
 
 
 def final_status(state: SceneState) -> str:
