@@ -267,6 +267,7 @@ class ComposeConfig:
     workers: int
     render_threads: int
     recycle_after: int
+    settle_ahead: bool
     ray_cpus_per_worker: int
     scene_timeout_s: float
     max_attempts_factor: float

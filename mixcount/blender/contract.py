@@ -16,6 +16,10 @@ One frozen request / result pair per worker operation, each with a JSON round-tr
   both sides of the process boundary).
 * ``cache_meshes`` - :class:`MeshCacheRequest` -> :class:`MeshCacheResult`: each converted asset's .blend
   mesh cache made ahead of the scenes.
+* ``settle`` - :class:`SceneRequest` -> :class:`SettleResult`: only the scene's rigid-body settle, its
+  poses written to ``settled.json`` in the request's out_dir, so a second bpy process can settle the next
+  scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.blender.worker.SettleAheadWorker`);
+  a ``scene`` request whose ``settled`` names that file applies the poses instead of simulating.
 
 No request field has a default: every setting comes from the caller (from the configuration, read once).
 """
@@ -70,6 +74,8 @@ class SceneRequest:
     depth_format: str
     normal_format: str
     mesh_cache: str  # compose.mesh_cache, one of MESH_CACHE_MODES
+    # a settled.json a ``settle`` request wrote for this stage ("" = simulate in this request)
+    settled: str
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -82,7 +88,7 @@ class SceneRequest:
         """A request with ``[compose]``'s passes, pass formats and mesh cache (tests and benchmarks)."""
         return cls(stage=stage, out_dir=out_dir, threads=threads, oracle=oracle, passes=tuple(compose.passes),
                    depth_format=compose.depth_format, normal_format=compose.normal_format,
-                   mesh_cache=compose.mesh_cache)
+                   mesh_cache=compose.mesh_cache, settled="")
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneRequest":
@@ -90,7 +96,30 @@ class SceneRequest:
         return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
                    oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
                    depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
-                   mesh_cache=str(v["mesh_cache"]))
+                   mesh_cache=str(v["mesh_cache"]), settled=str(v["settled"]))
+
+
+SETTLED_FILE = "settled.json"  # what a ``settle`` request writes into its out_dir
+
+
+@dataclass(frozen=True)
+class SettleResult:
+    """What a ``settle`` request did: the poses file it wrote and how the simulation went."""
+
+    OP: ClassVar[str] = "settle"
+
+    settled: str  # path of the settled.json (stage, poses by instance prim path, the rest diagnostic)
+    frames_run: int
+    seconds: dict[str, float]  # import, physics
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"settled": self.settled, "frames_run": self.frames_run, "seconds": dict(self.seconds)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "SettleResult":
+        v = _known(cls, d)
+        return cls(settled=str(v["settled"]), frames_run=int(v["frames_run"]),
+                   seconds={str(k): float(x) for k, x in v["seconds"].items()})
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,10 @@ canonical renders share :class:`WorkerSlot` (one recycle rule) and :func:`error_
   still counts.
 * :class:`WorkerPool` - ``size`` slots, each served by a thread that takes jobs from one queue and puts
   results on another (completion order). A job that raises becomes ``on_error(job, exc)``: the pool never
-  loses a job's answer and its threads never die of one.
+  loses a job's answer and its threads never die of one. With ``prefetch``, while a thread handles a job a
+  second thread takes the NEXT queued job as soon as it is submitted and calls ``prefetch(worker,
+  next_job)`` on the current job's worker (the settle-ahead worker settles it in a second process while
+  the current job renders); that job is the slot's next.
 * :func:`error_text` - ``"<ExceptionType>: <message>"``, at most :data:`MAX_ERROR_CHARS` characters: what a
   failed scene or render records (mixcount.run.faults reads a full disk's errno from it).
 """
@@ -77,8 +80,11 @@ class WorkerPool(Generic[J, R]):
     """``size`` worker slots serving one job queue (see the module docstring)."""
 
     def __init__(self, size: int, factory: Callable[[int], Any], *, recycle_after: int,
-                 handle: Callable[[Any, J], R], on_error: Callable[[J, BaseException], R]) -> None:
+                 handle: Callable[[Any, J], R], on_error: Callable[[J, BaseException], R],
+                 prefetch: Optional[Callable[[Any, J], None]] = None) -> None:
         self.size = max(1, int(size))
+        self._prefetch = prefetch
+        self._killed = False
         self.slots = [WorkerSlot(functools.partial(factory, k), recycle_after=recycle_after) for k in range(self.size)]
         self._handle, self._on_error = handle, on_error
         self._jobs: "queue.Queue[Optional[J]]" = queue.Queue()
@@ -92,16 +98,46 @@ class WorkerPool(Generic[J, R]):
         """Each slot's worker (made now when a slot has none yet)."""
         return [s.worker for s in self.slots]
 
+    def _look_ahead(self, worker: Any, done: threading.Event, box: list[Optional[J]]) -> None:
+        """Runs beside the current job: take the next queued job as soon as the caller submits it (or the
+        stop signal) into ``box`` and prefetch it on ``worker``, the current job's; gives up once ``done``."""
+        while not done.is_set():
+            try:
+                job = self._jobs.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            box.append(job)
+            if job is not None and not self._killed:
+                try:
+                    assert self._prefetch is not None
+                    self._prefetch(worker, job)
+                except Exception:  # noqa: BLE001 - a failed prefetch only means the job runs without it
+                    pass
+            return
+
     def _serve(self, slot: WorkerSlot) -> None:
+        job: Optional[J] = None
         while True:
-            job = self._jobs.get()
             if job is None:
-                return
+                job = self._jobs.get()
+                if job is None:
+                    return
+            box: list[Optional[J]] = []
+            done, looker = threading.Event(), None
+            if self._prefetch is not None:
+                looker = threading.Thread(target=self._look_ahead, args=(slot.worker, done, box), daemon=True)
+                looker.start()
             try:
                 result = slot.run(lambda worker, job=job: self._handle(worker, job))  # type: ignore[misc]
             except Exception as exc:  # noqa: BLE001 - never lose a job's answer
                 result = self._on_error(job, exc)
+            done.set()
+            if looker is not None:
+                looker.join()
             self._results.put(result)
+            if self._killed or (box and box[0] is None):
+                return
+            job = box[0] if box else None
 
     def submit(self, job: J) -> None:
         self._jobs.put(job)
@@ -116,7 +152,8 @@ class WorkerPool(Generic[J, R]):
     def close(self, *, kill: bool = False, join_s: float = 2.0) -> None:
         """Stop the threads and the workers: a slot still inside a job after ``join_s`` (or every slot, with
         ``kill``, queued jobs dropped) has its worker killed, the others are asked to exit."""
-        if kill:  # an interrupted run: no queued job starts, the ones in progress end now
+        if kill:  # an interrupted run: no queued (or prefetched) job starts, the ones in progress end now
+            self._killed = True
             try:
                 while True:
                     self._jobs.get_nowait()

@@ -31,7 +31,15 @@ import numpy as np
 
 from mixcount.annotate.raster import PinholeCamera
 from mixcount.blender import decisions as D
-from mixcount.blender.contract import STATUS_OK, CameraView, SceneRequest, SceneResult, view_suffix
+from mixcount.blender.contract import (
+    SETTLED_FILE,
+    STATUS_OK,
+    CameraView,
+    SceneRequest,
+    SceneResult,
+    SettleResult,
+    view_suffix,
+)
 from mixcount.blender.scene_build import SceneState, load_scene, pose_with_scale
 
 
@@ -62,9 +70,6 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
     framed afterwards); for older specs, with ``camera``, those whose origin is in the camera frame or
     right above a point of the floor that is (a body still falling into view counts). Instances with
     a spec ``release_frame`` > 1 (spawn waves, docs/scene.md) join the simulation at that frame."""
-    import bpy
-    import mathutils
-
     from mixcount.blender.physics import simulate
 
     ph = state.spec.physics
@@ -89,18 +94,67 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
                               "waited_for": run.waited_for, "released_later": len(releases),
                               "last_release": run.last_release,
                               "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(run.speeds.items())}})
-    proxy_objs = set(state.proxies.values())
-    state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]
     for name, pobj in state.proxies.items():  # proxy pose (x the scale baked into it) -> render object
         mat = settled.pop(pobj.name, None)
         if mat is not None:
             scale = state.proxy_scales.get(name)
-            if scale is not None:
-                mat = pose_with_scale(mat, scale)
-            settled[name] = mat
-            bpy.data.objects[name].matrix_world = mathutils.Matrix(mat.tolist())
+            settled[name] = mat if scale is None else pose_with_scale(mat, scale)
+    _place_settled(state, settled)
+    return settled
+
+
+def _place_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:
+    """The settled matrices (by render object name) onto the objects; the collision proxies removed."""
+    import bpy
+
+    for name, mat in settled.items():
+        _set_matrix(bpy.data.objects[name], mat)
+    proxy_objs = list(state.proxies.values())
+    state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]
+    for pobj in proxy_objs:
         bpy.data.objects.remove(pobj, do_unlink=True)
     state.proxies.clear()
+
+
+def settle_ahead(req: SceneRequest) -> SettleResult:
+    """The ``settle`` op: load the stage and settle it exactly as :func:`run_scene` would, then write the
+    poses (by instance prim path) and the rest diagnostic to ``settled.json`` in ``req.out_dir``.
+
+    A second bpy process runs this for the next scene while the first renders (``compose.settle_ahead``):
+    Bullet steps on one thread, so a settle beside a render costs that render about half its own time
+    instead of all of it. The poses travel as JSON floats (``repr`` round-trips a float64 exactly)."""
+    import json
+
+    from mixcount.blender.visibility import camera_model
+
+    timer = Timer()
+    with timer.stage("import"):
+        state = load_scene(req)
+    with timer.stage("physics"):
+        settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
+    path_of = {obj.name: path for path, obj in state.blender_objects.items()}
+    rest = next(d for d in state.diagnostics if d.get("kind") == "rest")
+    out = state.out_dir / SETTLED_FILE
+    out.write_text(json.dumps({"stage": str(state.stage_path), "rest": rest, "seconds": dict(timer.times),
+                               "matrices": {path_of[name]: np.asarray(m).tolist() for name, m in settled.items()}}))
+    return SettleResult(settled=str(out), frames_run=int(rest["frames_run"]), seconds=dict(timer.times))
+
+
+def apply_settled(state: SceneState, settled_json: str) -> dict[str, np.ndarray]:
+    """What :func:`settle` returns, read from a ``settle`` request's file instead of simulated here: the
+    same matrices (by render object name), the same rest diagnostic, the proxies removed. The file is
+    removed (it is not part of the scene folder). A file for another stage is an error."""
+    import json
+
+    path = Path(settled_json)
+    data = json.loads(path.read_text())
+    if Path(data["stage"]) != state.stage_path:
+        raise RuntimeError(f"{path} holds the settle of {data['stage']}, not of {state.stage_path}")
+    settled = {state.blender_objects[p].name: np.array(m, dtype=np.float64) for p, m in data["matrices"].items()}
+    state.diagnostics.append(data["rest"])
+    state.diagnostics.append({"kind": "settled_ahead", "seconds": data["seconds"]})
+    _place_settled(state, settled)
+    path.unlink()
     return settled
 
 
@@ -460,7 +514,10 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
     with timer.stage("import"):
         state = load_scene(req)
     with timer.stage("physics"):
-        settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
+        if req.settled:  # settled ahead by another worker (settle_ahead)
+            settled = apply_settled(state, req.settled)
+        else:
+            settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
     cameras = place_after_physics(state, settled, timer)
     with timer.stage("frame_check"):
         check_frame(state, cameras)

@@ -10,6 +10,7 @@ answered ``{"ok": true, "result": <result>.to_dict(), "seconds": ...}``:
 * ``canonical``: CanonicalRequest -> CanonicalResult (:func:`mixcount.blender.canonical.render_object`)
 * ``cache_meshes``: MeshCacheRequest -> MeshCacheResult
   (:func:`mixcount.blender.scene_build.cache_asset_meshes`)
+* ``settle``: SceneRequest -> SettleResult (:func:`mixcount.blender.scene_job.settle_ahead`)
 
 and two plain ones: ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``; ``{"op": "exit"}`` ->
 ``{"ok": true}`` and the process ends.
@@ -58,11 +59,18 @@ def _cache_meshes(req: Any) -> Any:
     return cache_asset_meshes(req)
 
 
+def _settle(req: Any) -> Any:
+    from mixcount.blender.scene_job import settle_ahead
+
+    return settle_ahead(req)
+
+
 def _handlers() -> dict[str, Handler]:
-    from mixcount.blender.contract import CanonicalRequest, MeshCacheRequest, SceneRequest
+    from mixcount.blender.contract import CanonicalRequest, MeshCacheRequest, SceneRequest, SettleResult
 
     return {SceneRequest.OP: _typed(SceneRequest, _scene), CanonicalRequest.OP: _typed(CanonicalRequest, _canonical),
-            MeshCacheRequest.OP: _typed(MeshCacheRequest, _cache_meshes)}
+            MeshCacheRequest.OP: _typed(MeshCacheRequest, _cache_meshes),
+            SettleResult.OP: _typed(SceneRequest, _settle)}
 
 
 HANDLERS: dict[str, Handler] = _handlers()

@@ -2,7 +2,8 @@
 
 Both kinds take the same ``[compose]`` keys: ``workers`` (slots), ``render_threads`` (Cycles threads per
 worker; 0 = CPUs / workers locally, the actor's CPU share on Ray) and ``recycle_after`` (restart a bpy
-worker after that many scenes; 0 = never). Ray also reads ``ray_cpus_per_worker``.
+worker after that many scenes; 0 = never). The local one also reads ``settle_ahead`` (a companion bpy
+process per worker settles the next scene during the current render), Ray ``ray_cpus_per_worker``.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ def make_executor(kind: str = "local", workers: Optional[int] = None, address: O
             raise MixcountError("--address is only used with --executor ray")
         from mixcount.run.local import LocalExecutor
 
+        extra.setdefault("settle_ahead", comp.settle_ahead)
         return LocalExecutor(workers or comp.workers, log_dir=log_dir, recycle_after=recycle, **extra)
     if kind == "ray":
         from mixcount.run.ray_executor import RayExecutor

@@ -11,15 +11,19 @@ The interface every executor implements (a Ray one lives in ``mixcount/run/ray_e
 :class:`LocalExecutor` is a :class:`~mixcount.blender.pool.WorkerPool` of ``workers`` slots, each owning
 one long-lived :class:`~mixcount.blender.worker.BlenderWorker` subprocess (bpy never runs in this process),
 recycled after ``compose.recycle_after`` scenes; a worker that crashes or times out is restarted by its
-next task.
+next task. With ``settle_ahead`` (``compose.settle_ahead``) each slot is a
+:class:`~mixcount.blender.worker.SettleAheadWorker`: while a scene renders, the slot's next scene is
+staged and settled in a companion bpy process (the pool's prefetch), and the executor takes two scenes
+per worker (``slots``) so that there is always a next one.
 """
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any, Callable, Optional, Protocol
 
-from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
+from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, StagedScene, run_scene_task, stage_scene
 
 
 class Executor(Protocol):
@@ -36,21 +40,39 @@ class LocalExecutor:
     """A pool of ``workers`` bpy worker processes on this machine (:class:`~mixcount.blender.pool.WorkerPool`)."""
 
     def __init__(self, workers: int, *, log_dir: Optional[Path] = None,
-                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int) -> None:
+                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int,
+                 settle_ahead: bool = False) -> None:
         from mixcount.blender.pool import WorkerPool, error_text
-        from mixcount.blender.worker import BlenderWorker
+        from mixcount.blender.worker import BlenderWorker, SettleAheadWorker
 
-        self.slots = max(1, int(workers))
+        n_workers = max(1, int(workers))
+        self.slots = 2 * n_workers if settle_ahead else n_workers
+        # tasks staged and settling ahead, by (scene id, seed); only the pool's own threads touch an entry
+        self._staged: dict[tuple[str, int], StagedScene] = {}
 
         def failed(task: SceneTask, exc: BaseException) -> SceneOutcome:
             # "OSError: [Errno 28] No space left on device: '...'", as run_scene_task words it, so the
             # run can tell a fault no seed fixes (mixcount.run.faults) from a bad scene
             return SceneOutcome(task.spec.scene_id, task.spec.seed, FAILED, 0.0, error=error_text(exc))
 
+        def handle(worker: Any, task: SceneTask) -> SceneOutcome:
+            staged = self._staged.pop((task.spec.scene_id, task.spec.seed), None)
+            return runner(task, worker) if staged is None else run_scene_task(task, worker, staged)
+
+        def prefetch(worker: Any, task: SceneTask) -> None:
+            staged = stage_scene(task)
+            if staged is not None:
+                self._staged[(task.spec.scene_id, task.spec.seed)] = staged
+                worker.begin_settle(staged.request)
+
+        def make(k: int) -> Any:
+            cls = SettleAheadWorker if settle_ahead else BlenderWorker
+            return cls(name=f"worker{k}", log_dir=log_dir)
+
         # recycle_after: restart a worker after this many scenes (flat memory), the pool's one rule
         self._pool: WorkerPool[SceneTask, SceneOutcome] = WorkerPool(
-            self.slots, lambda k: BlenderWorker(name=f"worker{k}", log_dir=log_dir), recycle_after=recycle_after,
-            handle=lambda worker, task: runner(task, worker), on_error=failed)
+            n_workers, make, recycle_after=recycle_after, handle=handle, on_error=failed,
+            prefetch=prefetch if settle_ahead else None)
 
     @property
     def workers(self) -> list[Any]:
@@ -64,8 +86,12 @@ class LocalExecutor:
         return self._pool.next_result(timeout=timeout)
 
     def close(self) -> None:
-        """Stop the workers; one still inside a scene (an interrupted run) is killed, not waited for."""
+        """Stop the workers; one still inside a scene (an interrupted run) is killed, not waited for. The
+        stage folders of scenes staged ahead that never ran are removed."""
         self._pool.close()
+        for staged in list(self._staged.values()):
+            shutil.rmtree(staged.tmp, ignore_errors=True)
+        self._staged.clear()
 
     def __enter__(self) -> "LocalExecutor":
         return self

@@ -64,8 +64,45 @@ class SceneOutcome:
         return dict(self.__dict__)
 
 
-def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
-    """Write the stage into a temporary folder, render it with ``worker``, finalise, rename into place."""
+@dataclass
+class StagedScene:
+    """A task's stage written ahead into its temporary folder (:func:`stage_scene`), with its request."""
+
+    tmp: Path
+    request: SceneRequest
+    stage_s: float
+
+
+def _request(task: SceneTask, tmp: Path) -> SceneRequest:
+    return SceneRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=task.threads,
+                        oracle=task.oracle, passes=tuple(task.passes), depth_format=task.depth_format,
+                        normal_format=task.normal_format, mesh_cache=task.mesh_cache, settled="")
+
+
+def stage_scene(task: SceneTask) -> Optional[StagedScene]:
+    """Write ``task``'s stage into a fresh temporary folder now (to settle it ahead, see
+    :class:`~mixcount.blender.worker.SettleAheadWorker`); None when the scene is already complete or the
+    stage cannot be written (:func:`run_scene_task` then does it all and reports the error)."""
+    from mixcount.dataset.scene_writer import is_complete, tmp_dir_for
+    from mixcount.usd.stage import write_stage
+
+    out = Path(task.out_dir)
+    if is_complete(out / "scenes" / task.spec.scene_id):
+        return None
+    tmp = tmp_dir_for(out, task.spec.scene_id, uuid.uuid4().hex[:8])
+    t = time.perf_counter()
+    try:
+        tmp.mkdir(parents=True)
+        write_stage(task.spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
+    except Exception:  # noqa: BLE001 - run_scene_task writes it again and reports what fails
+        shutil.rmtree(tmp, ignore_errors=True)
+        return None
+    return StagedScene(tmp, _request(task, tmp), round(time.perf_counter() - t, 4))
+
+
+def run_scene_task(task: SceneTask, worker: Any, staged: Optional[StagedScene] = None) -> SceneOutcome:
+    """Write the stage into a temporary folder (unless ``staged`` did), render it with ``worker``,
+    finalise, rename into place."""
     from mixcount.dataset.manifest import record_scene_files
     from mixcount.dataset.scene_writer import REJECTED_DIR, finalize_scene, is_complete, move_into_place, tmp_dir_for
     from mixcount.usd.stage import write_stage
@@ -74,19 +111,21 @@ def run_scene_task(task: SceneTask, worker: Any) -> SceneOutcome:
     t0 = time.perf_counter()
     out = Path(task.out_dir)
     final = out / "scenes" / spec.scene_id
-    if is_complete(final):
+    if staged is None and is_complete(final):
         return SceneOutcome(spec.scene_id, spec.seed, SKIPPED, 0.0, path=str(final))
-    tmp = tmp_dir_for(out, spec.scene_id, uuid.uuid4().hex[:8])
+    tmp = staged.tmp if staged is not None else tmp_dir_for(out, spec.scene_id, uuid.uuid4().hex[:8])
     timings: dict[str, float] = {}
     try:
-        tmp.mkdir(parents=True)
+        if staged is None:
+            tmp.mkdir(parents=True)
+            t = time.perf_counter()
+            write_stage(spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
+            timings["stage"] = round(time.perf_counter() - t, 4)
+            request = _request(task, tmp)
+        else:
+            timings["stage"] = staged.stage_s
+            request = staged.request
         t = time.perf_counter()
-        write_stage(spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
-        timings["stage"] = round(time.perf_counter() - t, 4)
-        t = time.perf_counter()
-        request = SceneRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=task.threads,
-                               oracle=task.oracle, passes=tuple(task.passes), depth_format=task.depth_format,
-                               normal_format=task.normal_format, mesh_cache=task.mesh_cache)
         result = worker.render_scene(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
         status = result.status
