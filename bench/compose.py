@@ -5,6 +5,7 @@
     .venv/bin/python bench/compose.py --resolution 256 --samples 8 --sizes 30 --pools heavy   # quick look
     .venv/bin/python bench/compose.py --no-proxies                      # collide through full-mesh hulls
     .venv/bin/python bench/compose.py --oracle                          # also the one-render-per-object method
+    .venv/bin/python bench/compose.py --settle-ahead --sizes 200 --pools heavy --seed 1   # settle beside the render
 
 Pools (bench/pools.py): ``light`` = the generated demo library; ``heavy`` = the same objects subdivided to
 >= 200k faces, textures kept (a real capture's size). Asset conversion, proxy building and the bpy start-up
@@ -15,6 +16,14 @@ import to make, the cost of an asset's first scene). Per scene: ``whole`` = stag
 ``whole_over_rgb`` = whole / RGB render (target <= 1.15 on the heavy pool at paper settings);
 ``physics_share`` = physics / whole (target <= 0.05); ``bytes`` = the finished scene folder (target
 <= 4 MB at 1024 px). A side-by-side table goes to stderr, one JSON line to stdout.
+
+``--settle-ahead`` measures ``compose.settle_ahead`` (a companion bpy process settles the next scene while
+the current one renders) in its steady state: each scene is run three times in a row through a
+:class:`~mixcount.blender.worker.SettleAheadWorker`, copy k + 1 settling in the companion while copy k
+renders, and the middle copy is reported. Its ``whole`` is the wall time from the end of copy 0 to the
+end of copy 1 (stage writing excluded: the look-ahead does it during the previous render), its RGB the
+render that ran beside copy 2's settle. ``same_poses`` says copy 1 (settled in the companion) kept the
+same objects at the same poses as copy 0 (settled in the render worker).
 """
 
 from __future__ import annotations
@@ -52,13 +61,16 @@ def main() -> int:
     ap.add_argument("--no-warmup", action="store_true",
                     help="measure the worker's first scene cold (by default a 64 px, 1 spp scene runs first, "
                          "outside the clock: Cycles' and OIDN's one-off start-up in a worker)")
+    ap.add_argument("--settle-ahead", action="store_true",
+                    help="settle each scene in a companion process during the previous render (3 copies, "
+                         "the middle one measured)")
     ap.add_argument("--work", type=Path, default=None)
     args = ap.parse_args()
 
     from pools import load_pool, run_fresh_scene, scene_bytes, warm_mesh_cache, with_proxies
 
     from mixcount.blender import mesh_cache
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.blender.worker import BlenderWorker, SettleAheadWorker
     from mixcount.config import load_config
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
@@ -76,7 +88,7 @@ def main() -> int:
             spec = with_proxies(spec, work / "proxies", cfg.ingest.proxy_max_vertices)
         return spec, convert_scene_assets(spec, work / "assets")
 
-    with BlenderWorker(name="bench", log_dir=work) as worker:
+    with (SettleAheadWorker if args.settle_ahead else BlenderWorker)(name="bench", log_dir=work) as worker:
         worker.request({"op": "ping"}, timeout=300)  # start-up is not part of a scene
         for pool_name in pools:
             pool = load_pool(pool_name, work, min_faces=args.min_faces)
@@ -101,16 +113,21 @@ def main() -> int:
                                     mesh_cache=warm_cfg.compose.mesh_cache)
                 out = work / (f"out_{pool_name}_{n}_{args.resolution}px_{args.samples}spp"
                               f"{'_noproxy' if args.no_proxies else ''}{'_set' if args.set else ''}")
-                outcome, meta, stages = run_fresh_scene(worker, spec, out, work / "assets", timeout_s=7200,
-                                                        threads=threads, oracle=args.oracle,
-                                                        mesh_cache=cfg.compose.mesh_cache)
+                ahead: dict[str, Any] = {}
+                if args.settle_ahead:
+                    outcome, meta, stages, ahead = run_settled_ahead(worker, spec, out, work / "assets",
+                                                                     threads=threads, mesh_cache=cfg.compose.mesh_cache)
+                else:
+                    outcome, meta, stages = run_fresh_scene(worker, spec, out, work / "assets", timeout_s=7200,
+                                                            threads=threads, oracle=args.oracle,
+                                                            mesh_cache=cfg.compose.mesh_cache)
                 if meta is None:
                     rows.append({"pool": pool_name, "objects": n, "status": outcome.status, "error": outcome.error})
                     print(json.dumps(rows[-1]), file=sys.stderr)
                     continue
                 t = meta["timings"]
                 oracle_s = stages.pop("oracle", None)
-                whole = t["total"] - (oracle_s or 0.0)
+                whole = ahead.pop("whole") if ahead else t["total"] - (oracle_s or 0.0)
                 faces = {a["object_id"]: a for a in meta["spec"]["assets"]}
                 row = {"pool": pool_name, "objects": n, "counted_kept": meta["n_counted"],
                        "distractors_kept": meta["n_distractors"], "dropped": meta["n_dropped"],
@@ -121,6 +138,8 @@ def main() -> int:
                        "bytes": scene_bytes(Path(outcome.path)), "assets": len(faces), "out": str(outcome.path)}
                 if oracle_s is not None:
                     row["oracle_s"] = oracle_s
+                if ahead:
+                    row["settle_ahead"] = ahead
                 rows.append(row)
                 print(f"{pool_name:6s} n={n:4d}  physics {stages['physics']:7.2f} s  rgb {stages['rgb']:7.2f} s  "
                       f"whole {whole:7.2f} s  whole/rgb {row['whole_over_rgb']:.3f}  physics share "
@@ -130,10 +149,51 @@ def main() -> int:
     heavy = [r for r in ok if r["pool"] == "heavy"]
     print(json.dumps({"bench": "compose", "resolution": args.resolution, "samples": args.samples,
                       "frames": args.frames, "threads": threads, "cpu_count": os.cpu_count(),
-                      "proxies": not args.no_proxies, "cold_mesh_cache": args.cold_mesh_cache, "scenes": rows,
+                      "proxies": not args.no_proxies, "cold_mesh_cache": args.cold_mesh_cache,
+                      "settle_ahead": args.settle_ahead, "scenes": rows,
                       "heavy_targets_met": bool(heavy) and all(r["whole_over_rgb"] <= 1.15 and r["physics_share"] <= 0.05
                                                                 for r in heavy)}))
     return 0
+
+
+def run_settled_ahead(worker: Any, spec: Any, out: Path, assets: Path, *, threads: int,
+                      mesh_cache: str) -> tuple[Any, Any, dict[str, float], dict[str, Any]]:
+    """Three copies of ``spec`` through a SettleAheadWorker, each settling during the previous render;
+    the middle copy's outcome, metadata and worker stage seconds, and what the pipeline did."""
+    import shutil
+    import threading
+    import time
+    from dataclasses import replace
+
+    from mixcount.config import load_config
+    from mixcount.run.scene_task import WRITTEN, SceneTask, compose_outputs, run_scene_task, stage_scene
+
+    shutil.rmtree(out, ignore_errors=True)
+    outputs = {**compose_outputs(load_config().compose), "mesh_cache": mesh_cache}
+    tasks = [SceneTask(spec=replace(spec, scene_id=f"{spec.scene_id}_copy{k}"), out_dir=str(out),
+                       assets_dir=str(assets), timeout_s=7200, threads=threads, **outputs) for k in range(3)]
+    staged = [stage_scene(t) for t in tasks]
+    ends, outcomes, starter = [], [], None
+    for k, (task, st) in enumerate(zip(tasks, staged)):
+        if k + 1 < len(tasks):  # the next copy settles beside this one (begin_settle waits for its turn)
+            starter = threading.Thread(target=worker.begin_settle, args=(staged[k + 1].request,), daemon=True)
+            starter.start()
+        outcomes.append(run_scene_task(task, worker, st))
+        ends.append(time.perf_counter())
+        if starter is not None:
+            starter.join()
+    if any(o.status != WRITTEN for o in outcomes):
+        bad = next(o for o in outcomes if o.status != WRITTEN)
+        return bad, None, {}, {}
+    metas = [json.loads((Path(o.path) / "metadata.json").read_text()) for o in outcomes]
+    poses = [[(o["name"], o["status"], o.get("matrix_world")) for o in m["objects"]] for m in metas]
+    stages = {k.split(".", 1)[1]: v for k, v in metas[1]["timings"].items() if k.startswith("worker.")}
+    settled = [d for d in metas[1]["diagnostics"] if d.get("kind") == "settled_ahead"]
+    return outcomes[1], metas[1], stages, {
+        "whole": round(ends[1] - ends[0], 3), "settled_in_companion": bool(settled),
+        "companion_seconds": settled[0]["seconds"] if settled else None,
+        "copy0_rgb_s": next(v for k, v in metas[0]["timings"].items() if k == "worker.rgb"),
+        "same_poses": poses[0] == poses[1] == poses[2], "failures": list(worker.settle_failures)}
 
 
 def _table(rows: list[dict], sizes: list[int], pools: list[str]) -> str:
