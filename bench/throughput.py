@@ -7,6 +7,7 @@ with ``--paper``, scenes per hour and core-minutes per scene at the paper's sett
     .venv/bin/python bench/throughput.py --paper --scenes 3     # 1024 px, 32 spp, default scene config
                                                                 # (30-200 objects), heavy pool, proxies
     .venv/bin/python bench/throughput.py --paper --scenes 3 --set compose.denoise_prefilter=FAST
+    .venv/bin/python bench/throughput.py --paper --scenes 4 --set compose.settle_ahead=false  # settle in the render worker
 
 ``--paper``: one local worker using every core (``--workers`` slots share them), default config (not
 quick), the capture-like heavy pool (bench/pools.py) with collision proxies; ``core_min_per_scene`` =
@@ -66,6 +67,12 @@ def _annotations(out: Path, split: str) -> list[tuple[Any, ...]]:
     scene_of = {im["id"]: im["scene_id"] for im in doc["images"]}
     return sorted((scene_of[a["image_id"]], a["category_id"], tuple(a["bbox"]), a["area"], a["segmentation"]["counts"],
                    a["is_distractor"]) for a in doc["annotations"])
+
+
+def _worker_pids(worker: Any) -> list[Any]:
+    """The worker's processes: the render worker, and the companion that settles ahead when it has one."""
+    settler = getattr(worker, "settler", None)
+    return [worker.pid] + ([settler.pid] if settler is not None else [])
 
 
 def _run(kind: str, executor: Any, *, pool: list[Any], cfg: Any, out: Path, assets: Path, n: int,
@@ -159,7 +166,7 @@ def main() -> int:
         ex = make_executor("local", args.workers, config=cfg.compose, log_dir=work / "logs")
         try:
             runs.append(_run("local", ex, pool=pool, cfg=cfg, out=work / "local", assets=assets, n=args.scenes,
-                             pids=lambda: [w.pid for w in ex.workers]))
+                             pids=lambda: [p for w in ex.workers for p in _worker_pids(w)]))
         finally:
             ex.close()
     if args.only in (None, "ray"):
@@ -223,16 +230,18 @@ def _paper(args: Any) -> int:
     import shutil
 
     shutil.rmtree(work / "paper", ignore_errors=True)  # a fresh run (a finished scene would be skipped)
-    ex = LocalExecutor(workers, log_dir=work / "logs", recycle_after=0)
+    ex = LocalExecutor(workers, log_dir=work / "logs", recycle_after=0, settle_ahead=cfg.compose.settle_ahead)
     try:
         for w in ex.workers:
             w.request({"op": "ping"}, timeout=300)  # bpy start-up is once per worker, not per scene
+            if getattr(w, "settler", None) is not None:
+                w.settler.start()  # ... and so is the settle-ahead companion's
         t = time.perf_counter()
         if not args.cold_mesh_cache:  # each asset's .blend, made once per dataset like its conversion
             warm_mesh_cache(ex.workers[0], converted, cfg.compose.mesh_cache)
         prep += time.perf_counter() - t
         run = _run("local", ex, pool=pool, cfg=cfg, out=work / "paper", assets=work / "assets", n=args.scenes,
-                   pids=lambda: [w.pid for w in ex.workers])
+                   pids=lambda: [p for w in ex.workers for p in _worker_pids(w)])
     finally:
         ex.close()
     scenes = max(1, run["written"])

@@ -127,6 +127,8 @@ def settle_ahead(req: SceneRequest) -> SettleResult:
 
     from mixcount.blender.visibility import camera_model
 
+    if not Path(req.out_dir).is_dir():  # its run is gone (interrupted, cleaned): do not make the folder again
+        raise FileNotFoundError(f"the scene folder {req.out_dir} no longer exists")
     timer = Timer()
     with timer.stage("import"):
         state = load_scene(req)
