@@ -144,20 +144,19 @@ def test_a_killed_pool_does_not_run_the_job_it_prefetched() -> None:
     from mixcount.blender.pool import WorkerPool
 
     ran: list[int] = []
-    started = threading.Event()
+    fetched = threading.Event()
 
     def handle(worker: _FakeWorker, job: int) -> int:
         ran.append(job)
-        started.set()
-        time.sleep(0.5)
+        assert fetched.wait(5)  # the look-ahead holds job 1 while job 0 runs
+        time.sleep(0.3)
         return job
 
     pool: WorkerPool[int, int] = WorkerPool(1, lambda k: _FakeWorker(k, []), recycle_after=0, handle=handle,
-                                            on_error=lambda job, exc: -1, prefetch=lambda w, j: None)
+                                            on_error=lambda job, exc: -1, prefetch=lambda w, j: fetched.set())
     pool.submit(0)
     pool.submit(1)
-    assert started.wait(5)
-    time.sleep(0.1)  # the look-ahead has taken job 1
+    assert fetched.wait(5)
     pool.close(kill=True, join_s=5.0)
-    time.sleep(0.6)
+    time.sleep(0.5)
     assert ran == [0]
