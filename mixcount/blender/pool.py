@@ -84,7 +84,7 @@ class WorkerPool(Generic[J, R]):
                  prefetch: Optional[Callable[[Any, J], None]] = None) -> None:
         self.size = max(1, int(size))
         self._prefetch = prefetch
-        self._killed = False
+        self._stopping = False  # close() was called: a prefetched job no longer starts
         self.slots = [WorkerSlot(functools.partial(factory, k), recycle_after=recycle_after) for k in range(self.size)]
         self._handle, self._on_error = handle, on_error
         self._jobs: "queue.Queue[Optional[J]]" = queue.Queue()
@@ -107,7 +107,7 @@ class WorkerPool(Generic[J, R]):
             except queue.Empty:
                 continue
             box.append(job)
-            if job is not None and not self._killed:
+            if job is not None and not self._stopping:
                 try:
                     assert self._prefetch is not None
                     self._prefetch(worker, job)
@@ -135,7 +135,7 @@ class WorkerPool(Generic[J, R]):
             if looker is not None:
                 looker.join()
             self._results.put(result)
-            if self._killed or (box and box[0] is None):
+            if box and (self._stopping or box[0] is None):  # the job taken ahead does not start
                 return
             job = box[0] if box else None
 
@@ -151,9 +151,10 @@ class WorkerPool(Generic[J, R]):
 
     def close(self, *, kill: bool = False, join_s: float = 2.0) -> None:
         """Stop the threads and the workers: a slot still inside a job after ``join_s`` (or every slot, with
-        ``kill``, queued jobs dropped) has its worker killed, the others are asked to exit."""
-        if kill:  # an interrupted run: no queued (or prefetched) job starts, the ones in progress end now
-            self._killed = True
+        ``kill``, queued jobs dropped) has its worker killed, the others are asked to exit. A job taken
+        ahead by a look-ahead thread is dropped (the caller that closes no longer waits for it)."""
+        self._stopping = True  # a job a look-ahead thread took never starts after this
+        if kill:  # an interrupted run: no queued job starts, the ones in progress end now
             try:
                 while True:
                     self._jobs.get_nowait()

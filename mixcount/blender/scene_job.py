@@ -5,7 +5,9 @@ Blender scene, :mod:`mixcount.blender.scene_build`), :func:`settle` (physics), :
 (:func:`check_settled`, then for specs with a placement :func:`frame_cameras` and
 :func:`place_distractors_in_view`), :func:`check_frame`, :func:`silhouettes`, :func:`visibility_loop`,
 :func:`final_status`, :func:`write_passes`, :func:`write_amodal_masks`, :func:`render_rgb` and, on
-request, :func:`reference_check`. Every decision between them is a pure function of
+request, :func:`reference_check`. A request whose ``settled`` names a file that :func:`settle_ahead` (the
+``settle`` op, run by a companion process for the next scene) wrote applies those poses
+(:func:`apply_settled`) instead of running :func:`settle`. Every decision between them is a pure function of
 :mod:`mixcount.blender.decisions`. What describes the scene (samples, denoise, visibility threshold,
 physics) is read from the stage's SceneSpec only; the :class:`~mixcount.blender.contract.SceneRequest`
 adds run-time settings (threads, oracle, passes and their formats, mesh cache).
