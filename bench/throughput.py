@@ -103,7 +103,7 @@ def _memory(args: Any, *, pool: list[Any], cfg: Any, assets: Path, work: Path) -
 
     series: dict[str, Any] = {}
     for label, k in (("no_recycle", 0), (f"recycle_after_{args.recycle_after}", args.recycle_after)):
-        ex = LocalExecutor(1, log_dir=work / "logs", recycle_after=k)
+        ex = LocalExecutor(1, log_dir=work / "logs", recycle_after=k, settle_ahead=False)
         rss: list[Optional[float]] = []
         try:
             t0 = time.perf_counter()

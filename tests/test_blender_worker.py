@@ -541,7 +541,7 @@ def test_worker_killed_mid_scene_fails_only_that_scene(library, tmp_path: Path) 
 
     pool, assets = library
     out = tmp_path / "out"
-    with LocalExecutor(1, log_dir=tmp_path, recycle_after=0) as ex:
+    with LocalExecutor(1, log_dir=tmp_path, recycle_after=0, settle_ahead=False) as ex:
         killed: list[int] = []
 
         def kill() -> None:

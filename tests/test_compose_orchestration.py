@@ -104,7 +104,7 @@ def setup(tmp_path: Path):
 def _run(setup, plan: Callable[[int], str], n: int, calls: list[int]):
     config, pool, out, assets = setup
     runner = lambda task, _worker: run_scene_task(task, FakeWorker(task.spec, plan, calls))  # noqa: E731
-    with LocalExecutor(1, runner=runner, recycle_after=0) as executor:
+    with LocalExecutor(1, runner=runner, recycle_after=0, settle_ahead=False) as executor:
         return compose_scenes(pool=pool, config=config, out_dir=out, assets_dir=assets, n=n,
                               executor=executor)
 

@@ -54,7 +54,7 @@ def compose(setup, n: int, calls: list[int], fault: Callable[[int, Path], None] 
             workers: int = 1):
     config, pool, out, assets = setup
     runner = lambda task, _worker: run_scene_task(task, FaultyWorker(task.spec, fault, calls))  # noqa: E731
-    with LocalExecutor(workers, runner=runner, recycle_after=0) as executor:
+    with LocalExecutor(workers, runner=runner, recycle_after=0, settle_ahead=False) as executor:
         return compose_scenes(pool=pool, config=config, out_dir=out, assets_dir=assets, n=n, executor=executor)
 
 

@@ -34,8 +34,8 @@ def make_executor(kind: str = "local", workers: Optional[int] = None, address: O
             raise MixcountError("--address is only used with --executor ray")
         from mixcount.run.local import LocalExecutor
 
-        extra.setdefault("settle_ahead", comp.settle_ahead)
-        return LocalExecutor(workers or comp.workers, log_dir=log_dir, recycle_after=recycle, **extra)
+        return LocalExecutor(workers or comp.workers, log_dir=log_dir, recycle_after=recycle,
+                             settle_ahead=comp.settle_ahead, **extra)
     if kind == "ray":
         from mixcount.run.ray_executor import RayExecutor
 

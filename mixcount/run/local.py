@@ -41,7 +41,7 @@ class LocalExecutor:
 
     def __init__(self, workers: int, *, log_dir: Optional[Path] = None,
                  runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int,
-                 settle_ahead: bool = False) -> None:
+                 settle_ahead: bool) -> None:
         from mixcount.blender.pool import WorkerPool, error_text
         from mixcount.blender.worker import BlenderWorker, SettleAheadWorker
 

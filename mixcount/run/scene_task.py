@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -64,6 +65,12 @@ class SceneOutcome:
         return dict(self.__dict__)
 
 
+# usd-core used by one thread at a time in this process (stages, asset conversion, settled.usda): the
+# settle-ahead look-ahead writes the next scene's stage while the current scene is written or finalised,
+# and two threads converting the same asset (Usd.Stage.CreateNew of one path) deadlock
+_USD_WRITING = threading.Lock()
+
+
 @dataclass
 class StagedScene:
     """A task's stage written ahead into its temporary folder (:func:`stage_scene`), with its request."""
@@ -93,7 +100,8 @@ def stage_scene(task: SceneTask) -> Optional[StagedScene]:
     t = time.perf_counter()
     try:
         tmp.mkdir(parents=True)
-        write_stage(task.spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
+        with _USD_WRITING:
+            write_stage(task.spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
     except Exception:  # noqa: BLE001 - run_scene_task writes it again and reports what fails
         shutil.rmtree(tmp, ignore_errors=True)
         return None
@@ -119,7 +127,8 @@ def run_scene_task(task: SceneTask, worker: Any, staged: Optional[StagedScene] =
         if staged is None:
             tmp.mkdir(parents=True)
             t = time.perf_counter()
-            write_stage(spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
+            with _USD_WRITING:
+                write_stage(spec, out, assets_dir=Path(task.assets_dir), scene_dir=tmp)
             timings["stage"] = round(time.perf_counter() - t, 4)
             request = _request(task, tmp)
         else:
@@ -139,8 +148,9 @@ def run_scene_task(task: SceneTask, worker: Any, staged: Optional[StagedScene] =
                                 time.perf_counter() - t0, error=f"scene {status}", timings=timings)
         t = time.perf_counter()
         timings["total"] = 0.0
-        meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings,
-                              external_exemplars=task.external_exemplars, passes=task.passes)
+        with _USD_WRITING:
+            meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings,
+                                  external_exemplars=task.external_exemplars, passes=task.passes)
         timings["annotate"] = round(time.perf_counter() - t, 4)
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])
