@@ -233,8 +233,16 @@ class SettleAheadWorker:
             self._turn.wait_for(lambda: self._pending is None or self._closed)
             if self._closed:
                 return False
+        try:
+            self.settler.start()  # outside the lock: bpy's start-up must not hold up render_scene
+        except RenderError as exc:
+            self.settle_failures.append(str(exc))
+            return False
+        with self._turn:
+            if self._closed:  # closed while the companion started: it would be left running
+                self.settler.kill()
+                return False
             try:
-                self.settler.start()
                 self.settler._send({"op": SettleResult.OP, "request": req.to_dict()})
             except RenderError as exc:
                 self.settle_failures.append(str(exc))
@@ -287,9 +295,10 @@ class SettleAheadWorker:
         return pending is not None
 
     def kill(self) -> None:
-        self._shut()
+        """Both processes killed now (first: a settle being collected then ends at once)."""
         self.render.kill()
         self.settler.kill()
+        self._shut()
 
     def close(self) -> None:
         """Both processes asked to exit; a companion still settling (its scene will not come) is killed."""
