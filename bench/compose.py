@@ -165,6 +165,8 @@ def run_settled_ahead(worker: Any, spec: Any, out: Path, assets: Path, *, thread
     import time
     from dataclasses import replace
 
+    from pools import worker_stages
+
     from mixcount.config import load_config
     from mixcount.run.scene_task import WRITTEN, SceneTask, compose_outputs, run_scene_task, stage_scene
 
@@ -187,12 +189,12 @@ def run_settled_ahead(worker: Any, spec: Any, out: Path, assets: Path, *, thread
         return bad, None, {}, {}
     metas = [json.loads((Path(o.path) / "metadata.json").read_text()) for o in outcomes]
     poses = [[(o["name"], o["status"], o.get("matrix_world")) for o in m["objects"]] for m in metas]
-    stages = {k.split(".", 1)[1]: v for k, v in metas[1]["timings"].items() if k.startswith("worker.")}
+    stages = worker_stages(metas[1])
     settled = [d for d in metas[1]["diagnostics"] if d.get("kind") == "settled_ahead"]
     return outcomes[1], metas[1], stages, {
         "whole": round(ends[1] - ends[0], 3), "settled_in_companion": bool(settled),
         "companion_seconds": settled[0]["seconds"] if settled else None,
-        "copy0_rgb_s": next(v for k, v in metas[0]["timings"].items() if k == "worker.rgb"),
+        "copy0_rgb_s": worker_stages(metas[0])["rgb"],
         "same_poses": poses[0] == poses[1] == poses[2], "failures": list(worker.settle_failures)}
 
 

@@ -78,8 +78,12 @@ def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_
     if outcome.status != WRITTEN:
         return outcome, None, {}
     meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
-    stages = {k.split(".", 1)[1]: v for k, v in meta["timings"].items() if k.startswith("worker.")}
-    return outcome, meta, stages
+    return outcome, meta, worker_stages(meta)
+
+
+def worker_stages(meta: dict) -> dict[str, float]:
+    """A finished scene's worker stage seconds (metadata.json ``timings["worker.<stage>"]``) by stage."""
+    return {k.split(".", 1)[1]: v for k, v in meta["timings"].items() if k.startswith("worker.")}
 
 
 def scene_bytes(scene_dir: Path) -> dict[str, int]:
