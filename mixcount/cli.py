@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from mixcount.commands.common import AppState, console
+from mixcount.commands.common import HELP_MARKUP, AppState, console
 from mixcount.errors import MixcountError, os_error_line
 
 app = typer.Typer(
@@ -17,9 +17,10 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=HELP_MARKUP,
 )
 catalog_app = typer.Typer(
-    help="Ingest, curate, caption and split the asset catalog.", no_args_is_help=True
+    help="Ingest, curate, caption and split the asset catalog.", no_args_is_help=True, rich_markup_mode=HELP_MARKUP
 )
 app.add_typer(catalog_app, name="catalog")
 
@@ -39,10 +40,12 @@ def _root(
         None, "--db", envvar="MIXCOUNT_DB", help="Catalog database: a path or SQLAlchemy URL [default: catalog/catalog.db]."
     ),
     config: list[Path] = typer.Option(
-        [], "--config", "-c", help="Config file(s) layered over configs/default.toml (e.g. configs/quick.toml)."
+        [], "--config", "-c", help="Config file(s) layered over configs/default.toml: a path, or the name of a bundled config "
+             "(quick = small sizes, counts and samples for trials); repeatable."
     ),
     set_: list[str] = typer.Option(
-        [], "--set", help="Override one config key: --set scene.n_objects_max=50 (unknown keys are errors)."
+        [], "--set", help="Override one config key, e.g. --set scene.n_objects=[30,60] or --set compose.samples=16; repeatable "
+             "(an unknown key is an error that names the nearest known one)."
     ),
     version: bool = typer.Option(
         False, "--version", callback=_print_version, is_eager=True, help="Print the mixcount version and exit."

@@ -12,6 +12,7 @@ The CLI builds the Config once per invocation and passes it (or one of its secti
 from __future__ import annotations
 
 import copy
+import difflib
 import hashlib
 import json
 import tomllib
@@ -67,7 +68,9 @@ def _merge(base: dict[str, Any], overlay: Mapping[str, Any], prefix: str, source
     for key, value in overlay.items():
         dotted = f"{prefix}{key}"
         if key not in base:
-            raise ConfigError(f"unknown config key {dotted!r} in {source}")
+            near = difflib.get_close_matches(dotted, [f"{prefix}{k}" for k in base], n=1, cutoff=0.5)
+            hint = f"; did you mean {near[0]!r}?" if near else f"; known keys here: {', '.join(sorted(base))}"
+            raise ConfigError(f"unknown config key {dotted!r} in {source}{hint}")
         if isinstance(base[key], dict):
             if not isinstance(value, dict):
                 raise ConfigError(f"config key {dotted!r} is a section, got {value!r} in {source}")
@@ -175,6 +178,11 @@ class FilterConfig:
     look_d2: float
     look_proportions: float
     look_exposure_gain: float
+    cross_source_d2: float
+    cross_source_proportions: float
+    cross_source_min_pattern: float
+    review_colour: float
+    review_layout: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float
@@ -378,6 +386,8 @@ def load_config(
             path = CONFIG_DIR / path
         if not path.exists() and (CONFIG_DIR / f"{path}.toml").exists():
             path = CONFIG_DIR / f"{path}.toml"
+        if not path.exists() and not path.is_absolute() and (CONFIG_DIR / path.name).is_file():
+            path = CONFIG_DIR / path.name  # configs/quick.toml from outside the checkout: the bundled one
         _merge(data, _read_toml(path), "", str(path))
         sources.append(str(path))
     for text in overrides:

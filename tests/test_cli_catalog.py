@@ -122,9 +122,9 @@ def test_make_demo_lines_match_the_generator(tmp_path):
     truth = json.loads((lib / "ground_truth.json").read_text())
     exp = truth["expected"]
     res = run("catalog", "ingest", str(lib))
-    assert f"ingested {exp['total']} objects: {exp['active']} new, 0 unchanged, 0 updated, {exp['broken']} broken" in res.stderr
+    assert f"ingested {exp['total']} objects: {exp['active']} new, 0 unchanged, 0 updated, {exp['broken']} broken" in res.stdout
     res = run("catalog", "list", "--summary")
     assert f"{exp['total']} objects: {exp['active']} active, 0 excluded, {exp['broken']} broken" in res.stdout
     assert len(truth["categories"]) >= 10
     res = run("catalog", "ingest", str(lib))
-    assert f"0 new, {exp['active']} unchanged, 0 updated, {exp['broken']} broken" in res.stderr
+    assert f"0 new, {exp['active']} unchanged, 0 updated, {exp['broken']} broken" in res.stdout

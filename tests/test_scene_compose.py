@@ -20,7 +20,7 @@ def demo_db(tmp_path_factory):
 def test_dry_run_prints_plan_and_writes_nothing(demo_db, capsys, tmp_path):
     db = str(demo_db / "catalog.db")
     rc = main(["--db", db, "--config", "quick", "compose", "--dry-run", "--n", "3", "--seed", "10",
-               "--split", "train", "--out", str(tmp_path / "out")])
+               "--split", "train", "--out", str(tmp_path / "out"), "--json"])
     assert rc == 0
     plan = json.loads(capsys.readouterr().out)
     assert [p["scene_id"] for p in plan] == ["scene_000010", "scene_000011", "scene_000012"]
@@ -32,14 +32,14 @@ def test_dry_run_prints_plan_and_writes_nothing(demo_db, capsys, tmp_path):
             assert 0.45 <= c["size_m"] <= 1.2 and c["size_real_m"] == pytest.approx(c["size_m"] / 10, abs=1e-4)
     assert not (tmp_path / "out").exists()
     # same seeds, same plan
-    main(["--db", db, "--config", "quick", "compose", "--dry-run", "--n", "3", "--seed", "10", "--split", "train"])
+    main(["--db", db, "--config", "quick", "compose", "--dry-run", "--n", "3", "--seed", "10", "--split", "train", "--json"])
     assert json.loads(capsys.readouterr().out) == plan
 
 
 def test_stage_only_writes_stages(demo_db, capsys, tmp_path):
     db = str(demo_db / "catalog.db")
     rc = main(["--db", db, "--config", "quick", "--set", "compose.split=train", "compose", "--stage-only",
-               "--n", "2", "--out", str(tmp_path / "out")])
+               "--n", "2", "--out", str(tmp_path / "out"), "--json"])
     assert rc == 0
     stages = json.loads(capsys.readouterr().out)["stages"]
     assert [p.split("/")[-2] for p in stages] == ["scene_000000", "scene_000001"]

@@ -118,7 +118,7 @@ def test_deleted_truncated_and_modified_files_are_caught_and_repaired(setup, cap
     damage(scenes[2], "modify", "coco.json")
     (scenes[3] / "notes.txt").write_text("a user's note: extra, not damage")
 
-    rc = main(["verify", str(out)])
+    rc = main(["verify", str(out), "--json"])
     captured = capsys.readouterr()
     assert rc == 1
     report = json.loads(captured.out)
@@ -131,7 +131,7 @@ def test_deleted_truncated_and_modified_files_are_caught_and_repaired(setup, cap
     assert "Traceback" not in lines
 
     # merge leaves the three damaged scenes out by name (exit 1) and merges the sound one
-    rc = main(["merge", str(out)])
+    rc = main(["merge", str(out), "--json"])
     captured = capsys.readouterr()
     assert rc == 1 and "Traceback" not in captured.err
     res = json.loads(captured.out)
@@ -227,7 +227,7 @@ def test_verify_from_the_console_script(setup) -> None:
     compose(setup, 1, [])
     scene = scene_dirs(out)[0]
     (scene / "rgb.png").unlink()
-    res = subprocess.run([sys.executable, "-m", "mixcount", "verify", str(out)], cwd=PROJECT_ROOT,
+    res = subprocess.run([sys.executable, "-m", "mixcount", "verify", str(out), "--json"], cwd=PROJECT_ROOT,
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 1 and "Traceback" not in res.stderr
     assert f"{scene.name}: missing rgb.png" in res.stderr

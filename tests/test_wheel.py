@@ -59,5 +59,5 @@ def test_wheel_installs_and_runs_from_an_empty_directory(tmp_path: Path) -> None
     assert ingested["new"] >= 8
     mixcount("catalog", "caption")
     mixcount("catalog", "split")
-    plan = json.loads(mixcount("--config", "quick", "compose", "--dry-run", "--n", "2", "--split", "train").stdout)
+    plan = json.loads(mixcount("--config", "quick", "compose", "--dry-run", "--n", "2", "--split", "train", "--json").stdout)
     assert len(plan) == 2 and all(scene["n_counted"] > 0 for scene in plan)

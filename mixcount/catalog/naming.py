@@ -2,11 +2,11 @@
 
 Shared by the layout readers (:mod:`mixcount.catalog.layouts`) and ingest. Two category rules:
 
-* :func:`category_from_stem` for file stems and DTC-style names, which start with the noun
-  (``mug_02.glb`` -> mug, ``Markers_B07Z5P84J2_Peach`` -> marker);
-* :func:`category_from_name` for human names from metadata (``Red Ceramic Mug`` -> mug,
-  ``Threshold_Porcelain_Teapot_White`` -> teapot): English puts the noun last, so the last word that
-  is not a colour, a number, an id or a generic word.
+* DTC-style names start with the noun (``Markers_B07Z5P84J2_Peach`` -> marker; ``DTC_NAME``);
+* :func:`category_from_stem` for file and folder names a person typed (``red_block.glb`` -> block,
+  ``coffee-mug-02.ply`` -> mug) and :func:`category_from_name` for human names from metadata
+  (``Red Ceramic Mug`` -> mug, ``Threshold_Porcelain_Teapot_White`` -> teapot): English puts the noun
+  last, so the last word that is not a colour, a size, a number, an id or a generic word.
 """
 
 from __future__ import annotations
@@ -21,6 +21,9 @@ GENERIC_STEMS = {"model", "mesh", "scene", "object", "asset", "untitled", "expor
 COLOUR_WORDS = {"black", "white", "grey", "gray", "red", "orange", "yellow", "green", "blue", "purple", "pink",
                 "brown", "tan", "beige", "gold", "golden", "silver", "navy", "teal", "lime", "olive", "maroon",
                 "magenta", "cyan", "violet", "cream", "clear", "multicolor", "multicolour", "dark", "light"}
+SIZE_WORDS = {"big", "small", "large", "tiny", "little", "huge", "mini", "medium", "tall", "short", "long", "wide",
+              "narrow", "thin", "thick", "xl", "xxl", "xs", "sm", "md", "lg", "giant", "jumbo"}
+NOT_NOUNS = COLOUR_WORDS | SIZE_WORDS | GENERIC_STEMS | {"copy", "new", "old", "ver", "version", "rev", "lod"}
 _ID_TOKEN = re.compile(r"^(?=.*\d)[A-Za-z0-9]{5,}$")  # catalogue ids such as B07Z5P84J2
 
 
@@ -66,13 +69,15 @@ def category_text(value: str) -> str:
 
 
 def category_from_stem(stem: str, parent: str) -> str:
-    """Plain files: the file name's first word ('mug_02.glb' -> mug), else the folder's name."""
-    token = re.split(r"[_\-\s.]+", stem.strip())[0] if stem.strip() else ""
-    token = re.sub(r"\d+$", "", token)
-    if token.isalpha() and token.lower() not in GENERIC_STEMS:
-        return singular(token)
-    parent_token = re.sub(r"[^A-Za-z]", "", parent)
-    return singular(parent_token) if parent_token else "unknown"
+    """Plain files and folders named by a person: the noun of the name, its last word that is no colour,
+    size, number, id or generic word ('mug_02.glb' -> mug, 'red_block' -> block, 'coffee-mug-02' -> mug,
+    'big ball' -> ball); else the parent folder's noun, else "unknown". One word, so that it is matched to
+    FSC-147 classes the way :mod:`mixcount.catalog.splits` matches any text: by its head noun."""
+    for text in (stem, parent):
+        for word in reversed(words_of(text)):
+            if word.isalpha() and len(word) > 1 and word not in NOT_NOUNS:
+                return singular(word)
+    return "unknown"
 
 
 def words_of(name: str) -> list[str]:

@@ -7,9 +7,10 @@ options that stand for config keys (``compose --samples`` = ``compose.samples``)
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Optional, Sequence
+from typing import Any, Iterable, Mapping, Optional, Sequence
 
 import typer
 from rich.console import Console
@@ -17,8 +18,28 @@ from rich.console import Console
 from mixcount.config import Config, load_config
 from mixcount.errors import MixcountError
 
-console = Console(stderr=True, soft_wrap=True)  # progress and summaries; JSON goes to stdout only
-out = Console(highlight=False, soft_wrap=True)
+console = Console(stderr=True, soft_wrap=True)  # progress, warnings and messages
+out = Console(highlight=False, soft_wrap=True)  # results: the readable summary, or JSON with --json
+
+# Help texts are plain text, not rich markup: rich would swallow "[default: split.seed]" as a style tag.
+HELP_MARKUP = None
+
+
+def result(summary: str | Iterable[str], data: Any, json_out: bool) -> None:
+    """A command's result, the one convention of every command: stdout carries the readable ``summary``
+    line(s), or with ``--json`` the JSON of ``data`` alone (one document a script can parse; the summary
+    then goes to stderr, beside the progress and messages)."""
+    lines = [summary] if isinstance(summary, str) else list(summary)
+    if json_out:
+        typer.echo(json.dumps(data, sort_keys=True, default=str))  # not rich: JSON could look like markup
+    for line in lines:
+        if line:
+            (console if json_out else out).print(line, highlight=False, markup=False, soft_wrap=True)
+
+
+def json_option(what: str = "the result") -> Any:
+    """The ``--json`` option every command has (see :func:`result`)."""
+    return typer.Option(False, "--json", help=f"Print {what} as JSON on stdout instead of a readable summary.")
 
 
 class RichProgress:
@@ -85,10 +106,32 @@ class AppState:
             raise MixcountError("internal: command config options must be given on the first config() call")
         return self._config
 
-    def catalog(self):  # type: ignore[no-untyped-def]
+    def catalog(self, *, create: bool = False):  # type: ignore[no-untyped-def]
+        """The catalog of ``--db`` / ``MIXCOUNT_DB`` / ``catalog/catalog.db``. Only commands that add to a
+        catalog (the ingest commands) pass ``create``: any other command on a SQLite file that does not
+        exist stops with an error naming the path, instead of leaving an empty catalog behind."""
         from mixcount.catalog.db import open_catalog
 
-        return open_catalog(self.db, data_dir=self.config().catalog.data_dir)
+        data_dir = self.config().catalog.data_dir  # a bad --config/--set is reported first
+        if not create:
+            require_existing_catalog(self.db)
+        return open_catalog(self.db, data_dir=data_dir)
+
+
+def require_existing_catalog(db: str | None) -> None:
+    """A CatalogError when ``db`` resolves to a SQLite file that does not exist (other backends pass)."""
+    import os
+
+    from mixcount.catalog.db import _sqlite_file, resolve_db_url
+    from mixcount.errors import CatalogError
+
+    path = _sqlite_file(resolve_db_url(db))
+    if path is None or path.exists():
+        return
+    given = ("--db" if db else "MIXCOUNT_DB") if (db or os.environ.get("MIXCOUNT_DB")) else "the default catalog/catalog.db"
+    raise CatalogError(
+        f"no catalog at {path} (from {given}): give --db PATH (or set MIXCOUNT_DB) for an existing catalog, "
+        "or create one with `mixcount catalog ingest FOLDER`")
 
 
 def state(ctx: typer.Context) -> AppState:

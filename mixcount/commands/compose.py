@@ -7,13 +7,12 @@ dry run prints them, ``--stage-only`` writes ``OUT/scenes/<scene_id>/scene.usda`
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Optional
 
 import typer
 
-from mixcount.commands.common import RichProgress, console, out, state
+from mixcount.commands.common import RichProgress, console, json_option, out, result, state
 from mixcount.config import Config
 from mixcount.errors import CompositionError
 
@@ -28,15 +27,26 @@ def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
         pool = load_pool(session)
         envs = load_environments(session)
         mats = load_materials(session)
-    if not any(o.split == split for o in pool):
-        raise CompositionError(
-            f"no active objects in split {split!r}: ingest, caption and split the catalog first "
-            "(mixcount catalog ingest / caption / split)"
-        )
+    require_split(pool, split)
     warning = container_warning(pool, split, config.scene)
     if warning:
         console.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
     return [sample_scene(base + k, split, config, pool, environments=envs, materials=mats) for k in range(n)]
+
+
+def require_split(pool: list[Any], split: str) -> None:
+    """A CompositionError, before anything is written, when no active object of the pool is in ``split``:
+    it says how many objects each split holds, so a small library's empty val split is plain."""
+    if any(getattr(o, "split", None) == split for o in pool):
+        return
+    held = {s: sum(1 for o in pool if getattr(o, "split", None) == s) for s in ("train", "val", "test")}
+    unsplit = sum(1 for o in pool if getattr(o, "split", None) is None)
+    raise CompositionError(
+        f"no active objects in split {split!r} (active objects per split: "
+        + ", ".join(f"{s} {n}" for s, n in held.items()) + (f", no split {unsplit}" if unsplit else "")
+        + "): " + ("run `mixcount catalog split` (after ingest and caption); nothing was written" if not pool or unsplit
+                   else "compose another split, or add objects or change split.fractions and run `mixcount catalog "
+                        "split` again; nothing was written"))
 
 
 def summarise(spec: Any) -> dict[str, Any]:
@@ -72,6 +82,7 @@ def write_stages(specs: list[Any], out_dir: Path, catalog: Any, *, progress: boo
 
 
 def _print_dry_run(specs: list[Any]) -> None:
+    """The readable plan of a dry run, on stdout."""
     from rich.table import Table
 
     table = Table(title=f"{len(specs)} planned scene(s)")
@@ -83,7 +94,26 @@ def _print_dry_run(specs: list[Any]) -> None:
         )
         cont = "-" if spec.container is None else spec.asset(spec.container.object_id).name
         table.add_row(spec.scene_id, str(spec.n_counted), cls, cont, str(len(spec.distractors)))
-    console.print(table)
+    out.print(table)
+
+
+def _compose_lines(summary: Any, out_dir: Path, *, merge: bool) -> list[str]:
+    """The readable summary of a compose run: counts, then where the preview and annotations are."""
+    repaired = f", {len(summary.damaged)} damaged set aside and rendered again" if summary.damaged else ""
+    lines = [f"wrote {summary.written - summary.skipped} new scene(s) ({summary.skipped} already there, {summary.failed} failed, "
+             f"{summary.empty + summary.rejected} regenerated{repaired}) in {summary.seconds:.0f} s into {out_dir}"]
+    outputs = summary.outputs or {}
+    if outputs.get("preview"):
+        lines.append(f"preview: {outputs['preview']}")
+    annotations = outputs.get("annotations") or {}
+    if isinstance(annotations, dict):
+        lines.extend(f"annotations ({split}): {path}" for split, path in sorted(annotations.items()))
+    elif annotations:
+        lines.append(f"annotations: {annotations}")
+    if not outputs:
+        lines.append(f"annotations and preview of {out_dir} unchanged (no new scene)" if merge else
+                     f"not merged (--no-merge): `mixcount merge {out_dir}` writes the annotations and preview")
+    return lines
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
@@ -105,6 +135,8 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes written besides rgb.png: instance, class, depth, normal (default: config compose.passes, all four)."),
         no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
         package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
+        mixed_settings: bool = typer.Option(False, "--mixed-settings", help="Add scenes to an OUT whose scenes were composed with other settings (resolution, samples, scene rules, catalog): recorded as another variant in OUT/settings.json; without it such a run is refused."),
+        json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
         st = state(ctx)
@@ -118,13 +150,15 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         catalog = st.catalog()
         if dry_run:
             specs = plan_scenes(catalog, cfg, n=n)
-            _print_dry_run(specs)
-            out.print(json.dumps([summarise(s) for s in specs], indent=2))
+            if json_out:
+                result("", [summarise(s) for s in specs], True)
+            else:
+                _print_dry_run(specs)
             return
         if stage_only:
             paths = write_stages(plan_scenes(catalog, cfg, n=n), out_dir, catalog)
-            console.print(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}")
-            out.print(json.dumps({"stages": [str(p) for p in paths]}, indent=2))
+            result(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}", {"stages": [str(p) for p in paths]},
+                   json_out)
             return
         from mixcount.run.compose import compose_scenes
 
@@ -132,6 +166,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             from mixcount.catalog.pool import load_environments, load_materials, load_pool
 
             pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
+        require_split(pool, cfg.compose.split)  # before OUT is made: a failed start leaves nothing behind
         executor = None  # local: compose_scenes starts its own pool; ray: mixcount.run.factory
         if executor_kind != "local" or address:
             from mixcount.run.factory import make_executor
@@ -142,7 +177,8 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             summary = compose_scenes(pool=pool, config=cfg, out_dir=out_dir.resolve(),
                                      assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n,
                                      environments=tuple(envs), materials=tuple(mats), executor=executor,
-                                     progress=RichProgress())
+                                     progress=RichProgress(), mixed_settings=mixed_settings,
+                                     catalog=catalog.engine.url.render_as_string(hide_password=True))
         finally:
             if executor is not None:
                 executor.close()
@@ -152,11 +188,8 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             packaged = copy_assets(out_dir, assets_dirs=[Path(catalog.usd_assets_dir)])
             console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} "
                           f"({packaged.bytes / 1e6:.1f} MB)", highlight=False)
-        repaired = f", {len(summary.damaged)} damaged set aside and rendered again" if summary.damaged else ""
-        console.print(f"wrote {summary.written} scene(s) ({summary.skipped} already there, {summary.failed} failed, "
-                      f"{summary.empty + summary.rejected} regenerated{repaired}) in {summary.seconds:.0f} s; "
-                      f"preview {summary.outputs.get('preview')}; annotations {summary.outputs.get('annotations')}")
-        out.print(json.dumps({k: v for k, v in summary.to_dict().items() if k != "outcomes"}, indent=2))
+        result(_compose_lines(summary, out_dir, merge=cfg.compose.merge), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
+               json_out)
         if summary.written < n:
             raise CompositionError(f"only {summary.written} of {n} scenes could be written (see failures above)")
 
@@ -164,6 +197,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
     def merge(
         ctx: typer.Context,
         out_dir: Path = typer.Argument(Path("out"), help="Compose output folder (OUT/scenes/<scene_id>/...)."),
+        json_out: bool = json_option("the merge's result"),
     ) -> None:
         """Merge the finished scenes of OUT into annotations/instances_<split>.json, dataset.json and
         preview.png (one streaming pass; unchanged scenes' summaries come from the merge index)."""
@@ -179,28 +213,29 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
                                preview_scenes=cfg.compose.preview_scenes)
         for line in res.get("damaged", []):
             console.print(f"[yellow]damaged scene left out:[/] {line}", highlight=False)
-        console.print(f"merged in {time.perf_counter() - t0:.1f} s: {res['dataset']}")
-        out.print(json.dumps(res, indent=2))
+        result(f"merged in {time.perf_counter() - t0:.1f} s: {res['dataset']}", res, json_out)
         if res.get("damaged"):
             console.print(f"{len(res['damaged'])} damaged scene(s) left out of the merge: run the same `mixcount "
                           "compose` to render them again (`mixcount verify` lists every problem)", highlight=False)
             raise typer.Exit(1)
 
     @catalog_app.command("ingest-env")
-    def ingest_env(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="HDR/EXR files or folders.")) -> None:
+    def ingest_env(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="HDR/EXR files or folders."),
+                   json_out: bool = json_option("the summary")) -> None:
         """Add HDR/EXR environment maps to the catalog (sampled uniformly per scene)."""
         from mixcount.catalog.environments import ingest_environments
 
-        summary = ingest_environments(state(ctx).catalog(), paths)
-        console.print(f"environments: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped")
-        out.print(json.dumps(summary.to_dict(), indent=2))
+        summary = ingest_environments(state(ctx).catalog(create=True), paths)
+        result(f"environments: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped",
+               summary.to_dict(), json_out)
 
     @catalog_app.command("ingest-materials")
     def ingest_materials_cmd(ctx: typer.Context,
-                             paths: list[Path] = typer.Argument(..., help="Folders of PBR texture sets.")) -> None:
+                             paths: list[Path] = typer.Argument(..., help="Folders of PBR texture sets."),
+                             json_out: bool = json_option("the summary")) -> None:
         """Add PBR texture sets (base colour, roughness, normal, ...) for floors."""
         from mixcount.catalog.environments import ingest_materials
 
-        summary = ingest_materials(state(ctx).catalog(), paths)
-        console.print(f"materials: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped")
-        out.print(json.dumps(summary.to_dict(), indent=2))
+        summary = ingest_materials(state(ctx).catalog(create=True), paths)
+        result(f"materials: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped",
+               summary.to_dict(), json_out)

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
 import typer
 from rich.markup import escape
 
-from mixcount.commands.common import RichProgress, console, out, state
+from mixcount.commands.common import RichProgress, console, json_option, result, state
 
 review_app = typer.Typer(help="Apply a person's accept/reject decisions from the HTML review page.",
                          no_args_is_help=True)
@@ -20,7 +19,7 @@ def render_cmd(
     force: bool = typer.Option(False, "--force", help="Render again even when the stored render is current."),
     include_excluded: bool = typer.Option(False, "--include-excluded", help="Also render excluded objects."),
     ids: list[int] = typer.Option([], "--id", help="Only these object ids (repeatable)."),
-    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+    json_out: bool = json_option("the summary"),
 ) -> None:
     """Canonical white-background renders of active objects (bpy worker processes; resumable)."""
     from mixcount.curation.renders import render_catalog
@@ -35,15 +34,13 @@ def render_cmd(
     for f in summary.failures:
         console.print(f"[yellow]render failed[/] #{f['id']} {escape(f['name'])}: {escape(f['error'][:300])}",
                       highlight=False, soft_wrap=True)
-    console.print(f"render: {summary.objects} objects, {summary.rendered} rendered, {summary.skipped} up to date, "
-                  f"{summary.failed} failed", highlight=False)
-    if json_out:
-        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+    result(f"render: {summary.objects} objects, {summary.rendered} rendered, {summary.skipped} up to date, "
+           f"{summary.failed} failed", summary.as_dict(), json_out)
 
 
 def filter_cmd(
     ctx: typer.Context,
-    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+    json_out: bool = json_option("the summary"),
 ) -> None:
     """Flag duplicates and degenerate/outlier objects, exclude all but one per duplicate group (idempotent)."""
     from mixcount.curation.flags import run_filter
@@ -54,10 +51,9 @@ def filter_cmd(
         summary = run_filter(catalog, st.config())
     finally:
         catalog.close()
-    flags = ", ".join(f"{n} {k}" for k, n in summary.flags.items())
-    console.print(f"filter: {summary.objects} objects; flags: {flags}; {summary.groups} duplicate groups, "
-                  f"{summary.excluded} excluded, {summary.review_applied} review decisions applied", highlight=False,
-                  soft_wrap=True)
+    flags = ", ".join(f"{n} {k}" for k, n in summary.flags.items()) or "none"
+    lines = [f"filter: {summary.objects} objects; flags: {flags}; {summary.groups} duplicate groups, "
+             f"{summary.excluded} excluded, {summary.review_applied} review decisions applied"]
     if summary.missing_renders:
         console.print(f"[yellow]{summary.missing_renders} objects have no canonical render: appearance checks "
                       "skipped for them (run `mixcount catalog render`)[/]", highlight=False)
@@ -67,14 +63,13 @@ def filter_cmd(
     gt = summary.ground_truth
     if gt is not None:
         kinds = ", ".join(f"{k} {v['found']}/{v['planted']}" for k, v in gt["by_trap"].items())
-        console.print(
-            f"ground truth ({escape(gt['ground_truth'])}): duplicate pairs precision {gt['precision']:.3f}, "
+        lines.append(
+            f"ground truth ({gt['ground_truth']}): duplicate pairs precision {gt['precision']:.3f}, "
             f"recall {gt['recall']:.3f} ({gt['pairs_correct']}/{gt['pairs_planted']} planted, "
             f"{gt['pairs_predicted']} predicted; {kinds}); broken flagged {gt['broken_flagged']}/{gt['broken_planted']}; "
             f"clean objects with a duplicate flag {gt['clean_with_duplicate_flag']}/{gt['clean_objects']} "
-            f"({100 * gt['clean_flag_rate']:.1f} %)", highlight=False, soft_wrap=True)
-    if json_out:
-        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+            f"({100 * gt['clean_flag_rate']:.1f} %)")
+    result(lines, summary.as_dict(), json_out)
 
 
 def sheet_cmd(
@@ -84,20 +79,18 @@ def sheet_cmd(
     category: Optional[str] = typer.Option(None, "--category", help="Only objects of this category."),
     cols: int = typer.Option(6, "--cols", min=1, help="Columns per PNG page."),
     rows: int = typer.Option(5, "--rows", min=1, help="Rows per PNG page."),
-    json_out: bool = typer.Option(False, "--json", help="Print what was written as JSON on stdout."),
+    json_out: bool = json_option("what was written"),
 ) -> None:
     """Write PNG contact sheets and one self-contained HTML review page."""
     from mixcount.curation.sheets import write_sheets
 
     catalog = state(ctx).catalog()
     try:
-        result = write_sheets(catalog, out_dir, only=only, category=category, cols=cols, rows=rows)
+        written = write_sheets(catalog, out_dir, only=only, category=category, cols=cols, rows=rows)
     finally:
         catalog.close()
-    console.print(f"sheet: {result['objects']} objects, {len(result['pngs'])} PNG page(s) and "
-                  f"{escape(result['html'])}", highlight=False, soft_wrap=True)
-    if json_out:
-        out.print(json.dumps(result, sort_keys=True))
+    result(f"sheet: {written['objects']} objects, {len(written['pngs'])} PNG page(s) and {written['html']}",
+           written, json_out)
 
 
 @review_app.command("import")
@@ -105,7 +98,7 @@ def review_import_cmd(
     ctx: typer.Context,
     file: Path = typer.Argument(..., help="Decisions JSON exported from review.html."),
     reviewer: Optional[str] = typer.Option(None, "--reviewer", help="Reviewer name [default: the file's, else $USER]."),
-    json_out: bool = typer.Option(False, "--json", help="Print the summary as one JSON object on stdout."),
+    json_out: bool = json_option("the summary"),
 ) -> None:
     """Record accept/reject decisions (with reviewer and time) and apply them to object statuses."""
     from mixcount.curation.review import import_decisions
@@ -120,11 +113,9 @@ def review_import_cmd(
     for c in summary.container_changes:
         console.print(f"#{c['id']} {escape(c['name'])}: {'now' if c['container'] else 'no longer'} a container",
                       highlight=False, soft_wrap=True)
-    console.print(f"review: {summary.decisions} decisions by {escape(summary.reviewer)}: {summary.recorded} recorded, "
-                  f"{summary.already_recorded} already recorded, {len(summary.status_changes)} status changes",
-                  highlight=False, soft_wrap=True)
-    if json_out:
-        out.print(json.dumps(summary.as_dict(), sort_keys=True))
+    result(f"review: {summary.decisions} decisions by {summary.reviewer}: {summary.recorded} recorded, "
+           f"{summary.already_recorded} already recorded, {len(summary.status_changes)} status changes",
+           summary.as_dict(), json_out)
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:

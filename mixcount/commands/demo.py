@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Optional
 
 import typer
 
-from mixcount.commands.common import console, out, state
+from mixcount.commands.common import json_option, result, state
 
 
 def demo_library_cmd(
@@ -17,7 +16,7 @@ def demo_library_cmd(
     path: Path = typer.Argument(Path("catalog/demo"), help="Folder to write the library into."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Generator seed [default: demo.seed]; same seed, same bytes."),
     n: Optional[int] = typer.Option(None, "--n", help="Number of ordinary objects [default: demo.n_objects, 0 = all 58]."),
-    json_out: bool = typer.Option(False, "--json", help="Print the ground truth's counts as JSON on stdout."),
+    json_out: bool = json_option("the ground truth's counts"),
 ) -> None:
     """Generate the demo library: everyday objects, containers and curation traps, plus ground_truth.json."""
     from mixcount.curation.flags import TRAP_KINDS
@@ -27,16 +26,14 @@ def demo_library_cmd(
     t0 = time.perf_counter()
     truth = generate_demo_library(path, seed=demo.seed, n_objects=demo.n_objects or None)
     exp = truth["expected"]
-    console.print(
+    result(
         f"demo library in {path}: {exp['total']} folders ({exp['active']} good, {exp['broken']} broken) in "
         f"{len(truth['categories'])} categories; traps: "
         + ", ".join(f"{len(truth.get(key, []))} {kind}" for key, kind in TRAP_KINDS)
         + f", {len(truth.get('mesh_quality', []))} mesh_quality [{time.perf_counter() - t0:.1f} s]",
-        highlight=False,
-        soft_wrap=True,
+        {"path": str(path), **exp, "categories": truth["categories"]},
+        json_out,
     )
-    if json_out:
-        out.print(json.dumps({"path": str(path), **exp, "categories": truth["categories"]}, sort_keys=True))
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:

@@ -8,7 +8,7 @@ from typing import Any, Optional
 
 import typer
 
-from mixcount.commands.common import console
+from mixcount.commands.common import console, json_option, out, result
 
 
 def _fmt(value: float | None, pct: bool = False) -> str:
@@ -34,7 +34,7 @@ def evaluate_cmd(
     score_absent: bool = typer.Option(
         False, "--score-absent", help="Score rows for known categories absent from an image as y = 0 pairs."
     ),
-    json_out: bool = typer.Option(False, "--json", help="Print one JSON object on stdout instead of a table."),
+    json_out: bool = json_option("the scores (one JSON object) instead of a table"),
     score_threshold: Optional[float] = typer.Option(
         None, "--score-threshold",
         help="COCO detection results only: a detection counts when its score is above this (default 0.5).",
@@ -46,23 +46,23 @@ def evaluate_cmd(
 
     truth = load_ground_truth(gt, split=split)
     rows = load_prediction_file(pred, score_threshold)
-    result = evaluate(truth, rows, by=by, counted_only=counted_only, score_absent=score_absent)
+    scores = evaluate(truth, rows, by=by, counted_only=counted_only, score_absent=score_absent, pred_source=str(pred))
     if json_out:
-        payload: dict[str, Any] = {"gt": truth.source, "pred": str(pred), **result.as_dict()}
+        payload: dict[str, Any] = {"gt": truth.source, "pred": str(pred), **scores.as_dict()}
         typer.echo(json.dumps(payload, sort_keys=True))  # not rich: JSON could look like markup
     else:
-        _print_table(result, truth.source, str(pred))
-    o = result.overall
+        _print_table(scores, truth.source, str(pred))
+    o = scores.overall
     if o.missing:
         console.print(
             f"[yellow]{o.missing} ground-truth pair(s) had no prediction and were scored as 0[/], e.g. "
-            + ", ".join(f"(image {i}, category {c})" for i, c in result.missing_examples),
+            + ", ".join(f"(image {i}, category {c})" for i, c in scores.missing_examples),
             highlight=False,
         )
     if o.extra:
         console.print(
             f"[yellow]{o.extra} prediction row(s) for pairs not in the ground truth were not scored[/], e.g. "
-            + ", ".join(f"(image {i}, category {c})" for i, c in result.extra_examples),
+            + ", ".join(f"(image {i}, category {c})" for i, c in scores.extra_examples),
             highlight=False,
         )
 
@@ -84,14 +84,14 @@ def _print_table(result: Any, gt: str, pred: str) -> None:
     for name, s in result.groups.items():
         add(name, s)
     add("all", result.overall, style="bold")
-    console.print(table)
+    out.print(table)
 
 
 def stats_cmd(
     dataset: Path = typer.Argument(..., help="Dataset folder written by `mixcount compose` (OUT)."),
     plots_dir: Optional[Path] = typer.Option(None, "--plots-dir", help="Where PNGs and stats.json go [default: OUT/stats]."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG plots."),
-    json_out: bool = typer.Option(False, "--json", help="Also print stats.json on stdout."),
+    json_out: bool = json_option("stats.json"),
 ) -> None:
     """Dataset statistics: objects and classes per scene, class imbalance, visibility, splits, captions, and
     kept vs spawned per scene (drop reasons, classes left with no visible instance) from scenes/*/metadata.json."""
@@ -102,14 +102,6 @@ def stats_cmd(
     stats = compute_stats(dataset)
     target = plots_dir if plots_dir is not None else Path(dataset) / "stats"
     json_path = write_stats(stats, target / "stats.json")
-    table = Table(title=f"dataset {dataset}")
-    for col in ("split", "images", "scenes", "objects", "distractors", "classes"):
-        table.add_column(col, justify="left" if col == "split" else "right")
-    for row in per_split_table(stats):
-        table.add_row(*(str(x) for x in row))
-    console.print(table)
-    for line in summary_lines(stats):
-        console.print(line, highlight=False)
     if plots:
         from mixcount.evaluate.plots import write_plots
 
@@ -117,8 +109,13 @@ def stats_cmd(
         console.print(f"wrote {len(paths)} plots and {json_path.name} to {target}", highlight=False)
     else:
         console.print(f"wrote {json_path}", highlight=False)
-    if json_out:
-        typer.echo(json.dumps(stats, sort_keys=True))
+    table = Table(title=f"dataset {dataset}")
+    for col in ("split", "images", "scenes", "objects", "distractors", "classes"):
+        table.add_column(col, justify="left" if col == "split" else "right")
+    for row in per_split_table(stats):
+        table.add_row(*(str(x) for x in row))
+    (console if json_out else out).print(table)
+    result(summary_lines(stats), stats, json_out)
 
 
 def baseline_cmd(
@@ -127,24 +124,40 @@ def baseline_cmd(
     kind: str = typer.Option("mean", "--kind", help="mean (mean count of --reference) or perfect (the GT itself)."),
     split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder."),
     reference: Optional[Path] = typer.Option(
-        None, "--reference", help="COCO file whose mean count the mean baseline predicts (e.g. the train split)."
+        None, "--reference",
+        help="Where the mean baseline's mean count comes from: a dataset folder (its --reference-split is read) "
+             "or a COCO file; never the split being evaluated (that would leak the answer).",
     ),
+    reference_split: str = typer.Option("train", "--reference-split", help="Split read when --reference is a dataset folder."),
+    json_out: bool = json_option("what was written"),
 ) -> None:
     """Write a baseline prediction file: the mean-count floor, or the perfect oracle (checks the pipeline)."""
     from mixcount.evaluate.errors import EvaluationError
-    from mixcount.evaluate.metrics import load_ground_truth, mean_predictions, perfect_predictions
+    from mixcount.evaluate.metrics import load_ground_truth, load_reference, mean_predictions, perfect_predictions
 
+    if kind not in ("mean", "perfect"):
+        raise EvaluationError(f"unknown baseline {kind!r} (mean | perfect)")
     truth = load_ground_truth(gt, split=split)
+    ref_source: str | None = None
     if kind == "perfect":
         rows = perfect_predictions(truth, prompt="oracle")
-    elif kind == "mean":
-        ref = load_ground_truth(reference) if reference is not None else None
-        rows = mean_predictions(truth, ref, prompt="mean")
     else:
-        raise EvaluationError(f"unknown baseline {kind!r} (mean | perfect)")
+        ref = None
+        if reference is not None:
+            ref = load_reference(reference, split=reference_split, evaluated=truth)
+            ref_source = ref.source
+        else:
+            console.print(f"[yellow]warning:[/] no --reference: the mean count is taken from {truth.source}, the "
+                          "split being evaluated, so the baseline knows the answer; give --reference DATASET "
+                          "(its train split) for a fair floor", highlight=False, soft_wrap=True)
+        rows = mean_predictions(truth, ref, prompt="mean")
+    doc = {"baseline": kind, "gt": truth.source, "reference": ref_source, "predictions": rows}
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    out_path.write_text(json.dumps({"baseline": kind, "predictions": rows}, indent=1) + "\n", encoding="utf-8")
-    console.print(f"wrote {len(rows)} {kind} predictions to {out_path}", highlight=False)
+    out_path.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    mean = f" (mean count {rows[0]['count']:.2f} of {ref_source or truth.source})" if kind == "mean" and rows else ""
+    result(f"wrote {len(rows)} {kind} predictions for {truth.source} to {out_path}{mean}",
+           {"out": str(out_path), "baseline": kind, "gt": truth.source, "reference": ref_source, "rows": len(rows)},
+           json_out)
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:

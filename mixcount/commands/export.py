@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from mixcount.commands.common import RichProgress, console
+from mixcount.commands.common import RichProgress, json_option, result
 
 
 def export_cmd(
@@ -22,6 +22,7 @@ def export_cmd(
     caption_tier: str = typer.Option(
         "concise", "--caption-tier", help="Class text written for each class: short | concise | detailed."
     ),
+    json_out: bool = json_option("the export's manifest"),
 ) -> None:
     """Export a composed dataset for training: FSC-147, CountGD, Hugging Face or FiftyOne, with ATTRIBUTION."""
     from mixcount.export import export_dataset
@@ -29,11 +30,9 @@ def export_cmd(
     manifest = export_dataset(dataset, fmt, out, split=split, tier=caption_tier, progress=RichProgress())
     figures = ", ".join(f"{k}: {v}" for k, v in manifest["figures"].items())
     files = manifest["files"]
-    console.print(
-        f"[bold]{fmt}[/] export of {dataset} in {out}: {figures} "
-        f"({files['written']} file(s) written, {files['up_to_date']} up to date; ATTRIBUTION.md included)",
-        highlight=False,
-    )
+    result(f"{fmt} export of {dataset} in {out}: {figures} "
+           f"({files['written']} file(s) written, {files['up_to_date']} up to date; ATTRIBUTION.md included)",
+           manifest, json_out)
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:

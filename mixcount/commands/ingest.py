@@ -10,7 +10,7 @@ from typing import Optional
 import typer
 from rich.markup import escape
 
-from mixcount.commands.common import RichProgress, console, out, state
+from mixcount.commands.common import RichProgress, console, out, result, state
 from mixcount.errors import CatalogError
 
 
@@ -30,13 +30,14 @@ def ingest_cmd(
              "licence; repeatable. Files beside the models and in the root's metadata/ folder are found anyway."),
 ) -> None:
     """Ingest 3D objects: mesh facts in metres/Z-up, hashes, collision meshes; idempotent and resumable."""
-    from mixcount.catalog.ingest import discover, ingest_paths
+    from mixcount.catalog.ingest import ingest_paths
 
     st = state(ctx)
     cfg = st.config(values={"ingest.workers": workers})
-    # a missing PATH, an unknown layout or a bad --metadata file is an error before the database is touched
-    discover(paths, layout=layout, metadata_files=metadata)
-    catalog = st.catalog()
+    # a missing PATH, an unknown layout, a bad --metadata file or a PATH with no model file in it is an
+    # error before the database is touched; files in formats ingest does not read are listed, not fatal
+    skipped = _check_inputs(paths, layout, metadata)
+    catalog = st.catalog(create=True)
     try:
         summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
                                layout=layout, metadata_files=metadata)
@@ -49,16 +50,50 @@ def ingest_cmd(
     for name, reason in summary.broken_objects:
         console.print(f"[yellow]broken[/] {escape(name)}: {escape(reason)}", highlight=False, soft_wrap=True)
     found = ", ".join(f"{n} {kind}" for kind, n in sorted(summary.layouts.items()))
-    console.print(
+    result(
         f"ingested {summary.total} objects: {summary.new} new, {summary.unchanged} unchanged, "
-        f"{summary.updated} updated, {summary.broken} broken" + (f" (layouts: {found})" if found else ""),
-        highlight=False,
-        soft_wrap=True,
+        f"{summary.updated} updated, {summary.broken} broken" + (f" (layouts: {found})" if found else "")
+        + (f"; skipped {len(skipped)} file(s) in formats not read" if skipped else ""),
+        {**summary.as_dict(), "skipped": [{"path": str(p), "reason": r} for p, r in skipped]},
+        json_out,
     )
-    if json_out:
-        out.print(json.dumps(summary.as_dict(), sort_keys=True))
     if strict and summary.broken:
         raise CatalogError(f"{summary.broken} broken object(s) (--strict)")
+
+
+SKIPPED_LINES = 20  # skipped files named one per line; the rest are counted
+
+
+def _check_inputs(paths: list[Path], layout: str, metadata: list[Path]) -> list[tuple[Path, str]]:
+    """Walk every PATH once before the database is opened: a PATH with no model file in it is an error
+    that names it (with what was skipped there), and the files in formats ingest does not read are
+    reported on stderr by name, with a count per format. Returns the skipped (path, reason) pairs."""
+    from mixcount.catalog.ingest import discover
+    from mixcount.catalog.layouts.walk import UNREAD_MODEL_FORMATS
+    from mixcount.catalog.mesh import MESH_EXTENSIONS
+
+    skipped: list[tuple[Path, str]] = []
+    for path in paths:
+        here: list[tuple[Path, str]] = []
+        if not discover([path], layout=layout, metadata_files=metadata, skipped=here):
+            what = (f": only {len(here)} file(s) in formats ingest does not read ("
+                    + ", ".join(sorted({p.suffix.lower() for p, _ in here})) + ")") if here else ""
+            raise CatalogError(
+                f"no model file to ingest under {path}{what}; ingest reads "
+                + ", ".join(sorted(MESH_EXTENSIONS)) + " (convert others to GLB, e.g. in Blender); nothing was ingested")
+        skipped.extend(here)
+    if skipped:
+        by_format = Counter(p.suffix.lower() for p, _ in skipped)
+        console.print(
+            f"[yellow]skipped {len(skipped)} file(s)[/] in formats ingest does not read ("
+            + ", ".join(f"{n} {ext} {UNREAD_MODEL_FORMATS[ext]}" for ext, n in sorted(by_format.items()))
+            + "): convert them to GLB to ingest them; the other objects are ingested", highlight=False,
+            soft_wrap=True)
+        for p, reason in skipped[:SKIPPED_LINES]:
+            console.print(f"  skipped {escape(str(p))}: {escape(reason)}", highlight=False, soft_wrap=True)
+        if len(skipped) > SKIPPED_LINES:
+            console.print(f"  ... and {len(skipped) - SKIPPED_LINES} more (all listed by --json)", highlight=False)
+    return skipped
 
 
 def _query(session, status: Optional[str], category: Optional[str]):  # type: ignore[no-untyped-def]

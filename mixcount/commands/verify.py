@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
 
-from mixcount.commands.common import RichProgress, console, out
+from mixcount.commands.common import RichProgress, console, json_option, result
 from mixcount.errors import DatasetError
 
-PRINTED_LINES = 50  # problem lines printed on stderr; the JSON report on stdout lists all
+PRINTED_LINES = 50  # problem lines printed on stderr; the report of --json lists all
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
@@ -19,6 +18,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         out_dir: Path = typer.Argument(..., help="Compose output folder (OUT/scenes/<scene_id>/...)."),
         quick: bool = typer.Option(False, "--quick", help="Compare sizes and hash only files whose modification "
                                    "time changed (what compose checks), instead of hashing every file."),
+        json_out: bool = json_option("the report (every problem)"),
     ) -> None:
         """Check every finished scene against the size and SHA-256 recorded for each of its files, and the
         merged files against the scenes. Lists missing, changed and extra files; exits 1 when any are found."""
@@ -33,8 +33,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         verdict = ("whole" if not report.problems else
                    f"{report.problems} problem(s), {damaged} damaged scene(s): run the same `mixcount compose` "
                    "to set damaged scenes aside and render them again, `mixcount merge` for the merged files")
-        console.print(f"verified {report.scenes} finished scene(s) and the merged files in {report.seconds:.1f} s "
-                      f"({report.hashed_bytes / 1e6:.1f} MB hashed): {verdict}", highlight=False)
-        out.print(json.dumps(report.to_dict(), indent=2))
+        result(f"verified {report.scenes} finished scene(s) and the merged files in {report.seconds:.1f} s "
+               f"({report.hashed_bytes / 1e6:.1f} MB hashed): {verdict}", report.to_dict(), json_out)
         if report.problems:
             raise typer.Exit(1)

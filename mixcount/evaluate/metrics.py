@@ -32,7 +32,7 @@ from typing import Any, Collection, Iterable, Mapping, Optional, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from mixcount.evaluate.errors import GroundTruthError, PredictionError
+from mixcount.evaluate.errors import EvaluationError, GroundTruthError, PredictionError
 
 ACC_THRESHOLD = 0.1
 NO_VALUE = "(none)"  # group name of rows / pairs that lack the grouping field
@@ -169,16 +169,18 @@ def _row_count(row: Mapping[str, Any], where: str) -> float:
         c = row["count"]
         if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c < 0:
             raise PredictionError(f"{where}: 'count' must be a finite number >= 0, got {c!r}")
-        counts.append(("count", float(c)))
-    for key in ("boxes", "points"):
+        counts.append((f"'count' {float(c):g}", float(c)))
+    for key, one in (("boxes", "box"), ("points", "point")):
         if key in row:
             if not isinstance(row[key], list):
                 raise PredictionError(f"{where}: {key!r} must be a list, got {type(row[key]).__name__}")
-            counts.append((f"{len(row[key])} {key}", float(len(row[key]))))
+            n = len(row[key])
+            counts.append((f"{n} {one if n == 1 else key} in {key!r}", float(n)))
     if not counts:
         raise PredictionError(f"{where}: needs 'count', 'boxes' or 'points'")
     if len({c for _, c in counts}) > 1:
-        raise PredictionError(f"{where}: disagreeing counts: " + ", ".join(f"{k}={v:g}" for k, v in counts))
+        raise PredictionError(f"{where}: its counts disagree (" + " vs ".join(k for k, _ in counts)
+                              + "); give one of them, or make them agree")
     return counts[0][1]
 
 
@@ -298,17 +300,20 @@ class _Tally:
         self.extra += other.extra
 
 
-def _index(rows: Iterable[PredictionRow], what: str) -> dict[Pair, float]:
-    """Rows keyed by (image_id, category_id); a repeated pair is an error (it would be scored twice)."""
-    seen: dict[Pair, PredictionRow] = {}
-    for r in rows:
+def _index(rows: Iterable[tuple[int, PredictionRow]], what: str) -> dict[Pair, float]:
+    """Rows (with their position in the prediction file) keyed by (image_id, category_id); a repeated
+    pair is an error of the prediction file (it would be scored twice) that names both rows."""
+    seen: dict[Pair, tuple[int, PredictionRow]] = {}
+    for i, r in rows:
         key = (r.image_id, r.category_id)
         if key in seen:
-            differing = sorted(k for k in set(seen[key].fields) | set(r.fields) if seen[key].fields.get(k) != r.fields.get(k))
+            first, prev = seen[key]
+            differing = sorted(k for k in set(prev.fields) | set(r.fields) if prev.fields.get(k) != r.fields.get(k))
             hint = f"; the rows differ in {', '.join(differing)}: group them with --by {differing[0]}" if differing else ""
-            raise PredictionError(f"{what}: more than one prediction for image_id {key[0]}, category_id {key[1]}{hint}")
-        seen[key] = r
-    return {k: r.count for k, r in seen.items()}
+            raise PredictionError(f"{what}: rows {first} and {i} both predict image_id {key[0]}, category_id "
+                                  f"{key[1]} (one prediction per pair){hint}")
+        seen[key] = (i, r)
+    return {k: r.count for k, (_, r) in seen.items()}
 
 
 def _tally(gt: GroundTruth, pairs: Sequence[Pair], pred: Mapping[Pair, float], score_absent: bool) -> _Tally:
@@ -361,6 +366,7 @@ def evaluate(
     counted_only: bool = False,
     score_absent: bool = False,
     n_examples: int = 5,
+    pred_source: str = "predictions",
 ) -> Evaluation:
     """Score prediction rows against the ground truth, optionally grouped by a field.
 
@@ -369,14 +375,15 @@ def evaluate(
     When no row carries the field, ``by`` may name a field of the GT categories or images (name,
     size_qualifier, scene_id, ...) or ``image_id`` / ``category_id`` / ``role`` (counted or distractor):
     the GT pairs are then partitioned by that value. ``counted_only`` drops pairs whose category is only
-    present as distractors in that image (the paper's protocol keeps them).
+    present as distractors in that image (the paper's protocol keeps them). ``pred_source`` (the
+    prediction file) is the file an error about the rows names.
     """
     pairs = sorted(p for p in gt.counts if not counted_only or p in gt.counted)
     groups: dict[str, Scores] = {}
     total = _Tally()
     row_mode = by is not None and by not in PAIR_FIELDS and any(by in r.fields for r in rows)
     if by is None or not row_mode:
-        pred = _index(rows, gt.source if by is None else f"predictions (grouped by GT field {by!r})")
+        pred = _index(enumerate(rows), pred_source if by is None else f"{pred_source} (grouped by GT field {by!r})")
         if by is not None and by not in PAIR_FIELDS:
             known = any(by in c for c in gt.categories.values()) or any(by in i for i in gt.images.values())
             if not known:
@@ -396,11 +403,11 @@ def evaluate(
                 sub.update(absent[value])
                 groups[value] = _tally(gt, parts[value], sub, score_absent).scores()
     else:
-        by_value: dict[str, list[PredictionRow]] = defaultdict(list)
-        for r in rows:
-            by_value[_label(r.fields.get(by))].append(r)
+        by_value: dict[str, list[tuple[int, PredictionRow]]] = defaultdict(list)
+        for i, r in enumerate(rows):
+            by_value[_label(r.fields.get(by))].append((i, r))
         for value in sorted(by_value):
-            t = _tally(gt, pairs, _index(by_value[value], f"predictions with {by}={value}"), score_absent)
+            t = _tally(gt, pairs, _index(by_value[value], f"{pred_source}, rows with {by}={value}"), score_absent)
             groups[value] = t.scores()
             total.merge(t)
     return Evaluation(
@@ -415,6 +422,17 @@ def perfect_predictions(gt: GroundTruth, **fields: Any) -> list[dict[str, Any]]:
     return [
         {"image_id": i, "category_id": c, "count": n, **fields} for (i, c), n in sorted(gt.counts.items())
     ]
+
+
+def load_reference(reference: str | Path, *, split: str, evaluated: GroundTruth) -> GroundTruth:
+    """The mean baseline's reference: a COCO file, or split ``split`` (train, as a rule) of a dataset
+    folder. The split being evaluated is refused: its own mean count would leak the answer."""
+    ref = load_ground_truth(reference, split=split)
+    if Path(ref.source).resolve() == Path(evaluated.source).resolve():
+        raise EvaluationError(
+            f"--reference {reference} reads {ref.source}, the very split being evaluated: its mean count would "
+            "leak the answer; give the training split (a dataset folder's train split is read by default)")
+    return ref
 
 
 def mean_predictions(gt: GroundTruth, reference: GroundTruth | None = None, **fields: Any) -> list[dict[str, Any]]:

@@ -44,6 +44,15 @@ def _folder_layouts() -> tuple[ModuleType, ...]:
     return tuple(sorted(found, key=lambda m: m.PRIORITY))
 
 
+# Model formats ingest does not read, found in real libraries: a walk lists them (``TreeWalker.skipped``,
+# ``discover(skipped=...)``) instead of passing over them without a word. Convert them to GLB first.
+UNREAD_MODEL_FORMATS = {
+    ".fbx": "Autodesk FBX", ".dae": "COLLADA", ".blend": "Blender file", ".3ds": "3ds Max 3DS", ".max": "3ds Max",
+    ".c4d": "Cinema 4D", ".ma": "Maya ASCII", ".mb": "Maya binary", ".abc": "Alembic", ".x3d": "X3D",
+    ".wrl": "VRML", ".3mf": "3MF", ".off": "OFF", ".lwo": "LightWave", ".skp": "SketchUp", ".step": "STEP CAD",
+    ".stp": "STEP CAD", ".iges": "IGES CAD", ".igs": "IGES CAD",
+}
+
 FOLDER_LAYOUTS = _folder_layouts()
 # every layout name ``discover`` accepts ("auto" reads each folder by itself)
 LAYOUTS = ("auto", *sorted(m.NAME for m in FOLDER_LAYOUTS + (objaverse,)), folder_layout.NAME)
@@ -57,6 +66,7 @@ class TreeWalker:
         self.layout = layout
         self.side = side
         self._licences: dict[Path, tuple[str, Path] | None] = {}
+        self.skipped: list[tuple[Path, str]] = []  # (model file in a format not read, why)
 
     def _folder_licence(self, folder: Path) -> tuple[str, Path] | None:
         if folder not in self._licences:
@@ -145,6 +155,9 @@ class TreeWalker:
                 subdirs.append(path)
             elif is_file and path.suffix.lower() in MESH_EXTENSIONS:
                 models.append(path)
+            elif is_file and path.suffix.lower() in UNREAD_MODEL_FORMATS:
+                self.skipped.append((path, f"{UNREAD_MODEL_FORMATS[path.suffix.lower()]} ({path.suffix.lower()}) "
+                                           "is not a format ingest reads"))
         if models:
             yield from folder_layout.read_models(self, folder, entries, models)
         for sub in subdirs:
@@ -152,9 +165,11 @@ class TreeWalker:
 
 
 def discover(paths: Iterable[Path | str], *, layout: str = "auto",
-             metadata_files: Iterable[Path | str] = ()) -> list[Candidate]:
+             metadata_files: Iterable[Path | str] = (),
+             skipped: list[tuple[Path, str]] | None = None) -> list[Candidate]:
     """Every object under ``paths`` (sorted walk, duplicates removed); a missing path, an unknown
-    layout or an unusable ``--metadata`` file is a CatalogError."""
+    layout or an unusable ``--metadata`` file is a CatalogError. Model files a walk passes over (formats
+    in :data:`UNREAD_MODEL_FORMATS`) are appended to ``skipped`` as (path, reason) when it is given."""
     if layout not in LAYOUTS:
         raise CatalogError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     side = objaverse.SideMetadata(Path(p) for p in metadata_files)
@@ -164,12 +179,11 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
         if not os.path.lexists(path):
             raise CatalogError(f"path not found: {raw}")
         path = path.resolve()
+        walker = TreeWalker(path if path.is_dir() else path.parent, layout, side)
         if path.is_dir():
-            walker = TreeWalker(path, layout, side)
             own = walker.object_at(path)
             items: Iterable[Candidate] = [own] if own is not None else walker.walk(path)
         elif path.is_file():
-            walker = TreeWalker(path.parent, layout, side)
             items = [walker.file_object(path)]
         else:
             try:
@@ -180,6 +194,8 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
                 items = [broken_path_candidate(path, exc)]
         for cand in items:
             found.setdefault((cand.source, cand.source_id), cand)
+        if skipped is not None:
+            skipped.extend(walker.skipped)
     return list(found.values())
 
 
