@@ -10,7 +10,7 @@ import typer
 
 from mixcount.commands.common import RichProgress, console, out, state
 from mixcount.config import CaptionsConfig
-from mixcount.errors import CatalogError, ConfigError
+from mixcount.errors import CaptionError, CatalogError, ConfigError
 
 
 def make_captioner(kind: str, captions: CaptionsConfig):  # type: ignore[no-untyped-def]
@@ -71,8 +71,24 @@ def caption_cmd(
         + (f"; excluded {summary.excluded}" if dedupe else "; collisions kept (--keep-collisions)"),
         highlight=False,
     )
+    for entry in summary.warnings:
+        text = "; ".join(f"{w['tier']}: {w['kind']} ({w['detail']})" for w in entry["warnings"])
+        console.print(f"caption check: object {entry['object_id']} {entry['name']}: {text}", highlight=False)
+    check = summary.caption_check
+    kinds = ", ".join(f"{k} {v}" for k, v in check.get("by_kind", {}).items() if v) or "none"
+    console.print(
+        f"caption check: {check.get('objects_warned', 0)} of {check.get('objects_checked', 0)} captioned active "
+        f"objects have warnings ({kinds})",
+        highlight=False,
+    )
     if json_out:
         out.print(json.dumps(summary.as_dict(), sort_keys=True))
+    if summary.failed and summary.failed == summary.objects and not summary.captioned and not summary.skipped:
+        first = summary.failures[0]["error"] if summary.failures else ""
+        raise CaptionError(
+            f"every object failed to caption ({summary.failed} of {summary.objects}, captioner "
+            f"{summary.captioner}); first error: {first}"
+        )
 
 
 def split_cmd(

@@ -42,6 +42,7 @@ TEMPLATE = Path(__file__).with_name("sheet_template.html")
 FLAG_SHORT = {
     "exact_duplicate": "EXACT", "near_duplicate_geometry": "GEOM", "near_duplicate_appearance": "LOOK",
     "degenerate": "DEGEN", "size_outlier": "SIZE", "caption_collision": "CAPTION", "mesh_quality": "MESH",
+    "colour_variant": "VARIANT", "possible_copy": "COPY?",
 }
 SCORED = ("mesh_quality",)  # flags whose score the PNG sheet prints (a warning's severity)
 
