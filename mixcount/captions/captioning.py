@@ -60,6 +60,9 @@ class CaptionSummary:
     excluded: int = 0
     collisions_by_tier: dict[str, int] = field(default_factory=dict)
     failures: list[dict[str, Any]] = field(default_factory=list)
+    # the caption check (mixcount.captions.check) over every active object's active captions after the run
+    caption_check: dict[str, Any] = field(default_factory=dict)
+    warnings: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -182,7 +185,21 @@ def caption_catalog(
     flag_collisions(catalog, summary=summary)
     if dedupe:
         summary.excluded = dedupe_collisions(catalog)
+    run_caption_check(catalog, summary)
     return summary
+
+
+def run_caption_check(catalog: Catalog, summary: CaptionSummary) -> None:
+    """Fill ``summary.caption_check`` (counts per kind) and ``summary.warnings`` (per warned object)."""
+    from mixcount.captions.check import check_catalog, summarise_warnings
+
+    with catalog.session() as session:
+        found = check_catalog(session)
+        names = {oid: name for oid, name in session.execute(
+            select(CatalogObject.id, CatalogObject.name).where(CatalogObject.id.in_(list(found))))}
+    summary.caption_check = summarise_warnings(found)
+    summary.warnings = [{"object_id": oid, "name": names.get(oid), "warnings": ws}
+                        for oid, ws in sorted(found.items()) if ws]
 
 
 def _measure_and_caption(captioner: Captioner, item: CaptionInput, colour_source: str) -> CaptionResult:

@@ -351,9 +351,9 @@ class HttpCaptioner:
             try:
                 response = self.client.post(self.url, json=body, headers=self._headers(), timeout=self.config.timeout_s)
             except httpx.TimeoutException:
-                last = f"timed out after {self.config.timeout_s:g} s"
+                last = f"timed out after {self.config.timeout_s:g} s ({self.url})"
             except httpx.TransportError as exc:
-                last = f"connection error: {type(exc).__name__}"
+                last = self.redact(f"connection error to {self.url}: {type(exc).__name__}: {exc}")
             else:
                 status = response.status_code
                 if status == 200:

@@ -2,10 +2,13 @@
 
 Nothing here is canned per object: every word comes from a fact.
 
-* noun: the catalog category, refined by the object's name tokens ("Ball_B07X_Volleyball" -> "volleyball");
+* noun phrase: from the person-written name ("Red coffee mug" -> "coffee mug"), bookkeeping, ids, colour
+  and size words dropped; the category only when the name has none, e.g. a DTC folder name
+  ("Ball_B07X_Volleyball" -> "volleyball"), see :mod:`mixcount.captions.nouns`. Never name + category;
 * colours: names of the dominant colours counted over the canonical render's object pixels (or over
   colours sampled on the model's surface when no render exists), see :mod:`mixcount.captions.colours`;
-* size class and measured dimensions from the real bounding box (metres, Z-up);
+* measured dimensions from the real bounding box (metres, Z-up), in the detailed tier only: scenes rescale
+  objects, so absolute size words are noise (a resized pair gets "larger"/"smaller" at scene time);
 * shape cues from bounding-box ratios (elongated, flat, compact), the fill ratio volume / box volume of a
   watertight mesh (boxy, cylindrical, round, irregular) and the surface (closed or open, faceted);
 * surface finish from the spread of luminance over the object's pixels (plain / patterned).
@@ -18,10 +21,9 @@ from __future__ import annotations
 import hashlib
 import json
 
-from mixcount.captions.base import CaptionInput, CaptionResult, name_tokens
-from mixcount.captions.colours import NAMES
+from mixcount.captions.base import CaptionInput, CaptionResult
+from mixcount.captions.nouns import noun_phrase
 
-_COLOUR_WORDS = {w for n in NAMES for w in n.split()}
 _CONTAINERS = {"plate", "tray", "bowl"}
 
 
@@ -80,24 +82,6 @@ def shape_cues(item: CaptionInput) -> tuple[str | None, str | None]:
     return proportion, form
 
 
-def _noun(item: CaptionInput) -> tuple[list[str], str]:
-    """(modifiers, head noun): the name token containing the category wins as head noun."""
-    category = item.category.replace("_", " ").strip() or "object"
-    cat_words = category.split()
-    head = cat_words[-1]
-    tokens = [t for t in name_tokens(item.name) if t not in cat_words]
-    refined = [t for t in tokens if head in t and t != head]
-    if refined:
-        head = refined[-1]
-        tokens = [t for t in tokens if t != head]
-    modifiers = cat_words[:-1] + [t for t in tokens if t not in _COLOUR_WORDS and t not in cat_words]
-    seen: list[str] = []
-    for t in modifiers:
-        if t not in seen and t != head:
-            seen.append(t)
-    return seen[-2:], head
-
-
 def _distinct_colours(names: tuple[str, ...]) -> list[str]:
     """Colour names without near-repeats ("light grey" after "grey" reads as one colour)."""
     kept: list[str] = []
@@ -151,83 +135,75 @@ class StubCaptioner:
         self.prompt_version = prompt_version
 
     def caption(self, item: CaptionInput) -> CaptionResult:
-        modifiers, head = _noun(item)
-        size = size_class(max(item.dims))
+        phrase = noun_phrase(item.name, item.category)
+        noun_words = list(phrase.words)
         proportion, form = shape_cues(item)
         finish = _finish(item)
         colours = item.colours
-        noun_phrase = " ".join(modifiers + [head])
-
-        # short: 2-5 words = colour(s) + one cue + noun phrase, dropping the least specific words first.
         named = _distinct_colours(colours.names)
-        two = named[:2]
-        one = named[:1]
-        cue = [finish] if finish == "patterned" else ([form] if form else ([proportion] if proportion else []))
-        noun_words = noun_phrase.split()
+
+        # short: 2-5 words = up to two colours + "patterned" + the noun phrase; no size word (scenes rescale
+        # objects). Words are dropped least specific first: the pattern word, the second colour, then the
+        # compound's first words; the head noun always stays.
+        pattern = ["patterned"] if finish == "patterned" else []
         candidates = [
-            _words(two, cue, noun_words),
-            _words(two, noun_words),
-            _words(two, noun_words[-1:]),
-            _words(one, cue, noun_words),
-            _words(one, noun_words[-2:]),
-            _words(one, noun_words[-1:]),
-            _words([size], noun_words[-1:]),
+            _words(named[:2], pattern, noun_words),
+            _words(named[:2], noun_words),
+            _words(named[:1], pattern, noun_words),
+            _words(named[:1], noun_words),
+            _words(named[:1], noun_words[-2:]),
+            _words(named[:1], noun_words[-1:]),
         ]
-        short_words = next(c for c in candidates if 2 <= len(c) <= 5 or c is candidates[-1])
+        short_words = next((c for c in candidates if 2 <= len(c) <= 5), None)
+        if short_words is None:  # no colour measured and a one-word noun: a measured shape cue in front
+            cue = [w for w in (form, proportion, "plain") if w][:1]
+            short_words = _words(cue, noun_words[-1:])
         short = " ".join(short_words)
 
-        # concise: 5-10 words = size + colours + noun + "with a <cue> <cue> shape/finish".
-        colour_text = _colour_phrase(colours.names, "concise")
+        # concise: 5-10 words = colours + noun phrase + "with a <cues> shape" (or finish / surface).
         features = [w for w in (proportion, form) if w]
-        tail = (
-            f"with {_article(features[0])} {' '.join(features)} shape"
-            if features
-            else (f"with {_article(finish)} {finish} finish" if finish else "")
-        )
-        first_colour = one[0] if one else ""
-        options = [
-            (size, colour_text, noun_phrase, tail),
-            (size, colour_text, noun_words[-1], tail),
-            (size, _colour_phrase(colours.names, "pair"), noun_phrase, tail),
-            (size, _colour_phrase(colours.names, "pair"), noun_words[-1], tail),
-            (size, first_colour, noun_words[-1], tail),
-            (size, first_colour, noun_words[-1]),
-        ]
-        candidates_c = [" ".join(p for p in opt if p).split() for opt in options]
-        concise_words = next((c for c in candidates_c if 5 <= len(c) <= 10), None)
+        tails = []
+        if features:
+            tails.append(f"with {_article(features[0])} {' '.join(features)} shape")
+        if finish:
+            tails.append(f"with {_article(finish)} {finish} finish")
+        surface = "closed" if item.watertight else "open" if item.watertight is False else None
+        if surface:
+            tails.append(f"with {_article(surface)} {surface} surface")
+        options = []
+        for colour_text in (_colour_phrase(colours.names, "concise"), _colour_phrase(colours.names, "pair"),
+                            " ".join(named[:1])):
+            for nw in (noun_words, noun_words[-2:], noun_words[-1:]):
+                for tail in tails + [""]:
+                    options.append([w for w in f"{colour_text} {' '.join(nw)} {tail}".split() if w])
+        concise_words = next((c for c in options if 5 <= len(c) <= 10), None)
         if concise_words is None:
-            concise_words = min(candidates_c, key=len)
-        if len(concise_words) < 5:
-            surface = "closed" if item.watertight else "open" if item.watertight is False else "solid"
-            concise_words += f"with {_article(surface)} {surface} surface".split()
+            concise_words = max((c for c in options if len(c) <= 10), key=len, default=noun_words[-1:])
+            if len(concise_words) < 5:
+                concise_words = concise_words + "with no measured colour".split()
         concise = " ".join(concise_words[:10])
         concise = concise[:1].upper() + concise[1:]
 
-        # detailed: two sentences with the measured facts.
+        # detailed: the measured facts (finish, colours with their shares, proportions, size, surface).
         x, y, z = item.dims
         length, width = max(x, y), min(x, y)
-        first = " ".join(
-            p
-            for p in (
-                _article(size).capitalize(),
-                size,
-                finish if finish else "",
-                colour_text,
-                noun_phrase,
-            )
-            if p
-        )
+        colour_text = _colour_phrase(colours.names, "concise")
+        lead = " ".join(p for p in (finish or "", colour_text, " ".join(noun_words)) if p)
+        first = f"{_article(lead).capitalize()} {lead}"
         if features:
             first += f" with {_article(features[0])} {' and '.join(features)} shape"
-        if item.category in _CONTAINERS:
+        if phrase.head in _CONTAINERS or item.category in _CONTAINERS:
             first += ", used as a container"
-        surface = (
+        if len(colours.names) >= 2 and colours.shares:
+            first += f", {round(colours.shares[0] * 100):d} % {colours.names[0]}"
+        surface_text = (
             "a closed, watertight surface"
             if item.watertight
             else "an open, non-watertight surface" if item.watertight is False else "a scanned surface"
         )
         second = (
-            f"It measures about {_length(length)} by {_length(width)} across and {_length(z)} tall, with {surface}."
+            f"It measures about {_length(length)} by {_length(width)} across and {_length(z)} tall, "
+            f"with {surface_text}."
         )
         detailed = f"{first}. {second}"
         raw = json.dumps(
@@ -236,6 +212,8 @@ class StubCaptioner:
                 "concise": concise,
                 "detailed": detailed,
                 "facts": item.facts(),
+                "noun_phrase": {"words": list(phrase.words), "source": phrase.source,
+                                "dropped": list(phrase.dropped)},
                 "colours": colours.as_dict(),
             },
             sort_keys=True,
