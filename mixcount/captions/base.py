@@ -59,6 +59,12 @@ def display_name(obj: Any) -> str:
     return obj.name or ""
 
 
+def _name_hint(name: str, category: str) -> str:
+    from mixcount.captions.nouns import noun_phrase
+
+    return noun_phrase(name, category).text()
+
+
 @dataclass(frozen=True)
 class CaptionInput:
     """Everything a captioner may use about one object (metres, Z-up)."""
@@ -126,7 +132,8 @@ class CaptionInput:
         """JSON-able facts (no paths): what an LLM prompt is told besides the image."""
         return {
             "category": self.category,
-            "name": " ".join(name_tokens(self.name)) or self.name,
+            # what a person called it, bookkeeping (ids, source tags, colour and size words) dropped
+            "name": _name_hint(self.name, self.category),
             "dimensions_cm": [round(d * 100.0, 1) for d in self.dims],
             "watertight": self.watertight,
             "textured": self.textured,

@@ -13,6 +13,9 @@ Every active caption set is checked after ``catalog caption`` (stub and http ali
 * ``id_fragment``: a token with a digit (an id, a version, a catalogue number such as ``B07Z5P84J2``) or a
   source tag (``PartNet``, ``high-res``, ``convex hull``, ``recolour``...); in the detailed tier a number
   followed by a unit ("24 cm", "70 %") is a measurement, not an id;
+* ``size_word``: an absolute size word in the short or concise tier ("large", "hand-sized", "mini"): scenes
+  rescale every object, so it describes nothing in the image (a resized pair gets "larger"/"smaller" at
+  scene time);
 * ``word_bounds``: a tier outside the word bounds of its captioner (``STUB_WORD_BOUNDS`` for the stub,
   ``LLM_WORD_BOUNDS`` for answers of an LLM);
 * ``same_as_variant``: a tier identical (``normalise_caption``) to that of a colour variant of the object
@@ -34,8 +37,13 @@ from mixcount.catalog.naming import singular
 from mixcount.scene.caption_text import normalise_caption
 
 VARIANT_KIND = "colour_variant"
-WARNING_KINDS = ("missing_noun", "category_appended", "repeated_word", "id_fragment", "word_bounds",
+WARNING_KINDS = ("missing_noun", "category_appended", "repeated_word", "id_fragment", "size_word", "word_bounds",
                  "same_as_variant")
+# What an answer of an LLM must not carry (it gets one repair request naming them): the form the prompt asks.
+ANSWER_BLOCKING = frozenset({"category_appended", "repeated_word", "id_fragment", "size_word"})
+_SIZE_WORD = re.compile(
+    r"(?<![\w-])(?:tiny|small|large|big|huge|giant|mini|miniature|medium|oversized|jumbo|massive|enormous|little|"
+    r"[a-z]+-siz(?:e|ed))(?![\w-])", re.IGNORECASE)
 _STOP = frozenset({"a", "an", "the", "and", "with", "of", "in", "on", "to", "its", "it", "is", "by", "at", "for",
                    "as", "from", "about", "across", "tall", "has", "shape", "surface", "finish"})
 _UNITS = frozenset({"cm", "mm", "m", "%", "kg", "g", "in", "inch", "inches", "degrees", "percent", "x"})
@@ -85,6 +93,9 @@ def check_tiers_text(
                 if tacked:
                     out.append({"kind": "category_appended", "tier": tier,
                                 "detail": f"category word {tacked[0]!r} beside the noun"})
+            sizes = _SIZE_WORD.findall(text)
+            if sizes:
+                out.append({"kind": "size_word", "tier": tier, "detail": f"absolute size {sizes[0].lower()!r}"})
             content = [singular(w) for w in lower if w not in _STOP and not w.isdigit()]
             repeats = sorted({w for w in content if content.count(w) > 1})
             if repeats:

@@ -44,6 +44,7 @@ import httpx
 import numpy as np
 
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
+from mixcount.captions.check import ANSWER_BLOCKING, check_tiers_text
 from mixcount.config import CaptionsConfig
 from mixcount.errors import CaptionRequestError, ConfigError
 
@@ -55,12 +56,18 @@ RETRY_STATUSES = frozenset({408, 409, 429})
 
 SYSTEM_PROMPT = (
     "You describe one physical object, photographed alone on a white background, for an object-counting "
-    "dataset. Answer with JSON holding three fields. short: 2 to 5 words naming colour or material and the "
-    "object (e.g. 'gold paneled volleyball'). concise: 5 to 10 words (e.g. 'Shiny golden volleyball with "
-    "dark seams'). detailed: one or two sentences on colours, materials, markings, text and shape (e.g. "
-    "'Shiny golden volleyball features segmented panels joined by dark seams, displaying a smooth and "
-    "reflective surface.'). Describe only what is visible and what tells this object apart from similar "
-    "ones; do not mention the background, the photograph, or sizes in units."
+    "dataset whose prompts must tell similar objects apart. Answer with JSON holding three fields. "
+    "short: 2 to 5 words = the colours (or pattern, material) and the noun phrase a person would call the "
+    "object, as seen in the image (e.g. 'gold paneled volleyball', 'red coffee mug', 'camo patterned "
+    "basketball'). concise: 5 to 10 words, the same noun phrase with colours, pattern or a visible part (e.g. "
+    "'Shiny golden volleyball with dark seams'). detailed: one or two sentences on colours, pattern, "
+    "materials, markings, text, parts and shape (e.g. 'Shiny golden volleyball features segmented panels "
+    "joined by dark seams, displaying a smooth and reflective surface.'). Name the object with a specific "
+    "noun (mug, soccer ball, fire hydrant), never with a broad category (kitchenware, sports, food, toy, "
+    "furniture, animal, tool) and never add the category after the noun. No absolute size words (large, "
+    "small, hand-sized, mini) and no sizes in units: every object is rescaled in the images. No ids, "
+    "numbers, file or source names (high-res, copy, recolour, PartNet). Do not repeat a word within the "
+    "short or the concise text. Do not mention the background or the photograph."
 )
 
 JSON_SCHEMA: dict[str, Any] = {
@@ -284,7 +291,8 @@ class HttpCaptioner:
         """The original request plus the bad answer and what was wrong with it."""
         note = (
             f"Your previous answer was invalid: {error}. Reply again with only a JSON object with the string "
-            f"fields short (2-5 words), concise (5-10 words) and detailed (1-2 sentences), nothing else."
+            f"fields short (2-5 words), concise (5-10 words) and detailed (1-2 sentences), nothing else, in the "
+            f"form the instructions ask (a specific noun, no category after it, no size words, no ids)."
         )
         fixed = json.loads(json.dumps(body))
         if self.provider == "openai":
@@ -392,6 +400,17 @@ class HttpCaptioner:
             f"gave up after {made} attempts: {last}", attempts=attempts_before + made, retryable=True
         )
 
+    @staticmethod
+    def checked(content: str, item: CaptionInput) -> dict[str, str]:
+        """:meth:`parse` plus the caption check (:mod:`mixcount.captions.check`): an answer that appends a
+        category, repeats a word, carries an id or source tag, or an absolute size word is invalid too."""
+        tiers = HttpCaptioner.parse(content)
+        found = [w for w in check_tiers_text(tiers, name=item.name, category=item.category, captioner="http")
+                 if w["kind"] in ANSWER_BLOCKING]
+        if found:
+            raise ValueError("caption check: " + "; ".join(f"{w['tier']} {w['kind']} ({w['detail']})" for w in found))
+        return tiers
+
     def caption(self, item: CaptionInput) -> CaptionResult:
         body = self.build_body(item)
         attempts = 0
@@ -399,7 +418,7 @@ class HttpCaptioner:
             content, made = self._send(body, item.object_id, attempts)
             attempts += made
             try:
-                tiers = self.parse(content)
+                tiers = self.checked(content, item)
                 return CaptionResult(raw=content, attempts=attempts, **tiers)
             except ValueError as exc:
                 error, bad = str(exc), content
@@ -410,7 +429,7 @@ class HttpCaptioner:
         try:
             content, made = self._send(self.repair_body(body, bad, error), item.object_id, attempts)
             attempts += made
-            tiers = self.parse(content)
+            tiers = self.checked(content, item)
         except _BadAnswer as exc:
             attempts += getattr(exc, "attempts", 1)
             raise CaptionRequestError(

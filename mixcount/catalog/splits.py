@@ -5,8 +5,10 @@
    plurals to singular, the synonym table below) and a class matches when its normalised words are the
    *last* words of the text: the head noun decides, so "orange ball" is a ball, not an orange. The longest
    matching class wins ("bottle cap" over "cap").
-2. Duplicate groups: objects linked by any ``*duplicate*`` flag (exact or near, from curation) or a
-   ``caption_collision`` flag form one group (connected components) that always shares one split. If its
+2. Duplicate groups: objects linked by any ``*duplicate*`` flag (exact or near, from curation), a
+   ``colour_variant`` or ``possible_copy`` flag (one object in two colours; maybe one object from two
+   sources) or a ``caption_collision`` flag form one group (connected components) that always shares one
+   split: a class seen in train must not reach test in another colour. If its
    matched members disagree, the most held-out split wins (test > val > train): an object of a test class
    must never reach train.
 3. Groups without a match are drawn at random (numpy Generator from ``seed``), each with probabilities
@@ -193,8 +195,12 @@ def duplicate_groups(session: Session, object_ids: Iterable[int]) -> list[list[i
     return [g for g in groups if g]
 
 
+GROUP_KINDS = ("caption_collision", "colour_variant", "possible_copy")  # besides every *duplicate* kind
+
+
 def is_group_flag(kind: str) -> bool:
-    return "duplicate" in kind or kind == "caption_collision"
+    """Whether a pair flag of ``kind`` binds its two objects to one split."""
+    return "duplicate" in kind or kind in GROUP_KINDS
 
 
 def _short_captions(session: Session) -> dict[int, str]:
