@@ -178,6 +178,9 @@ class FilterConfig:
     look_d2: float
     look_proportions: float
     look_exposure_gain: float
+    cross_source_d2: float
+    cross_source_proportions: float
+    cross_source_min_pattern: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float

@@ -13,7 +13,7 @@ from test_curate_support import library_catalog, quick_config
 
 from mixcount.catalog.models import CatalogObject, Flag, ReviewDecision
 from mixcount.curation import descriptors as D
-from mixcount.curation.flags import EXCLUDED_MARK, FILTER_KINDS, run_filter
+from mixcount.curation.flags import DUPLICATE_KINDS, EXCLUDED_MARK, FILTER_KINDS, run_filter
 
 
 def state(catalog):
@@ -37,7 +37,10 @@ def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
 
     assert ("exact_duplicate", ids["box_copy"]) in flags_of(catalog, ids["box"])
     assert ("exact_duplicate", ids["box"]) in flags_of(catalog, ids["box_copy"])
-    assert ("near_duplicate_geometry", ids["cyl_recolour"]) in flags_of(catalog, ids["cyl"])
+    # one geometry in other colours: a colour variant both ways, not a duplicate; both stay active
+    assert ("colour_variant", ids["cyl_recolour"]) in flags_of(catalog, ids["cyl"])
+    assert ("colour_variant", ids["cyl"]) in flags_of(catalog, ids["cyl_recolour"])
+    assert not {k for k, _ in flags_of(catalog, ids["cyl"])} & set(DUPLICATE_KINDS)
     assert ("near_duplicate_appearance", ids["ball"]) in flags_of(catalog, ids["ball_big"])
     assert ("near_duplicate_geometry", ids["ball"]) not in flags_of(catalog, ids["ball_big"])  # different size
     assert ("degenerate", None) in flags_of(catalog, ids["flat"])
@@ -49,12 +52,15 @@ def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
     # lower id wins a tie; an image-textured object beats a vertex-coloured one whatever the ids
     keep_box = min(ids["box"], ids["box_copy"])
     assert status[keep_box] == "active" and status[ids["box"] + ids["box_copy"] - keep_box] == "excluded"
-    assert status[ids["cyl_recolour"]] == "active" and status[ids["cyl"]] == "excluded"
+    assert status[ids["cyl_recolour"]] == "active" and status[ids["cyl"]] == "active"
     assert status[ids["flat"]] == "excluded"  # degenerate, filter.exclude_degenerate
     assert status[ids["giant"]] == "active"  # size outliers are flagged, not excluded
     with catalog.session() as s:
-        reason = s.scalar(select(Flag.reason).where(Flag.object_id == ids["cyl"]))
-    assert EXCLUDED_MARK in reason and f"#{ids['cyl_recolour']}" in reason and "D2" in reason
+        reason = s.scalar(select(Flag.reason).where(Flag.object_id == ids["cyl"], Flag.kind == "colour_variant"))
+        dropped = s.scalar(select(Flag.reason).where(Flag.object_id == ids["box"] + ids["box_copy"] - keep_box))
+    assert reason.startswith("colour variant: same shape and size") and "D2" in reason and "colours differ" in reason
+    assert EXCLUDED_MARK not in reason and f"#{ids['cyl_recolour']}" in reason
+    assert EXCLUDED_MARK in dropped and f"#{keep_box}" in dropped
 
 
 def test_filter_idempotent_review_outranks_and_foreign_state_kept(catalog, tmp_path):
@@ -63,6 +69,8 @@ def test_filter_idempotent_review_outranks_and_foreign_state_kept(catalog, tmp_p
     cfg = quick_config()
     first = run_filter(catalog, cfg)
     before = state(catalog)
+    keep_box, drop_box = sorted((ids["box"], ids["box_copy"]))
+    assert before[1][drop_box] == "excluded"
     second = run_filter(catalog, cfg)
     assert state(catalog) == before
     assert second.reactivated == first.excluded and second.excluded == first.excluded
@@ -71,24 +79,24 @@ def test_filter_idempotent_review_outranks_and_foreign_state_kept(catalog, tmp_p
     with catalog.session() as s:
         s.add(Flag(object_id=ids["cone"], kind="caption_collision", score=1.0, reason="same caption", pair_object_id=ids["ring"]))
         s.get(CatalogObject, ids["capsule"]).status = "excluded"  # excluded by someone else, no filter mark
-        s.add(ReviewDecision(object_id=ids["cyl"], decision="accept", reviewer="ana"))  # the filter excluded it
+        s.add(ReviewDecision(object_id=drop_box, decision="accept", reviewer="ana"))  # the filter excluded it
         s.add(ReviewDecision(object_id=ids["ring"], decision="reject", reviewer="ana"))  # clean but rejected
         s.commit()
     run_filter(catalog, cfg)
     flags, status = state(catalog)
     assert (ids["cone"], "caption_collision", ids["ring"]) in flags
     assert status[ids["capsule"]] == "excluded"
-    assert status[ids["cyl"]] == "active" and status[ids["cyl_recolour"]] == "excluded"  # accepted one is the keeper
+    assert status[drop_box] == "active" and status[keep_box] == "excluded"  # accepted one is the keeper
     assert status[ids["ring"]] == "excluded"
     assert {f for f in flags if f[1] in FILTER_KINDS} == {f for f in before[0] if f[1] in FILTER_KINDS}
 
     # a later decision replaces an earlier one
     with catalog.session() as s:
-        s.add(ReviewDecision(object_id=ids["cyl"], decision="reject", reviewer="ben"))
+        s.add(ReviewDecision(object_id=drop_box, decision="reject", reviewer="ben"))
         s.commit()
     run_filter(catalog, cfg)
-    assert state(catalog)[1][ids["cyl"]] == "excluded"
-    assert state(catalog)[1][ids["cyl_recolour"]] == "active"
+    assert state(catalog)[1][drop_box] == "excluded"
+    assert state(catalog)[1][keep_box] == "active"
 
 
 def test_shape_descriptor_known_answers():

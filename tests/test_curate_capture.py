@@ -166,8 +166,8 @@ def test_real_scan_republished_by_other_sources_is_paired(catalog, tmp_path):
     * decimated to a quarter, re-baked at a quarter of the resolution 15 % darker, turned, x0.001;
     * re-baked, cut into four parts with their own origins, turned the other way up (a Y-up/Z-up mix-up).
 
-    All four are one duplicate group; the recolour (another print of one model, same size) is a
-    near-duplicate by geometry only; the cow stays apart."""
+    All four are one duplicate group; the recolour (another print of one model, same size) is a colour
+    variant (geometry rule, other colours), active; the cow stays apart."""
     lib = tmp_path / "lib"
     bunny = real_scan("bunny10k_textured.obj")
     turn = L.rotation_xyz
@@ -199,7 +199,7 @@ def test_real_scan_republished_by_other_sources_is_paired(catalog, tmp_path):
     for a, b in combinations(scans, 2):
         assert "near_duplicate_appearance" in pairs.get(frozenset((a, b)), set()), (a, b, sorted(map(sorted, pairs)))
     recolour = {p: k for p, k in pairs.items() if "bunny_recoloured" in p}
-    assert recolour and all(k == {"near_duplicate_geometry"} for k in recolour.values()), recolour
+    assert recolour and all(k == {"colour_variant"} for k in recolour.values()), recolour
     assert frozenset(("bunny", "bunny_recoloured")) in recolour
     assert not any("cow" in p for p in pairs)
     exposure = [f.reason for f in flags if f.kind == "near_duplicate_appearance"

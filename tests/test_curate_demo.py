@@ -1,5 +1,5 @@
 """The whole curation on the generated demo library, through the CLI, with real bpy renders (64 px):
-every planted exact copy, recolour, rescale, turned-and-rescaled copy, re-tessellated copy, copy under
+every planted recolour is reported as a colour variant pair (both active), every exact copy, rescale, turned-and-rescaled copy, re-tessellated copy, copy under
 another name and source, and copy rebuilt from the surface (remeshed, other units, re-baked, split) is
 flagged with the right pair (recall and precision per trap kind), one object of each planted group is
 kept, the broken files are flagged, at most 4 % of the clean objects carry a duplicate flag, precision
@@ -20,7 +20,7 @@ from mixcount.catalog.db import open_catalog
 from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.cli import main
-from mixcount.curation.flags import DUPLICATE_KINDS, TRAP_KINDS, evaluate_against_ground_truth
+from mixcount.curation.flags import DUPLICATE_KINDS, TRAP_KINDS, VARIANT_TRAPS, evaluate_against_ground_truth
 from mixcount.demo.library import generate_demo_library
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
@@ -46,6 +46,8 @@ def test_demo_library_precision_recall(tmp_path, capsys):
         assert row["precision"] == 1.0, (kind, row)  # a copy is paired with its original only
     assert gt["broken_flagged"] == gt["broken_planted"] == len(truth["broken"])
     assert gt["clean_flag_rate"] <= 0.04, gt["clean_flagged"]
+    assert len(gt["clean_paired"]) <= 2, gt["clean_paired"]  # any pairing: before issue 34, the two dice
+    assert gt["by_trap"]["recolour"]["flags"] == ["colour_variant"] and gt["variant_pairs"] >= 2
     assert gt["precision"] >= 0.95, gt["false_pairs"]
     (tote,) = gt["mesh_quality_planted"]
     assert tote["status"] == "active" and tote["mesh_quality"] > 0.3 and not tote["degenerate"]
@@ -56,10 +58,14 @@ def test_demo_library_precision_recall(tmp_path, capsys):
         with catalog.session() as s:
             by_folder = {Path(o.model_path).parent.name: o for o in s.scalars(select(CatalogObject))}
             planted = []
-            for key, _ in TRAP_KINDS:
+            for key, kind in TRAP_KINDS:
                 for original, twin, *_ in truth[key]:
                     a, b = by_folder[original], by_folder[twin]
                     kinds = set(s.scalars(select(Flag.kind).where(Flag.object_id == b.id, Flag.pair_object_id == a.id)))
+                    if kind in VARIANT_TRAPS:  # one geometry in other colours: a class pair, both kept
+                        assert kinds == {"colour_variant"}, (key, original, twin, kinds)
+                        assert b.status == "active", (original, twin)  # never excluded as a copy
+                        continue
                     assert kinds & set(DUPLICATE_KINDS), (key, original, twin)
                     planted.append((original, twin))
             for group in connected_groups(planted):  # an original and all its copies: one kept

@@ -1,7 +1,8 @@
 """Catalog -> sampler records: the only SQL behind ``mixcount compose``.
 
 :func:`load_pool` reads active objects that have a split (captions from the active caption set, else a
-fallback from name and category; the canonical render, when one exists on disk, as the external exemplar);
+fallback from name and category; the canonical render, when one exists on disk, as the external exemplar;
+its colour variants from the ``colour_variant`` flags of ``catalog filter``);
 :func:`load_environments` / :func:`load_materials` read the ingested
 HDRIs and PBR sets. Broken and excluded objects never enter the pool.
 """
@@ -15,9 +16,47 @@ from typing import Optional
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Environment, Material, Render, Split
+from mixcount.catalog.grouping import connected_groups
+from mixcount.catalog.models import (
+    STATUS_ACTIVE,
+    CaptionSet,
+    CatalogObject,
+    Environment,
+    Flag,
+    Material,
+    Render,
+    Split,
+)
 from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord, fallback_captions
 from mixcount.scene.spec import Captions
+
+COLOUR_VARIANT = "colour_variant"  # mixcount.curation.flags.COLOUR_VARIANT (no import: scene side stays light)
+
+
+def colour_variants(session: Session) -> dict[int, set[int]]:
+    """Object id -> ids of its colour variants (``colour_variant`` flags, both directions), carried
+    through duplicate groups: the kept member of a group is a variant of whatever any member is a variant
+    of (a recolour of an excluded copy is a recolour of the object kept in its place)."""
+    dup_pairs: list[tuple[int, int]] = []
+    var_pairs: list[tuple[int, int]] = []
+    for kind, oid, other in session.execute(
+        select(Flag.kind, Flag.object_id, Flag.pair_object_id).where(Flag.pair_object_id.is_not(None))
+    ):
+        if kind == COLOUR_VARIANT:
+            var_pairs.append((int(oid), int(other)))
+        elif "duplicate" in kind:
+            dup_pairs.append((int(oid), int(other)))
+    group_of: dict[int, list[int]] = {}
+    for group in connected_groups(dup_pairs, members=[i for pair in var_pairs for i in pair]):
+        for i in group:
+            group_of[i] = group
+    out: dict[int, set[int]] = {}
+    for a, b in var_pairs:
+        for x in group_of[a]:
+            out.setdefault(x, set()).update(group_of[b])
+        for y in group_of[b]:
+            out.setdefault(y, set()).update(group_of[a])
+    return {k: v - set(group_of.get(k, [k])) for k, v in out.items()}
 
 
 def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRecord]:
@@ -43,6 +82,7 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
     ):
         if path and Path(path).is_file():
             renders[int(oid)] = str(path)
+    variants = colour_variants(session)
     pool = []
     for obj, obj_split in rows:
         dims = (float(obj.dim_x or 0.0), float(obj.dim_y or 0.0), float(obj.dim_z or 0.0))
@@ -57,6 +97,7 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
                 source_units=obj.source_units, source_up_axis=obj.source_up_axis,
                 render_path=renders.get(int(obj.id)),
                 source=obj.source, source_id=obj.source_id, license=obj.license, container=bool(obj.container),
+                variants=tuple(sorted(variants.get(int(obj.id), ()))),
             )
         )
     return pool

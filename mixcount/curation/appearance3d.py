@@ -483,3 +483,15 @@ def layout_distance(a: SurfaceLook, b: SurfaceLook, *, search_above: float | Non
     start = float(_grid_distances(a.grids[0], colour_grids(b.points, b.colours, [frames[k]]))[0])
     best = min(best, start)
     return min(best, _refine(a.grids[0], b, frames[k], start))
+
+
+def refined_layout_distance(a: SurfaceLook, b: SurfaceLook) -> float:
+    """:func:`layout_distance` with a local rotation refinement of ``b``'s best principal frame, also where
+    the principal moments are distinct. A copy flattened along an axis that is not a principal axis (a
+    re-export squashing the model's up axis) has its principal axes tilted by a few degrees, which moves
+    colours across cells; the refinement turns them back (cross-source copies, :mod:`mixcount.curation.flags`)."""
+    frames, _ = principal_frames(b.points, b.colours)
+    scores = _grid_distances(a.grids[0], b.grids)
+    k = int(np.argmin(scores))
+    best = min(float(scores[k]), layout_distance(a, b))
+    return min(best, _refine(a.grids[0], b, frames[k], float(scores[k])))

@@ -7,14 +7,22 @@ flagged in both directions). Thresholds are the ``[filter]`` section; descriptor
 * ``exact_duplicate``: identical model content (content hash), or the identical mesh (geometry hash) with
   indistinguishable canonical renders.
 * ``near_duplicate_geometry``: the same shape (D2 distance and principal-extent proportions under their
-  thresholds) at the same size, with the same texture layout (edge structure of the renders): a copy that
-  differs only in colour, i.e. a recolour. Shape alone is not enough: every sphere has the same shape.
+  thresholds) at the same size, with the same texture layout (edge structure of the renders) *and* the
+  same colours (renders or surface): a copy. Shape alone is not enough: every sphere has the same shape.
+* ``colour_variant``: the same test with other colours: one object in two colours (a recolour, another
+  print of one mould). Not a duplicate: both stay active, the pair is a hard pair of classes for the
+  sampler and the pair shares one split. Flagged in both directions with the figures.
 * ``near_duplicate_appearance``: the same look, two ways. (a) Canonical renders that look alike (pHash
   and colour histogram): renders are framed scale-free, so a rescaled copy lands here. (b) Whatever the
   orientation: the same surface colours and the same colour layout in the principal frame
   (:mod:`mixcount.curation.appearance3d`), *and* the same shape at any scale (D2 and second-moment
   proportions): a copy turned over (another up axis), rescaled, re-tessellated or re-exported by another
-  source lands here.
+  source lands here. (c) A copy from another source whose shape agrees only loosely (decimated to a few
+  per cent of its faces, flattened by a re-export: ``cross_source_*``) with the same surface colours and
+  layout on a *patterned* surface.
+* ``possible_copy``: the evidence is not sure: a loosely agreeing shape with the same *plain* colour,
+  where the layout has no pattern to confirm it (rule (c) on a plain surface). Flagged for a person
+  (``catalog sheet --only flagged``), never excluded or merged.
 * ``degenerate`` means unusable: unreadable (broken) files, too few faces, (near) zero area, zero volume
   although closed, flat beyond repair (thickness below 1/``max_aspect_ratio`` of the length, along the
   principal axes), a blank render.
@@ -70,9 +78,12 @@ DEGENERATE = "degenerate"
 SIZE_OUTLIER = "size_outlier"
 MESH_QUALITY = "mesh_quality"
 CAPTION_COLLISION = "caption_collision"  # written by captioning, never touched here
+COLOUR_VARIANT = "colour_variant"  # same geometry, other appearance: both stay active (a class pair)
+POSSIBLE_COPY = "possible_copy"  # maybe the same object from another source: for a person, never excluded
 DUPLICATE_KINDS = (EXACT, NEAR_GEOMETRY, NEAR_APPEARANCE)
+RELATION_KINDS = (COLOUR_VARIANT, POSSIBLE_COPY)  # pairings that exclude nothing
 QUALITY_KINDS = (DEGENERATE, SIZE_OUTLIER, MESH_QUALITY)
-FILTER_KINDS = DUPLICATE_KINDS + QUALITY_KINDS
+FILTER_KINDS = DUPLICATE_KINDS + RELATION_KINDS + QUALITY_KINDS
 EXCLUDED_MARK = "[excluded by filter]"
 APPEARANCE_RANK = {"image": 0, "vertex_color": 1, "material": 2, "none": 3}
 
@@ -181,6 +192,18 @@ class LayoutCache:
             self.dirty = True
         return value
 
+    def refined(self, x: _Item, y: _Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float) -> float:
+        """Layout distance after a local rotation refinement, both ways (cross-source copies), cached."""
+        key = self.key(x, y, gain)
+        key = f"refined:{key}" if key is not None else None
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = min(A.refined_layout_distance(first, other), A.refined_layout_distance(other, first))
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
     def save(self) -> None:
         if self.path is None or not self.dirty:
             return
@@ -216,10 +239,18 @@ def _pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | Non
             if d2 <= th.geometry_d2 and prop <= th.geometry_proportions and size <= th.geometry_size and same_layout:
                 score = 1.0 - max(d2 / th.geometry_d2, prop / th.geometry_proportions, size / th.geometry_size) / 2
                 layout = f", edge structure {edge:.2f}" if edge is not None else ""
-                colours = f", colours differ by {col:.2f}" if col is not None else ""
-                found.append(_Found(a.id, b.id, NEAR_GEOMETRY, round(max(0.0, score), 4),
-                                    f"same shape and size (D2 {d2:.3f}, proportions {prop:.3f}, size ratio "
-                                    f"{math.exp(size):.3f}{layout}{colours})"))
+                colours = f", render colours differ by {col:.2f}" if col is not None else ""
+                surface = _surface_colour(x, y, th)
+                colours += f", surface colours by {surface:.3f}" if surface is not None else ""
+                facts = (f"same shape and size (D2 {d2:.3f}, proportions {prop:.3f}, size ratio "
+                         f"{math.exp(size):.3f}{layout}{colours})")
+                same_look = ((col is not None and col <= th.appearance_colour)
+                             or (surface is not None and surface <= th.look_colour))
+                if not same_look:  # one geometry in other colours: a class of its own, not a copy
+                    found.append(_Found(a.id, b.id, COLOUR_VARIANT, round(max(0.0, score), 4),
+                                        f"colour variant: {facts}"))
+                    continue
+                found.append(_Found(a.id, b.id, NEAR_GEOMETRY, round(max(0.0, score), 4), facts))
         if ph is not None and col is not None and ph <= th.appearance_phash and col <= th.appearance_colour:
             score = 1.0 - max(ph / th.appearance_phash, col / th.appearance_colour) / 2
             extra = ""
@@ -231,7 +262,37 @@ def _pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | Non
         surface = _surface_match(x, y, th, layouts)
         if surface is not None:
             found.append(_Found(a.id, b.id, NEAR_APPEARANCE, *surface))
+            continue
+        other = _cross_source(x, y, th, layouts)
+        if other is not None:
+            found.append(_Found(a.id, b.id, *other))
     return found
+
+
+def _surface_colour(x: _Item, y: _Item, th: FilterConfig) -> float | None:
+    """Surface colour transport of two objects, after one bounded brightness factor where it helps."""
+    if x.surface is None or y.surface is None:
+        return None
+    return _colours(x.surface, y.surface, th)[0]
+
+
+def _colours(a: A.SurfaceLook, b: A.SurfaceLook, th: FilterConfig) -> tuple[float, float]:
+    """(colour transport, brightness factor used): as stored, or after one bounded exposure factor (a
+    re-bake under other light), whichever is closer (a factor estimated from two means is noisy near 1)."""
+    gain = A.exposure_gain(a, b, th.look_exposure_gain)
+    col = A.colour_transport(a, b)
+    if gain != 1.0:
+        col_relit = A.colour_transport(a, b, gain)
+        if col_relit < col:
+            return col_relit, gain
+    return col, 1.0
+
+
+def pattern_strength(look: A.SurfaceLook) -> float:
+    """Mean distance of the surface colours from their mean (RGB 0..1): 0 for a plain colour. A colour
+    layout only confirms a pairing where the surface has a pattern to lay out."""
+    colours = np.asarray(look.colours, dtype=np.float64)
+    return float(np.abs(colours - colours.mean(axis=0)).sum(axis=1).mean()) if len(colours) else 0.0
 
 
 def _surface_match(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, str] | None:
@@ -245,14 +306,7 @@ def _surface_match(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -
         return None
     # colours as stored, or after one bounded exposure factor (a re-bake under other light), whichever
     # is closer (a factor estimated from two means is noisy near 1)
-    gain = A.exposure_gain(x.surface, y.surface, th.look_exposure_gain)
-    col = A.colour_transport(x.surface, y.surface)
-    if gain != 1.0:
-        col_relit = A.colour_transport(x.surface, y.surface, gain)
-        if col_relit < col:
-            col = col_relit
-        else:
-            gain = 1.0
+    col, gain = _colours(x.surface, y.surface, th)
     if col > th.look_colour:
         return None
     first = A.relit(x.surface, 1.0 / gain) if gain > 1.0 else x.surface  # the brighter side darkened
@@ -267,6 +321,41 @@ def _surface_match(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -
     return (round(max(0.0, score), 4),
             f"same surface colours and layout from every side (colour {col:.3f}, principal-frame layout {lay:.3f}"
             f"{exposure}) and the same shape at any scale (D2 {d2:.4f}, proportions {mom:.3f}); real sizes differ {size:.2f}x")
+
+
+def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> tuple[str, float, str] | None:
+    """(kind, score, reason) for a copy another source published, whose shape agrees only loosely (hard
+    decimation, a re-export flattening one axis by 10-25 %, other units and up axis), else None.
+
+    The surface colours must pass the duplicate gate (after one brightness factor) and the
+    principal-frame layout too, after a local rotation refinement (a flattened copy's principal axes
+    tilt a few degrees). On a patterned surface that is a duplicate (``near_duplicate_appearance``); on
+    a plain one the layout only repeats the loose shape, so the pair is a ``possible_copy`` for a person.
+    Shape alone never pairs: every ball is a sphere, every box a box, every mug of one mould the same."""
+    if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
+        return None
+    d2, mom = D.d2_distance(x.shape, y.shape), D.moment_distance(x.shape, y.shape)
+    if d2 > th.cross_source_d2 or mom > th.cross_source_proportions:
+        return None
+    col, gain = _colours(x.surface, y.surface, th)
+    if col > th.look_colour:
+        return None
+    first = A.relit(x.surface, 1.0 / gain) if gain > 1.0 else x.surface  # the brighter side darkened
+    other = A.relit(y.surface, gain) if gain < 1.0 else y.surface
+    lay = layouts.refined(x, y, first, other, gain)
+    if lay > th.look_layout:
+        return None
+    pattern = min(pattern_strength(x.surface), pattern_strength(y.surface))
+    size = max(D.size_ratio(x.shape, y.shape), D.size_ratio(y.shape, x.shape))
+    exposure = f", exposure x{gain:.2f}" if abs(gain - 1.0) >= 0.005 else ""
+    facts = (f"surface colours {col:.3f}, principal-frame layout {lay:.3f} (refined){exposure}, pattern {pattern:.3f}; "
+             f"shape agrees loosely (D2 {d2:.4f}, proportions {mom:.3f}: decimated or flattened by a re-export?); "
+             f"real sizes differ {size:.2f}x")
+    score = round(max(0.0, 1.0 - max(col / th.look_colour, lay / th.look_layout, d2 / th.cross_source_d2,
+                                      mom / th.cross_source_proportions) / 2), 4)
+    if pattern >= th.cross_source_min_pattern:
+        return NEAR_APPEARANCE, score, f"copy from another source: {facts}"
+    return POSSIBLE_COPY, score, f"possible copy for review (same plain colour, no pattern to confirm it): {facts}"
 
 
 def mesh_quality_score(fraction: float) -> float:
@@ -452,6 +541,7 @@ def find_ground_truth(objects: Iterable[CatalogObject]) -> Path | None:
     return None
 
 
+VARIANT_TRAPS = ("recolour",)  # trap kinds that are colour variants (a class pair), not duplicates
 TRAP_KINDS = (  # ground_truth.json key -> trap kind
     ("exact_copies", "exact"), ("recolours", "recolour"), ("rescales", "rescale"),
     ("turned_rescales", "turned_rescale"), ("retessellated", "retessellated"), ("other_source", "other_source"),
@@ -462,11 +552,14 @@ TRAP_KINDS = (  # ground_truth.json key -> trap kind
 def evaluate_against_ground_truth(catalog: Catalog, path: Path | None = None) -> dict[str, Any] | None:
     """Precision/recall of duplicate pairs, per trap kind, against a demo library's ground truth.
 
-    Objects are matched by their folder name. A predicted pair is correct when both objects belong to one
-    planted duplicate group (two copies of one original are duplicates of each other too). Per trap kind:
-    recall = planted pairs found; precision = of the predicted pairs that involve the kind's copies, the
-    share that is correct. ``clean`` objects are those in no planted duplicate group and not broken; the
-    share of them carrying any duplicate flag is the false-flag rate (at most 5 % by the issue's bound).
+    Objects are matched by their folder name. A predicted pair (any duplicate kind, ``colour_variant`` or
+    ``possible_copy``) is correct when both objects belong to one planted group (two copies of one
+    original are duplicates of each other too). Per trap kind: recall = planted pairs found with the
+    expected kind (``colour_variant`` for the recolours of :data:`VARIANT_TRAPS`, a duplicate kind for the
+    others); precision = of the predicted pairs that involve the kind's copies, the share that is correct.
+    ``clean`` objects are those in no planted group and not broken; the share of them carrying any
+    duplicate flag is the false-flag rate (at most 5 % by the issue's bound), ``clean_paired`` counts
+    those with any pairing (variants and possible copies too).
     Also: broken files flagged degenerate, and each planted ``mesh_quality`` object's flags and status.
     """
     with catalog.session() as session:
@@ -501,18 +594,25 @@ def evaluate_against_ground_truth(catalog: Catalog, path: Path | None = None) ->
             group_of[name] = k
     predicted: dict[frozenset[str], set[str]] = defaultdict(set)
     flagged_dup: set[str] = set()
+    flagged_any: set[str] = set()
     quality: dict[str, dict[str, float]] = defaultdict(dict)
     for f in flags:
         name = folder_of.get(f.object_id)
-        if f.kind in DUPLICATE_KINDS and f.pair_object_id in folder_of:
+        if f.kind in DUPLICATE_KINDS + RELATION_KINDS and f.pair_object_id in folder_of:
             predicted[frozenset((name, folder_of[f.pair_object_id]))].add(f.kind)
-            flagged_dup.add(name)  # type: ignore[arg-type]
+            flagged_any.add(name)  # type: ignore[arg-type]
+            if f.kind in DUPLICATE_KINDS:
+                flagged_dup.add(name)  # type: ignore[arg-type]
         if f.kind in QUALITY_KINDS:
             quality[name][f.kind] = float(f.score)  # type: ignore[index]
 
     def correct(pair: frozenset[str]) -> bool:
         a, b = tuple(pair)
         return a in group_of and group_of.get(a) == group_of.get(b)
+
+    def expected(pair: frozenset[str], kind: str) -> bool:
+        wanted = (COLOUR_VARIANT,) if kind in VARIANT_TRAPS else DUPLICATE_KINDS
+        return bool(predicted.get(pair, set()) & set(wanted))
 
     hits = [p for p in predicted if correct(p)]
     broken = [b["folder"] for b in truth.get("broken", []) if b["folder"] in id_of]
@@ -523,9 +623,11 @@ def evaluate_against_ground_truth(catalog: Catalog, path: Path | None = None) ->
         pairs = [p for p, k in true_pairs.items() if k == kind]
         copies = {n for n, k in copy_kind.items() if k == kind}
         touching = [p for p in predicted if p & copies]
+        found = sum(expected(p, kind) for p in pairs)
         per_kind[kind] = {
-            "planted": len(pairs), "found": sum(p in predicted for p in pairs),
-            "recall": round(sum(p in predicted for p in pairs) / len(pairs), 4) if pairs else None,
+            "expected": "colour_variant" if kind in VARIANT_TRAPS else "duplicate",
+            "planted": len(pairs), "found": found,
+            "recall": round(found / len(pairs), 4) if pairs else None,
             "precision": round(sum(correct(p) for p in touching) / len(touching), 4) if touching else None,
             "flags": sorted({k for p in pairs for k in predicted.get(p, ())}),
         }
@@ -536,9 +638,9 @@ def evaluate_against_ground_truth(catalog: Catalog, path: Path | None = None) ->
         "pairs_predicted": len(predicted),
         "pairs_correct": len(hits),
         "precision": round(len(hits) / len(predicted), 4) if predicted else 1.0,
-        "recall": round(sum(p in predicted for p in true_pairs) / len(true_pairs), 4) if true_pairs else 1.0,
+        "recall": round(sum(expected(p, k) for p, k in true_pairs.items()) / len(true_pairs), 4) if true_pairs else 1.0,
         "by_trap": per_kind,
-        "missed_pairs": sorted(sorted(p) for p in true_pairs if p not in predicted),
+        "missed_pairs": sorted(sorted(p) for p, k in true_pairs.items() if not expected(p, k)),
         "false_pairs": sorted(sorted(p) for p in predicted if not correct(p)),
         "broken_planted": len(broken),
         "broken_flagged": sum(DEGENERATE in quality.get(b, {}) for b in broken),
@@ -546,6 +648,9 @@ def evaluate_against_ground_truth(catalog: Catalog, path: Path | None = None) ->
         "clean_with_duplicate_flag": len(clean_flagged),
         "clean_flag_rate": round(len(clean_flagged) / len(clean), 4) if clean else 0.0,
         "clean_flagged": clean_flagged,
+        "clean_paired": sorted(n for n in clean if n in flagged_any),
+        "variant_pairs": sum(COLOUR_VARIANT in k for k in predicted.values()),
+        "possible_copies": sum(POSSIBLE_COPY in k for k in predicted.values()),
         "mesh_quality_planted": [
             {"folder": n, "status": status_of[n], "mesh_quality": quality.get(n, {}).get(MESH_QUALITY),
              "degenerate": DEGENERATE in quality.get(n, {})} for n in planted_quality

@@ -62,6 +62,7 @@ class SceneConfig:
     p_same_object_resized: float
     p_same_category: float
     p_other_category: float
+    p_colour_variant: float
     resize_ratio: Range
     spawn_margin: float
     spawn_min_semi_axis: float
@@ -126,6 +127,8 @@ class SceneConfig:
         probs = (self.p_same_object_resized, self.p_same_category, self.p_other_category)
         if any(p < 0 for p in probs) or sum(probs) <= 0:
             raise ConfigError(f"scene class-construction probabilities must be >= 0 with a positive sum: {probs}")
+        if not 0.0 <= self.p_colour_variant < 1.0:
+            raise ConfigError(f"scene.p_colour_variant must lie in [0, 1), got {self.p_colour_variant}")
         if not 0.0 <= self.no_container_probability <= 1.0:
             raise ConfigError("scene.no_container_probability must lie in [0, 1]")
         if self.n_objects[0] < 1 or self.n_classes[0] < 1:

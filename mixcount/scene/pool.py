@@ -34,6 +34,7 @@ class ObjectRecord:
     source_id: Optional[str] = None  # ... its stable key there ...
     license: Optional[str] = None  # ... and the licence text found at ingest
     container: bool = False  # catalog objects.container: may be drawn as the scene's container
+    variants: tuple[int, ...] = ()  # object ids of its colour variants (catalog flag colour_variant)
 
     @property
     def max_dim(self) -> float:

@@ -9,7 +9,10 @@ split; each further class is (a) an existing class's object at a clearly differe
 ``resize_ratio``; both classes of the pair get a "larger"/"smaller" qualifier in place of their
 captions' size word), (b) another object of an existing class's category, or (c) an object of a
 category not yet in the scene, with the configured probabilities; infeasible options are dropped and
-the rest renormalised.
+the rest renormalised. Beside the paper's three, (d) a colour variant of an existing class's object
+(``ObjectRecord.variants``, from the catalog's ``colour_variant`` flags: one geometry in other colours,
+told apart only by the prompt) is taken with probability ``p_colour_variant`` where one is free; the
+paper's three share the rest in their own proportions (:func:`construction_weights`).
 
 Unique prompts: no two objects of one scene (counted classes and distractors) share a caption at any
 tier (compared by :func:`~mixcount.scene.caption_text.normalise_caption`), so every prompt names one class.
@@ -54,7 +57,7 @@ from mixcount.scene.spec import (
     SceneSpec,
 )
 
-CONSTRUCTIONS = ("same_object_resized", "same_category", "other_category")
+CONSTRUCTIONS = ("same_object_resized", "same_category", "other_category", "colour_variant")
 _R = 6  # decimals kept for poses: readable stages, identical bytes
 
 
@@ -134,27 +137,53 @@ def _resized_size(rng: np.random.Generator, base: float, lo: float, hi: float,
     return lo, "smaller"
 
 
+def construction_weights(config: SceneConfig) -> NDArray[Any]:
+    """Weights of :data:`CONSTRUCTIONS` before feasibility: the paper's three in their proportions share
+    ``1 - p_colour_variant``, the colour variant takes ``p_colour_variant``."""
+    paper = np.array([config.p_same_object_resized, config.p_same_category, config.p_other_category], dtype=float)
+    pv = float(config.p_colour_variant)
+    return np.append(paper / paper.sum() * (1.0 - pv), pv)
+
+
+def _variant_options(drafts: list[_ClassDraft], free: list[ObjectRecord]) -> list[tuple[int, list[ObjectRecord]]]:
+    """(class index, its object's free colour variants) for every class that has one."""
+    out = []
+    for i, d in enumerate(drafts):
+        ids = set(d.obj.variants)
+        cands = [o for o in free if o.object_id in ids]
+        if cands:
+            out.append((i, cands))
+    return out
+
+
 def _build_classes(rng: np.random.Generator, config: SceneConfig, eligible: list[ObjectRecord],
                    n_classes: int) -> list[_ClassDraft]:
     s = config.scale
     lo, hi = config.class_size[0] * s, config.class_size[1] * s
     first = eligible[int(rng.integers(len(eligible)))]
     drafts = [_ClassDraft(first, _u(rng, (lo, hi)), "first")]
-    probs = np.array([config.p_same_object_resized, config.p_same_category, config.p_other_category], dtype=float)
+    probs = construction_weights(config)
     while len(drafts) < n_classes:
         used = {d.obj.object_id for d in drafts}
         cats = {d.obj.category for d in drafts}
         taken = frozenset().union(*(caption_keys(d.obj.captions) for d in drafts))
         free = [o for o in eligible if o.object_id not in used and not caption_keys(o.captions) & taken]
         resizable = _resize_options(drafts, lo, hi, config.resize_ratio[0])
-        same_cat = [o for o in free if o.category in cats]
+        # a variant of a class in the scene comes only from option (d), so p_colour_variant is what
+        # decides how often a scene holds the hard pair
+        variant_ids = set().union(*(d.obj.variants for d in drafts))
+        same_cat = [o for o in free if o.category in cats and o.object_id not in variant_ids]
         other_cat = [o for o in free if o.category not in cats]
-        feasible = np.array([bool(resizable), bool(same_cat), bool(other_cat)], dtype=float)
+        variants = _variant_options(drafts, free)
+        feasible = np.array([bool(resizable), bool(same_cat), bool(other_cat), bool(variants)], dtype=float)
         p = probs * feasible
         if p.sum() <= 0:
             break  # the split cannot provide another distinct class
-        choice = CONSTRUCTIONS[int(rng.choice(3, p=p / p.sum()))]
-        if choice == "same_object_resized":
+        choice = CONSTRUCTIONS[int(rng.choice(len(CONSTRUCTIONS), p=p / p.sum()))]
+        if choice == "colour_variant":
+            bi, cands = variants[int(rng.integers(len(variants)))]
+            draft = _ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice, base=bi)
+        elif choice == "same_object_resized":
             bi = resizable[int(rng.integers(len(resizable)))]
             base = drafts[bi]
             size, direction = _resized_size(rng, base.size, lo, hi, config.resize_ratio)
