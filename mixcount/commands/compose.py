@@ -135,7 +135,6 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes written besides rgb.png: instance, class, depth, normal (default: config compose.passes, all four)."),
         no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
         package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
-        mixed_settings: bool = typer.Option(False, "--mixed-settings", help="Add scenes to an OUT whose scenes were composed with other settings (resolution, samples, scene rules, catalog): recorded as another variant in OUT/settings.json; without it such a run is refused."),
         json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
@@ -177,8 +176,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             summary = compose_scenes(pool=pool, config=cfg, out_dir=out_dir.resolve(),
                                      assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n,
                                      environments=tuple(envs), materials=tuple(mats), executor=executor,
-                                     progress=RichProgress(), mixed_settings=mixed_settings,
-                                     catalog=catalog.engine.url.render_as_string(hide_password=True))
+                                     progress=RichProgress())
         finally:
             if executor is not None:
                 executor.close()
