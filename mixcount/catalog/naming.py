@@ -24,6 +24,8 @@ COLOUR_WORDS = {"black", "white", "grey", "gray", "red", "orange", "yellow", "gr
 SIZE_WORDS = {"big", "small", "large", "tiny", "little", "huge", "mini", "medium", "tall", "short", "long", "wide",
               "narrow", "thin", "thick", "xl", "xxl", "xs", "sm", "md", "lg", "giant", "jumbo"}
 NOT_NOUNS = COLOUR_WORDS | SIZE_WORDS | GENERIC_STEMS | {"copy", "new", "old", "ver", "version", "rev", "lod"}
+# "mug_scaled", "vase_painted": a past participle describes the noun (len > 4 and not -eed: bed, seed, speed)
+_PARTICIPLE = re.compile(r"^[a-z]{3,}(?<!e)ed$")
 _ID_TOKEN = re.compile(r"^(?=.*\d)[A-Za-z0-9]{5,}$")  # catalogue ids such as B07Z5P84J2
 
 
@@ -71,11 +73,11 @@ def category_text(value: str) -> str:
 def category_from_stem(stem: str, parent: str) -> str:
     """Plain files and folders named by a person: the noun of the name, its last word that is no colour,
     size, number, id or generic word ('mug_02.glb' -> mug, 'red_block' -> block, 'coffee-mug-02' -> mug,
-    'big ball' -> ball); else the parent folder's noun, else "unknown". One word, so that it is matched to
+    'big ball' -> ball, 'mug_scaled' -> mug); else the parent folder's noun, else "unknown". One word, so that it is matched to
     FSC-147 classes the way :mod:`mixcount.catalog.splits` matches any text: by its head noun."""
     for text in (stem, parent):
         for word in reversed(words_of(text)):
-            if word.isalpha() and len(word) > 1 and word not in NOT_NOUNS:
+            if word.isalpha() and len(word) > 1 and word not in NOT_NOUNS and not _PARTICIPLE.match(word):
                 return singular(word)
     return "unknown"
 

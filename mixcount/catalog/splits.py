@@ -163,6 +163,7 @@ class SplitSummary:
     matched_classes: dict[str, int] = field(default_factory=dict)  # fsc class -> n objects
     conflicts: list[dict[str, Any]] = field(default_factory=list)
     leaks: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # e.g. a split left empty by a small library
 
     def totals(self) -> dict[str, int]:
         return {s: sum(self.counts.get(s, {}).values()) for s in SPLITS}
@@ -176,6 +177,7 @@ class SplitSummary:
             "matched_classes": self.matched_classes,
             "conflicts": self.conflicts,
             "leaks": self.leaks,
+            "warnings": self.warnings,
         }
 
 
@@ -270,6 +272,12 @@ def assign_splits(catalog: Catalog, config: SplitConfig, *, table: FscTable | No
                 summary.matched_classes[fsc] = summary.matched_classes.get(fsc, 0) + 1
         session.commit()
     summary.leaks = check_splits(catalog, table=table if config.use_fsc147 else None)
+    totals = summary.totals()
+    for name in SPLITS:
+        if totals[name] == 0 and summary.targets[name] > 0 and objects:
+            summary.warnings.append(
+                f"split {name!r} has 0 objects (target {summary.targets[name]:.0%} of {len(objects)} active objects): "
+                f"`mixcount compose --split {name}` will find nothing; add objects, or change split.fractions")
     return summary
 
 

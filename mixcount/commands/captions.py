@@ -95,6 +95,7 @@ def split_cmd(
     ctx: typer.Context,
     seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the random part [default: split.seed]."),
     check: bool = typer.Option(False, "--check", help="Only check the stored splits for leaks."),
+    json_out: bool = typer.Option(False, "--json", help="Print the result as JSON on stdout instead of a table."),
 ) -> None:
     """Assign train / val / test per object (FSC-147 matches first); exit non-zero on any leak."""
     from rich.table import Table
@@ -124,23 +125,26 @@ def split_cmd(
                     s, str(c.get("fsc147", 0)), str(c.get("group", 0)), str(c.get("random", 0)), str(totals[s]),
                     f"{totals[s] / n:.0%}", f"{summary.targets[s]:.0%}",
                 )
-            console.print(grid)
+            (console if json_out else out).print(grid)
             if summary.matched_classes:
                 console.print(
                     "FSC-147 matches: "
                     + ", ".join(f"{k} ({table.classes[k]}) x{v}" for k, v in sorted(summary.matched_classes.items())),
                     highlight=False,
                 )
+            for warning in summary.warnings:
+                console.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
             if summary.conflicts:
                 console.print(f"[yellow]{len(summary.conflicts)} duplicate group(s) matched classes of different splits; the most held-out split won[/]")
     finally:
         catalog.close()
-    out.print(json.dumps(payload, sort_keys=True))
+    if json_out:
+        out.print(json.dumps(payload, sort_keys=True))
     if leaks:
         for leak in leaks:
             console.print(f"[bold red]leak:[/] {leak}", highlight=False)
         raise CatalogError(f"{len(leaks)} split leak(s) found")
-    console.print("no leaks across splits", highlight=False)
+    (console if json_out else out).print("no leaks across splits", highlight=False)
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:

@@ -201,7 +201,7 @@ def show_cmd(
         return
     width = max(len(k) for k in record)
     for key, value in record.items():
-        text = json.dumps(value, sort_keys=True) if isinstance(value, (dict, list)) else str(value)
+        text = json.dumps(value, sort_keys=True) if isinstance(value, (dict, list)) else "-" if value is None else str(value)
         out.print(f"{key:<{width}}  {text}")
 
 
