@@ -19,7 +19,7 @@ from mixcount.catalog.models import CatalogObject, ReviewDecision
 from mixcount.cli import main
 from mixcount.curation.flags import run_filter
 from mixcount.curation.review import FORMAT, import_decisions
-from mixcount.curation.sheets import STATUS_COLOURS, collect, safe_json, write_sheets
+from mixcount.curation.sheets import CELL_TEXT_H, STATUS_COLOURS, collect, safe_json, write_sheets
 from mixcount.errors import CatalogError
 
 HOSTILE = "</script><script>window.pwned=1</script><img src=x onerror=\"window.pwned=2\"> & \u2028 'q'"
@@ -42,7 +42,7 @@ def test_png_pages_borders_and_selection(catalog, curated, tmp_path):
         px = np.asarray(im.convert("RGB"))
     header = 34
     for i, entry in enumerate(entries[:6]):  # the frame of each cell has its status colour
-        x, y = (i % 3) * 220 + 3, header + (i // 3) * (220 + 64) + 3
+        x, y = (i % 3) * 220 + 3, header + (i // 3) * (220 + CELL_TEXT_H) + 3
         assert tuple(px[y, x]) == STATUS_COLOURS[entry.status], (i, entry.name, entry.status)
     assert {e.status for e in entries} == {"active", "excluded"}
 

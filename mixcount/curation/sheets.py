@@ -1,7 +1,8 @@
 """`catalog sheet`: PNG contact sheets and one self-contained HTML review page.
 
 * ``sheet_001.png`` ... : grids of canonical renders (``cols`` x ``rows`` per page) with id, name, the
-  short caption when there is one and the flags (``MESH 0.35`` prints the mesh_quality score;
+  three caption tiers under each thumbnail (short, concise, detailed: a person reviews them with the image)
+  and the flags (``MESH 0.35`` prints the mesh_quality score;
   ``CONTAINER`` marks containers), framed in a colour per status (green active, orange excluded, red
   broken). Meant to be read at a glance.
 * ``review.html``: every selected object as a card with its thumbnail (inline base64 JPEG), all three
@@ -44,6 +45,8 @@ FLAG_SHORT = {
     "degenerate": "DEGEN", "size_outlier": "SIZE", "caption_collision": "CAPTION", "mesh_quality": "MESH",
     "colour_variant": "VARIANT", "possible_copy": "COPY?",
 }
+# pixels under each thumbnail: name, the three caption tiers (short; concise in 2 lines; detailed in 4), flags
+CELL_TEXT_H = 142
 SCORED = ("mesh_quality",)  # flags whose score the PNG sheet prints (a warning's severity)
 
 
@@ -152,6 +155,23 @@ def _fit(draw: ImageDraw.ImageDraw, text: str, font: Any, width: int) -> str:
     return text + "…"
 
 
+def _wrap(draw: ImageDraw.ImageDraw, text: str, font: Any, width: int, max_lines: int) -> list[str]:
+    """``text`` broken into at most ``max_lines`` lines of ``width`` pixels (the last cut with an ellipsis)."""
+    lines: list[str] = []
+    line = ""
+    words = text.split()
+    for i, word in enumerate(words):
+        trial = f"{line} {word}".strip()
+        if draw.textlength(trial, font=font) <= width or not line:
+            line = trial
+            continue
+        if len(lines) == max_lines - 1:
+            return lines + [_fit(draw, " ".join([line] + words[i:]), font, width)]
+        lines.append(line)
+        line = word
+    return lines + ([_fit(draw, line, font, width)] if line else [])
+
+
 def _flag_line(flags: list[SheetFlag], container: bool = False) -> str:
     parts = ["CONTAINER"] if container else []
     for f in flags:
@@ -168,7 +188,7 @@ def write_png_sheets(entries: list[SheetEntry], out_dir: Path, *, cols: int = 6,
     out_dir.mkdir(parents=True, exist_ok=True)
     per_page = max(1, cols * rows)
     pages = [entries[i:i + per_page] for i in range(0, len(entries), per_page)] or [[]]
-    border, text_h, header_h = 6, 64, 34
+    border, text_h, header_h = 6, CELL_TEXT_H, 34
     thumb = cell - 2 * border
     f_title, f_name, f_small = _font(18), _font(13), _font(11)
     paths = []
@@ -195,9 +215,17 @@ def write_png_sheets(entries: list[SheetEntry], out_dir: Path, *, cols: int = 6,
                         (cx + border + 2, cy + border + 2))
             tx, ty, tw = cx + border + 4, cy + cell - border + 2, cell - 2 * border - 8
             d.text((tx, ty), _fit(d, f"#{e.id} {e.name}", f_name, tw), fill=(20, 20, 20), font=f_name)
-            short = (e.captions or {}).get("short") or (e.error or "")
-            d.text((tx, ty + 17), _fit(d, short, f_small, tw), fill=(70, 70, 70), font=f_small)
-            d.text((tx, ty + 32), _fit(d, _flag_line(e.flags, e.container), f_small, tw), fill=(170, 40, 30), font=f_small)
+            caps = e.captions or {}
+            short = caps.get("short") or (e.error or "")
+            d.text((tx, ty + 17), _fit(d, short, f_name, tw), fill=(20, 20, 90), font=f_name)
+            y = ty + 34
+            for tier, n_lines, colour in (("concise", 2, (60, 60, 60)), ("detailed", 4, (110, 110, 110))):
+                for line in _wrap(d, caps.get(tier) or "", f_small, tw, n_lines):
+                    d.text((tx, y), line, fill=colour, font=f_small)
+                    y += 13
+                y += 2
+            d.text((tx, ty + 17 + text_h - 36), _fit(d, _flag_line(e.flags, e.container), f_small, tw),
+                   fill=(170, 40, 30), font=f_small)
         path = out_dir / f"sheet_{k:03d}.png"
         sheet.save(path, optimize=True)
         paths.append(path)
