@@ -1,0 +1,89 @@
+"""Copies another source published (issue 34), through the CLI on a real catalog with real bpy renders
+(64 px): the textured bunny scan and three copies decimated to 3-4 % of the faces, flattened 15-20 %
+along one axis, stored in mm / cm / m, turned, re-baked (one 10 % darker, one recoloured); a plain
+yellow cow, its decimated, flattened copy in cm and an olive copy; and 33 clean objects of 11 shape
+families (balls, bottles, mugs, cans, cups, blocks, dice, figurines, cookies, donuts, fruit).
+
+* same-look copies on a patterned surface are duplicates (one kept);
+* the same plain colour on a loosely agreeing shape is a ``possible_copy``: both active, shown by
+  ``catalog sheet --only flagged`` with both thumbnails side by side and the figures;
+* no pair at all between two different objects (before issue 34: none either, and none of the copies);
+* a copy in other colours from another source stays unpaired (shape alone is no evidence)."""
+
+from __future__ import annotations
+
+import json
+from itertools import combinations
+from pathlib import Path
+
+import pytest
+from cross_source_library import COPIES, same_object, write_library
+from sqlalchemy import select
+
+from mixcount.catalog.db import open_catalog
+from mixcount.catalog.models import CatalogObject, Flag
+from mixcount.cli import main
+from mixcount.curation.flags import DUPLICATE_KINDS
+
+pytestmark = [pytest.mark.blender, pytest.mark.slow]
+
+
+def test_copies_from_another_source(tmp_path, capsys):
+    lib = write_library(tmp_path / "lib")
+    db = str(tmp_path / "catalog.db")
+    base = ["--db", db, "--config", "configs/quick.toml", "--set", "render.resolution=64", "--set", "render.samples=2"]
+    assert main(base + ["catalog", "ingest", str(lib)]) == 0
+    assert main(base + ["catalog", "render"]) == 0
+    capsys.readouterr()
+    assert main(base + ["catalog", "filter", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["missing_renders"] == 0 and not summary["descriptor_failures"]
+
+    catalog = open_catalog(db, data_dir="")
+    try:
+        with catalog.session() as s:
+            objs = {o.id: o for o in s.scalars(select(CatalogObject))}
+            folder = {i: Path(o.model_path).parent.name for i, o in objs.items()}
+            status = {folder[i]: o.status for i, o in objs.items()}
+            flags = s.scalars(select(Flag).where(Flag.pair_object_id.is_not(None))).all()
+            ids = {name: i for i, name in folder.items()}
+    finally:
+        catalog.close()
+    pairs: dict[frozenset[str], dict[str, str]] = {}
+    for f in flags:
+        pairs.setdefault(frozenset((folder[f.object_id], folder[f.pair_object_id])), {})[f.kind] = f.reason
+    assert len(status) == 40 and all(n in status for group in COPIES for n in group)
+
+    # no pairing of any kind between two different objects
+    false = sorted(sorted(p) for p in pairs if not same_object(*p))
+    assert false == [], false
+
+    # the same bunny from three sources, patterned surface: duplicates, one kept
+    same_look = ("bunny", "bunny_dec_flat_mm", "bunny_dec_flat_cm_dark")
+    for a, b in combinations(same_look, 2):
+        kinds = pairs.get(frozenset((a, b)), {})
+        assert set(kinds) & set(DUPLICATE_KINDS), (a, b, kinds)
+    assert sorted(status[n] for n in same_look).count("active") == 1
+    reason = pairs[frozenset(("bunny", "bunny_dec_flat_mm"))]["near_duplicate_appearance"]
+    assert reason.startswith("copy from another source") and "proportions" in reason and "refined" in reason
+
+    # the plain cow and its flattened copy: for a person, both active
+    cow = pairs.get(frozenset(("cow_yellow", "cow_yellow_dec_flat_cm")), {})
+    assert set(cow) == {"possible_copy"}, cow
+    assert "same plain colour" in cow["possible_copy"] and "D2" in cow["possible_copy"]
+    assert status["cow_yellow"] == status["cow_yellow_dec_flat_cm"] == "active"
+
+    # another source AND other colours: nothing to go on but a loose shape, left unpaired
+    assert not any("bunny_dec_flat_recoloured" in p or "cow_olive_dec_flat" in p for p in pairs)
+
+    # the review page shows the possible copy with both thumbnails and the figures
+    assert main(base + ["catalog", "sheet", "--out", str(tmp_path / "sheet"), "--only", "flagged", "--json"]) == 0
+    written = json.loads(capsys.readouterr().out)
+    page = (tmp_path / "sheet" / "review.html").read_text()
+    shown = [name for name, i in ids.items() if f'id="obj-{i}"' in page]
+    assert written["objects"] == len(shown) and {*same_look, "cow_yellow", "cow_yellow_dec_flat_cm"} <= set(shown)
+    a, b = ids["cow_yellow"], ids["cow_yellow_dec_flat_cm"]
+    card = page[page.index(f'id="obj-{a}"'):]
+    card = card[:card.index("</article>")] if "</article>" in card else card[:20000]
+    assert 'data-kind="possible_copy"' in card and f'data-pair="{b}"' in card
+    assert f'alt="#{b}"' in card and "data:image/jpeg;base64," in card and "surface colours 0.0" in card
