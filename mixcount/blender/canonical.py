@@ -9,6 +9,12 @@ white in numpy, so background pixels are exactly (255, 255, 255) whatever the vi
 Orthographic framing on the projected vertices makes the render scale-free: the same shape at twice the
 size gives the same picture, which is what the appearance check and a rescaled duplicate rely on.
 
+Vertex colours: Blender's OBJ and PLY importers (and a glTF without a material) store a model's vertex
+colours as a colour attribute but give the mesh no material, so Cycles would render it in the default
+white-grey. :func:`use_vertex_colours` gives such a mesh a Principled material whose base colour is that
+attribute, as the scene render does through the USD asset's ``displayColor`` (mixcount.usd.assets), so an
+external exemplar has the colour of the object it stands for.
+
 Outputs per view: ``<stem>.png`` (RGB on white) and ``<stem>_mask.png`` (8-bit coverage, the film alpha).
 """
 
@@ -61,6 +67,33 @@ def import_model(path: Path) -> list[Any]:
     if not meshes:
         raise RuntimeError(f"{path.name} holds no mesh")
     return meshes
+
+
+def use_vertex_colours(objects: list[Any]) -> int:
+    """Give every mesh that has a colour attribute and no material one whose base colour reads that
+    attribute (the active colour, else the first); returns how many meshes got one. A mesh with a
+    material keeps it: its material says how it looks (as in the USD asset, where a material wins)."""
+    import bpy
+
+    done = 0
+    for obj in objects:
+        mesh = obj.data
+        colours = getattr(mesh, "color_attributes", None)
+        if not colours or any(slot.material is not None for slot in obj.material_slots):
+            continue
+        name = colours.active_color_name or colours[0].name
+        mat = bpy.data.materials.new(f"vertex_colour_{obj.name}")
+        mat.use_nodes = True
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
+        attr = nodes.new("ShaderNodeVertexColor")
+        attr.layer_name = name
+        links.new(attr.outputs["Color"], bsdf.inputs["Base Color"])
+        bsdf.inputs["Roughness"].default_value = 0.5
+        mesh.materials.clear()
+        mesh.materials.append(mat)
+        done += 1
+    return done
 
 
 def world_vertices(objects: list[Any]) -> np.ndarray:
@@ -228,6 +261,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = reset_scene()
     objects = import_model(Path(req.model_path))
+    use_vertex_colours(objects)
     pts = centre_objects(objects)
     configure_render(scene, resolution=req.resolution, samples=req.samples, denoise=req.denoise, threads=req.threads)
     add_lighting(scene, world_strength=req.world_strength, sun_strength=req.sun_strength, azimuth_deg=req.azimuth_deg)

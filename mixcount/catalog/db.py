@@ -14,7 +14,9 @@ refused with one line naming the file and the problem (docs/faults.md).
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -241,12 +243,19 @@ def head_revision() -> str | None:
 
 @dataclass
 class Catalog:
-    """An open, migrated catalog: engine, session factory and the directory for its files."""
+    """An open, migrated catalog: engine, session factory and the directory for its files.
+
+    Several catalogs may share one ``data_dir`` (two database files in one folder, or one configured
+    ``catalog.data_dir``). Files named by a row id or derived from a row's settings (canonical renders,
+    USD assets, staged model links) therefore live in a folder of their own per catalog,
+    ``<kind>/<files_key>/``; files named by a hash of what they hold (collision meshes, proxies, descriptor
+    caches) are shared, since equal names mean equal contents."""
 
     url: str
     engine: Engine
     sessions: sessionmaker[Session]
     data_dir: Path
+    files_key: str
 
     def session(self) -> Session:
         return self.sessions()
@@ -257,11 +266,15 @@ class Catalog:
 
     @property
     def renders_dir(self) -> Path:
-        return self.data_dir / "renders"
+        return self.data_dir / "renders" / self.files_key
 
     @property
     def usd_assets_dir(self) -> Path:
-        return self.data_dir / "usd_assets"
+        return self.data_dir / "usd_assets" / self.files_key
+
+    @property
+    def staged_dir(self) -> Path:
+        return self.data_dir / "staged" / self.files_key
 
     def close(self) -> None:
         self.engine.dispose()
@@ -275,6 +288,25 @@ def data_dir_for(url: str, configured: str) -> Path:
     if parsed.get_backend_name() == "sqlite" and parsed.database and parsed.database != ":memory:":
         return Path(parsed.database).resolve().parent
     return Path("catalog").resolve()
+
+
+def files_key_for(url: str, configured: str) -> str:
+    """The name of this catalog's own folders under its data folder (see :class:`Catalog`): the SQLite
+    file's name without suffix (``catalog.db`` -> ``catalog``), unique among the database files of one
+    folder. When the data folder is configured (shared by catalogs of other folders) or the database is
+    not a SQLite file, a short hash of the database's resolved location follows, so two catalogs never
+    share a key."""
+    parsed = make_url(url)
+    if parsed.get_backend_name() == "sqlite" and parsed.database and parsed.database != ":memory:":
+        path = Path(parsed.database).resolve()
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", path.stem) or "catalog"
+        if not configured:
+            return stem
+        where = str(path)
+    else:
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", parsed.database or parsed.get_backend_name()) or "catalog"
+        where = parsed.render_as_string(hide_password=True)
+    return f"{stem}-{hashlib.sha256(where.encode()).hexdigest()[:8]}"
 
 
 def describe_database_error(url: str, exc: BaseException) -> str:
@@ -320,4 +352,5 @@ def open_catalog(db: str | None, *, data_dir: str, migrate_to_head: bool = True)
             raise CatalogError(f"cannot migrate catalog {_sqlite_file(url) or url}: {exc}") from None
         raise
     sessions = sessionmaker(bind=engine, expire_on_commit=False)
-    return Catalog(url=url, engine=engine, sessions=sessions, data_dir=data_dir_for(url, data_dir))
+    return Catalog(url=url, engine=engine, sessions=sessions, data_dir=data_dir_for(url, data_dir),
+                   files_key=files_key_for(url, data_dir))

@@ -319,7 +319,7 @@ def ingest_paths(
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units
             cand.up_axis = cand.up_axis or ing.omniobject3d_up_axis
-        layouts.stage(cand, catalog.data_dir / "staged")
+        layouts.stage(cand, catalog.staged_dir)
     settings = settings_of(ing)
     max_vertices = proxy_budget(ing)
     max_bytes = ing.max_file_mb * 2**20

@@ -2,8 +2,13 @@
 
 Each active object gets a ``canonical`` view (and ``view_<k>`` extra views when ``render.extra_views`` > 0)
 rendered by bpy in worker processes (:mod:`mixcount.blender.canonical_runner`). Files live under
-``catalog.renders_dir`` as ``obj_<id>.png`` (RGB on pure white) plus ``obj_<id>_mask.png`` (coverage);
-rows in table ``renders`` record path, size, the model's content hash and a hash of the render settings.
+``catalog.renders_dir`` (``renders/<catalog>/`` beside the database: the catalog's own folder, since row ids
+repeat between catalogs that share a folder) as ``obj_<id>.png`` (RGB on pure white) plus
+``obj_<id>_mask.png`` (coverage); rows in table ``renders`` record path, size, the model's content hash
+and a hash of the render settings. A render stored outside the catalog's own folder (catalogs from
+before per-catalog folders wrote ``renders/obj_<id>.png``, a file another catalog in the same folder may
+have overwritten) still resolves, but counts as stale: the next ``catalog render`` renders it again into
+the catalog's folder.
 
 Resumable: an object is skipped when every view's row matches its current content hash and the current
 settings hash and the files exist. A failed object gets a row with ``error`` (reason) and is retried on
@@ -26,7 +31,7 @@ from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObjec
 from mixcount.config import RenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
 
-RENDER_VERSION = "canonical-v1"  # bump when the renderer changes what a render looks like
+RENDER_VERSION = "canonical-v2"  # bump when the renderer changes what a render looks like (v2: vertex colours)
 SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
                 "world_strength", "sun_strength")
 
@@ -86,11 +91,13 @@ def canonical_render_path(session: Session, object_id: int) -> Path | None:
     return Path(row.path)
 
 
-def _up_to_date(rows: dict[str, Render], obj: CatalogObject, views: list[str], shash: str) -> bool:
+def _up_to_date(rows: dict[str, Render], obj: CatalogObject, views: list[str], shash: str, own_dir: Path) -> bool:
     for view in views:
         row = rows.get(view)
         if row is None or row.error or not row.path or not Path(row.path).is_file():
             return False
+        if Path(row.path).parent != own_dir.resolve():
+            return False  # a shared folder of an older catalog: possibly another catalog's picture
         if row.model_hash != obj.content_hash or row.settings_hash != shash:
             return False
     return True
@@ -132,7 +139,7 @@ def render_catalog(
         for obj in session.scalars(query):
             summary.objects += 1
             rows = {r.view: r for r in session.scalars(select(Render).where(Render.object_id == obj.id))}
-            if not force and _up_to_date(rows, obj, views, shash):
+            if not force and _up_to_date(rows, obj, views, shash, out_dir):
                 summary.skipped += 1
                 continue
             key = str(obj.id)

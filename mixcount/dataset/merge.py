@@ -45,10 +45,11 @@ from mixcount.dataset.attribution import (
 )
 from mixcount.dataset.external_exemplars import CrossSceneExemplars
 from mixcount.dataset.manifest import finished_but_unlisted, merge_problem
+from mixcount.dataset.settings import variant_of_hash, variants_summary
 
 INDEX_NAME = ".merge_index.jsonl"
 RECORD_KEYS = ("scene_id", "seed", "split", "n_counted", "n_distractors", "counts", "timings", "spawned",
-               "classes_without_instances")
+               "classes_without_instances", "config_hash")
 
 
 # ------------------------------------------------------------------------------------ the scene index
@@ -281,6 +282,7 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
     attribution = AttributionCollector()
     listed: set[str] = set()
     damaged: list[str] = []  # "<scene_id>: <what is wrong>" of scenes left out
+    variant_of = variant_of_hash(out_dir)  # config hash -> settings variant (OUT/settings.json)
     with tempfile.TemporaryDirectory(prefix=".merge-", dir=ann_dir) as tmpdir:
         tmp = Path(tmpdir)
         scenes_fh = open(tmp / "scenes.json", "w")
@@ -300,7 +302,8 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
                         timing_sum[k] = timing_sum.get(k, 0.0) + float(v)
                         timing_n[k] = timing_n.get(k, 0) + 1
                     entry = {"scene_id": rec["scene_id"], "seed": rec.get("seed"), "split": split,
-                             "n_counted": rec.get("n_counted"), "counts": rec.get("counts")}
+                             "n_counted": rec.get("n_counted"), "counts": rec.get("counts"),
+                             "settings_id": variant_of.get(str(rec.get("config_hash")))}
                     scenes_fh.write(("," if n_scenes else "") + "\n  " + json.dumps(entry))
                     n_scenes += 1
                     n_counted += int(rec.get("n_counted") or 0)
@@ -318,6 +321,9 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
             "splits": {name: w.summary() for name, w in sorted(splits.items())},
             "timings_mean_s": {k: round(timing_sum[k] / timing_n[k], 4) for k in sorted(timing_sum)},
             "preview": "preview.png", "run": run or {},
+            # every settings variant of the scenes (one unless composed with --mixed-settings); each scene's
+            # settings_id names its variant
+            "settings_variants": variants_summary(out_dir),
         }
         path = out_dir / "dataset.json"
         part = path.with_name(f".{path.name}.{os.getpid()}.tmp")

@@ -37,8 +37,9 @@ from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutc
 @dataclass
 class ComposeSummary:
     requested: int
-    written: int = 0
-    skipped: int = 0
+    written: int = 0  # finished scenes of the split counted towards ``requested``: new ones + ``skipped``
+    skipped: int = 0  # of ``written``: finished before this run (already there)
+    settings_id: int = 0  # the variant of OUT/settings.json this run's scenes hold
     empty: int = 0
     rejected: int = 0
     failed: int = 0
@@ -63,13 +64,18 @@ def compose_scenes(
     *, pool: list[Any], config: Config, out_dir: Path, assets_dir: Path, n: int, executor: Optional[Executor] = None,
     environments: tuple = (), materials: tuple = (), progress: ProgressReporter | bool | None = None, oracle: bool = False,
     on_outcome: Optional[Callable[[SceneOutcome], None]] = None, passes: Optional[str | list[str]] = None,
-    merge: Optional[bool] = None,
+    merge: Optional[bool] = None, catalog: Optional[str] = None, mixed_settings: bool = False,
 ) -> ComposeSummary:
     """Render until ``n`` scenes of ``compose.split`` are complete in ``out_dir`` (see module docstring).
 
     Seeds start at ``compose.seed``; without an ``executor`` a local pool of ``compose.workers`` runs.
     Steps: check the output folder and the inputs, draw and run scenes (:class:`_ComposeRun`), stop with
-    one error after a fault no seed can fix, merge."""
+    one error after a fault no seed can fix, merge.
+
+    ``catalog`` (the catalog's URL) and the run's dataset settings are checked against those of the scenes
+    already in ``out_dir`` (:mod:`mixcount.dataset.settings`): other settings are a CompositionError unless
+    ``mixed_settings``, which records them as another variant."""
+    from mixcount.dataset.settings import check_settings, dataset_settings
     from mixcount.scene.environments import environments_to_draw
     from mixcount.scene.sampler import container_warning
 
@@ -82,7 +88,9 @@ def compose_scenes(
     # without them stops the run here with one clear error instead of failing every scene's sampling
     environments = tuple(environments_to_draw(config.scene, environments))
     outputs = _scene_outputs(config, passes)
-    summary = ComposeSummary(requested=n)
+    settings_id = check_settings(out_dir, dataset_settings(config, passes=list(outputs["passes"]), catalog=catalog),
+                                 config.hash, allow_mixed=mixed_settings)
+    summary = ComposeSummary(requested=n, settings_id=settings_id)
     t0 = time.perf_counter()
     own_executor = executor is None
     if own_executor:

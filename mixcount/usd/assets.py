@@ -1,9 +1,13 @@
 """Catalog asset -> cached USD asset (pure pxr), converted once per content hash.
 
-Layout in ``catalog.usd_assets_dir``: ``<content_hash>.usdc`` (default prim ``/Asset``, kind
+Layout in ``catalog.usd_assets_dir`` (``usd_assets/<catalog>/``: one folder per catalog, since the same file
+may be read in another frame by another catalog): ``<content_hash>.usdc`` (default prim ``/Asset``, kind
 component, metres, Z-up, origin at the bounding-box centre) and its textures in
 ``<content_hash>_tex/`` referenced by relative paths, so the pair can be moved together.
-``<content_hash>_collision.usdc`` holds the decimated collision mesh in the same frame.
+``<content_hash>_collision.usdc`` holds the decimated collision mesh in the same frame. A cached asset is
+reused only when it was converted by this converter version in the same frame (units and up axis: an
+object whose up axis was corrected at ingest gets a new asset) and, for the collision layer, from the
+same collision mesh file.
 
 When the object has a convex collision proxy (:mod:`mixcount.catalog.proxies`), the asset also holds it as
 ``/Asset/Proxy``: a Mesh with ``purpose = guide`` (never rendered; Blender's USD importer skips guide
@@ -275,20 +279,28 @@ def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path], re
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _is_current(path: Path, proxy: Optional[str] = None) -> bool:
-    """Converted by this converter version (and, for a visual asset, with the proxy asked for)."""
+def _is_current(path: Path, proxy: Optional[str] = None, *, frame: Optional[str] = None,
+                source: Optional[str] = None) -> bool:
+    """Converted by this converter version (and, for a visual asset, with the proxy asked for and in the
+    ``frame`` asked for; for a collision layer, from the ``source`` mesh file asked for)."""
     if not path.exists():
         return False
     from pxr import Sdf
 
     layer = Sdf.Layer.FindOrOpen(str(path))
+    if layer is not None:
+        layer.Reload()  # another process may have rewritten it since this one last opened it
     data = layer.customLayerData.get("mixcount", {}) if layer else {}
     if data.get("converter_version") != CONVERTER_VERSION:
+        return False
+    if frame is not None and data.get("frame", "") != frame:
+        return False
+    if source is not None and data.get("source", "") != source:
         return False
     return proxy is None or data.get("proxy", "") == proxy
 
 
-def _start_stage(path: Path, key: str, source: str, center: np.ndarray) -> tuple[Any, Any]:
+def _start_stage(path: Path, key: str, source: str, center: np.ndarray, frame: str) -> tuple[Any, Any]:
     from pxr import Gf, Kind, Usd, UsdGeom
 
     stage = Usd.Stage.CreateNew(str(path))
@@ -299,7 +311,7 @@ def _start_stage(path: Path, key: str, source: str, center: np.ndarray) -> tuple
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
     stage.GetRootLayer().customLayerData = {"mixcount": {
         "converter_version": CONVERTER_VERSION, "content_hash": key,
-        "source": source, "center_m": Gf.Vec3d(*[float(c) for c in center]),
+        "source": source, "center_m": Gf.Vec3d(*[float(c) for c in center]), "frame": frame,
     }}
     return stage, root
 
@@ -315,7 +327,10 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
     coll = out_dir / f"{key}_collision.usdc" if collision_path else None
     proxy = Path(proxy_path) if proxy_path and Path(proxy_path).is_file() else None
     proxy_tag = str(proxy.resolve()) if proxy is not None else ""
-    if not force and _is_current(visual, proxy_tag) and (coll is None or _is_current(coll)):
+    frame = "/".join(source_frame(model, units, up_axis)[1:]) if model.suffix.lower() not in USD_EXTENSIONS else "usd"
+    coll_source = str(Path(collision_path)) if collision_path else None
+    if not force and _is_current(visual, proxy_tag, frame=frame) and (
+            coll is None or _is_current(coll, source=coll_source)):
         from pxr import Sdf
 
         c = Sdf.Layer.FindOrOpen(str(visual)).customLayerData.get("mixcount", {}).get("center_m", (0.0, 0.0, 0.0))
@@ -339,7 +354,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
         def build(path: Path, tdir: Optional[Path]) -> None:
             from pxr import UsdGeom, UsdShade
 
-            stage, _root = _start_stage(path, key, str(model), center)
+            stage, _root = _start_stage(path, key, str(model), center, frame)
             UsdGeom.Scope.Define(stage, "/Asset/Looks")
             UsdGeom.Scope.Define(stage, "/Asset/Geom")
             for i, part in enumerate(parts):
@@ -408,7 +423,7 @@ def _write_collision(path: Path, key: str, ply: Path, center: np.ndarray) -> Non
     if not ply.is_file():
         raise CompositionError(f"collision mesh {ply} does not exist")
     mesh = trimesh.load(str(ply), force="mesh", process=False)
-    stage, _root = _start_stage(path, key, str(ply), center)
+    stage, _root = _start_stage(path, key, str(ply), center, "")
     part = _Part(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64),
                  None, None, None, None)
     _define_mesh(stage, "/Asset/collision", part, center)
@@ -470,7 +485,7 @@ def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray, proxy: Opti
     src = Usd.Stage.Open(str(model))
     mpu = float(UsdGeom.GetStageMetersPerUnit(src))
     rot = up_axis_rotation(str(UsdGeom.GetStageUpAxis(src)))
-    stage, root = _start_stage(path, key, str(model), center)
+    stage, root = _start_stage(path, key, str(model), center, "usd")
     src_xf = UsdGeom.Xform.Define(stage, "/Asset/Source")
     m = np.eye(4)
     m[:3, :3] = rot * mpu
