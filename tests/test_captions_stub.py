@@ -174,7 +174,7 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
         flags = s.scalars(select(Flag).where(Flag.kind == "caption_collision")).all()
     assert "red" in sets[ids["b"]].short  # colour_source=render: from the render, not the blue model
     assert {(f.object_id, f.pair_object_id) for f in flags} == {(ids["a"], ids["e"]), (ids["e"], ids["a"])}
-    assert all(cs.prompt_version == "stub-v1" and cs.active for cs in sets.values())
+    assert all(cs.prompt_version == "stub-v2" and cs.active for cs in sets.values())
     texts = [normalise_caption(cs.short) for k, cs in sets.items() if k not in (ids["e"],)]
     assert len(texts) == len(set(texts))
 
@@ -185,7 +185,7 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
         assert s.get(CatalogObject, ids["e"]).status == "active"
 
     # the default resolves the collision (the paper's rule)
-    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption"]) == 0
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v3", "catalog", "caption"]) == 0
     third = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (third["captioned"], third["excluded"]) == (5, 1)
     with catalog.session() as s:
@@ -193,11 +193,11 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
         active = s.scalars(select(CaptionSet).where(CaptionSet.active.is_(True))).all()
         total = len(s.scalars(select(CaptionSet)).all())
     assert statuses[ids["e"]] == "excluded" and statuses[ids["a"]] == "active"
-    assert total == 10 and len(active) == 5 and {cs.prompt_version for cs in active} == {"stub-v2"}
+    assert total == 10 and len(active) == 5 and {cs.prompt_version for cs in active} == {"stub-v3"}
 
     # a later run keeps the excluded copy's flag (the reason it was dropped) but has nothing left to resolve;
     # --dedupe is still accepted (it names the default)
-    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v2", "catalog", "caption", "--dedupe"]) == 0
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v3", "catalog", "caption", "--dedupe"]) == 0
     fourth = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (fourth["skipped"], fourth["collision_pairs"]) == (4, 0)
     with catalog.session() as s:

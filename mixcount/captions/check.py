@@ -63,7 +63,7 @@ def check_tiers_text(
     *,
     name: str,
     category: str,
-    captioner: str = "stub",
+    captioner: str,
     variant_tiers: Iterable[Mapping[str, str]] = (),
 ) -> list[dict[str, str]]:
     """Warnings for one object's three tiers (see the module docstring). Deterministic, no I/O."""

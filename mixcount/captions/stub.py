@@ -23,6 +23,7 @@ import json
 
 from mixcount.captions.base import CaptionInput, CaptionResult
 from mixcount.captions.nouns import noun_phrase
+from mixcount.catalog.naming import singular
 
 _CONTAINERS = {"plate", "tray", "bowl"}
 
@@ -189,7 +190,8 @@ class StubCaptioner:
         length, width = max(x, y), min(x, y)
         colour_text = _colour_phrase(colours.names, "concise")
         lead = " ".join(p for p in (finish or "", colour_text, " ".join(noun_words)) if p)
-        first = f"{_article(lead).capitalize()} {lead}"
+        plural = singular(phrase.head) != phrase.head  # "sneakers", "headphones": no article
+        first = lead[:1].upper() + lead[1:] if plural else f"{_article(lead).capitalize()} {lead}"
         if features:
             first += f" with {_article(features[0])} {' and '.join(features)} shape"
         if phrase.head in _CONTAINERS or item.category in _CONTAINERS:
