@@ -118,6 +118,15 @@ class AppState:
         return open_catalog(self.db, data_dir=data_dir)
 
 
+def check_catalog_file(db: str | None) -> None:
+    """A CatalogError when ``db`` is an existing SQLite file that is not a usable catalog (read only)."""
+    from mixcount.catalog.db import _sqlite_file, check_sqlite_file, head_revision, resolve_db_url
+
+    path = _sqlite_file(resolve_db_url(db))
+    if path is not None and path.is_file():
+        check_sqlite_file(path, head_revision())
+
+
 def require_existing_catalog(db: str | None) -> None:
     """A CatalogError when ``db`` resolves to a SQLite file that does not exist (other backends pass)."""
     import os

@@ -10,7 +10,7 @@ from typing import Optional
 import typer
 from rich.markup import escape
 
-from mixcount.commands.common import RichProgress, console, out, result, state
+from mixcount.commands.common import RichProgress, check_catalog_file, console, out, result, state
 from mixcount.errors import CatalogError
 
 
@@ -36,6 +36,7 @@ def ingest_cmd(
     cfg = st.config(values={"ingest.workers": workers})
     # a missing PATH, an unknown layout, a bad --metadata file or a PATH with no model file in it is an
     # error before the database is touched; files in formats ingest does not read are listed, not fatal
+    check_catalog_file(st.db)  # a --db that is not a catalog is named first
     skipped = _check_inputs(paths, layout, metadata)
     catalog = st.catalog(create=True)
     try:
