@@ -135,6 +135,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes written besides rgb.png: instance, class, depth, normal (default: config compose.passes, all four)."),
         no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
         package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
+        mixed_settings: bool = typer.Option(False, "--mixed-settings", help="Add scenes to an OUT whose scenes were composed with other settings (resolution, samples, scene rules, catalog): recorded as another variant in OUT/settings.json; without it such a run is refused."),
         json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
@@ -170,13 +171,12 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         if executor_kind != "local" or address:
             from mixcount.run.factory import make_executor
 
-            executor = make_executor(executor_kind, workers, address, config=cfg.compose,
-                                     log_dir=out_dir.resolve() / "logs")
+            executor = make_executor(executor_kind, workers, address, config=cfg.compose, log_dir=out_dir.resolve() / "logs")
         try:
             summary = compose_scenes(pool=pool, config=cfg, out_dir=out_dir.resolve(),
                                      assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n,
                                      environments=tuple(envs), materials=tuple(mats), executor=executor,
-                                     progress=RichProgress())
+                                     progress=RichProgress(), mixed_settings=mixed_settings, catalog=catalog.url)
         finally:
             if executor is not None:
                 executor.close()
@@ -184,8 +184,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             from mixcount.dataset.package import package_assets as copy_assets
 
             packaged = copy_assets(out_dir, assets_dirs=[Path(catalog.usd_assets_dir)])
-            console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} "
-                          f"({packaged.bytes / 1e6:.1f} MB)", highlight=False)
+            console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB)", highlight=False)
         result(_compose_lines(summary, out_dir, merge=cfg.compose.merge), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
                json_out)
         if summary.written < n:
