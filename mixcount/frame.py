@@ -4,9 +4,11 @@ Ingest (:mod:`mixcount.catalog.mesh`, mesh facts and collision meshes) and USD c
 (:mod:`mixcount.usd.assets`, the render asset) must place a model identically, or the collision mesh
 and the visual drift apart. Both use these functions. Pure numpy; trimesh only for the node walk.
 
-Rules: glTF/GLB are metres and Y-up by specification; USD carries ``metersPerUnit`` and ``upAxis``;
-OBJ/PLY/STL carry neither, so the ingest settings (``ingest.assume_units``, ``ingest.assume_up_axis``)
-or the values recorded for the object apply. A Y-up frame becomes Z-up as Blender's glTF importer does
+Rules: glTF/GLB are metres and Y-up by specification, unless an up axis is stated for the object
+(``up_axis`` in its ``metadata.json`` or ``catalog ingest --up-axis``: exporters that write Z-up
+geometry into a GLB are common); USD carries ``metersPerUnit`` and ``upAxis``; OBJ/PLY/STL carry
+neither, so the ingest settings (``ingest.assume_units``, ``ingest.assume_up_axis``) or the values
+recorded for the object apply. A Y-up frame becomes Z-up as Blender's glTF importer does
 it: (x, y, z) -> (x, -z, y).
 """
 
@@ -42,11 +44,15 @@ def unit_scale(units: str) -> float:
         raise ValueError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)})") from None
 
 
+GLTF_UP_AXIS = "Y"  # the glTF specification's up axis
+
+
 def source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str]) -> tuple[float, str, str]:
-    """(metres per unit, units name, up axis) of a non-USD model file: glTF is fixed by its spec,
-    the rest use ``units``/``up_axis`` (defaults m / Y when nothing was recorded)."""
+    """(metres per unit, units name, up axis) of a non-USD model file: glTF is metres by its spec and
+    Y-up unless ``up_axis`` (the object's recorded axis) says otherwise; the rest use ``units``/``up_axis``
+    (defaults m / Y when nothing was recorded)."""
     if model_path.suffix.lower() in GLTF_EXTENSIONS:
-        return 1.0, "m", "Y"
+        return 1.0, "m", (up_axis or GLTF_UP_AXIS).upper()
     name = (units or "m").lower()
     return unit_scale(name), name, (up_axis or "Y").upper()
 

@@ -15,6 +15,11 @@ white-grey. :func:`use_vertex_colours` gives such a mesh a Principled material w
 attribute, as the scene render does through the USD asset's ``displayColor`` (mixcount.usd.assets), so an
 external exemplar has the colour of the object it stands for.
 
+Frame: Blender's importers each assume an up axis (glTF and OBJ Y-up, PLY and STL Z-up, USD its own);
+the catalog may read the file with another one (``metadata.json`` ``up_axis``, ``ingest --up-axis``,
+``ingest.assume_up_axis``). :func:`orient_to_catalog` turns the import into the catalog's frame (the
+request's ``up_axis``), so the canonical render shows the object standing as the scenes place it.
+
 Outputs per view: ``<stem>.png`` (RGB on white) and ``<stem>_mask.png`` (8-bit coverage, the film alpha).
 """
 
@@ -67,6 +72,30 @@ def import_model(path: Path) -> list[Any]:
     if not meshes:
         raise RuntimeError(f"{path.name} holds no mesh")
     return meshes
+
+
+IMPORTER_UP_AXIS = {"gltf": "Y", "obj": "Y", "ply": "Z", "stl": "Z"}  # Blender 5.0's defaults
+
+
+def orient_to_catalog(path: Path, up_axis: str) -> bool:
+    """Turn every imported root object from the importer's up axis to ``up_axis`` (X, Y or Z; "" or a USD
+    file: left as imported). Returns whether it turned anything."""
+    import bpy
+    import mathutils
+
+    from mixcount.frame import up_axis_rotation
+
+    assumed = IMPORTER_UP_AXIS.get(IMPORTERS.get(path.suffix.lower(), ""), "")
+    wanted = (up_axis or "").upper()
+    if not assumed or not wanted or wanted == assumed:
+        return False
+    # the importer applied R(assumed) to the file's coordinates; the catalog applies R(wanted)
+    turn = up_axis_rotation(wanted) @ up_axis_rotation(assumed).T
+    m = mathutils.Matrix([[float(v) for v in row] + [0.0] for row in turn] + [[0.0, 0.0, 0.0, 1.0]])
+    for obj in [o for o in bpy.data.objects if o.parent is None and o.type not in ("CAMERA", "LIGHT")]:
+        obj.matrix_world = m @ obj.matrix_world
+    bpy.context.view_layer.update()
+    return True
 
 
 def use_vertex_colours(objects: list[Any]) -> int:
@@ -261,6 +290,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = reset_scene()
     objects = import_model(Path(req.model_path))
+    orient_to_catalog(Path(req.model_path), req.up_axis)
     use_vertex_colours(objects)
     pts = centre_objects(objects)
     configure_render(scene, resolution=req.resolution, samples=req.samples, denoise=req.denoise, threads=req.threads)

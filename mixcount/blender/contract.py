@@ -280,6 +280,9 @@ class CanonicalRequest:
     margin: float
     world_strength: float
     sun_strength: float
+    # the up axis the catalog reads the model with (objects.source_up_axis); the render turns the import
+    # into that frame. "" = as Blender's importer reads it (glTF/OBJ Y-up, PLY/STL Z-up, USD its own)
+    up_axis: str = ""
 
     def views(self) -> tuple[tuple[str, float], ...]:
         return canonical_views(self.extra_views, self.azimuth_deg)

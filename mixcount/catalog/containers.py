@@ -18,13 +18,15 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from pathlib import Path
+from typing import Any, Iterable, Optional
 
+import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from mixcount.catalog.decisions import CONTAINER_DECISIONS, latest_container_decisions
-from mixcount.catalog.models import CaptionSet, CatalogObject
+from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject
 from mixcount.catalog.naming import singular, words_of
 from mixcount.config import Config
 
@@ -113,3 +115,70 @@ def refresh_containers(session: Session, config: Config, *, commit: bool = True)
     if commit:
         session.commit()
     return summary
+
+
+# ------------------------------------------------------------------------------ which way the opening faces
+
+OPENING_MIN_DEPTH = 0.03  # of the object's largest side: a hull point this far from the surface is over a cavity
+OPENING_UP_MIN_Z = 0.7  # cosine: an opening more than ~45 degrees from +Z does not face up
+OPENING_SAMPLES = 3000  # points on the hull and on the surface (seeded: the same answer every run)
+
+
+def opening_direction(collision_path: str | Path) -> Optional[np.ndarray]:
+    """Unit vector (metres, Z-up frame of the catalog) the opening of a container's mesh faces, or None
+    when it has no clear opening (a closed box, a flat board).
+
+    Points spread evenly over the mesh's convex hull that lie far from the mesh's own surface are over
+    its cavity (the lid a bowl lacks); the mean hull normal at those points, weighted by how far they lie
+    from the surface, points out of the opening. Uses the stored collision mesh (decimated, same frame
+    as the render asset), so it reads nothing but that file."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    mesh = trimesh.load(str(collision_path), force="mesh", process=False)
+    if len(mesh.faces) < 4:
+        return None
+    size = float(np.max(mesh.extents))
+    if not size > 0:
+        return None
+    hull = mesh.convex_hull
+    rng = np.random.default_rng(0)
+    surface = np.asarray(trimesh.sample.sample_surface(mesh, OPENING_SAMPLES * 4, seed=rng)[0])
+    points, faces = trimesh.sample.sample_surface(hull, OPENING_SAMPLES, seed=rng)
+    dist = cKDTree(np.vstack([surface, np.asarray(mesh.vertices)])).query(np.asarray(points))[0] / size
+    far = dist > OPENING_MIN_DEPTH
+    if far.mean() < 0.02:  # almost the whole hull lies on the surface: no cavity worth the name
+        return None
+    vec = (np.asarray(hull.face_normals)[faces[far]] * dist[far, None]).sum(axis=0)
+    norm = float(np.linalg.norm(vec))
+    if norm < 1e-9 or norm < 0.3 * float(dist[far].sum()):  # openings on several sides: no one direction
+        return None
+    return np.asarray(vec / norm)
+
+
+def _direction_words(vec: np.ndarray) -> str:
+    axis = int(np.argmax(np.abs(vec)))
+    return f"{'+' if vec[axis] > 0 else '-'}{'XYZ'[axis]}"
+
+
+def opening_warnings(session: Session) -> list[str]:
+    """One line per active container whose opening does not face up (+Z): its up axis was probably read
+    wrongly (a Z-up model in a GLB is read Y-up by glTF's rule), so scenes would drop objects onto its
+    side. The line says how to state the axis. Containers without a collision mesh or a clear opening
+    are not judged."""
+    lines = []
+    query = select(CatalogObject).where(CatalogObject.container.is_(True), CatalogObject.status == STATUS_ACTIVE)
+    for obj in session.scalars(query.order_by(CatalogObject.id)):
+        if not obj.collision_path or not Path(obj.collision_path).is_file():
+            continue
+        try:
+            vec = opening_direction(obj.collision_path)
+        except Exception:  # an unreadable collision mesh is reported elsewhere; this check only warns
+            continue
+        if vec is None or vec[2] >= OPENING_UP_MIN_Z:
+            continue
+        lines.append(
+            f"container #{obj.id} {obj.name!r}: its opening faces {_direction_words(vec)}, not up (+Z), read with "
+            f"up axis {obj.source_up_axis or '?'}; if its up axis is another, say so (\"up_axis\": \"Z\" in its "
+            "metadata.json, or catalog ingest --up-axis Z) and ingest again")
+    return lines

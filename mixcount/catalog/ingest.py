@@ -33,7 +33,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from mixcount.catalog import hashing, layouts
-from mixcount.catalog.containers import refresh_containers
+from mixcount.catalog.containers import opening_warnings, refresh_containers
 from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
 from mixcount.catalog.mesh import model_resources
 from mixcount.catalog.models import (
@@ -47,6 +47,7 @@ from mixcount.catalog.models import (
 from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
+from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS, UP_AXES
 from mixcount.progress import ProgressReporter, as_reporter
 
 # Fact columns copied from the analysis dict onto the row.
@@ -69,6 +70,7 @@ class IngestSummary:
     broken_objects: list[tuple[str, str]] = field(default_factory=list)  # (name, reason)
     layouts: dict[str, int] = field(default_factory=dict)  # objects found per layout
     containers: int = 0  # objects of the catalog that are containers after this run
+    container_warnings: list[str] = field(default_factory=list)  # containers whose opening does not face up
 
     @property
     def total(self) -> int:
@@ -78,7 +80,7 @@ class IngestSummary:
         return {
             "run_id": self.run_id, "total": self.total, "new": self.new, "unchanged": self.unchanged,
             "updated": self.updated, "broken": self.broken, "layouts": dict(sorted(self.layouts.items())),
-            "containers": self.containers,
+            "containers": self.containers, "container_warnings": list(self.container_warnings),
             "broken_objects": [{"name": n, "reason": r} for n, r in self.broken_objects],
         }
 
@@ -134,7 +136,10 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> P
         prep.content_hash = hashing.files_hash(files)
         sidecar_hash = hashing.files_hash({f"side:{k}": v for k, v in cand.sidecars.items()})
         identity_hash = hashing.json_hash([cand.layout, cand.name, cand.category, cand.license, cand.metadata])
-        prep.settings_hash = hashing.json_hash([settings, cand.units, cand.up_axis])
+        frame: list[Any] = [settings, cand.units, cand.up_axis]
+        if cand.up_axis and cand.model_path.suffix.lower() in GLTF_EXTENSIONS:
+            frame.append("gltf up axis as stated")  # once ignored: such objects are measured again
+        prep.settings_hash = hashing.json_hash(frame)
         prep.ingest_hash = hashing.combine([
             ("content", prep.content_hash), ("sidecars", sidecar_hash), ("identity", identity_hash),
             ("settings", prep.settings_hash),
@@ -271,13 +276,24 @@ def _facts_of(obj: CatalogObject) -> dict[str, Any]:
 # --------------------------------------------------------------------------- the run
 
 
+def check_up_axis(value: str | None) -> str | None:
+    """``--up-axis`` checked: X, Y or Z (upper case), None for ``auto`` or nothing; IngestError otherwise."""
+    if value is None or value.strip().lower() == "auto":
+        return None
+    up = value.strip().upper()
+    if up not in UP_AXES:
+        raise IngestError(f"unknown up axis {value!r}: give X, Y, Z or auto")
+    return up
+
+
 def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict[str, Any]) -> dict[str, Any]:
     return {
         "model_path": str(cand.model_path),
         "collision_dir": str(catalog_collision_dir),
         "face_budget": settings["collision_face_budget"],
         "units": (cand.units or settings["assume_units"]),
-        "up_axis": (cand.up_axis or settings["assume_up_axis"]),
+        "up_axis": (cand.up_axis or (GLTF_UP_AXIS if Path(str(cand.model_path)).suffix.lower() in GLTF_EXTENSIONS
+                                     else settings["assume_up_axis"])),
         "proxy_max_vertices": settings["proxy_max_vertices"],
     }
 
@@ -305,17 +321,23 @@ def ingest_paths(
     strict: bool = False,
     layout: str = "auto",
     metadata_files: Iterable[Path | str] = (),
+    up_axis: str | None = None,
 ) -> IngestSummary:
     """Ingest every object under ``paths`` into ``catalog``; see the module docstring.
 
     ``layout`` forces one library layout (``auto`` detects it per folder); ``metadata_files`` are side
     metadata files (JSON/JSONL/CSV) searched for every model's id. ``strict`` does not change what is
-    stored; the CLI uses it to exit non-zero when anything is broken.
+    stored; the CLI uses it to exit non-zero when anything is broken. ``up_axis`` (X, Y or Z; None or
+    ``auto``: each file's own rule) is the up axis of every object whose metadata or layout states none,
+    glTF included (docs/ingest.md, "Units and up axis").
     """
+    stated_up = check_up_axis(up_axis)
     paths = list(paths)
     candidates = discover(paths, layout=layout, metadata_files=metadata_files)
     ing = config.ingest
     for cand in candidates:
+        if stated_up and not cand.up_axis:
+            cand.up_axis = stated_up
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units
             cand.up_axis = cand.up_axis or ing.omniobject3d_up_axis
@@ -381,6 +403,7 @@ def ingest_paths(
                 _analyse_all(session, pending, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
                              n_workers, summary, count, bar)
             summary.containers = refresh_containers(session, config).containers
+            summary.container_warnings = opening_warnings(session)
         status = "done"
     finally:
         bar.stop()

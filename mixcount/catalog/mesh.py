@@ -290,8 +290,9 @@ class NormalisedMesh:
 
 
 def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> NormalisedMesh:
-    """Load any supported model and return it in metres, Z-up. ``units``/``up_axis`` apply only to
-    formats that carry none (OBJ/PLY/STL)."""
+    """Load any supported model and return it in metres, Z-up. ``units`` applies only to formats that
+    carry none (OBJ/PLY/STL); ``up_axis`` to those and to glTF, whose Y-up rule it overrides (ingest
+    passes Y for a glTF unless the object's up axis was stated: :func:`mixcount.frame.source_frame`)."""
     import trimesh
 
     suffix = path.suffix.lower()
@@ -300,7 +301,7 @@ def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> Norm
         units = _usd_units_name(scale)
     elif suffix in (".glb", ".gltf"):
         parts = _load_trimesh(path)
-        scale, units, up = 1.0, "m", "Y"
+        scale, units, up = 1.0, "m", up_axis.upper()
     elif suffix in (".obj", ".ply", ".stl"):
         if units not in UNIT_SCALE:
             raise IngestError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)})")

@@ -24,13 +24,18 @@ def ingest_cmd(
         "auto", "--layout",
         help="Library layout: auto (detected per folder), dtc, gso (Google Scanned Objects), objaverse "
              "(model files named by id + side metadata; also Amazon Berkeley Objects), omniobject3d, folder."),
+    up_axis: Optional[str] = typer.Option(
+        None, "--up-axis",
+        help="Up axis (X, Y, Z or auto) of every object whose metadata or layout states none, glTF/GLB "
+             "included (Z-up geometry saved as GLB). auto or absent: glTF Y, USD its own, "
+             "OBJ/PLY/STL ingest.assume_up_axis."),
     metadata: list[Path] = typer.Option(
         [], "--metadata",
         help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
              "licence; repeatable. Files beside the models and in the root's metadata/ folder are found anyway."),
 ) -> None:
     """Ingest 3D objects: mesh facts in metres/Z-up, hashes, collision meshes; idempotent and resumable."""
-    from mixcount.catalog.ingest import ingest_paths
+    from mixcount.catalog.ingest import check_up_axis, ingest_paths
 
     st = state(ctx)
     cfg = st.config(values={"ingest.workers": workers})
@@ -38,16 +43,19 @@ def ingest_cmd(
     # error before the database is touched; files in formats ingest does not read are listed, not fatal
     check_catalog_file(st.db)  # a --db that is not a catalog is named first
     skipped = _check_inputs(paths, layout, metadata)
+    check_up_axis(up_axis)
     catalog = st.catalog(create=True)
     try:
         summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
-                               layout=layout, metadata_files=metadata)
+                               layout=layout, metadata_files=metadata, up_axis=up_axis)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)
         raise
     finally:
         catalog.close()
+    for line in summary.container_warnings:
+        console.print(f"[yellow]warning:[/] {escape(line)}", highlight=False, soft_wrap=True)
     for name, reason in summary.broken_objects:
         console.print(f"[yellow]broken[/] {escape(name)}: {escape(reason)}", highlight=False, soft_wrap=True)
     found = ", ".join(f"{n} {kind}" for kind, n in sorted(summary.layouts.items()))

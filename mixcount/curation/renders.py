@@ -4,19 +4,20 @@ Each active object gets a ``canonical`` view (and ``view_<k>`` extra views when 
 rendered by bpy in worker processes (:mod:`mixcount.blender.canonical_runner`). Files live under
 ``catalog.renders_dir`` (``renders/<catalog>/`` beside the database: the catalog's own folder, since row ids
 repeat between catalogs that share a folder) as ``obj_<id>.png`` (RGB on pure white) plus
-``obj_<id>_mask.png`` (coverage); rows in table ``renders`` record path, size, the model's content hash
-and a hash of the render settings. A render stored outside the catalog's own folder (catalogs from
-before per-catalog folders wrote ``renders/obj_<id>.png``, a file another catalog in the same folder may
-have overwritten) still resolves, but counts as stale: the next ``catalog render`` renders it again into
-the catalog's folder.
+``obj_<id>_mask.png`` (coverage); rows in table ``renders`` record path, size, a hash of the model's
+content and up axis (:func:`model_key`) and a hash of the render settings. A render stored outside the
+catalog's own folder (catalogs from before per-catalog folders wrote ``renders/obj_<id>.png``, a file
+another catalog in the same folder may have overwritten) still resolves, but counts as stale: the next
+``catalog render`` renders it again into the catalog's folder.
 
-Resumable: an object is skipped when every view's row matches its current content hash and the current
+Resumable: an object is skipped when every view's row matches its current model key and the current
 settings hash and the files exist. A failed object gets a row with ``error`` (reason) and is retried on
 the next run; the batch always goes on.
 """
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -72,7 +73,14 @@ def canonical_request(config: RenderConfig, obj: CatalogObject, out_dir: Path) -
         model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}", threads=config.threads,
         resolution=config.resolution, samples=config.samples, denoise=config.denoise,
         elevation_deg=config.elevation_deg, azimuth_deg=config.azimuth_deg, extra_views=config.extra_views,
-        margin=config.margin, world_strength=config.world_strength, sun_strength=config.sun_strength)
+        margin=config.margin, world_strength=config.world_strength, sun_strength=config.sun_strength,
+        up_axis=obj.source_up_axis or "")
+
+
+def model_key(obj: CatalogObject) -> str:
+    """What a render depends on besides the settings: the model's content and the up axis the catalog
+    reads it with (a corrected up axis renders the object again). Stored as ``renders.model_hash``."""
+    return hashlib.sha256(f"{obj.content_hash}|{obj.source_up_axis or ''}".encode()).hexdigest()
 
 
 def mask_path_for(render_path: Path | str) -> Path:
@@ -98,7 +106,7 @@ def _up_to_date(rows: dict[str, Render], obj: CatalogObject, views: list[str], s
             return False
         if Path(row.path).parent != own_dir.resolve():
             return False  # a shared folder of an older catalog: possibly another catalog's picture
-        if row.model_hash != obj.content_hash or row.settings_hash != shash:
+        if row.model_hash != model_key(obj) or row.settings_hash != shash:
             return False
     return True
 
@@ -143,7 +151,7 @@ def render_catalog(
                 summary.skipped += 1
                 continue
             key = str(obj.id)
-            names[key], hashes[key] = obj.name, str(obj.content_hash)
+            names[key], hashes[key] = obj.name, model_key(obj)
             jobs.append((key, canonical_request(config, obj, out_dir)))
     if not jobs:
         return summary
