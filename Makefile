@@ -44,7 +44,7 @@ demo: $(STAMP)
 	$(MIX) catalog split
 	$(MIX) catalog sheet --out $(DEMO_OUT)/sheets --only all
 	$(MIX) catalog list --summary
-	$(MIX) --config configs/quick.toml compose --n $(DEMO_SCENES) --out $(DEMO_OUT)/dataset --split train --resolution 256 --samples 8
+	$(MIX) --config quick compose --n $(DEMO_SCENES) --out $(DEMO_OUT)/dataset --split train --resolution 256 --samples 8
 	$(VENV)/bin/mixcount stats $(DEMO_OUT)/dataset
 	$(VENV)/bin/mixcount baseline --gt $(DEMO_OUT)/dataset --split train --kind mean --out $(DEMO_OUT)/pred_mean.json
 	$(VENV)/bin/mixcount evaluate --gt $(DEMO_OUT)/dataset --split train --pred $(DEMO_OUT)/pred_mean.json

@@ -28,11 +28,22 @@ def export_cmd(
     from mixcount.export import export_dataset
 
     manifest = export_dataset(dataset, fmt, out, split=split, tier=caption_tier, progress=RichProgress())
-    figures = ", ".join(f"{k}: {v}" for k, v in manifest["figures"].items())
+    figures = ", ".join(f"{k}: {_figure(v)}" for k, v in manifest["figures"].items())
     files = manifest["files"]
     result(f"{fmt} export of {dataset} in {out}: {figures} "
            f"({files['written']} file(s) written, {files['up_to_date']} up to date; ATTRIBUTION.md included)",
            manifest, json_out)
+
+
+def _figure(value: object) -> str:
+    """One figure of the manifest as a person reads it: no Python dict, floats to 3 significant digits."""
+    if isinstance(value, dict):
+        return "(" + ", ".join(f"{k} {_figure(v)}" for k, v in value.items()) + ")" if value else "none"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(_figure(v) for v in value) or "none"
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    return "-" if value is None else str(value)
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
