@@ -181,6 +181,7 @@ class FilterConfig:
     cross_source_d2: float
     cross_source_proportions: float
     cross_source_min_pattern: float
+    cross_source_pattern: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float

@@ -7,8 +7,10 @@ families (balls, bottles, mugs, cans, cups, blocks, dice, figurines, cookies, do
 * same-look copies on a patterned surface are duplicates (one kept);
 * the same plain colour on a loosely agreeing shape is a ``possible_copy``: both active, shown by
   ``catalog sheet --only flagged`` with both thumbnails side by side and the figures;
+* the recoloured bunny copy (another source, other colours) is a ``possible_copy`` of each bunny: its
+  colour pattern repeats in other colours;
 * no pair at all between two different objects (before issue 34: none either, and none of the copies);
-* a copy in other colours from another source stays unpaired (shape alone is no evidence)."""
+* the olive cow (another source, another plain colour) stays unpaired: shape alone is no evidence."""
 
 from __future__ import annotations
 
@@ -73,15 +75,21 @@ def test_copies_from_another_source(tmp_path, capsys):
     assert "same plain colour" in cow["possible_copy"] and "D2" in cow["possible_copy"]
     assert status["cow_yellow"] == status["cow_yellow_dec_flat_cm"] == "active"
 
-    # another source AND other colours: nothing to go on but a loose shape, left unpaired
-    assert not any("bunny_dec_flat_recoloured" in p or "cow_olive_dec_flat" in p for p in pairs)
+    # another source AND other colours: the print's pattern repeats -> for a person; a plain colour -> nothing
+    for other in same_look:
+        kinds = pairs.get(frozenset((other, "bunny_dec_flat_recoloured")), {})
+        assert set(kinds) == {"possible_copy"}, (other, kinds)
+        assert "maybe a colour variant from another source" in kinds["possible_copy"]
+    assert status["bunny_dec_flat_recoloured"] == "active"
+    assert not any("cow_olive_dec_flat" in p for p in pairs)
 
     # the review page shows the possible copy with both thumbnails and the figures
     assert main(base + ["catalog", "sheet", "--out", str(tmp_path / "sheet"), "--only", "flagged", "--json"]) == 0
     written = json.loads(capsys.readouterr().out)
     page = (tmp_path / "sheet" / "review.html").read_text()
     shown = [name for name, i in ids.items() if f'id="obj-{i}"' in page]
-    assert written["objects"] == len(shown) and {*same_look, "cow_yellow", "cow_yellow_dec_flat_cm"} <= set(shown)
+    assert written["objects"] == len(shown)
+    assert {*same_look, "bunny_dec_flat_recoloured", "cow_yellow", "cow_yellow_dec_flat_cm"} <= set(shown)
     a, b = ids["cow_yellow"], ids["cow_yellow_dec_flat_cm"]
     card = page[page.index(f'id="obj-{a}"'):]
     card = card[:card.index("</article>")] if "</article>" in card else card[:20000]

@@ -339,7 +339,7 @@ def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) ->
         return None
     col, gain = _colours(x.surface, y.surface, th)
     if col > th.look_colour:
-        return None
+        return _recoloured_copy(x, y, th, d2, mom, col)
     first = A.relit(x.surface, 1.0 / gain) if gain > 1.0 else x.surface  # the brighter side darkened
     other = A.relit(y.surface, gain) if gain < 1.0 else y.surface
     lay = layouts.refined(x, y, first, other, gain)
@@ -356,6 +356,29 @@ def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) ->
     if pattern >= th.cross_source_min_pattern:
         return NEAR_APPEARANCE, score, f"copy from another source: {facts}"
     return POSSIBLE_COPY, score, f"possible copy for review (same plain colour, no pattern to confirm it): {facts}"
+
+
+def _recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float,
+                     col: float) -> tuple[str, float, str] | None:
+    """``possible_copy`` for a loosely agreeing shape in other colours whose colour *pattern* repeats
+    (:func:`~mixcount.curation.appearance3d.pattern_correlation` >= ``cross_source_pattern``): maybe a
+    colour variant republished by another source. Only for patterned surfaces on shapes whose principal
+    axes are all distinct: where moments tie (balls, cans, boxes, mugs, cookies) the frame is chosen by
+    the colours themselves, and two objects of one mould in other prints correlate by construction."""
+    assert x.surface is not None and y.surface is not None
+    if x.surface.tied or y.surface.tied:
+        return None
+    pattern = min(pattern_strength(x.surface), pattern_strength(y.surface))
+    if pattern < th.cross_source_min_pattern:
+        return None
+    corr = A.pattern_correlation(x.surface, y.surface)
+    if corr < th.cross_source_pattern:
+        return None
+    score = round(max(0.0, min(1.0, (corr - th.cross_source_pattern) / (1.0 - th.cross_source_pattern))), 4)
+    return (POSSIBLE_COPY, score,
+            f"possible copy for review (maybe a colour variant from another source): the colour pattern repeats "
+            f"(correlation {corr:.3f}) in other colours ({col:.3f}), pattern {pattern:.3f}; shape agrees loosely "
+            f"(D2 {d2:.4f}, proportions {mom:.3f})")
 
 
 def mesh_quality_score(fraction: float) -> float:
