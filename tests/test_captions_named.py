@@ -80,6 +80,18 @@ def test_no_absolute_size_in_short_and_concise_and_measured_size_in_detailed(nam
         assert " cm " in caps["detailed"] or " mm " in caps["detailed"], caps["detailed"]
 
 
+def test_detailed_tier_says_measured_parts(named):
+    """Separate parts are counted on the model (the hammer's handle and head, the toy car's body, cabin and
+    four wheels); a one-piece object says nothing about parts."""
+    by_folder = {Path(r["model_path"]).parent.name: r for r in named["records"]}
+    truth = named["truth"]
+    detailed = {slug: by_folder[truth[slug]["folder"]]["captions"]["detailed"]
+                for slug in ("hammer", "toy_car", "banana")}
+    assert "in 2 separate parts" in detailed["hammer"]
+    assert "in 6 separate parts" in detailed["toy_car"]
+    assert "part" not in detailed["banana"]
+
+
 def test_dtc_folder_names_take_the_category_as_noun_and_measured_colours(named):
     by_folder = {Path(r["model_path"]).parent.name: r for r in named["records"]}
     expected = {"Markers_B07Z5P84J2_Peach": ("marker", None), "Markers_B07Z5Q11K8_Teal": ("marker", "teal"),

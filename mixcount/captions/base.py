@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render
+from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render, count_parts
 from mixcount.scene.spec import TIERS
 
 COLOUR_SOURCES = ("model", "render")
@@ -82,6 +82,7 @@ class CaptionInput:
     model_path: str | None = None
     render_path: Path | None = None
     colours: ColourSummary = field(default=EMPTY)
+    parts: int | None = None  # separate parts of the model (measured with the colours)
 
     @classmethod
     def from_object(cls, obj: Any, *, render_path: Path | None = None) -> "CaptionInput":
@@ -126,7 +127,8 @@ class CaptionInput:
                 colours = colours_from_model(Path(self.model_path), seed=self.object_id)
             if colours.names:
                 break
-        return replace(self, colours=colours)
+        parts = count_parts(Path(self.model_path)) if self.model_path and Path(self.model_path).is_file() else None
+        return replace(self, colours=colours, parts=parts)
 
     def facts(self) -> dict[str, Any]:
         """JSON-able facts (no paths): what an LLM prompt is told besides the image."""

@@ -46,7 +46,9 @@ _SIZE_WORD = re.compile(
     r"[a-z]+-siz(?:e|ed))(?![\w-])", re.IGNORECASE)
 _STOP = frozenset({"a", "an", "the", "and", "with", "of", "in", "on", "to", "its", "it", "is", "by", "at", "for",
                    "as", "from", "about", "across", "tall", "has", "shape", "surface", "finish"})
-_UNITS = frozenset({"cm", "mm", "m", "%", "kg", "g", "in", "inch", "inches", "degrees", "percent", "x"})
+# words after a number that make it a measurement or a count in the detailed tier ("24 cm", "2 separate parts")
+_UNITS = frozenset({"cm", "mm", "m", "%", "kg", "g", "in", "inch", "inches", "degrees", "percent", "x", "separate",
+                    "parts", "part"})
 _TOKEN = re.compile(r"\d+(?:\.\d+)?%?|[A-Za-z0-9%]+(?:[-'][A-Za-z0-9]+)*")
 
 

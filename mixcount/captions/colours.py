@@ -234,3 +234,23 @@ def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> Col
     parts = [mesh_colour_samples(m, rng, int(round(samples * s))) for m, s in zip(meshes, shares)]
     pixels = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3), dtype=np.uint8)])
     return summarise(pixels, source="model")
+
+
+def count_parts(path: Path) -> int | None:
+    """Separate parts of a model: connected components of its surface once vertices at the same position
+    are merged (texture seams and normals do not split a part). None when the file cannot be read."""
+    import trimesh
+
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception:  # noqa: BLE001 - unreadable model: the caption goes without the fact
+        return None
+    meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
+    total = 0
+    for m in meshes:
+        if not isinstance(m, trimesh.Trimesh) or not len(m.faces):
+            continue
+        plain = trimesh.Trimesh(m.vertices, m.faces, process=False)
+        plain.merge_vertices(merge_tex=True, merge_norm=True)
+        total += int(plain.body_count)
+    return total or None

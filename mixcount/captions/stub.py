@@ -11,7 +11,8 @@ Nothing here is canned per object: every word comes from a fact.
   objects, so absolute size words are noise (a resized pair gets "larger"/"smaller" at scene time);
 * shape cues from bounding-box ratios (elongated, flat, compact), the fill ratio volume / box volume of a
   watertight mesh (boxy, cylindrical, round, irregular) and the surface (closed or open, faceted);
-* surface finish from the spread of luminance over the object's pixels (plain / patterned).
+* surface finish from the spread of luminance over the object's pixels (plain / patterned);
+* separate parts of the model (connected components, 2-12 are said) in the detailed tier.
 
 The same input always gives the same text (no randomness at all).
 """
@@ -26,6 +27,7 @@ from mixcount.captions.nouns import noun_phrase
 from mixcount.catalog.naming import singular
 
 _CONTAINERS = {"plate", "tray", "bowl"}
+MAX_PARTS_SAID = 12  # more separate parts than this is a scan's debris or a CAD assembly: not worth a word
 
 
 def size_class(max_dim_m: float) -> str:
@@ -196,6 +198,8 @@ class StubCaptioner:
             first += f" with {_article(features[0])} {' and '.join(features)} shape"
         if phrase.head in _CONTAINERS or item.category in _CONTAINERS:
             first += ", used as a container"
+        if item.parts is not None and 2 <= item.parts <= MAX_PARTS_SAID:
+            first += f" in {item.parts} separate parts"
         if len(colours.names) >= 2 and colours.shares:
             first += f", {round(colours.shares[0] * 100):d} % {colours.names[0]}"
         surface_text = (
