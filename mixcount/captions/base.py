@@ -83,6 +83,9 @@ class CaptionInput:
     render_path: Path | None = None
     colours: ColourSummary = field(default=EMPTY)
     parts: int | None = None  # separate parts of the model (measured with the colours)
+    # "darker" / "lighter": set only for a colour variant whose captions came out the same as its pair's
+    # (same colour names): the measured mean luminance of the two tells them apart
+    tone: str | None = None
 
     @classmethod
     def from_object(cls, obj: Any, *, render_path: Path | None = None) -> "CaptionInput":

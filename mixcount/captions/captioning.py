@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import logging
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -62,6 +62,7 @@ class CaptionSummary:
     failures: list[dict[str, Any]] = field(default_factory=list)
     # the caption check (mixcount.captions.check) over every active object's active captions after the run
     caption_check: dict[str, Any] = field(default_factory=dict)
+    variants_toned: int = 0  # colour-variant members re-captioned with "darker"/"lighter" (same colour names)
     warnings: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
@@ -182,11 +183,56 @@ def caption_catalog(
                 bar.advance()
         bar.stop()
 
+    summary.variants_toned = separate_variants(catalog, captioner, colour_source=colour_source)
     flag_collisions(catalog, summary=summary)
     if dedupe:
         summary.excluded = dedupe_collisions(catalog)
     run_caption_check(catalog, summary)
     return summary
+
+
+TONE_MIN_DIFFERENCE = 0.02  # mean luminance apart (0..1) before "darker"/"lighter" is a fact, not noise
+
+
+def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: str) -> int:
+    """Colour variants (``colour_variant`` flags of ``catalog filter``) whose active captions by this
+    captioner are identical at some tier (one colour name for two shades: "red" and a darker red) are
+    captioned again with ``tone`` = "darker" / "lighter" from their measured mean luminance, for the stub
+    only (an LLM saw both images and chose its words). Returns the objects re-captioned; pairs whose shades
+    are within :data:`TONE_MIN_DIFFERENCE` stay as they are (the caption check reports them)."""
+    if captioner.name != "stub":
+        return 0
+    from mixcount.captions.check import VARIANT_KIND
+
+    changed = 0
+    with catalog.session() as session:
+        captions = active_captions(session)
+        pairs = {(min(f.object_id, f.pair_object_id), max(f.object_id, f.pair_object_id))
+                 for f in session.scalars(select(Flag).where(Flag.kind == VARIANT_KIND))
+                 if f.pair_object_id is not None}
+        for a, b in sorted(pairs):
+            ca, cb = captions.get(a), captions.get(b)
+            if ca is None or cb is None or not (_same_key(ca, captioner) and _same_key(cb, captioner)):
+                continue
+            if not any(normalise_caption(getattr(ca, t)) == normalise_caption(getattr(cb, t)) for t in TIERS):
+                continue
+            items = {}
+            for oid in (a, b):
+                obj = session.get(CatalogObject, oid)
+                items[oid] = CaptionInput.from_object(obj, render_path=render_path_for(session, oid)) \
+                    .with_measured_colours(colour_source)
+            la, lb = items[a].colours.luminance, items[b].colours.luminance
+            if abs(la - lb) < TONE_MIN_DIFFERENCE:
+                continue
+            for oid, other, cs in ((a, b, ca), (b, a, cb)):
+                mine, theirs = items[oid].colours.luminance, items[other].colours.luminance
+                tone = "darker" if mine < theirs else "lighter"
+                result = captioner.caption(replace(items[oid], tone=tone))
+                cs.short, cs.concise, cs.detailed = result.short, result.concise, result.detailed
+                cs.response_hash = response_hash(result.raw)
+                changed += 1
+        session.commit()
+    return changed
 
 
 def run_caption_check(catalog: Catalog, summary: CaptionSummary) -> None:

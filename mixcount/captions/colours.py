@@ -110,6 +110,7 @@ class ColourSummary:
     shares: tuple[float, ...]
     variation: float  # std of luminance over object pixels, 0..1: high = patterned/textured
     source: str  # "render" | "model" | "none"
+    luminance: float = 0.0  # mean luminance over the object's pixels, 0..1 (tells two shades of one name apart)
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -117,6 +118,7 @@ class ColourSummary:
             "shares": [round(s, 3) for s in self.shares],
             "variation": round(self.variation, 3),
             "source": self.source,
+            "luminance": round(self.luminance, 3),
         }
 
 
@@ -143,7 +145,8 @@ def summarise(pixels: np.ndarray, *, source: str, min_share: float = 0.12, max_n
         (ranked[0][0], ranked[0][1] / total)
     ]
     lum = (0.2126 * px[:, 0] + 0.7152 * px[:, 1] + 0.0722 * px[:, 2]) / 255.0
-    return ColourSummary(tuple(n for n, _ in kept), tuple(s for _, s in kept), float(lum.std()), source)
+    return ColourSummary(tuple(n for n, _ in kept), tuple(s for _, s in kept), float(lum.std()), source,
+                         float(lum.mean()))
 
 
 def render_pixels(path: Path, *, max_side: int = 256) -> np.ndarray:

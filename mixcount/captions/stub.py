@@ -149,13 +149,14 @@ class StubCaptioner:
         # objects). Words are dropped least specific first: the pattern word, the second colour, then the
         # compound's first words; the head noun always stays.
         pattern = ["patterned"] if finish == "patterned" else []
+        tone = [item.tone] if item.tone else []  # a colour variant's measured shade against its pair
         candidates = [
-            _words(named[:2], pattern, noun_words),
-            _words(named[:2], noun_words),
-            _words(named[:1], pattern, noun_words),
-            _words(named[:1], noun_words),
-            _words(named[:1], noun_words[-2:]),
-            _words(named[:1], noun_words[-1:]),
+            _words(tone, named[:2], pattern, noun_words),
+            _words(tone, named[:2], noun_words),
+            _words(tone, named[:1], pattern, noun_words),
+            _words(tone, named[:1], noun_words),
+            _words(tone, named[:1], noun_words[-2:]),
+            _words(tone, named[:1], noun_words[-1:]),
         ]
         short_words = next((c for c in candidates if 2 <= len(c) <= 5), None)
         if short_words is None:  # no colour measured and a one-word noun: a measured shape cue in front
@@ -176,6 +177,7 @@ class StubCaptioner:
         options = []
         for colour_text in (_colour_phrase(colours.names, "concise"), _colour_phrase(colours.names, "pair"),
                             " ".join(named[:1])):
+            colour_text = " ".join(tone + [colour_text]).strip()
             for nw in (noun_words, noun_words[-2:], noun_words[-1:]):
                 for tail in tails + [""]:
                     options.append([w for w in f"{colour_text} {' '.join(nw)} {tail}".split() if w])
@@ -191,7 +193,7 @@ class StubCaptioner:
         x, y, z = item.dims
         length, width = max(x, y), min(x, y)
         colour_text = _colour_phrase(colours.names, "concise")
-        lead = " ".join(p for p in (finish or "", colour_text, " ".join(noun_words)) if p)
+        lead = " ".join(p for p in (" ".join(tone), finish or "", colour_text, " ".join(noun_words)) if p)
         plural = singular(phrase.head) != phrase.head  # "sneakers", "headphones": no article
         first = lead[:1].upper() + lead[1:] if plural else f"{_article(lead).capitalize()} {lead}"
         if features:
