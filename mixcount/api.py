@@ -55,7 +55,8 @@ def compose(catalog: Any, out: str | Path, *, n: int, split: Optional[str] = Non
         pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
     out = Path(out).resolve()
     summary = compose_scenes(pool=pool, config=cfg, out_dir=out, assets_dir=Path(catalog.usd_assets_dir).resolve(),
-                             n=n, environments=tuple(envs), materials=tuple(mats), progress=progress)
+                             n=n, environments=tuple(envs), materials=tuple(mats), progress=progress,
+                             catalog=catalog.url)
     if package_assets:
         package(out, search=[Path(catalog.usd_assets_dir)])
     return summary

@@ -15,7 +15,8 @@ file (no copy, no absolute path; the Blender worker resolves links, so its mesh 
 catalog). :func:`package_assets` (``mixcount package OUT`` or ``compose --package-assets``) turns every
 link into a real copy, so the dataset holds everything needed to re-render it. A dataset moved before it
 was packaged finds its files again through ``MIXCOUNT_ASSETS`` (folders holding the catalog's
-``usd_assets`` and the environment maps, ``:``-separated), which ``package`` searches by file name.
+``usd_assets`` and the environment maps, ``:``-separated), which ``package`` searches by file name (in each
+folder and the folders right under it: ``usd_assets/<catalog>/``).
 
 Recorded paths (``metadata.json``, the spec in each stage's ``customLayerData``) are written by
 :func:`mixcount.usd.portable.portable_paths` (``assets/<name>``, ``bpy:<path>``, ``source:<file name>``).
@@ -26,6 +27,7 @@ from __future__ import annotations
 import os
 import shutil
 from dataclasses import dataclass, field
+from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any, Iterable, Optional
 
@@ -74,11 +76,17 @@ def search_roots(extra: Iterable[Path] = ()) -> list[Path]:
 
 
 def _find(rel: str, roots: list[Path]) -> Optional[Path]:
+    """The first of ``root/rel``, ``root/<name>`` and ``root/<one folder>/<name>`` that exists: a catalog's
+    ``usd_assets`` folder holds one folder per catalog (``usd_assets/<catalog>/``), so a search path naming
+    ``usd_assets`` itself finds them too."""
     name = Path(rel).name
     for root in roots:
         for cand in (root / rel, root / name):
             if cand.exists():
                 return cand
+    for root in roots:
+        for cand in sorted(root.glob(f"*/{glob_escape(name)}")) if root.is_dir() else []:
+            return cand
     return None
 
 
