@@ -260,9 +260,9 @@ def test_real_scene_damage_is_caught_and_repaired(composed_dataset: Path, tmp_pa
     assert f"{b.name}: changed coco.json (content differs from its record)" in err
     rc = main(["--db", str(db), "--config", "quick", "--set", "scene.n_objects=[16,24]", "compose", "--n", "2",
                "--split", "train", "--seed", "5", "--resolution", "96", "--out", str(out)])
-    err = capsys.readouterr().err
-    assert rc == 0, err
-    assert "2 damaged set aside and rendered again" in err and "Traceback" not in err
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    assert "2 damaged set aside and rendered again" in captured.out and "Traceback" not in captured.err
     assert main(["verify", str(out)]) == 0, capsys.readouterr().err
     capsys.readouterr()
     aside = sorted((out / "scenes" / DAMAGED_DIR).iterdir())
