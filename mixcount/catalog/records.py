@@ -57,15 +57,12 @@ def active_captions(session: Session, obj: CatalogObject) -> dict[str, str] | No
     return {"short": cs.short, "concise": cs.concise, "detailed": cs.detailed}
 
 
-def _caption_warnings(session: Session, obj: CatalogObject) -> list[dict[str, str]] | None:
-    """The caption check's warnings on the active captions (see docs/captions.md); None before captioning."""
-    from mixcount.captions.check import object_warnings
+def object_record(session: Session, obj: CatalogObject, *, caption_warnings: list[dict[str, str]] | None,
+                  detail: bool = False) -> dict[str, Any]:
+    """One object as a JSON-ready dict. ``detail`` adds renders, reviews and caption history (show).
 
-    return object_warnings(session, obj)
-
-
-def object_record(session: Session, obj: CatalogObject, *, detail: bool = False) -> dict[str, Any]:
-    """One object as a JSON-ready dict. ``detail`` adds renders, reviews and caption history (show)."""
+    ``caption_warnings`` are the caption check's findings on the active captions (None before captioning): the
+    caller runs :func:`mixcount.captions.check.object_warnings`, since the catalog room sits below captions."""
     meta, ingest = _metadata(obj)
     record: dict[str, Any] = {
         "id": obj.id,
@@ -75,7 +72,7 @@ def object_record(session: Session, obj: CatalogObject, *, detail: bool = False)
         "error": obj.error,
         "flags": flag_records(session, obj),
         "captions": active_captions(session, obj),
-        "caption_warnings": _caption_warnings(session, obj),
+        "caption_warnings": caption_warnings,
         "split": obj.split.split if obj.split is not None else None,
         "source": obj.source,
         "source_id": obj.source_id,

@@ -145,6 +145,7 @@ def list_cmd(
     """List catalog objects."""
     from rich.table import Table
 
+    from mixcount.captions.check import object_warnings
     from mixcount.catalog.records import object_record
 
     catalog = state(ctx).catalog()
@@ -169,7 +170,8 @@ def list_cmd(
                 out.print(table)
                 return
             if json_out:
-                out.print(json.dumps([object_record(session, o) for o in objects], sort_keys=True))
+                out.print(json.dumps([object_record(session, o, caption_warnings=object_warnings(session, o))
+                                      for o in objects], sort_keys=True))
                 return
             table = Table(title=f"{len(objects)} objects")
             for col in ("id", "name", "category", "status", "dims (cm)", "faces", "error"):
@@ -191,6 +193,7 @@ def show_cmd(
     """Show every fact, flag, caption and the split of one object."""
     from sqlalchemy import select
 
+    from mixcount.captions.check import object_warnings
     from mixcount.catalog.models import CatalogObject
     from mixcount.catalog.records import object_record
 
@@ -202,7 +205,7 @@ def show_cmd(
                 obj = session.scalars(select(CatalogObject).where(CatalogObject.name == object_id)).first()
             if obj is None:
                 raise CatalogError(f"no catalog object with id or name {object_id!r}")
-            record = object_record(session, obj, detail=True)
+            record = object_record(session, obj, caption_warnings=object_warnings(session, obj), detail=True)
     finally:
         catalog.close()
     if json_out:
