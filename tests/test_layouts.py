@@ -282,6 +282,16 @@ def test_layout_override(tmp_path, catalog, capsys):
     assert "unknown layout 'nonsense'" in capsys.readouterr().err
 
 
+def test_dtc_folder_without_an_id_takes_its_leading_category(tmp_path):
+    """DTC names put the category first; without an id the variant's last word is not the noun."""
+    for name in ("Apple_granny_smith", "Teapot-blue_glazed"):
+        folder = tmp_path / "dtc" / name
+        folder.mkdir(parents=True)
+        trimesh.creation.box().export(folder / "3d-asset.glb")
+    found = {c.name: c.category for c in discover([tmp_path / "dtc"], layout="dtc")}
+    assert found == {"Apple_granny_smith": "apple", "Teapot-blue_glazed": "teapot"}
+
+
 def test_pbtxt_parser():
     doc = parse_pbtxt(GSO_PBTXT + 'tags: ["a", "b"]\n# a comment\nlegal < license: "x" "y" >\n')
     assert doc["name"] == ["Threshold_Porcelain_Teapot_White"] and doc["version"] == [2]

@@ -82,6 +82,13 @@ def category_from_stem(stem: str, parent: str) -> str:
     return "unknown"
 
 
+def category_from_dtc_name(name: str, parent: str) -> str:
+    """A DTC folder name without a catalogue id: DTC puts the category first (``Category_ID_Variant``), so the
+    category is the noun of the part before the first underscore ('Apple_granny_smith' -> apple, not smith;
+    'Teapot-blue' -> teapot); else as :func:`category_from_stem`."""
+    return category_from_stem(name.split("_", 1)[0], parent)
+
+
 def words_of(name: str) -> list[str]:
     """Lower-case words of a name: splits on separators and camelCase, drops ids and numbers."""
     words: list[str] = []

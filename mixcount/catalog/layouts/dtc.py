@@ -20,7 +20,14 @@ from mixcount.catalog.layouts.base import (
     record_identity,
 )
 from mixcount.catalog.mesh import MESH_EXTENSIONS
-from mixcount.catalog.naming import DTC_NAME, category_from_stem, category_text, odd_name_reason, safe_text, singular
+from mixcount.catalog.naming import (
+    DTC_NAME,
+    category_from_dtc_name,
+    category_text,
+    odd_name_reason,
+    safe_text,
+    singular,
+)
 
 NAME = SOURCE_DTC
 PRIORITY = 30  # folder layouts are tried in this order
@@ -47,7 +54,7 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
     name = folder.name
     source_id = safe_text(name)
     match = DTC_NAME.match(name)
-    category = singular(match.group("category")) if match else category_from_stem(name, folder.parent.name)
+    category = singular(match.group("category")) if match else category_from_dtc_name(name, folder.parent.name)
     cand = Candidate(SOURCE_DTC, source_id, source_id, category, layout=SOURCE_DTC)
     reason = odd_name_reason(name)
     if reason:
