@@ -337,7 +337,7 @@ def test_cli_http_captioner_uses_config_and_env_key(server, catalog, db_url, tmp
     db = db_url.removeprefix("sqlite:///")
     args = ["--db", db, "--set", f"captions.endpoint={server.base}", "--set", "captions.model=models/g-1",
             "--set", "captions.provider=gemini", "--set", f"captions.api_key_env={KEY_ENV}",
-            "--set", "captions.max_retries=0", "catalog", "caption", "--captioner", "http"]
+            "--set", "captions.max_retries=0", "catalog", "caption", "--captioner", "http", "--json"]
     assert main(args) == 0
     captured = capsys.readouterr()
     summary = json.loads(captured.out.strip().splitlines()[-1])

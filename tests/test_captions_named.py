@@ -37,7 +37,7 @@ def named(request, tmp_path_factory) -> dict:
     _cli(db, "catalog", "ingest", str(root / "lib"), "--json")
     _cli(db, "catalog", "filter")
     done = subprocess.run([sys.executable, "-m", "mixcount", "--db", str(db), "catalog", "caption",
-                           "--keep-collisions"], capture_output=True, text=True, timeout=600)
+                           "--keep-collisions", "--json"], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     summary = json.loads(done.stdout.strip().splitlines()[-1])
     records = json.loads(_cli(db, "catalog", "list", "--json"))

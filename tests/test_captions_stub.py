@@ -164,7 +164,7 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
     ids = _library(catalog, tmp_path)
     db = db_url.removeprefix("sqlite:///")
     assert main(["--db", db, "--set", "captions.colour_source=render", "catalog", "caption",
-                 "--keep-collisions"]) == 0  # flag only, for a person to review
+                 "--keep-collisions", "--json"]) == 0  # flag only, for a person to review
     first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (first["captioned"], first["skipped"], first["failed"], first["excluded"]) == (5, 0, 0, 0)
     assert first["collision_pairs"] == 1 and first["objects_in_collision"] == 2
@@ -178,14 +178,14 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
     texts = [normalise_caption(cs.short) for k, cs in sets.items() if k not in (ids["e"],)]
     assert len(texts) == len(set(texts))
 
-    assert main(["--db", db, "catalog", "caption", "--keep-collisions"]) == 0  # resumable: nothing to do
+    assert main(["--db", db, "catalog", "caption", "--keep-collisions", "--json"]) == 0  # resumable: nothing to do
     again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (again["captioned"], again["skipped"], again["excluded"]) == (0, 5, 0)
     with catalog.session() as s:
         assert s.get(CatalogObject, ids["e"]).status == "active"
 
     # the default resolves the collision (the paper's rule)
-    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v3", "catalog", "caption"]) == 0
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v3", "catalog", "caption", "--json"]) == 0
     third = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (third["captioned"], third["excluded"]) == (5, 1)
     with catalog.session() as s:
@@ -198,8 +198,10 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
     # a later run keeps the excluded copy's flag (the reason it was dropped) but has nothing left to resolve;
     # --dedupe is still accepted (it names the default)
     assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v3", "catalog", "caption", "--dedupe"]) == 0
-    fourth = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert (fourth["skipped"], fourth["collision_pairs"]) == (4, 0)
+    readable = capsys.readouterr()  # without --json: a readable summary on stdout, no JSON, no Python dict
+    assert readable.out.startswith("captioned 0, skipped 4, failed 0 of 4 active objects")  # e was excluded
+    assert "by tier: short" in readable.out and "{" not in readable.out
+    assert "\ncaption collisions: 0 pairs over 0 objects" in readable.out
     with catalog.session() as s:
         kept_flags = s.scalars(select(Flag).where(Flag.kind == "caption_collision")).all()
     assert {(f.object_id, f.pair_object_id) for f in kept_flags} == {(ids["a"], ids["e"]), (ids["e"], ids["a"])}

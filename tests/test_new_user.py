@@ -232,6 +232,7 @@ def test_every_command_prints_its_result_on_stdout_and_json_only_with_json(inges
         "baseline": ["baseline", "--gt", str(ds), "--reference", str(ds), "--out", str(pred)],
         "evaluate": ["evaluate", "--gt", str(ds), "--pred", str(pred)],
         "stats": ["stats", str(ds), "--no-plots"],
+        "caption": ["--db", db, "catalog", "caption"],
         "split": ["--db", db, "catalog", "split"],
         "dry-run": ["--db", db, "--config", "quick", "compose", "--dry-run", "--split", "train", "--n", "1"],
     }

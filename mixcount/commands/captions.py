@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import json
 import logging
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import typer
 
 from mixcount.commands.common import RichProgress, console, out, state
 from mixcount.config import CaptionsConfig
 from mixcount.errors import CaptionError, CatalogError, ConfigError
+
+if TYPE_CHECKING:
+    from mixcount.captions.captioning import CaptionSummary
 
 
 def make_captioner(kind: str, captions: CaptionsConfig):  # type: ignore[no-untyped-def]
@@ -26,6 +29,22 @@ def make_captioner(kind: str, captions: CaptionsConfig):  # type: ignore[no-unty
     raise ConfigError(f"unknown captioner {kind!r} (stub | http)")
 
 
+def _summary_text(summary: CaptionSummary, dedupe: bool) -> str:
+    """The readable result of ``catalog caption``: counts, collisions per tier and the caption check."""
+    tiers = ", ".join(f"{tier} {n}" for tier, n in summary.collisions_by_tier.items()) or "none"
+    check = summary.caption_check
+    kinds = ", ".join(f"{k} {v}" for k, v in check.get("by_kind", {}).items() if v) or "none"
+    return (
+        f"captioned {summary.captioned}, skipped {summary.skipped}, failed {summary.failed} of "
+        f"{summary.objects} active objects ({summary.captioner}/{summary.provider}/{summary.model}/"
+        f"{summary.prompt_version})\n"
+        f"caption collisions: {summary.collision_pairs} pairs over {summary.objects_in_collision} objects "
+        f"(by tier: {tiers})" + (f"; excluded {summary.excluded}" if dedupe else "; kept (--keep-collisions)") + "\n"
+        f"caption check: {check.get('objects_warned', 0)} of {check.get('objects_checked', 0)} captioned active "
+        f"objects have warnings ({kinds})"
+    )
+
+
 def caption_cmd(
     ctx: typer.Context,
     captioner: Optional[str] = typer.Option(
@@ -38,7 +57,7 @@ def caption_cmd(
              "id) and exclude the others, as the paper does. --keep-collisions only flags them "
              "(caption_collision) for review.",
     ),
-    json_out: bool = typer.Option(True, "--json/--no-json", help="Print the summary as JSON on stdout."),
+    json_out: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout instead of a line."),
 ) -> None:
     """Caption every active object at three tiers (short / concise / detailed); resumable."""
     from mixcount.captions.captioning import caption_catalog
@@ -63,26 +82,13 @@ def caption_cmd(
         close = getattr(cap, "close", None)
         if close is not None:
             close()
-    console.print(
-        f"captioned {summary.captioned}, skipped {summary.skipped}, failed {summary.failed} of "
-        f"{summary.objects} active objects ({summary.captioner}/{summary.provider}/{summary.model}/"
-        f"{summary.prompt_version}); caption collisions: {summary.collision_pairs} pairs over "
-        f"{summary.objects_in_collision} objects {summary.collisions_by_tier}"
-        + (f"; excluded {summary.excluded}" if dedupe else "; collisions kept (--keep-collisions)"),
-        highlight=False,
-    )
     for entry in summary.warnings:
         text = "; ".join(f"{w['tier']}: {w['kind']} ({w['detail']})" for w in entry["warnings"])
         console.print(f"caption check: object {entry['object_id']} {entry['name']}: {text}", highlight=False)
-    check = summary.caption_check
-    kinds = ", ".join(f"{k} {v}" for k, v in check.get("by_kind", {}).items() if v) or "none"
-    console.print(
-        f"caption check: {check.get('objects_warned', 0)} of {check.get('objects_checked', 0)} captioned active "
-        f"objects have warnings ({kinds})",
-        highlight=False,
-    )
     if json_out:
         out.print(json.dumps(summary.as_dict(), sort_keys=True))
+    else:
+        out.print(_summary_text(summary, dedupe), highlight=False, soft_wrap=True)
     if summary.failed and summary.failed == summary.objects and not summary.captioned and not summary.skipped:
         first = summary.failures[0]["error"] if summary.failures else ""
         raise CaptionError(
