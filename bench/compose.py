@@ -19,7 +19,7 @@ import to make, the cost of an asset's first scene). Per scene: ``whole`` = stag
 
 ``--settle-ahead`` measures ``compose.settle_ahead`` (a companion bpy process settles the next scene while
 the current one renders) in its steady state: each scene is run three times in a row through a
-:class:`~mixcount.blender.worker.SettleAheadWorker`, copy k + 1 settling in the companion while copy k
+:class:`~mixcount.worker.client.SettleAheadWorker`, copy k + 1 settling in the companion while copy k
 renders, and the middle copy is reported. Its ``whole`` is the wall time from the end of copy 0 to the
 end of copy 1 (stage writing excluded: the look-ahead does it during the previous render), its RGB the
 render that ran beside copy 2's settle. ``same_poses`` says copy 1 (settled in the companion) kept the
@@ -69,11 +69,11 @@ def main() -> int:
 
     from pools import load_pool, run_fresh_scene, scene_bytes, warm_mesh_cache, with_proxies
 
-    from mixcount.blender import mesh_cache
-    from mixcount.blender.worker import BlenderWorker, SettleAheadWorker
     from mixcount.config import load_config
+    from mixcount.engine import mesh_cache
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
+    from mixcount.worker.client import BlenderWorker, SettleAheadWorker
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-"))
     sizes = [args.objects] if args.objects else [int(s) for s in args.sizes.split(",") if s.strip()]

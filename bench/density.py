@@ -73,9 +73,9 @@ def _seed_ranges(seeds: list[int]) -> str:
 
 def worker_mixcount_dir(worker: Any) -> str:
     """The mixcount package folder the bpy worker imported, read from the traceback of a request it
-    must refuse (an empty scene request fails inside mixcount/blender/worker_main.py)."""
+    must refuse (an empty scene request fails inside mixcount/engine/worker_main.py)."""
     answer = worker.request({"op": "scene", "request": {}}, timeout=300)
-    m = re.search(r'File "([^"]+)/blender/worker_main\.py"', answer.get("traceback", ""))
+    m = re.search(r'File "([^"]+)/engine/worker_main\.py"', answer.get("traceback", ""))
     if answer.get("ok") or m is None:
         raise SystemExit(f"cannot tell where the worker's mixcount comes from: {answer}")
     return m.group(1)
@@ -144,7 +144,7 @@ def main() -> int:
     args.seeds = args.seeds or list(range(100, 100 + args.scenes))
 
     import mixcount
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
 
     density = _density_module()
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-density-"))

@@ -64,7 +64,7 @@ def _merge(out: Path) -> dict:
 
 def _compose_one(work: Path) -> Path:
     from mixcount.config import load_config
-    from mixcount.demo.pool import ensure_demo_pool
+    from mixcount.demo.demo_pools import ensure_demo_pool
     from mixcount.run.compose import compose_scenes
 
     pool = ensure_demo_pool(work / "demo")

@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 def _compose_npy(work: Path, resolution: int, samples: int, objects: int) -> Path:
     from mixcount.config import load_config
-    from mixcount.demo.pool import ensure_demo_pool
+    from mixcount.demo.demo_pools import ensure_demo_pool
     from mixcount.run.compose import compose_scenes
 
     pool = ensure_demo_pool(work / "demo")

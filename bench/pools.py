@@ -1,7 +1,7 @@
 """Benchmark pools: the light demo library and its capture-like heavy copy, with collision proxies.
 
 ``light``: the generated demo library (a few thousand faces per object). ``heavy``: the same objects
-midpoint-subdivided to >= 200k faces each, textures kept (:func:`mixcount.demo.pool.heavy_demo_library`),
+midpoint-subdivided to >= 200k faces each, textures kept (:func:`mixcount.demo.demo_pools.heavy_demo_library`),
 the size of a real photogrammetry capture. Proxies (``ingest.proxy_max_vertices``) are built only for the
 assets a scene uses, as ingest would have stored them; ``proxies=False`` leaves them out (the hull of the
 full render mesh, as before proxies existed).
@@ -17,7 +17,7 @@ POOLS = ("light", "heavy")
 
 
 def load_pool(name: str, work: Path, *, min_faces: int = 200_000) -> list[Any]:
-    from mixcount.demo.pool import ensure_demo_pool, ensure_heavy_demo_pool
+    from mixcount.demo.demo_pools import ensure_demo_pool, ensure_heavy_demo_pool
 
     if name == "light":
         return ensure_demo_pool(work / "demo")
@@ -32,7 +32,7 @@ def with_ingest_meshes(rec: Any, container: bool, proxy_dir: Path, max_vertices:
     its decimated collision mesh of ``face_budget`` faces (``ingest.collision_face_budget`` when None),
     as ingest stores them (each built once per model into ``proxy_dir``)."""
     from mixcount.config import load_config
-    from mixcount.demo.pool import _collision_for, _proxy_for
+    from mixcount.demo.demo_pools import _collision_for, _proxy_for
 
     model = Path(rec.model_path)
     budget = face_budget if face_budget is not None else load_config().ingest.collision_face_budget
@@ -55,7 +55,7 @@ def warm_mesh_cache(worker: Any, converted: dict[int, Any], mode: str) -> dict[s
     one-off per asset in a real run, like the conversion itself); returns asset name -> cache event."""
     if mode == "off":
         return {}
-    from mixcount.blender.contract import MeshCacheRequest
+    from mixcount.worker.contract import MeshCacheRequest
 
     req = MeshCacheRequest(assets=tuple(str(a.visual) for a in converted.values()), mode=mode)
     return dict(worker.cache_meshes(req, timeout=1800).assets)

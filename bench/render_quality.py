@@ -7,7 +7,7 @@
 Stages come from the heavy pool (bench/pools.py: captures of >= 200k faces, textures kept): with and without a
 container, dark and over-bright light, bpy's bundled HDRIs and the procedural sky. Each stage is settled once
 (physics, placement, visibility drops: the scene a user gets) and then rendered at its full resolution by
-every setting in one bpy process (mixcount.blender.render_sweep), cam_0 only, rounds in the same order.
+every setting in one bpy process (mixcount.engine.render_sweep), cam_0 only, rounds in the same order.
 
 The reference of a stage is the same camera at the same resolution with many samples (``--reference-spp``),
 deeper light paths than any candidate (16 bounces, 8 diffuse / glossy / transmission), adaptive sampling at
@@ -209,9 +209,9 @@ def _reference(args: argparse.Namespace, before: dict[str, Any]) -> dict[str, An
 
 
 def _sweep_stage(job: dict[str, Any], job_path: Path, label: str) -> dict[str, Any]:
-    """Run mixcount.blender.render_sweep on ``job`` in its own bpy process; its sweep.json."""
+    """Run mixcount.engine.render_sweep on ``job`` in its own bpy process; its sweep.json."""
     job_path.write_text(json.dumps(job))
-    proc = subprocess.run([sys.executable, "-m", "mixcount.blender.render_sweep", str(job_path)],
+    proc = subprocess.run([sys.executable, "-m", "mixcount.engine.render_sweep", str(job_path)],
                           cwd=str(ROOT), capture_output=True, text=True, timeout=6 * 3600)
     if proc.returncode != 0:
         print(proc.stdout[-3000:], proc.stderr[-3000:], file=sys.stderr)
@@ -225,9 +225,9 @@ def main() -> int:
     from PIL import Image
     from pools import load_pool
 
-    from mixcount.blender.contract import SceneRequest
     from mixcount.config import load_config
     from mixcount.scene.spec import CYCLES_BEFORE
+    from mixcount.worker.contract import SceneRequest
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-rq-"))
     threads = args.threads or os.cpu_count() or 1

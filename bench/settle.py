@@ -55,12 +55,12 @@ def _settle_one(args: Any) -> dict[str, Any]:
 
     import numpy as np
 
-    from mixcount.blender import physics as PH
-    from mixcount.blender import scene_job as J
-    from mixcount.blender.contract import SceneRequest
-    from mixcount.blender.scene_build import load_scene
-    from mixcount.blender.visibility import camera_model
     from mixcount.config import load_config
+    from mixcount.engine import physics as PH
+    from mixcount.engine import scene_job as J
+    from mixcount.engine.scene_build import load_scene
+    from mixcount.engine.visibility import camera_model
+    from mixcount.worker.contract import SceneRequest
 
     state = load_scene(SceneRequest.from_config(load_config().compose, stage=args.run_stage,
                                                 out_dir=tempfile.mkdtemp(prefix="settle-"), threads=2, oracle=False))

@@ -145,7 +145,7 @@ def main() -> int:
         return _paper(args)
 
     from mixcount.config import load_config
-    from mixcount.demo.pool import ensure_demo_pool
+    from mixcount.demo.demo_pools import ensure_demo_pool
     from mixcount.run.factory import make_executor
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets

@@ -44,10 +44,10 @@ def main() -> int:
     sys.path.insert(0, str(ROOT / "bench"))
     from pools import load_pool, run_fresh_scene, warm_mesh_cache, with_proxies
 
-    from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
+    from mixcount.worker.client import BlenderWorker
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-vis-"))
     threads = args.threads or os.cpu_count() or 1

@@ -1,7 +1,7 @@
 """mixcount: photorealistic mixed-object counting datasets from a catalog of real 3D captures.
 
 `import mixcount` stays light: it never imports bpy, pxr or trimesh. Engines are imported by the
-modules that need them (``mixcount.blender`` runs bpy in worker processes only).
+modules that need them (``mixcount.engine`` runs bpy in worker processes only).
 
 The Python API (:mod:`mixcount.api`, imported on first use)::
 

@@ -44,7 +44,7 @@ def compose(catalog: Any, out: str | Path, *, n: int, split: Optional[str] = Non
     does; returns its summary (``written``, ``failed``, ``outputs`` ...). ``config``: files or names layered
     over configs/default.toml (``"quick"``); ``overrides``: ``"section.key=value"`` strings like ``--set``.
     ``package_assets`` copies the assets into ``out/assets/`` at the end (:func:`package`)."""
-    from mixcount.catalog.pool import load_environments, load_materials, load_pool
+    from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
     from mixcount.config import load_config
     from mixcount.run.compose import compose_scenes
 

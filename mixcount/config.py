@@ -24,7 +24,7 @@ from typing import Any, Mapping, Optional, Sequence
 
 from mixcount.errors import ConfigError
 from mixcount.resources import data_dir
-from mixcount.scene.config import CyclesConfig, SceneConfig
+from mixcount.scene_config import CyclesConfig, SceneConfig
 
 CONFIG_DIR = data_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"
@@ -255,7 +255,7 @@ DENOISE_PREFILTERS = ("ACCURATE", "FAST", "NONE")
 # the one list of passes `compose --passes` chooses from (rgb is always written); mixcount.annotate.passes
 # and the worker contract read it from here
 PASSES = ("instance", "class", "depth", "normal")
-# how the worker keeps imported asset meshes between scenes (mixcount.blender.mesh_cache): a compressed
+# how the worker keeps imported asset meshes between scenes (mixcount.engine.mesh_cache): a compressed
 # or uncompressed .blend beside each converted asset, or no cache (every scene imports from USD)
 MESH_CACHE_MODES = ("zstd", "raw", "off")
 

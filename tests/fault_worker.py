@@ -1,5 +1,5 @@
 """A bpy worker entry for tests only: ``python -m tests.fault_worker`` serves the production handlers of
-:mod:`mixcount.blender.worker_main` plus faults the tests of timeouts and crashes need:
+:mod:`mixcount.engine.worker_main` plus faults the tests of timeouts and crashes need:
 
 * ``{"op": "sleep", "seconds": s}`` - a hung request;
 * a ``canonical`` request whose stem is ``hang_<s>`` hangs ``s`` seconds, one whose stem is
@@ -20,7 +20,7 @@
   place); answers each load's cache events and whether every load's id
   passes and small RGB render equal the uncached one's, and whether a lit id pass equals the unlit one.
 
-Tests select it with ``monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")``.
+Tests select it with ``monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")``.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ import sys
 import time
 from typing import Any
 
-from mixcount.blender import worker_main
 from mixcount.config import load_config
+from mixcount.engine import worker_main
 
 
 def sleep(req: dict[str, Any]) -> dict[str, Any]:
@@ -52,11 +52,11 @@ def canonical(req: dict[str, Any]) -> dict[str, Any]:
 def border_check(req: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
 
-    from mixcount.blender import decisions as D
-    from mixcount.blender import passes as P
-    from mixcount.blender import scene_build as B
-    from mixcount.blender import scene_job as J
-    from mixcount.blender.contract import SceneRequest
+    from mixcount.annotate import scene_decisions as D
+    from mixcount.engine import render_passes as P
+    from mixcount.engine import scene_build as B
+    from mixcount.engine import scene_job as J
+    from mixcount.worker.contract import SceneRequest
 
     state = B.load_scene(SceneRequest.from_config(load_config().compose, stage=req["stage"], out_dir=req["out_dir"],
                                                   threads=2, oracle=False))
@@ -100,7 +100,7 @@ def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
     import bpy
     import numpy as np
 
-    from mixcount.blender.physics import Body, simulate
+    from mixcount.engine.physics import Body, simulate
 
     out: dict[str, Any] = {"ok": True}
     for mode in ("all", "near"):
@@ -127,8 +127,8 @@ def scaled_drop(req: dict[str, Any]) -> dict[str, Any]:
     import mathutils
     import numpy as np
 
-    from mixcount.blender.physics import Body, simulate
-    from mixcount.blender.scene_build import pose_with_scale, scaled_proxy_collider
+    from mixcount.engine.physics import Body, simulate
+    from mixcount.engine.scene_build import pose_with_scale, scaled_proxy_collider
 
     h = 0.011
     corners = np.array([(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)])
@@ -166,7 +166,7 @@ def release_wave(req: dict[str, Any]) -> dict[str, Any]:
     import bpy
     import numpy as np
 
-    from mixcount.blender.physics import Body, simulate
+    from mixcount.engine.physics import Body, simulate
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
@@ -196,10 +196,10 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
     from PIL import Image
 
-    from mixcount.blender import passes as P
-    from mixcount.blender import scene_build as B
-    from mixcount.blender.contract import SceneRequest
-    from mixcount.blender.mesh_cache import CACHE_DIR, cache_file
+    from mixcount.engine import render_passes as P
+    from mixcount.engine import scene_build as B
+    from mixcount.engine.mesh_cache import CACHE_DIR, cache_file
+    from mixcount.worker.contract import SceneRequest
 
     out = Path(req["out_dir"])
 

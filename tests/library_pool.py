@@ -4,7 +4,7 @@ identical captions at every tier, same-category objects sharing their short capt
 
 from __future__ import annotations
 
-from mixcount.scene.pool import ObjectRecord
+from mixcount.scene.object_records import ObjectRecord
 from mixcount.scene.spec import Captions
 
 # category -> (dims in metres, colour variants); sizes of everyday captures (a die to a bottle)

@@ -312,7 +312,7 @@ def test_external_exemplars_are_copied_once_under_out(tmp_path: Path) -> None:
 
 def test_load_pool_carries_the_canonical_render_as_external_exemplar(catalog, tmp_path: Path) -> None:
     from mixcount.catalog.models import CatalogObject, Render, Split
-    from mixcount.catalog.pool import load_pool
+    from mixcount.catalog.pool_loader import load_pool
 
     png = tmp_path / "obj.png"
     png.write_bytes(b"png")

@@ -35,8 +35,8 @@ def _config(*extra: str):
 
 @pytest.fixture(scope="module")
 def library(tmp_path_factory: pytest.TempPathFactory):
+    from mixcount.demo.demo_pools import pool_from_demo_library
     from mixcount.demo.library import generate_demo_library
-    from mixcount.demo.pool import pool_from_demo_library
 
     root = tmp_path_factory.mktemp("lib")
     generate_demo_library(root / "demo", seed=0, n_objects=8)
@@ -83,7 +83,7 @@ def composed(library, tmp_path_factory: pytest.TempPathFactory):
 
 
 def _suffixes() -> list[str]:
-    from mixcount.blender.contract import view_suffix
+    from mixcount.worker.contract import view_suffix
 
     return [view_suffix(k) for k in range(N_CAMERAS)]
 
@@ -392,10 +392,10 @@ def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_p
                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     """The visibility loop re-renders only where dropped objects were seen: pasted into the earlier id
     pass, that region must give exactly the full render's ids, depth and normals."""
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
 
     out, _summary, _pool = composed
-    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "border_check"
+    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "border_check"
     with BlenderWorker(name="border", log_dir=tmp_path) as w:
         for scene in _scenes(out):
             r = w.request({"op": "border_check", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / scene.name),
@@ -414,12 +414,12 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
     normals and RGB, cold (files written) and warm (files appended); a truncated file is a miss that is
     rewritten, and a file that cannot be written is reported and costs nothing else. The unlit id pass
     equals a lit one."""
-    from mixcount.blender.contract import MeshCacheRequest, MeshCacheResult
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
+    from mixcount.worker.contract import MeshCacheRequest, MeshCacheResult
 
     out, _summary, _pool = composed
     scene = _scenes(out)[0]
-    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "mesh_cache"
+    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "mesh_cache"
     with BlenderWorker(name="meshcache", log_dir=tmp_path) as w:
         r = w.request({"op": "mesh_cache", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / "mc")},
                       timeout=300)
@@ -450,9 +450,9 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
 def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The early stop ends once the waited-for bodies are calm: a body the scene job would drop anyway
     (here: one still falling far away) no longer keeps the simulation going."""
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
 
-    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "rest_stop"
+    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "rest_stop"
     with BlenderWorker(name="rest", log_dir=tmp_path) as w:
         r = w.request({"op": "rest_stop"}, timeout=300)
     assert r["ok"], r
@@ -467,9 +467,9 @@ def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkey
 def test_large_scale_body_rests_on_the_floor(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A small real object scaled up (a 2.2 cm die at x51) collides through a proxy with the scale in its
     mesh: dropped 15 m it comes to rest on the floor at Bullet's margins, as a 1.12 m cube should."""
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
 
-    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "scaled_drop"
+    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "scaled_drop"
     with BlenderWorker(name="scaled", log_dir=tmp_path) as w:
         r = w.request({"op": "scaled_drop"}, timeout=300)
     assert r["ok"], r
@@ -483,9 +483,9 @@ def test_large_scale_body_rests_on_the_floor(tmp_path: Path, monkeypatch: pytest
 def test_spawn_wave_body_is_held_then_falls_from_its_spot(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A body released at frame 40 takes no part before it (parked far away), then falls from rest at
     its spawn spot; the simulation runs on past the release and leaves no animation behind."""
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
 
-    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds "release_wave"
+    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "release_wave"
     with BlenderWorker(name="wave", log_dir=tmp_path) as w:
         r = w.request({"op": "release_wave"}, timeout=300)
     assert r["ok"], r
@@ -500,12 +500,12 @@ def test_spawn_wave_body_is_held_then_falls_from_its_spot(tmp_path: Path, monkey
 
 
 def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from mixcount.blender.contract import SceneRequest
-    from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
     from mixcount.errors import RenderError
+    from mixcount.worker.client import BlenderWorker
+    from mixcount.worker.contract import SceneRequest
 
-    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # adds op "sleep"
+    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds op "sleep"
     with BlenderWorker(name="t", log_dir=tmp_path) as w:
         first = w.request({"op": "ping"}, timeout=120)["pid"]
         with pytest.raises(RenderError, match="timed out"):
@@ -570,7 +570,7 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
     script = (
         "import sys; from pathlib import Path\n"
         "from tests.test_blender_worker import _config\n"
-        "from mixcount.demo.pool import pool_from_demo_library\n"
+        "from mixcount.demo.demo_pools import pool_from_demo_library\n"
         "from mixcount.run.compose import compose_scenes\n"
         f"pool = pool_from_demo_library(Path({str(Path(pool[0].model_path).parent.parent)!r}))\n"
         f"compose_scenes(pool=pool, config=_config(), out_dir=Path({str(out)!r}), assets_dir=Path({str(assets)!r}),"

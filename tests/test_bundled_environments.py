@@ -73,7 +73,7 @@ def test_compose_without_the_bundle_stops_before_any_scene(tmp_path: Path, monke
         compose_scenes(pool=rich_pool(), config=load_config(), out_dir=tmp_path / "out", assets_dir=tmp_path / "a", n=1,
                        progress=False)
     assert list((tmp_path / "out" / "scenes").iterdir()) == [] and not (tmp_path / "out" / "logs").exists()
-    from mixcount.scene.environments import environments_to_draw
+    from mixcount.scene.environment_sampling import environments_to_draw
 
     assert environments_to_draw(load_config([], ["scene.default_environment=sky"]).scene, ()) == ()
 
@@ -113,8 +113,8 @@ def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Pa
     from PIL import Image
 
     from mixcount.dataset.attribution import write_attribution
+    from mixcount.demo.demo_pools import pool_from_demo_library
     from mixcount.demo.library import generate_demo_library
-    from mixcount.demo.pool import pool_from_demo_library
 
     generate_demo_library(tmp_path / "demo", seed=0, n_objects=6)
     pool = pool_from_demo_library(tmp_path / "demo")
@@ -159,8 +159,8 @@ def test_sky_config_still_renders_the_procedural_sky(tmp_path: Path) -> None:
     from PIL import Image
 
     from mixcount.dataset.attribution import collect_attribution
+    from mixcount.demo.demo_pools import pool_from_demo_library
     from mixcount.demo.library import generate_demo_library
-    from mixcount.demo.pool import pool_from_demo_library
 
     generate_demo_library(tmp_path / "demo", seed=0, n_objects=6)
     scene = _compose(tmp_path / "sky", tmp_path / "assets", pool_from_demo_library(tmp_path / "demo"), 1.0,

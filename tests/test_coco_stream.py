@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from mixcount.dataset.coco_stream import members
-from mixcount.export.errors import ExportError
+from mixcount.errors import ExportError
 from mixcount.export.reader import ComposedDataset
 
 DOC = {
@@ -147,7 +147,7 @@ def test_spooled_members_write_the_bytes_write_json_writes(tmp_path: Path) -> No
 
 
 def test_ground_truth_and_stats_stream_the_annotations_and_count_as_before(tmp_path: Path) -> None:
-    from mixcount.evaluate.errors import GroundTruthError
+    from mixcount.errors import GroundTruthError
     from mixcount.evaluate.metrics import ground_truth_from_coco, load_ground_truth, read_coco
     from mixcount.evaluate.stats import compute_stats
 

@@ -112,7 +112,7 @@ def test_pool_proxies_fit_their_objects_whatever_the_source_units(tmp_path: Path
     built from the file read as metres: a body 100x the object, which flung a whole bowl scene apart
     (bodies hundreds of km away). The USD converter now refuses a proxy that does not fit its model."""
     from mixcount.catalog.proxies import build_proxy, read_proxy
-    from mixcount.demo.pool import pool_from_demo_library
+    from mixcount.demo.demo_pools import pool_from_demo_library
     from mixcount.errors import CompositionError
     from mixcount.usd.assets import convert_asset
 
@@ -136,8 +136,8 @@ def test_pool_proxies_fit_their_objects_whatever_the_source_units(tmp_path: Path
 
 @pytest.fixture(scope="module")
 def proxy_library(tmp_path_factory: pytest.TempPathFactory):
+    from mixcount.demo.demo_pools import pool_from_demo_library
     from mixcount.demo.library import generate_demo_library
-    from mixcount.demo.pool import pool_from_demo_library
 
     root = tmp_path_factory.mktemp("plib")
     generate_demo_library(root / "demo", seed=0, n_objects=8)
@@ -181,10 +181,10 @@ def test_usd_asset_holds_guide_proxy_with_collision(proxy_library, tmp_path: Pat
 def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, tmp_path: Path) -> None:
     """Same seeds, proxies on and off: no more settle drops, nothing sinks, nothing interpenetrates beyond
     the worker's checks, and bodies are at rest at the end."""
-    from mixcount.blender.decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
     from mixcount.config import load_config
     from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
+    from mixcount.worker.client import BlenderWorker
 
     pool, root = proxy_library
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
@@ -224,10 +224,10 @@ def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, t
 def test_deep_floor_collider_settles_as_well_as_the_thin_floor(proxy_library, tmp_path: Path) -> None:
     """The default physics (8 substeps, floor colliding 0.5·s deep, containers through convex parts)
     against the bare 0.5 m floor, same seeds: no more settle drops, nothing sinking, a pile at rest."""
-    from mixcount.blender.decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
     from mixcount.config import load_config
     from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
+    from mixcount.worker.client import BlenderWorker
 
     pool, root = proxy_library
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}

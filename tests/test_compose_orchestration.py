@@ -18,7 +18,14 @@ import pytest
 import trimesh
 from PIL import Image
 
-from mixcount.blender.contract import (
+from mixcount.config import load_config
+from mixcount.dataset.scene_writer import REJECTED_DIR
+from mixcount.run.compose import compose_scenes
+from mixcount.run.local import LocalExecutor
+from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
+from mixcount.scene.object_records import ObjectRecord, fallback_captions
+from mixcount.scene.spec import SceneSpec
+from mixcount.worker.contract import (
     STATUS_EMPTY,
     STATUS_OK,
     STATUS_REJECTED,
@@ -26,13 +33,6 @@ from mixcount.blender.contract import (
     ObjectResult,
     SceneResult,
 )
-from mixcount.config import load_config
-from mixcount.dataset.scene_writer import REJECTED_DIR
-from mixcount.run.compose import compose_scenes
-from mixcount.run.local import LocalExecutor
-from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
-from mixcount.scene.pool import ObjectRecord, fallback_captions
-from mixcount.scene.spec import SceneSpec
 
 SIDE = 96
 

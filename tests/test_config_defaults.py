@@ -46,10 +46,10 @@ NOT_CONFIG_PARAMS = {
     ("mixcount/dataset/scene_writer.py", "margin"),  # exemplar crop margin, not the canonical render's
     ("mixcount/demo/library.py", "scale"),  # glTF node scale of a generated model
     ("mixcount/demo/writers.py", "scale"),  # ... the same, where the GLB is written
-    ("mixcount/demo/pool.py", "seed"),  # fixture pool for tests and benchmarks: a fixed generator seed
-    ("mixcount/demo/pool.py", "split"),  # ... and the split label it gives every object
+    ("mixcount/demo/demo_pools.py", "seed"),  # fixture pool for tests and benchmarks: a fixed generator seed
+    ("mixcount/demo/demo_pools.py", "split"),  # ... and the split label it gives every object
     ("mixcount/evaluate/metrics.py", "split"),  # which ground-truth COCO file to score against
-    ("mixcount/demo/pool.py", "min_faces"),  # faces of a heavy benchmark model, not the degenerate threshold
+    ("mixcount/demo/demo_pools.py", "min_faces"),  # faces of a heavy benchmark model, not the degenerate threshold
     ("bench/pools.py", "min_faces"),  # ... the same
 }
 # Class-level fields that share a config key's name but mean something else (checked by hand).

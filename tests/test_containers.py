@@ -16,7 +16,7 @@ from mixcount.catalog.models import CaptionSet, CatalogObject
 from mixcount.cli import main
 from mixcount.config import load_config
 from mixcount.run.compose import compose_scenes
-from mixcount.scene.pool import ObjectRecord, fallback_captions
+from mixcount.scene.object_records import ObjectRecord, fallback_captions
 from mixcount.scene.sampler import container_warning, sample_scene
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from mixcount.cli import main
-from mixcount.evaluate.errors import GroundTruthError, PredictionError
+from mixcount.errors import GroundTruthError, PredictionError
 from mixcount.evaluate.metrics import (
     evaluate,
     ground_truth_from_coco,

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from mixcount.cli import main
+from mixcount.errors import PredictionError
 from mixcount.evaluate.detections import detection_rows, is_detection_document, load_prediction_file
-from mixcount.evaluate.errors import PredictionError
 
 
 def _gt(tmp_path: Path) -> Path:

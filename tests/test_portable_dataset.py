@@ -144,10 +144,10 @@ def test_moved_dataset_opens_merges_exports_and_rerenders_without_the_catalog(tw
                                                                              tmp_path: Path) -> None:
     from test_usd_stage import run_child
 
-    from mixcount.blender.contract import SceneRequest
-    from mixcount.blender.worker import BlenderWorker
     from mixcount.config import load_config
     from mixcount.export import export_dataset
+    from mixcount.worker.client import BlenderWorker
+    from mixcount.worker.contract import SceneRequest
 
     root, out = two_splits
     needles = _machine_paths(root, out)

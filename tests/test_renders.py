@@ -97,11 +97,11 @@ def test_render_catalog_white_centred_resumable(tmp_path, catalog):
 
 
 def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
-    from mixcount.blender.canonical_runner import run_jobs
-    from mixcount.blender.contract import CanonicalRequest
     from mixcount.curation.renders import canonical_request
+    from mixcount.worker.canonical_runner import run_jobs
+    from mixcount.worker.contract import CanonicalRequest
 
-    monkeypatch.setattr("mixcount.blender.worker.WORKER_MODULE", "tests.fault_worker")  # hang / crash hooks
+    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # hang / crash hooks
     glb = tmp_path / "box.glb"
     coloured(trimesh.creation.box(extents=(0.04, 0.04, 0.04)), (200, 200, 30)).export(glb)
     obj = types.SimpleNamespace(model_path=str(glb), id=1, source_up_axis="Y")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from mixcount.config import load_config
-from mixcount.scene.pool import ObjectRecord, fallback_captions
+from mixcount.scene.object_records import ObjectRecord, fallback_captions
 from mixcount.scene.sampler import sample_scene
 
 N_SCENES = 2000

@@ -12,9 +12,9 @@ from PIL import Image
 from test_scene_distributions import rich_pool
 
 from mixcount.catalog.environments import classify_maps, is_environment_map
-from mixcount.catalog.pool import load_environments, load_materials
+from mixcount.catalog.pool_loader import load_environments, load_materials
 from mixcount.config import load_config
-from mixcount.scene.environments import PATTERNS, render_pattern, sample_pattern_params
+from mixcount.scene.environment_sampling import PATTERNS, render_pattern, sample_pattern_params
 from mixcount.scene.sampler import sample_scene
 
 
@@ -79,7 +79,7 @@ def test_default_scenes_are_lit_by_a_bundled_hdri_that_exists():
 
 
 def test_ingested_hdris_take_precedence_over_the_bundled_ones(tmp_path):
-    from mixcount.scene.pool import EnvironmentRecord
+    from mixcount.scene.object_records import EnvironmentRecord
 
     hdr = write_hdr(tmp_path / "mine.hdr")
     env = sample_scene(3, "train", load_config(), rich_pool(),

@@ -15,7 +15,7 @@ from library_pool import library_pool
 from mixcount.captions.base import TIERS
 from mixcount.config import load_config
 from mixcount.scene.caption_text import normalise_caption
-from mixcount.scene.pool import ObjectRecord
+from mixcount.scene.object_records import ObjectRecord
 from mixcount.scene.sampler import sample_scene
 from mixcount.scene.spec import Captions, SceneSpec
 

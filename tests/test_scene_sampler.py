@@ -10,7 +10,7 @@ from test_scene_distributions import rich_pool
 
 from mixcount.config import Config, load_config
 from mixcount.errors import CompositionError, ConfigError
-from mixcount.scene.pool import ObjectRecord
+from mixcount.scene.object_records import ObjectRecord
 from mixcount.scene.sampler import qualify, sample_scene
 from mixcount.scene.spec import Captions, SceneSpec
 

@@ -70,9 +70,9 @@ def test_a_companion_that_dies_mid_settle_leaves_the_scene_to_the_render_worker(
     import os
     import signal
 
-    from mixcount.blender.worker import SettleAheadWorker
     from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task, stage_scene
     from mixcount.scene.sampler import sample_scene
+    from mixcount.worker.client import SettleAheadWorker
 
     pool, assets = library
     cfg = _config()
@@ -104,7 +104,7 @@ class _FakeWorker:
 
 @pytest.mark.parametrize("size", [1, 2])
 def test_pool_prefetches_the_next_job_on_the_worker_that_will_run_it(size: int) -> None:
-    from mixcount.blender.pool import WorkerPool
+    from mixcount.worker.pool import WorkerPool
 
     log: list[tuple[str, int, int]] = []
     lock = threading.Lock()
@@ -141,7 +141,7 @@ def test_pool_prefetches_the_next_job_on_the_worker_that_will_run_it(size: int) 
 
 
 def test_a_killed_pool_does_not_run_the_job_it_prefetched() -> None:
-    from mixcount.blender.pool import WorkerPool
+    from mixcount.worker.pool import WorkerPool
 
     ran: list[int] = []
     fetched = threading.Event()

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from mixcount.cli import main
-from mixcount.evaluate.errors import GroundTruthError
+from mixcount.errors import GroundTruthError
 from mixcount.evaluate.plots import PLOT_FILES, write_plots
 from mixcount.evaluate.stats import compute_stats
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from mixcount.catalog.pool import load_pool
+from mixcount.catalog.pool_loader import load_pool
 from mixcount.config import load_config
 from mixcount.scene.sampler import sample_scene
 from mixcount.usd.stage import write_stage
@@ -168,7 +168,7 @@ def test_stage_without_container_and_with_hdri(demo, tmp_path):
     from pxr import Usd, UsdLux
     from test_scene_environments import write_hdr
 
-    from mixcount.scene.pool import EnvironmentRecord
+    from mixcount.scene.object_records import EnvironmentRecord
 
     root, cat, pool, _conf = demo
     hdr = write_hdr(tmp_path / "sky.hdr")

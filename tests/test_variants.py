@@ -14,12 +14,12 @@ import pytest
 from test_curate_support import library_catalog, quick_config
 
 from mixcount.catalog.models import Flag
-from mixcount.catalog.pool import colour_variants, load_pool
+from mixcount.catalog.pool_loader import colour_variants, load_pool
 from mixcount.catalog.splits import assign_splits, check_splits
 from mixcount.config import load_config
 from mixcount.curation.flags import run_filter
 from mixcount.errors import ConfigError
-from mixcount.scene.pool import ObjectRecord
+from mixcount.scene.object_records import ObjectRecord
 from mixcount.scene.sampler import CONSTRUCTIONS, caption_keys, construction_weights, sample_scene
 from mixcount.scene.spec import Captions
 

@@ -1,4 +1,4 @@
-"""The one worker pool (mixcount.blender.pool) that the local executor, the Ray actor and canonical renders
+"""The one worker pool (mixcount.worker.pool) that the local executor, the Ray actor and canonical renders
 share: the recycle rule, the error format, no lost answer, an interrupted pool starting no queued job.
 Fake workers stand in for bpy here; the real ones run through it in test_blender_worker.py (a worker
 killed mid-scene), test_renders.py (a hung and a crashed render) and test_ray_executor.py."""
@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from mixcount.blender.pool import MAX_ERROR_CHARS, WorkerPool, WorkerSlot, error_text
+from mixcount.worker.pool import MAX_ERROR_CHARS, WorkerPool, WorkerSlot, error_text
 
 
 class FakeWorker:

@@ -19,7 +19,7 @@ from mixcount.errors import CompositionError
 
 def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
     """SceneSpecs for scenes ``compose.seed .. compose.seed+n-1`` of ``compose.split``."""
-    from mixcount.catalog.pool import load_environments, load_materials, load_pool
+    from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
     from mixcount.scene.sampler import container_warning, sample_scene
 
     split, base = config.compose.split, config.compose.seed
@@ -163,7 +163,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         from mixcount.run.compose import compose_scenes
 
         with catalog.session() as session:
-            from mixcount.catalog.pool import load_environments, load_materials, load_pool
+            from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
 
             pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
         require_split(pool, cfg.compose.split)  # before OUT is made: a failed start leaves nothing behind

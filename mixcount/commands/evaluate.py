@@ -132,7 +132,7 @@ def baseline_cmd(
     json_out: bool = json_option("what was written"),
 ) -> None:
     """Write a baseline prediction file: the mean-count floor, or the perfect oracle (checks the pipeline)."""
-    from mixcount.evaluate.errors import EvaluationError
+    from mixcount.errors import EvaluationError
     from mixcount.evaluate.metrics import load_ground_truth, load_reference, mean_predictions, perfect_predictions
 
     if kind not in ("mean", "perfect"):

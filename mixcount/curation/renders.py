@@ -1,7 +1,7 @@
 """`catalog render`: canonical white-background renders of catalog objects (the external exemplars).
 
 Each active object gets a ``canonical`` view (and ``view_<k>`` extra views when ``render.extra_views`` > 0)
-rendered by bpy in worker processes (:mod:`mixcount.blender.canonical_runner`). Files live under
+rendered by bpy in worker processes (:mod:`mixcount.worker.canonical_runner`). Files live under
 ``catalog.renders_dir`` (``renders/<catalog>/`` beside the database: the catalog's own folder, since row ids
 repeat between catalogs that share a folder) as ``obj_<id>.png`` (RGB on pure white) plus
 ``obj_<id>_mask.png`` (coverage); rows in table ``renders`` record path, size, a hash of the model's
@@ -25,12 +25,12 @@ from typing import Any, Iterable
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from mixcount.blender.contract import CANONICAL, CanonicalRequest, canonical_views
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.hashing import json_hash
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
 from mixcount.config import RenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
+from mixcount.worker.contract import CANONICAL, CanonicalRequest, canonical_views
 
 RENDER_VERSION = "canonical-v2"  # bump when the renderer changes what a render looks like (v2: vertex colours)
 SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
@@ -129,7 +129,7 @@ def render_catalog(
     progress: ProgressReporter | bool | None = None,
 ) -> RenderSummary:
     """Render every active (and optionally excluded) object whose render is missing or stale."""
-    from mixcount.blender.canonical_runner import RenderOutcome, run_jobs
+    from mixcount.worker.canonical_runner import RenderOutcome, run_jobs
 
     settings = render_settings(config)
     shash = settings_hash(settings)

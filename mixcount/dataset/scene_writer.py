@@ -17,9 +17,9 @@ import numpy as np
 
 from mixcount.annotate.coco import build_scene_coco, category_id, class_map, ground_truth_pairs
 from mixcount.atomic import atomic_path
-from mixcount.blender.contract import KEPT, CameraView, ObjectResult, SceneResult
 from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spec import SceneSpec
+from mixcount.worker.contract import KEPT, CameraView, ObjectResult, SceneResult
 
 TMP_PREFIX = ".tmp-"
 REJECTED_DIR = ".rejected"

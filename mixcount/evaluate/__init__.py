@@ -3,6 +3,6 @@
 Engine-free: reads COCO JSON files and prediction JSON files; plots with matplotlib's Agg backend.
 """
 
-from mixcount.evaluate.errors import EvaluationError, GroundTruthError, PredictionError
+from mixcount.errors import EvaluationError, GroundTruthError, PredictionError
 
 __all__ = ["EvaluationError", "GroundTruthError", "PredictionError"]

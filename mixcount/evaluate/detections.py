@@ -19,7 +19,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Optional
 
-from mixcount.evaluate.errors import PredictionError
+from mixcount.errors import PredictionError
 from mixcount.evaluate.metrics import PredictionRow, _is_int, parse_predictions, read_json
 
 DEFAULT_SCORE_THRESHOLD = 0.5

@@ -32,7 +32,7 @@ from typing import Any, Collection, Iterable, Mapping, Optional, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from mixcount.evaluate.errors import EvaluationError, GroundTruthError, PredictionError
+from mixcount.errors import EvaluationError, GroundTruthError, PredictionError
 
 ACC_THRESHOLD = 0.1
 NO_VALUE = "(none)"  # group name of rows / pairs that lack the grouping field

@@ -32,8 +32,8 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from mixcount.errors import GroundTruthError
 from mixcount.evaluate.density import scene_density, summarise_density
-from mixcount.evaluate.errors import GroundTruthError
 from mixcount.evaluate.metrics import read_coco
 
 TIERS = ("short", "concise", "detailed")

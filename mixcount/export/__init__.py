@@ -18,7 +18,7 @@ import importlib
 from pathlib import Path
 from typing import Any, Optional
 
-from mixcount.export.errors import ExportError
+from mixcount.errors import ExportError
 
 FORMATS = ("fsc147", "countgd", "hf", "fiftyone")
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Iterable, Optional, Sequence
 
 from mixcount.atomic import atomic_path, write_bytes_atomic
-from mixcount.export.errors import ExportError
+from mixcount.errors import ExportError
 
 MANIFEST = "mixcount_export.json"
 

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping, Optional, Sequence
 
 from mixcount.dataset.coco_stream import members
-from mixcount.export.errors import ExportError
+from mixcount.errors import ExportError
 
 CAPTION_TIERS = ("short", "concise", "detailed")
 N_EXEMPLARS = 3

@@ -76,7 +76,7 @@ def compose_scenes(
     already in ``out_dir`` (:mod:`mixcount.dataset.settings`): other settings are a CompositionError unless
     ``mixed_settings``, which records them as another variant."""
     from mixcount.dataset.settings import check_settings, dataset_settings
-    from mixcount.scene.environments import environments_to_draw
+    from mixcount.scene.environment_sampling import environments_to_draw
     from mixcount.scene.sampler import container_warning
 
     comp = config.compose

@@ -8,11 +8,11 @@ The interface every executor implements (a Ray one lives in ``mixcount/run/ray_e
   :class:`~mixcount.run.scene_task.SceneOutcome` (completion order, not submission order);
 * ``close()`` - stop the workers (also via ``with``).
 
-:class:`LocalExecutor` is a :class:`~mixcount.blender.pool.WorkerPool` of ``workers`` slots, each owning
-one long-lived :class:`~mixcount.blender.worker.BlenderWorker` subprocess (bpy never runs in this process),
+:class:`LocalExecutor` is a :class:`~mixcount.worker.pool.WorkerPool` of ``workers`` slots, each owning
+one long-lived :class:`~mixcount.worker.client.BlenderWorker` subprocess (bpy never runs in this process),
 recycled after ``compose.recycle_after`` scenes; a worker that crashes or times out is restarted by its
 next task. With ``settle_ahead`` (``compose.settle_ahead``) each slot is a
-:class:`~mixcount.blender.worker.SettleAheadWorker`: while a scene renders, the slot's next scene is
+:class:`~mixcount.worker.client.SettleAheadWorker`: while a scene renders, the slot's next scene is
 staged and settled in a companion bpy process (the pool's prefetch), and the executor takes two scenes
 per worker (``slots``) so that there is always a next one.
 """
@@ -37,13 +37,13 @@ class Executor(Protocol):
 
 
 class LocalExecutor:
-    """A pool of ``workers`` bpy worker processes on this machine (:class:`~mixcount.blender.pool.WorkerPool`)."""
+    """A pool of ``workers`` bpy worker processes on this machine (:class:`~mixcount.worker.pool.WorkerPool`)."""
 
     def __init__(self, workers: int, *, log_dir: Optional[Path] = None,
                  runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int,
                  settle_ahead: bool) -> None:
-        from mixcount.blender.pool import WorkerPool, error_text
-        from mixcount.blender.worker import BlenderWorker, SettleAheadWorker
+        from mixcount.worker.client import BlenderWorker, SettleAheadWorker
+        from mixcount.worker.pool import WorkerPool, error_text
 
         n_workers = max(1, int(workers))
         self.slots = 2 * n_workers if settle_ahead else n_workers

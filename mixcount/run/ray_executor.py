@@ -2,7 +2,7 @@
 
 ``RayExecutor(address=None, slots=K)`` connects to an existing cluster (``ray.init(address=...)``) or,
 without an address, starts a small local one on 127.0.0.1. It keeps ``slots`` *actors*; each actor owns
-one long-lived :class:`~mixcount.blender.worker.BlenderWorker` subprocess (bpy starts once per actor, not
+one long-lived :class:`~mixcount.worker.client.BlenderWorker` subprocess (bpy starts once per actor, not
 once per scene, and still never runs inside a Ray worker process itself). One actor call = one scene:
 
 * at most ``slots`` scenes are in flight (one per actor); further ``submit`` s wait in a local queue;
@@ -34,9 +34,9 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-from mixcount.blender.pool import MAX_ERROR_CHARS, WorkerSlot, error_text
 from mixcount.errors import ExecutorError
 from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
+from mixcount.worker.pool import MAX_ERROR_CHARS, WorkerSlot, error_text
 
 #: seconds a call may run beyond its task's ``timeout_s`` before the driver gives up on the actor
 CALL_GRACE_S = 120.0
@@ -47,7 +47,7 @@ RayExecutorError = ExecutorError  # the name this module has always raised (mixc
 
 def default_worker_factory(name: str, log_dir: Optional[str]) -> Any:
     """A :class:`BlenderWorker` logging under ``log_dir`` when this node can write there, else the temp dir."""
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
 
     path: Optional[Path] = None
     if log_dir:

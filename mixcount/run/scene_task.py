@@ -1,7 +1,7 @@
 """One unit of compose work, runnable by any executor: spec -> scene.usda -> worker -> finished folder.
 
 :class:`SceneTask` is plain picklable data (a Ray executor ships it to another machine);
-:func:`run_scene_task` needs only a :class:`~mixcount.blender.worker.BlenderWorker` and never raises:
+:func:`run_scene_task` needs only a :class:`~mixcount.worker.client.BlenderWorker` and never raises:
 every failure becomes a :class:`SceneOutcome` with status "failed", so the batch goes on.
 """
 
@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
-from mixcount.blender.contract import STATUS_EMPTY, STATUS_OK, SceneRequest
 from mixcount.config import ComposeConfig
 from mixcount.scene.spec import SceneSpec
+from mixcount.worker.contract import STATUS_EMPTY, STATUS_OK, SceneRequest
 
 WRITTEN = "written"
 SKIPPED = "skipped"  # already complete
@@ -88,7 +88,7 @@ def _request(task: SceneTask, tmp: Path) -> SceneRequest:
 
 def stage_scene(task: SceneTask) -> Optional[StagedScene]:
     """Write ``task``'s stage into a fresh temporary folder now (to settle it ahead, see
-    :class:`~mixcount.blender.worker.SettleAheadWorker`); None when the scene is already complete or the
+    :class:`~mixcount.worker.client.SettleAheadWorker`); None when the scene is already complete or the
     stage cannot be written (:func:`run_scene_task` then does it all and reports the error)."""
     from mixcount.dataset.scene_writer import is_complete, tmp_dir_for
     from mixcount.usd.stage import write_stage

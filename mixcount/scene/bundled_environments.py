@@ -6,7 +6,7 @@ original). They are found through bpy's install *without importing bpy* (``impor
 only locates the package; importing it would load all of Blender into the sampling process) and used
 where they lie: nothing is copied into the repository or the dataset.
 
-:func:`bundled_environments` gives them as :class:`~mixcount.scene.pool.EnvironmentRecord` (no catalog
+:func:`bundled_environments` gives them as :class:`~mixcount.scene.object_records.EnvironmentRecord` (no catalog
 id, ``source="bpy_bundled"``); :func:`bundled_license` reads the ``license.txt`` beside one of them
 into the fields ATTRIBUTION needs (licence, author, source, the original's URL).
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from mixcount.errors import ConfigError
-from mixcount.scene.pool import EnvironmentRecord
+from mixcount.scene.object_records import EnvironmentRecord
 
 BUNDLED_SOURCE = "bpy_bundled"
 WORLD_SUBDIR = ("datafiles", "studiolights", "world")

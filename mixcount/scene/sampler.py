@@ -32,11 +32,11 @@ from numpy.typing import NDArray
 
 from mixcount.errors import CompositionError
 from mixcount.scene.caption_text import normalise_caption, size_qualified
-from mixcount.scene.config import SceneConfig
-from mixcount.scene.environments import sample_environment, sample_floor_material
+from mixcount.scene.environment_sampling import sample_environment, sample_floor_material
 from mixcount.scene.framing import camera_position, look_at_rotation
-from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord
+from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, ObjectRecord
 from mixcount.scene.rotation import quat_from_matrix
+from mixcount.scene_config import SceneConfig
 
 if TYPE_CHECKING:
     from mixcount.config import Config

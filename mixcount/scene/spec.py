@@ -8,8 +8,17 @@ quaternions are (w, x, y, z). ``SceneSpec.to_dict()`` is stored verbatim (sorted
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping, Optional
+
+from mixcount.scene_config import DENOISING_QUALITIES as DENOISING_QUALITIES  # [cycles] vocabulary and settings
+
+# live in the foundation, beside the config that reads them
+from mixcount.scene_config import PIXEL_FILTERS as PIXEL_FILTERS
+from mixcount.scene_config import SAMPLING_PATTERNS as SAMPLING_PATTERNS
+from mixcount.scene_config import TEXTURE_LIMITS as TEXTURE_LIMITS
+from mixcount.scene_config import WORLD_SAMPLING as WORLD_SAMPLING
+from mixcount.scene_config import CyclesSpec as CyclesSpec
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -178,7 +187,7 @@ class ContainerSpec:
 @dataclass(frozen=True)
 class MaterialSpec:
     """Floor material. kind "procedural": ``params`` holds pattern, colours, seed, ... and the stage
-    writer renders them to a seamless PNG (``mixcount.scene.environments.render_pattern``);
+    writer renders them to a seamless PNG (``mixcount.scene.environment_sampling.render_pattern``);
     kind "pbr": ``maps`` names map -> absolute file (base_color, roughness, normal, ...)."""
 
     kind: str
@@ -305,7 +314,7 @@ class PhysicsSpec:
     solver_iterations: int
     collision_shape: str
     gravity: float
-    settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.blender.decisions)
+    settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.annotate.scene_decisions)
     settle_penetration_fraction: float
     collision_proxies: bool  # counted objects / distractors collide through their convex proxy
     rest_speed: float  # m/s: stop the simulation once every body is slower (0 = all frames)
@@ -325,80 +334,6 @@ class PhysicsSpec:
                    floor_collider_depth=float(d.get("floor_collider_depth", 0.0)))
 
 
-DENOISING_QUALITIES = ("HIGH", "BALANCED", "FAST")
-TEXTURE_LIMITS = ("OFF", "128", "256", "512", "1024", "2048", "4096", "8192")
-PIXEL_FILTERS = ("BLACKMAN_HARRIS", "GAUSSIAN", "BOX")
-SAMPLING_PATTERNS = ("TABULATED_SOBOL", "BLUE_NOISE", "AUTOMATIC")
-WORLD_SAMPLING = ("AUTOMATIC", "MANUAL", "NONE")
-
-
-@dataclass(frozen=True)
-class CyclesSpec:
-    """Every Cycles setting of the RGB render that shapes the image, besides RenderSpec's samples, denoiser
-    switch and prefilter (``[cycles]``, chosen with ``bench/render_quality.py``, docs/performance.md).
-
-    The field names are Blender 5.0's ``scene.cycles`` properties except ``adaptive_threshold`` (0 = adaptive
-    sampling off, else ``use_adaptive_sampling`` with this ``adaptive_threshold``), ``light_tree``
-    (``use_light_tree``), ``texture_limit`` (``texture_limit_render``), ``pixel_filter`` (the pixel filter
-    type) and the two ``world_*`` fields (the world's ``cycles`` settings). Specs written before it existed read as :data:`CYCLES_BEFORE`, the settings of that time."""
-
-    adaptive_threshold: float
-    adaptive_min_samples: int  # 0 = Cycles' own minimum, ceil(16 / threshold ** 0.3) (64 at 0.01)
-    max_bounces: int
-    diffuse_bounces: int
-    glossy_bounces: int
-    transmission_bounces: int
-    transparent_max_bounces: int
-    volume_bounces: int
-    light_tree: bool
-    caustics_reflective: bool
-    caustics_refractive: bool
-    blur_glossy: float
-    sample_clamp_direct: float
-    sample_clamp_indirect: float
-    denoising_quality: str  # OIDN: HIGH | BALANCED | FAST
-    texture_limit: str  # OFF | 128 ... 8192: largest texture side Cycles keeps
-    pixel_filter: str  # BLACKMAN_HARRIS | GAUSSIAN | BOX
-    filter_width: float  # pixels
-    sampling_pattern: str  # TABULATED_SOBOL | BLUE_NOISE | AUTOMATIC
-    world_sampling: str  # the world light's importance sampling (world.cycles.sampling_method): AUTOMATIC | MANUAL | NONE
-    world_map_resolution: int  # its map's size with MANUAL (world.cycles.sample_map_resolution)
-
-    def validate(self) -> None:
-        """Raise ConfigError naming the first value Blender would refuse or misread (``[cycles]``)."""
-        from mixcount.errors import ConfigError
-
-        choices = {"denoising_quality": DENOISING_QUALITIES, "texture_limit": TEXTURE_LIMITS,
-                   "pixel_filter": PIXEL_FILTERS, "sampling_pattern": SAMPLING_PATTERNS,
-                   "world_sampling": WORLD_SAMPLING}
-        for key, allowed in choices.items():
-            if getattr(self, key) not in allowed:
-                raise ConfigError(f"cycles.{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}")
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.type in ("int", "float") and value < 0:
-                raise ConfigError(f"cycles.{f.name} must be >= 0, got {value!r}")
-        if self.adaptive_threshold >= 1:
-            raise ConfigError(f"cycles.adaptive_threshold must be < 1 (0 = off), got {self.adaptive_threshold!r}")
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "CyclesSpec":
-        kinds = {f.name: f.type for f in fields(cls)}
-        cast = {"float": float, "int": int, "bool": bool, "str": str}
-        unknown = sorted(set(d) - set(kinds))
-        if unknown:
-            raise ValueError(f"unknown Cycles setting(s) {unknown}; known: {sorted(kinds)}")
-        missing = sorted(set(kinds) - set(d))
-        if missing:
-            raise ValueError(f"the Cycles record lacks setting(s) {missing} (written by another mixcount version?)")
-        return cls(**{k: cast[str(kinds[k])](d[k]) for k in kinds})
-
-
-# the RGB render's settings before [cycles] existed (adaptive sampling off, 8 bounces, Blender's defaults
-# for the rest): what a stage without a ``cycles`` record renders with
 CYCLES_BEFORE = CyclesSpec(
     adaptive_threshold=0.0, adaptive_min_samples=0, max_bounces=8, diffuse_bounces=3, glossy_bounces=3,
     transmission_bounces=4, transparent_max_bounces=8, volume_bounces=0, light_tree=True,

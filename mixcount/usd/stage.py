@@ -30,7 +30,7 @@ import numpy as np
 from mixcount.atomic import atomic_path
 from mixcount.errors import CompositionError
 from mixcount.resources import data_dir
-from mixcount.scene.environments import write_pattern_png
+from mixcount.scene.environment_sampling import write_pattern_png
 from mixcount.scene.framing import look_at_rotation
 from mixcount.scene.spec import ROLE_CONTAINER, PlacedObject, SceneSpec
 from mixcount.usd.assets import AssetPaths, convert_asset

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from mixcount.atomic import atomic_path
-from mixcount.blender.contract import MESH_CACHE_MODES
+from mixcount.worker.contract import MESH_CACHE_MODES
 
 CACHE_VERSION = 1  # bump when what the worker builds from an asset changes (join, normals fix, ...)
 CACHE_DIR = "_blend"

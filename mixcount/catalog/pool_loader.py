@@ -27,7 +27,7 @@ from mixcount.catalog.models import (
     Render,
     Split,
 )
-from mixcount.scene.pool import EnvironmentRecord, MaterialRecord, ObjectRecord, fallback_captions
+from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, ObjectRecord, fallback_captions
 from mixcount.scene.spec import Captions
 
 COLOUR_VARIANT = "colour_variant"  # mixcount.curation.flags.COLOUR_VARIANT (no import: scene side stays light)

@@ -1,16 +1,16 @@
-"""Entry point of a long-lived bpy worker process: ``python -m mixcount.blender.worker_main``.
+"""Entry point of a long-lived bpy worker process: ``python -m mixcount.engine.worker_main``.
 
 Protocol: one JSON object per line. The parent writes requests to the worker's stdin; the worker answers
 each with one JSON line on its ORIGINAL stdout. Everything bpy / Cycles print (C-level stdout) is
 redirected to stderr at start-up, so the protocol channel carries nothing else. The typed operations
-(:mod:`mixcount.blender.contract`) travel as ``{"op": OP, "request": <request>.to_dict()}`` and are
+(:mod:`mixcount.worker.contract`) travel as ``{"op": OP, "request": <request>.to_dict()}`` and are
 answered ``{"ok": true, "result": <result>.to_dict(), "seconds": ...}``:
 
-* ``scene``: SceneRequest -> SceneResult (:func:`mixcount.blender.scene_job.run_scene`)
-* ``canonical``: CanonicalRequest -> CanonicalResult (:func:`mixcount.blender.canonical.render_object`)
+* ``scene``: SceneRequest -> SceneResult (:func:`mixcount.engine.scene_job.run_scene`)
+* ``canonical``: CanonicalRequest -> CanonicalResult (:func:`mixcount.engine.canonical_render.render_object`)
 * ``cache_meshes``: MeshCacheRequest -> MeshCacheResult
-  (:func:`mixcount.blender.scene_build.cache_asset_meshes`)
-* ``settle``: SceneRequest -> SettleResult (:func:`mixcount.blender.scene_job.settle_ahead`)
+  (:func:`mixcount.engine.scene_build.cache_asset_meshes`)
+* ``settle``: SceneRequest -> SettleResult (:func:`mixcount.engine.scene_job.settle_ahead`)
 
 and two plain ones: ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``; ``{"op": "exit"}`` ->
 ``{"ok": true}`` and the process ends.
@@ -42,31 +42,31 @@ def _typed(request_type: Any, run: Callable[[Any], Any]) -> Handler:
 
 
 def _scene(req: Any) -> Any:
-    from mixcount.blender.scene_job import run_scene
+    from mixcount.engine.scene_job import run_scene
 
     return run_scene(req)
 
 
 def _canonical(req: Any) -> Any:
-    from mixcount.blender.canonical import render_object
+    from mixcount.engine.canonical_render import render_object
 
     return render_object(req)
 
 
 def _cache_meshes(req: Any) -> Any:
-    from mixcount.blender.scene_build import cache_asset_meshes
+    from mixcount.engine.scene_build import cache_asset_meshes
 
     return cache_asset_meshes(req)
 
 
 def _settle(req: Any) -> Any:
-    from mixcount.blender.scene_job import settle_ahead
+    from mixcount.engine.scene_job import settle_ahead
 
     return settle_ahead(req)
 
 
 def _handlers() -> dict[str, Handler]:
-    from mixcount.blender.contract import CanonicalRequest, MeshCacheRequest, SceneRequest, SettleResult
+    from mixcount.worker.contract import CanonicalRequest, MeshCacheRequest, SceneRequest, SettleResult
 
     return {SceneRequest.OP: _typed(SceneRequest, _scene), CanonicalRequest.OP: _typed(CanonicalRequest, _canonical),
             MeshCacheRequest.OP: _typed(MeshCacheRequest, _cache_meshes),

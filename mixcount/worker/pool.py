@@ -1,7 +1,7 @@
 """One pool of bpy workers for every caller: the local scene executor, the Ray scene actor and the
 canonical renders share :class:`WorkerSlot` (one recycle rule) and :func:`error_text` (one error format).
 
-* :class:`WorkerSlot` - one long-lived worker (a :class:`~mixcount.blender.worker.BlenderWorker`, made
+* :class:`WorkerSlot` - one long-lived worker (a :class:`~mixcount.worker.client.BlenderWorker`, made
   by a factory on first use). After ``recycle_after`` jobs (0 = never) it is closed and the next job gets
   a fresh one from the factory, so a bpy process's memory stays flat over a long run. A job that raises
   still counts.

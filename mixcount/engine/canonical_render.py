@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from mixcount.atomic import atomic_path
-from mixcount.blender.contract import CANONICAL, CanonicalRequest, CanonicalResult, CanonicalView
+from mixcount.worker.contract import CANONICAL, CanonicalRequest, CanonicalResult, CanonicalView
 
 IMPORTERS = {
     ".glb": "gltf", ".gltf": "gltf", ".obj": "obj", ".ply": "ply", ".stl": "stl",

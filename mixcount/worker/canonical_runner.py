@@ -1,7 +1,7 @@
 """Parent side of the canonical renders (no bpy here): jobs over long-lived bpy workers.
 
-:func:`run_jobs` shares the jobs among ``workers`` :class:`~mixcount.blender.worker.BlenderWorker` s of one
-:class:`~mixcount.blender.pool.WorkerPool` (the pool compose uses; op ``canonical``). A job that runs longer than ``timeout_s``
+:func:`run_jobs` shares the jobs among ``workers`` :class:`~mixcount.worker.client.BlenderWorker` s of one
+:class:`~mixcount.worker.pool.WorkerPool` (the pool compose uses; op ``canonical``). A job that runs longer than ``timeout_s``
 gets its worker killed and is reported failed ("timed out"); a worker that dies mid-job (segfault, out of
 memory) is reported the same way with its log tail; in both cases the next job starts a fresh worker and
 the batch goes on. Results reach the caller through ``on_result(outcome)`` (a :class:`RenderOutcome`) on
@@ -17,8 +17,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
-from mixcount.blender.contract import CanonicalRequest, CanonicalResult
-from mixcount.blender.pool import WorkerPool, error_text
+from mixcount.worker.contract import CanonicalRequest, CanonicalResult
+from mixcount.worker.pool import WorkerPool, error_text
 
 Job = tuple[str, CanonicalRequest]  # (the caller's key, the request)
 
@@ -35,10 +35,10 @@ class RenderOutcome:
 def run_jobs(jobs: Sequence[Job], *, on_result: Callable[[RenderOutcome], None],
              workers: int, timeout_s: float, threads_per_worker: int) -> None:
     """Render ``jobs`` ((unique key, request) pairs) in ``workers`` processes (a
-    :class:`~mixcount.blender.pool.WorkerPool`); call ``on_result`` once per job with its outcome, on this
+    :class:`~mixcount.worker.pool.WorkerPool`); call ``on_result`` once per job with its outcome, on this
     thread, as results arrive. ``threads_per_worker`` 0 means all cores for one worker, cores / workers
     for several (it replaces each request's ``threads``)."""
-    from mixcount.blender.worker import BlenderWorker
+    from mixcount.worker.client import BlenderWorker
 
     if not jobs:
         return

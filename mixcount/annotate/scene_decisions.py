@@ -1,18 +1,25 @@
 """The worker's pure decisions (numpy and scipy only, no bpy): which settled bodies are kept, which
 objects are in the frame and visible enough, what a scene's status is, and how Cycles' passes become the
-stored depth / normal / instance maps. :mod:`mixcount.blender.scene_job` calls these between Blender steps;
+stored depth / normal / instance maps. :mod:`mixcount.engine.scene_job` calls these between Blender steps;
 tests/test_blender_decisions.py checks them without Blender.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, NamedTuple, Optional, Sequence
+from typing import Any, Mapping, NamedTuple, Optional, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mixcount.annotate.raster import PinholeCamera
-from mixcount.blender.contract import STATUS_EMPTY, STATUS_OK, STATUS_REJECTED
+
+Array = NDArray[Any]
+
+# a scene's status (the worker contract re-exports these for the SceneResult it carries)
+STATUS_OK = "ok"
+STATUS_EMPTY = "empty"  # no counted object survived: the caller regenerates from the next seed
+STATUS_REJECTED = "rejected"  # the final visibility re-check failed
 
 BELOW_FLOOR = "below_floor"
 FLUNG_OUT = "flung_out"
@@ -29,7 +36,7 @@ MAX_VISIBILITY_ROUNDS = 3  # re-renders of the id pass after dropping occluded o
 # ------------------------------------------------------------------------------------ settling
 
 
-def settle_verdict(matrix_world: np.ndarray, min_z: float, size_m: float, *, floor_shape: str,
+def settle_verdict(matrix_world: Array, min_z: float, size_m: float, *, floor_shape: str,
                    half_extent: tuple[float, float], below_floor_fraction: float) -> Optional[str]:
     """Why a settled body must be dropped, or None to keep it.
 
@@ -51,7 +58,7 @@ def settle_verdict(matrix_world: np.ndarray, min_z: float, size_m: float, *, flo
     return FLUNG_OUT if outside else None
 
 
-def world_bounds(local_columns: np.ndarray, matrix_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def world_bounds(local_columns: Array, matrix_world: Array) -> tuple[Array, Array]:
     """World-space AABB (lo, hi) of a mesh whose local vertices are the columns of ``local_columns``
     (3, V); NaN bounds when the matrix is not finite (a body the simulation blew up).
 
@@ -66,7 +73,7 @@ def world_bounds(local_columns: np.ndarray, matrix_world: np.ndarray) -> tuple[n
     return w.min(axis=1) + m[:3, 3], w.max(axis=1) + m[:3, 3]
 
 
-def deepen_below_top(local_vertices: np.ndarray, matrix_world: np.ndarray, depth: float) -> Optional[np.ndarray]:
+def deepen_below_top(local_vertices: Array, matrix_world: Array, depth: float) -> Optional[Array]:
     """World vertices of a floor slab with every vertex under its top face moved to ``depth`` metres
     under the top (the floor collider); None when the slab is already that deep (or ``depth`` <= 0).
 
@@ -82,16 +89,16 @@ def deepen_below_top(local_vertices: np.ndarray, matrix_world: np.ndarray, depth
     if not below.any() or float(world[below, 2].min()) <= top - depth:
         return None
     world[below, 2] = top - depth
-    return world
+    return np.asarray(world)
 
 
-def hull_equations(local_vertices: np.ndarray) -> np.ndarray:
+def hull_equations(local_vertices: Array) -> Array:
     """Half-space equations (n, d) of the convex hull: inside where n.x + d <= 0."""
     from scipy.spatial import ConvexHull
 
     pts = np.unique(np.round(np.asarray(local_vertices, dtype=np.float64), 9), axis=0)
     try:
-        return ConvexHull(pts).equations
+        return np.asarray(ConvexHull(pts).equations)
     except Exception:  # degenerate (flat) meshes: an axis-aligned box instead
         lo, hi = pts.min(0), pts.max(0)
         eqs = []
@@ -103,7 +110,7 @@ def hull_equations(local_vertices: np.ndarray) -> np.ndarray:
         return np.array(eqs)
 
 
-def penetration_depth(point_world: np.ndarray, matrix_world: np.ndarray, equations: np.ndarray) -> float:
+def penetration_depth(point_world: Array, matrix_world: Array, equations: Array) -> float:
     """How deep (world metres, > 0 inside) a point lies inside a body's hull (uniform scale assumed)."""
     inv = np.linalg.inv(matrix_world)
     p = inv[:3, :3] @ point_world + inv[:3, 3]
@@ -116,10 +123,10 @@ def penetration_depth(point_world: np.ndarray, matrix_world: np.ndarray, equatio
 class SettledBody:
     """A body that passed :func:`settle_verdict`: pose, world AABB, local hull equations and size."""
 
-    matrix_world: np.ndarray
-    aabb_min: np.ndarray
-    aabb_max: np.ndarray
-    hull: np.ndarray
+    matrix_world: Array
+    aabb_min: Array
+    aabb_max: Array
+    hull: Array
     size_m: float
 
 
@@ -149,7 +156,7 @@ def interpenetrations(bodies: Sequence[SettledBody], fraction: float) -> list[tu
 # ------------------------------------------------------------------------------------ frame and visibility
 
 
-def points_in_frame(camera: PinholeCamera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def points_in_frame(camera: PinholeCamera, points: Array) -> tuple[Array, Array]:
     """World points (N, 3) -> their pixel positions (N, 2; x = column, y = row) and whether each lies
     in the image in front of the camera (the frame check's rule, for many origins at once)."""
     px, depth = camera.project(np.asarray(points, dtype=np.float64).reshape(-1, 3))
@@ -158,7 +165,7 @@ def points_in_frame(camera: PinholeCamera, points: np.ndarray) -> tuple[np.ndarr
     return px, inside
 
 
-def may_still_be_kept(camera: PinholeCamera, centres: np.ndarray) -> np.ndarray:
+def may_still_be_kept(camera: PinholeCamera, centres: Array) -> Array:
     """Bool per body centre (N, 3), during the simulation: may the body still end kept? Not when its
     centre is under the floor's top (z = 0; dropped as below_floor) nor when neither its origin nor the
     floor point under it is in the camera frame (it lies or rolls on the floor outside the view, and
@@ -169,7 +176,7 @@ def may_still_be_kept(camera: PinholeCamera, centres: np.ndarray) -> np.ndarray:
     return np.asarray((c[:, 2] >= 0.0) & in_view)
 
 
-def near_the_pile(centre_xy: np.ndarray, radius: float, centres: np.ndarray) -> np.ndarray:
+def near_the_pile(centre_xy: Array, radius: float, centres: Array) -> Array:
     """Bool per body centre (N, 3), during the simulation, when the cameras are framed after it: may the
     body still end kept? Not under the floor's top (z = 0), nor farther than ``radius`` (horizontally)
     from ``centre_xy``, where no camera framed on the pile will see it."""
@@ -178,7 +185,7 @@ def near_the_pile(centre_xy: np.ndarray, radius: float, centres: np.ndarray) -> 
     return np.asarray((c[:, 2] >= 0.0) & ~far)
 
 
-def origin_in_frame(camera: PinholeCamera, matrix_world: np.ndarray) -> tuple[tuple[float, float], bool]:
+def origin_in_frame(camera: PinholeCamera, matrix_world: Array) -> tuple[tuple[float, float], bool]:
     """The projected origin (x = column, y = row) and whether it lies in the image in front of the camera."""
     m = np.asarray(matrix_world, dtype=np.float64)
     px, inside = points_in_frame(camera, m[None, :3, 3])
@@ -193,7 +200,7 @@ class Visibility(NamedTuple):
     visibility: float
 
 
-def changed_region(index: np.ndarray, dropped_ids: Sequence[int]) -> Optional[tuple[int, int, int, int]]:
+def changed_region(index: Array, dropped_ids: Sequence[int]) -> Optional[tuple[int, int, int, int]]:
     """The pixels an id pass changes once ``dropped_ids`` leave the scene: the inclusive bounding box
     (row0, col0, row1, col1) of the pixels they were seen at, or None when none was seen (then nothing
     changes). The id pass records only the first surface along each pixel-centre ray (no bounces), so
@@ -206,8 +213,8 @@ def changed_region(index: np.ndarray, dropped_ids: Sequence[int]) -> Optional[tu
     return int(rows[0]), int(cols[0]), int(rows[-1]), int(cols[-1])
 
 
-def paste_region(before: Mapping[str, np.ndarray], region_render: Mapping[str, np.ndarray],
-                 region: tuple[int, int, int, int]) -> dict[str, np.ndarray]:
+def paste_region(before: Mapping[str, Array], region_render: Mapping[str, Array],
+                 region: tuple[int, int, int, int]) -> dict[str, Array]:
     """The id passes after a border re-render: ``before`` everywhere, ``region_render`` inside ``region``."""
     row0, col0, row1, col1 = region
     out = {}
@@ -218,14 +225,14 @@ def paste_region(before: Mapping[str, np.ndarray], region_render: Mapping[str, n
     return out
 
 
-def amodal_mask(silhouette: np.ndarray, index: np.ndarray, instance_id: int) -> np.ndarray:
+def amodal_mask(silhouette: Array, index: Array, instance_id: int) -> Array:
     """The object's amodal (unoccluded) mask inside the frame: its rasterised silhouette united with its
     visible pixels in the id pass, so the amodal mask always contains the visible one (the rasteriser and
     Cycles may disagree on a pixel at the silhouette's edge)."""
-    return np.asarray(silhouette, dtype=bool) | (np.asarray(index) == int(instance_id))
+    return np.logical_or(np.asarray(silhouette, dtype=bool), np.asarray(index) == int(instance_id))
 
 
-def measure_visibility(index: np.ndarray, silhouettes: Mapping[int, np.ndarray]) -> dict[int, Visibility]:
+def measure_visibility(index: Array, silhouettes: Mapping[int, Array]) -> dict[int, Visibility]:
     """instance id -> :class:`Visibility` with visibility = visible / amodal pixels (BOP's visib_fract).
 
     Both counts are pixels of the frame: the part of an object outside the image is in neither, so
@@ -267,12 +274,12 @@ def scene_status(counted_visibility: Mapping[int, float], threshold: float,
 # ------------------------------------------------------------------------------------ passes
 
 
-def background_mask(depth_pass: np.ndarray) -> np.ndarray:
+def background_mask(depth_pass: Array) -> Array:
     """Pixels that see no surface (Cycles' depth 1e10)."""
     return np.asarray(depth_pass) > BACKGROUND_DEPTH
 
 
-def planar_depth(depth_pass: np.ndarray) -> np.ndarray:
+def planar_depth(depth_pass: Array) -> Array:
     """Cycles' Depth pass -> float32 planar depth along the optical axis (metres), 0 where no surface.
 
     Blender 5.0's Cycles Depth pass is already planar (checked against ray-plane intersections with the
@@ -282,7 +289,7 @@ def planar_depth(depth_pass: np.ndarray) -> np.ndarray:
     return d
 
 
-def camera_normals(normal_world: np.ndarray, cam_to_world: np.ndarray, depth_pass: np.ndarray) -> np.ndarray:
+def camera_normals(normal_world: Array, cam_to_world: Array, depth_pass: Array) -> Array:
     """World-space normals (H, W, 3) -> float32 camera space (x right, y up, z towards the camera), 0 on
     the background."""
     R = np.asarray(cam_to_world, dtype=np.float64)[:3, :3]
@@ -291,7 +298,7 @@ def camera_normals(normal_world: np.ndarray, cam_to_world: np.ndarray, depth_pas
     return n.astype(np.float32)
 
 
-def instance_map(index: np.ndarray, keep_ids: Sequence[int]) -> np.ndarray:
+def instance_map(index: Array, keep_ids: Sequence[int]) -> Array:
     """int32 id pass with only ``keep_ids`` (kept counted objects and distractors); 0 elsewhere."""
     ids = np.asarray(index).astype(np.int32)
     ids[~np.isin(ids, list(keep_ids))] = 0

@@ -1,6 +1,6 @@
 """The sampler's view of the catalog: plain records, so sampling is testable without a database.
 
-The records are filled from the database by :mod:`mixcount.catalog.pool` (the scene room runs no SQL).
+The records are filled from the database by :mod:`mixcount.catalog.pool_loader` (the scene room runs no SQL).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Parent side of the bpy worker: a long-lived subprocess that renders many scenes or canonical renders.
 
-:class:`BlenderWorker` starts ``python -m <WORKER_MODULE>`` (:mod:`mixcount.blender.worker_main`) lazily, sends one JSON request
+:class:`BlenderWorker` starts ``python -m <WORKER_MODULE>`` (:mod:`mixcount.engine.worker_main`) lazily, sends one JSON request
 per line and waits for the answer with a deadline. A worker that dies mid-scene (crash, OOM kill) or
 overruns the per-scene timeout is killed (its whole process group) and the request raises
 :class:`~mixcount.errors.RenderError`; the next request starts a fresh worker. The worker's stderr
@@ -21,7 +21,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Optional
 
-from mixcount.blender.contract import (
+from mixcount.errors import RenderError
+from mixcount.worker.contract import (
     CanonicalRequest,
     CanonicalResult,
     MeshCacheRequest,
@@ -30,10 +31,9 @@ from mixcount.blender.contract import (
     SceneResult,
     SettleResult,
 )
-from mixcount.errors import RenderError
 
 STARTUP_TIMEOUT_S = 180.0
-WORKER_MODULE = "mixcount.blender.worker_main"  # the entry module the worker process runs
+WORKER_MODULE = "mixcount.engine.worker_main"  # the entry module the worker process runs
 
 
 class BlenderWorker:

@@ -2,7 +2,7 @@
 
 Tests and the benchmarks need realistic scenes (textured GLBs, a container) but not the whole
 ingest / caption / split chain: :func:`pool_from_demo_library` reads the library's
-``ground_truth.json`` (true Z-up dimensions) and returns :class:`~mixcount.scene.pool.ObjectRecord`
+``ground_truth.json`` (true Z-up dimensions) and returns :class:`~mixcount.scene.object_records.ObjectRecord`
 s, every working object in one split, ids in folder order. With ``proxy_dir`` every object also gets
 its convex collision proxy (:mod:`mixcount.catalog.proxies`), as ingest would build it.
 
@@ -21,7 +21,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.scene.pool import ObjectRecord, fallback_captions
+from mixcount.scene.object_records import ObjectRecord, fallback_captions
 
 
 def _frame(model: Path, digest: str, units: Optional[str], up_axis: Optional[str]) -> tuple[str, dict[str, str]]:

@@ -21,11 +21,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.scene.spec import EnvironmentSpec, MaterialSpec
-
-PATTERNS = ("tiles", "bricks", "planks", "checker", "dots", "noise")
-BUNDLED_HDRI = "bundled_hdri"
-SKY = "sky"
-DEFAULT_ENVIRONMENTS = (BUNDLED_HDRI, SKY)  # scene.default_environment: the light without ingested HDRIs
+from mixcount.scene_config import BUNDLED_HDRI as BUNDLED_HDRI  # the names [scene] validates against
+from mixcount.scene_config import DEFAULT_ENVIRONMENTS as DEFAULT_ENVIRONMENTS
+from mixcount.scene_config import PATTERNS as PATTERNS
+from mixcount.scene_config import SKY as SKY
 
 
 def _u(rng: np.random.Generator, r: Sequence[float]) -> float:

@@ -1,24 +1,24 @@
 """One scene in the worker as named steps: Blender scene -> settle -> visibility filter -> passes (bpy).
 
-:func:`run_scene` runs the steps in order: :func:`~mixcount.blender.scene_build.load_scene` (stage ->
-Blender scene, :mod:`mixcount.blender.scene_build`), :func:`settle` (physics), :func:`place_after_physics`
+:func:`run_scene` runs the steps in order: :func:`~mixcount.engine.scene_build.load_scene` (stage ->
+Blender scene, :mod:`mixcount.engine.scene_build`), :func:`settle` (physics), :func:`place_after_physics`
 (:func:`check_settled`, then for specs with a placement :func:`frame_cameras` and
 :func:`place_distractors_in_view`), :func:`check_frame`, :func:`silhouettes`, :func:`visibility_loop`,
 :func:`final_status`, :func:`write_passes`, :func:`write_amodal_masks`, :func:`render_rgb` and, on
 request, :func:`reference_check`. A request whose ``settled`` names a file that :func:`settle_ahead` (the
 ``settle`` op, run by a companion process for the next scene) wrote applies those poses
 (:func:`apply_settled`) instead of running :func:`settle`. Every decision between them is a pure function of
-:mod:`mixcount.blender.decisions`. What describes the scene (samples, denoise, visibility threshold,
-physics) is read from the stage's SceneSpec only; the :class:`~mixcount.blender.contract.SceneRequest`
+:mod:`mixcount.annotate.scene_decisions`. What describes the scene (samples, denoise, visibility threshold,
+physics) is read from the stage's SceneSpec only; the :class:`~mixcount.worker.contract.SceneRequest`
 adds run-time settings (threads, oracle, passes and their formats, mesh cache).
 
 Writes into ``out_dir`` per camera k (suffix "" for cam_0, ``_cam_<k>`` after): ``rgb<suffix>.png``,
 ``ids<suffix>.npy`` (int32 instance ids of kept counted objects and distractors, 0 elsewhere), the
 requested depth pass (planar depth in metres along the optical axis, 0 = no surface) and normal pass
 (unit normals in camera space: x right, y up, z towards the viewer; 0 = none) in the formats of
-:mod:`mixcount.annotate.passes` (recorded in the result's :class:`~mixcount.blender.contract.CameraView`
+:mod:`mixcount.annotate.passes` (recorded in the result's :class:`~mixcount.worker.contract.CameraView`
 ``passes``), ``amodal<suffix>.npz`` (each kept object's amodal mask, see :func:`write_amodal_masks`); and
-``worker.json`` (the :class:`~mixcount.blender.contract.SceneResult`). Its ``status`` is "ok", "empty"
+``worker.json`` (the :class:`~mixcount.worker.contract.SceneResult`). Its ``status`` is "ok", "empty"
 (no counted object survived: the caller regenerates from the next seed) or "rejected".
 """
 
@@ -31,9 +31,10 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
+from mixcount.annotate import scene_decisions as D
 from mixcount.annotate.raster import PinholeCamera
-from mixcount.blender import decisions as D
-from mixcount.blender.contract import (
+from mixcount.engine.scene_build import SceneState, load_scene, pose_with_scale
+from mixcount.worker.contract import (
     SETTLED_FILE,
     STATUS_OK,
     CameraView,
@@ -42,7 +43,6 @@ from mixcount.blender.contract import (
     SettleResult,
     view_suffix,
 )
-from mixcount.blender.scene_build import SceneState, load_scene, pose_with_scale
 
 
 class Timer:
@@ -72,7 +72,7 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
     framed afterwards); for older specs, with ``camera``, those whose origin is in the camera frame or
     right above a point of the floor that is (a body still falling into view counts). Instances with
     a spec ``release_frame`` > 1 (spawn waves, docs/scene.md) join the simulation at that frame."""
-    from mixcount.blender.physics import simulate
+    from mixcount.engine.physics import simulate
 
     ph = state.spec.physics
     # spawn waves: the body that collides for each instance (its proxy, else itself) -> release frame
@@ -127,7 +127,7 @@ def settle_ahead(req: SceneRequest) -> SettleResult:
     instead of all of it. The poses travel as JSON floats (``repr`` round-trips a float64 exactly)."""
     import json
 
-    from mixcount.blender.visibility import camera_model
+    from mixcount.engine.visibility import camera_model
 
     if not Path(req.out_dir).is_dir():  # its run is gone (interrupted, cleaned): do not make the folder again
         raise FileNotFoundError(f"the scene folder {req.out_dir} no longer exists")
@@ -292,7 +292,7 @@ def silhouettes(state: SceneState, camera: PinholeCamera, threads: int, k: int =
     operations that make up the rasteriser, and each mask depends on its object alone."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from mixcount.blender.visibility import unoccluded_mask
+    from mixcount.engine.visibility import unoccluded_mask
 
     kept = state.kept()
 
@@ -325,7 +325,7 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
     only the box of pixels where the dropped objects were seen (:func:`D.changed_region`; no render at
     all when they were seen nowhere) and is pasted into the previous passes: those are the only pixels
     that removing them changes, and a border render gives them exactly as a full one does."""
-    from mixcount.blender import passes as P
+    from mixcount.engine import render_passes as P
 
     exrs = [state.out_dir / f"_ids{view_suffix(k)}.exr" for k in range(len(state.cam_objs))]
     with P.id_pass_series(state.scene):
@@ -338,7 +338,7 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
 def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer,
                        exrs: list[Path]) -> tuple[list[dict[str, np.ndarray]], int]:
     """:func:`visibility_loop`'s rounds, rendering camera k's id pass into ``exrs[k]``."""
-    from mixcount.blender import passes as P
+    from mixcount.engine import render_passes as P
 
     v_t = state.spec.render.visibility_threshold
     n_cams = len(state.cam_objs)
@@ -438,7 +438,7 @@ def write_passes(state: SceneState, id_passes: dict[str, np.ndarray], camera: Pi
 
 def render_rgb(state: SceneState) -> None:
     """The final image of every camera (``rgb.png``, ``rgb_cam_1.png``, ...) with the stage's samples and denoiser."""
-    from mixcount.blender import passes as P
+    from mixcount.engine import render_passes as P
 
     applied = P.configure_rgb(state.scene, state.spec.render)
     # what Cycles was set to, read back (a diagnostic beside the spec's wish)
@@ -453,7 +453,7 @@ def reference_check(state: SceneState, masks: dict[int, np.ndarray], camera: Pin
     """The paper's one-render-per-object masks against the rasterised ones in camera ``k``: oracle_*
     fields on each kept object's view (and on the object for cam_0) and ``oracle_masks<suffix>.npz``
     (packed bits of both masks)."""
-    from mixcount.blender.visibility import oracle_masks
+    from mixcount.engine.visibility import oracle_masks
 
     kept = state.kept()
     state.scene.camera = state.cam_objs[k]
@@ -491,7 +491,7 @@ def _camera_record(cam_obj: Any, camera: PinholeCamera) -> dict[str, Any]:
 def place_after_physics(state: SceneState, settled: dict[str, np.ndarray], timer: Timer) -> list[PinholeCamera]:
     """Settle checks, then (specs with a placement) cameras framed on the settled pile and distractors
     placed in view; returns each camera's pixel model."""
-    from mixcount.blender.visibility import camera_model
+    from mixcount.engine.visibility import camera_model
 
     with timer.stage("settle_checks"):
         if state.placed_after_physics:
@@ -511,8 +511,8 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
     """Handle one scene request (see module docstring); writes and returns the SceneResult.
 
     ``render`` replaces :func:`render_rgb` (``bench/render_quality.py`` renders the finished scene with
-    several Cycles settings through :mod:`mixcount.blender.render_sweep`)."""
-    from mixcount.blender.visibility import camera_model
+    several Cycles settings through :mod:`mixcount.engine.render_sweep`)."""
+    from mixcount.engine.visibility import camera_model
 
     timer = Timer()
     with timer.stage("import"):

@@ -1,10 +1,10 @@
 """Render one finished scene with several Cycles settings (bpy; ``bench/render_quality.py`` runs it).
 
-    python -m mixcount.blender.render_sweep JOB.json
+    python -m mixcount.engine.render_sweep JOB.json
 
 ``JOB.json``: ``{"request": <SceneRequest>, "candidates": [{"name", "samples", "denoise_prefilter", "cycles": {...},
 "border": [x0, x1, y0, y1] | null}], "repeats": N, "out": DIR}``. The scene is built and settled once,
-exactly as the ``scene`` operation does (:func:`mixcount.blender.scene_job.run_scene`: physics, placement,
+exactly as the ``scene`` operation does (:func:`mixcount.engine.scene_job.run_scene`: physics, placement,
 visibility drops, passes); then, in place of its RGB render, every candidate renders cam_0 at the stage's
 resolution into ``DIR/<name>.png`` (``repeats`` rounds, candidates in the same order each round, so a slow
 spell of this shared machine hits them alike). ``cycles`` maps :class:`mixcount.scene.spec.CyclesSpec`
@@ -28,9 +28,9 @@ from typing import Any
 
 
 def sweep(job: dict[str, Any]) -> dict[str, Any]:
-    from mixcount.blender import passes as P
-    from mixcount.blender.contract import SceneRequest
-    from mixcount.blender.scene_job import run_scene
+    from mixcount.engine import render_passes as P
+    from mixcount.engine.scene_job import run_scene
+    from mixcount.worker.contract import SceneRequest
 
     out = Path(job["out"])
     out.mkdir(parents=True, exist_ok=True)

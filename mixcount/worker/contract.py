@@ -1,8 +1,8 @@
 """The typed contract between the parent process and the bpy worker (imports neither bpy nor pxr).
 
 One frozen request / result pair per worker operation, each with a JSON round-trip (``to_dict`` /
-``from_dict``); :class:`~mixcount.blender.worker.BlenderWorker` sends ``{"op": <request>.OP, "request":
-...}`` and the worker answers ``{"ok": true, "result": ...}`` (:mod:`mixcount.blender.worker_main`):
+``from_dict``); :class:`~mixcount.worker.client.BlenderWorker` sends ``{"op": <request>.OP, "request":
+...}`` and the worker answers ``{"ok": true, "result": ...}`` (:mod:`mixcount.engine.worker_main`):
 
 * ``scene`` - :class:`SceneRequest` -> :class:`SceneResult`. The request carries the stage and the output
   folder plus RUN-TIME settings only (render threads, the one-render-per-object reference, which passes
@@ -18,7 +18,7 @@ One frozen request / result pair per worker operation, each with a JSON round-tr
   mesh cache made ahead of the scenes.
 * ``settle`` - :class:`SceneRequest` -> :class:`SettleResult`: only the scene's rigid-body settle, its
   poses written to ``settled.json`` in the request's out_dir, so a second bpy process can settle the next
-  scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.blender.worker.SettleAheadWorker`);
+  scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.worker.client.SettleAheadWorker`);
   a ``scene`` request whose ``settled`` names that file applies the poses instead of simulating.
 
 No request field has a default: every setting comes from the caller (from the configuration, read once).
@@ -30,12 +30,11 @@ import json
 from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar, Mapping, Optional
 
+from mixcount.annotate.scene_decisions import STATUS_EMPTY as STATUS_EMPTY  # defined beside the rule that decides them
+from mixcount.annotate.scene_decisions import STATUS_OK as STATUS_OK
+from mixcount.annotate.scene_decisions import STATUS_REJECTED as STATUS_REJECTED
 from mixcount.config import MESH_CACHE_MODES as MESH_CACHE_MODES  # re-exported for the worker side
 from mixcount.config import ComposeConfig
-
-STATUS_OK = "ok"
-STATUS_EMPTY = "empty"  # no counted object survived: the caller regenerates from the next seed
-STATUS_REJECTED = "rejected"  # the final visibility re-check failed
 
 KEPT = "kept"
 DROPPED = "dropped"

@@ -3,14 +3,14 @@
 Chosen over ``wm.usd_import`` of the whole stage (see docs/blender.md): the stage is read with pxr; every
 referenced asset file is imported ONCE with ``wm.usd_import`` (UsdPreviewSurface -> Principled BSDF), its
 mesh parts baked and joined into one mesh datablock - or that datablock is appended from the asset's
-.blend cache (:mod:`mixcount.blender.mesh_cache`, :class:`AssetCache`) -, and every instance prim becomes
+.blend cache (:mod:`mixcount.engine.mesh_cache`, :class:`AssetCache`) -, and every instance prim becomes
 a linked duplicate (a new object sharing that mesh) placed by the prim's world matrix. Objects keep the
 prim's name, so mapping back to prims is by name; ``pass_index`` is the instance id. The floor (with its
 material) is imported through ``prim_path_mask``; camera and lights are built from their prims; physics
 bodies (collision proxies, the container's convex parts, the floor's deep collider) are set up for
-:func:`mixcount.blender.scene_job.settle`.
+:func:`mixcount.engine.scene_job.settle`.
 
-:func:`load_scene` returns the :class:`SceneState` the steps of :mod:`mixcount.blender.scene_job` refine.
+:func:`load_scene` returns the :class:`SceneState` the steps of :mod:`mixcount.engine.scene_job` refine.
 :func:`cache_asset_meshes` serves the worker's ``cache_meshes`` operation.
 """
 
@@ -22,9 +22,9 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.blender import decisions as D
-from mixcount.blender.contract import DROPPED, MeshCacheRequest, MeshCacheResult, ObjectResult, SceneRequest
+from mixcount.annotate import scene_decisions as D
 from mixcount.scene.spec import SceneSpec
+from mixcount.worker.contract import DROPPED, MeshCacheRequest, MeshCacheResult, ObjectResult, SceneRequest
 
 
 def _np_matrix(gf_matrix: Any) -> np.ndarray:
@@ -48,7 +48,7 @@ class AssetCache:
     """One joined mesh datablock per asset file, imported once per scene.
 
     With ``mesh_cache`` "zstd" or "raw" the finished mesh also goes to a .blend beside the asset
-    (:mod:`mixcount.blender.mesh_cache`), and later scenes append it from there instead of importing the
+    (:mod:`mixcount.engine.mesh_cache`), and later scenes append it from there instead of importing the
     USD file again. ``cache_events`` records, per asset, "hit", "written" or the reason it was not."""
 
     def __init__(self, mesh_cache: str) -> None:
@@ -80,8 +80,8 @@ class AssetCache:
 
     def mesh(self, path: Path) -> Any:
         """The asset's render mesh: from this scene's memory, the .blend cache, or a USD import."""
-        from mixcount.blender import mesh_cache
-        from mixcount.blender.visibility import mesh_arrays
+        from mixcount.engine import mesh_cache
+        from mixcount.engine.visibility import mesh_arrays
 
         key = str(path)
         if key in self.meshes:
@@ -107,7 +107,7 @@ class AssetCache:
         return {Path(k).name: v for k, v in sorted(self.cache_events.items())}
 
     def hull(self, path: Path) -> np.ndarray:
-        from mixcount.blender.decisions import hull_equations
+        from mixcount.annotate.scene_decisions import hull_equations
 
         key = str(path)
         if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= proxy_max_vertices points)
@@ -341,7 +341,7 @@ class SceneState:
     cam_objs: list[Any]  # one Blender camera per stage camera, in stage order
     lights: dict[str, Any]
     cache: AssetCache
-    bodies: list[Any]  # mixcount.blender.physics.Body, floor and container included
+    bodies: list[Any]  # mixcount.engine.physics.Body, floor and container included
     objects: list[ObjectResult]  # counted objects and distractors, in stage order
     blender_objects: dict[str, Any]  # prim path -> bpy object (removed from the scene when dropped)
     diagnostics: list[dict[str, Any]] = field(default_factory=list)
@@ -385,7 +385,7 @@ def load_scene(req: SceneRequest) -> SceneState:
     import bpy
     from pxr import Usd, UsdGeom
 
-    from mixcount.blender import passes as P
+    from mixcount.engine import render_passes as P
 
     stage_path = Path(req.stage).resolve()
     out_dir = Path(req.out_dir)
@@ -446,7 +446,7 @@ def _add_instances(state: SceneState, stage: Any) -> None:
     import mathutils
     from pxr import Usd, UsdGeom, UsdPhysics
 
-    from mixcount.blender.physics import SHAPES, Body
+    from mixcount.engine.physics import SHAPES, Body
     from mixcount.usd.read import labelled_prims
 
     scene, stage_dir = state.scene, state.stage_path.parent
@@ -499,7 +499,7 @@ def _add_container_collision(state: SceneState, prim: Any, obj: Any, asset: Path
     """The container's static colliders: its convex parts, else its decimated mesh, else the render mesh."""
     import bpy
 
-    from mixcount.blender.physics import Body
+    from mixcount.engine.physics import Body
     from mixcount.usd.read import convex_parts
 
     coll = prim.GetCustomDataByKey("mixcount:collision_asset")

@@ -7,13 +7,95 @@ multiplies them by :attr:`SceneConfig.scale` when it uses them, so the spec hold
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
 from mixcount.errors import ConfigError
-from mixcount.scene.spec import CyclesSpec
+
+# floor patterns and default lights the [scene] section may name (scene/environment_sampling.py draws them)
+PATTERNS = ("tiles", "bricks", "planks", "checker", "dots", "noise")
+BUNDLED_HDRI = "bundled_hdri"
+SKY = "sky"
+DEFAULT_ENVIRONMENTS = (BUNDLED_HDRI, SKY)  # scene.default_environment: the light without ingested HDRIs
+
 
 # ``[cycles]``: the RGB render's Cycles settings, recorded in every spec as they are (RenderSpec.cycles)
+DENOISING_QUALITIES = ("HIGH", "BALANCED", "FAST")
+TEXTURE_LIMITS = ("OFF", "128", "256", "512", "1024", "2048", "4096", "8192")
+PIXEL_FILTERS = ("BLACKMAN_HARRIS", "GAUSSIAN", "BOX")
+SAMPLING_PATTERNS = ("TABULATED_SOBOL", "BLUE_NOISE", "AUTOMATIC")
+WORLD_SAMPLING = ("AUTOMATIC", "MANUAL", "NONE")
+
+
+@dataclass(frozen=True)
+class CyclesSpec:
+    """Every Cycles setting of the RGB render that shapes the image, besides RenderSpec's samples, denoiser
+    switch and prefilter (``[cycles]``, chosen with ``bench/render_quality.py``, docs/performance.md).
+
+    The field names are Blender 5.0's ``scene.cycles`` properties except ``adaptive_threshold`` (0 = adaptive
+    sampling off, else ``use_adaptive_sampling`` with this ``adaptive_threshold``), ``light_tree``
+    (``use_light_tree``), ``texture_limit`` (``texture_limit_render``), ``pixel_filter`` (the pixel filter
+    type) and the two ``world_*`` fields (the world's ``cycles`` settings). Specs written before it existed read as :data:`CYCLES_BEFORE`, the settings of that time."""
+
+    adaptive_threshold: float
+    adaptive_min_samples: int  # 0 = Cycles' own minimum, ceil(16 / threshold ** 0.3) (64 at 0.01)
+    max_bounces: int
+    diffuse_bounces: int
+    glossy_bounces: int
+    transmission_bounces: int
+    transparent_max_bounces: int
+    volume_bounces: int
+    light_tree: bool
+    caustics_reflective: bool
+    caustics_refractive: bool
+    blur_glossy: float
+    sample_clamp_direct: float
+    sample_clamp_indirect: float
+    denoising_quality: str  # OIDN: HIGH | BALANCED | FAST
+    texture_limit: str  # OFF | 128 ... 8192: largest texture side Cycles keeps
+    pixel_filter: str  # BLACKMAN_HARRIS | GAUSSIAN | BOX
+    filter_width: float  # pixels
+    sampling_pattern: str  # TABULATED_SOBOL | BLUE_NOISE | AUTOMATIC
+    world_sampling: str  # the world light's importance sampling (world.cycles.sampling_method): AUTOMATIC | MANUAL | NONE
+    world_map_resolution: int  # its map's size with MANUAL (world.cycles.sample_map_resolution)
+
+    def validate(self) -> None:
+        """Raise ConfigError naming the first value Blender would refuse or misread (``[cycles]``)."""
+        from mixcount.errors import ConfigError
+
+        choices = {"denoising_quality": DENOISING_QUALITIES, "texture_limit": TEXTURE_LIMITS,
+                   "pixel_filter": PIXEL_FILTERS, "sampling_pattern": SAMPLING_PATTERNS,
+                   "world_sampling": WORLD_SAMPLING}
+        for key, allowed in choices.items():
+            if getattr(self, key) not in allowed:
+                raise ConfigError(f"cycles.{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type in ("int", "float") and value < 0:
+                raise ConfigError(f"cycles.{f.name} must be >= 0, got {value!r}")
+        if self.adaptive_threshold >= 1:
+            raise ConfigError(f"cycles.adaptive_threshold must be < 1 (0 = off), got {self.adaptive_threshold!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "CyclesSpec":
+        kinds = {f.name: f.type for f in fields(cls)}
+        cast = {"float": float, "int": int, "bool": bool, "str": str}
+        unknown = sorted(set(d) - set(kinds))
+        if unknown:
+            raise ValueError(f"unknown Cycles setting(s) {unknown}; known: {sorted(kinds)}")
+        missing = sorted(set(kinds) - set(d))
+        if missing:
+            raise ValueError(f"the Cycles record lacks setting(s) {missing} (written by another mixcount version?)")
+        return cls(**{k: cast[str(kinds[k])](d[k]) for k in kinds})
+
+
+# the RGB render's settings before [cycles] existed (adaptive sampling off, 8 bounces, Blender's defaults
+# for the rest): what a stage without a ``cycles`` record renders with
+
+
 CyclesConfig = CyclesSpec
 
 Range = tuple[float, float]
@@ -151,15 +233,11 @@ class SceneConfig:
         unknown = set(self.floor_shapes) - {"cube", "cylinder"}
         if unknown or not self.floor_shapes:
             raise ConfigError(f"scene.floor_shapes must be cube and/or cylinder, got {self.floor_shapes}")
-        from mixcount.scene.environments import PATTERNS
-
         bad = set(self.floor_patterns) - set(PATTERNS)
         if bad or not self.floor_patterns:
             raise ConfigError(f"scene.floor_patterns: unknown {sorted(bad)}; known {list(PATTERNS)}")
         if self.collision_shape not in ("convexHull", "convexDecomposition", "boundingCube", "boundingSphere", "none"):
             raise ConfigError(f"scene.collision_shape {self.collision_shape!r} is not a UsdPhysics approximation")
-        from mixcount.scene.environments import DEFAULT_ENVIRONMENTS
-
         if self.default_environment not in DEFAULT_ENVIRONMENTS:
             raise ConfigError(f"scene.default_environment must be one of {list(DEFAULT_ENVIRONMENTS)}, "
                               f"got {self.default_environment!r}")

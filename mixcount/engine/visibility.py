@@ -53,7 +53,7 @@ def unoccluded_mask(camera: PinholeCamera, local_rows: np.ndarray, corners: np.n
 def oracle_masks(scene: Any, objects: Iterable[Any], work: Path) -> dict[int, np.ndarray]:
     """The paper's reference: for each object, hide every other renderable object, render the id pass
     and keep the pixels of that object's pass index. Slow by design (one render per object)."""
-    from mixcount.blender.passes import remove_quiet, render_id_passes
+    from mixcount.engine.render_passes import remove_quiet, render_id_passes
 
     objects = list(objects)
     renderable = [o for o in scene.objects if o.type == "MESH" and not o.hide_render]
