@@ -1,6 +1,6 @@
 """Capture-sized meshes through ingest and `catalog filter`: time and memory for a few hundred thousand faces.
 
-Usage: .venv/bin/python bench/capture.py [--faces 300000] [--workers 2]
+Usage: .venv/bin/python bench/capture.py [--faces 300000] [--workers 2] [--smoke]
 Writes, in a temporary folder, a textured scan-like object (a lumpy, image-textured blob of about
 ``--faces`` triangles, one GLB), a copy of it turned over and rescaled (another GLB), the same scan
 subdivided once more (x4 faces, a "re-tessellated" export) and another source's copy (isotropically
@@ -39,7 +39,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--faces", type=int, default=300_000)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--smoke", action="store_true", help="seconds: a 3,000-face scan (the suite runs it)")
     args = parser.parse_args()
+    if args.smoke:
+        args.faces = 3_000
     rng = np.random.default_rng(0)
     part = T.scan_like(args.faces, rng)
     with tempfile.TemporaryDirectory(prefix="mixcount-capture-") as tmp:

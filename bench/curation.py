@@ -1,6 +1,6 @@
 """`catalog filter` on the generated demo library: time (cold and warm descriptor cache) and the ground-truth figures.
 
-Usage: .venv/bin/python bench/curation.py [--work DIR] [--reps 3] [--pythonpath TREE]
+Usage: .venv/bin/python bench/curation.py [--work DIR] [--reps 3] [--pythonpath TREE] [--smoke]
            [--compare-work DIR2 --compare-pythonpath OLD_TREE]
 
 ``--work DIR`` is reused when it already holds a rendered library (``DIR/db_rendered``); otherwise the demo
@@ -49,8 +49,8 @@ def _mixcount(db: Path, *args: str, env: dict[str, str] | None = None, cwd: Path
     return wall, cpu, proc.stdout
 
 
-def prepare(work: Path, env: dict[str, str]) -> Path:
-    """``work/db_rendered``: the demo library generated, ingested and rendered (once)."""
+def prepare(work: Path, env: dict[str, str], px: int = 64, spp: int = 2) -> Path:
+    """``work/db_rendered``: the demo library generated, ingested and rendered at ``px`` / ``spp`` (once)."""
     rendered = work / "db_rendered"
     if (rendered / "catalog.db").is_file():
         return rendered
@@ -58,7 +58,7 @@ def prepare(work: Path, env: dict[str, str]) -> Path:
     db = work / "db" / "catalog.db"
     shutil.rmtree(db.parent, ignore_errors=True)
     db.parent.mkdir(parents=True)
-    base = ["--config", str(QUICK), "--set", "render.resolution=64", "--set", "render.samples=2"]
+    base = ["--config", str(QUICK), "--set", f"render.resolution={px}", "--set", f"render.samples={spp}"]
     for step in (["demo-library", str(work / "demo")], ["catalog", "ingest", str(work / "demo")], ["catalog", "render"]):
         wall, _, _ = _mixcount(db, *base, *step, env=env, cwd=work)
         print(f"{work}: {' '.join(step[:2])} {wall:.1f} s", file=sys.stderr)
@@ -67,9 +67,9 @@ def prepare(work: Path, env: dict[str, str]) -> Path:
 
 
 class Arm:
-    def __init__(self, label: str, work: Path, env: dict[str, str]) -> None:
+    def __init__(self, label: str, work: Path, env: dict[str, str], px: int = 64, spp: int = 2) -> None:
         self.label, self.work, self.env = label, work, env
-        self.rendered = prepare(work, env)
+        self.rendered = prepare(work, env, px, spp)
         self.times: dict[str, list[float]] = {"cold_wall_s": [], "warm_wall_s": [], "cold_cpu_s": [], "warm_cpu_s": []}
         self.summary: dict | None = None
         self.scratch: Path | None = None
@@ -105,12 +105,16 @@ def main() -> int:
     parser.add_argument("--pythonpath", type=Path, help="run the first arm from this tree too (a frozen copy)")
     parser.add_argument("--compare-work", type=Path)
     parser.add_argument("--compare-pythonpath", type=Path)
+    parser.add_argument("--smoke", action="store_true", help="seconds: renders at 16 px / 1 spp, one repetition (the suite)")
     args = parser.parse_args()
+    px, spp = (16, 1) if args.smoke else (64, 2)
+    if args.smoke:
+        args.reps = 1
     if (args.compare_work is None) != (args.compare_pythonpath is None):
         parser.error("--compare-work and --compare-pythonpath go together")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     first = env if args.pythonpath is None else {**env, "PYTHONPATH": str(args.pythonpath.resolve())}
-    arms = [Arm("current", args.work.resolve(), first)]
+    arms = [Arm("current", args.work.resolve(), first, px, spp)]
     if args.compare_work is not None:
         if not (args.compare_pythonpath / "mixcount" / "__init__.py").is_file():
             parser.error(f"{args.compare_pythonpath} holds no mixcount/ package")

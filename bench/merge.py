@@ -3,6 +3,7 @@
     .venv/bin/python bench/merge.py --scene OUT/scenes/scene_000003             # N = 1k, 10k, 58k
     .venv/bin/python bench/merge.py --scene DIR --sizes 1000,10000 --keep       # keep the fabricated sets
     .venv/bin/python bench/merge.py                                             # composes a small scene first
+    .venv/bin/python bench/merge.py --smoke                                     # seconds: tiny scene, N = 3, 10
 
 Each fabricated scene is the real scene under a new id (``scene_<k:06d>``): ``coco.json`` and
 ``metadata.json`` rewritten with that id (text replacement; every scene is parsed for real by the merge), ``rgb.png`` hard-linked (the
@@ -62,16 +63,18 @@ def _merge(out: Path) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def _compose_one(work: Path) -> Path:
+def _compose_one(work: Path, smoke: bool) -> Path:
+    """One real scene (seed 3: ``compose.seed``) of the demo library; ``smoke``: 32 px, 1 sample, 12 objects."""
     from mixcount.config import load_config
     from mixcount.demo.demo_pools import ensure_demo_pool
     from mixcount.run.compose import compose_scenes
 
     pool = ensure_demo_pool(work / "demo")
-    cfg = load_config([], ["compose.resolution=256", "compose.samples=4", "scene.n_objects=[54,54]",
+    sets = (["compose.resolution=32", "compose.samples=1", "scene.n_objects=[12,12]", "scene.physics_frames=60"]
+            if smoke else ["compose.resolution=256", "compose.samples=4", "scene.n_objects=[54,54]",
                            "scene.physics_frames=120"])
-    compose_scenes(pool=pool, config=cfg, out_dir=work / "one", assets_dir=work / "assets", n=1, seed=3,
-                   progress=False)
+    cfg = load_config([], [*sets, "compose.seed=3"])
+    compose_scenes(pool=pool, config=cfg, out_dir=work / "one", assets_dir=work / "assets", n=1, progress=False)
     return next(d for d in (work / "one" / "scenes").iterdir() if not d.name.startswith("."))
 
 
@@ -81,9 +84,12 @@ def main() -> int:
     ap.add_argument("--sizes", default="1000,10000,58000")
     ap.add_argument("--work", type=Path, default=None)
     ap.add_argument("--keep", action="store_true", help="keep the fabricated datasets")
+    ap.add_argument("--smoke", action="store_true", help="seconds: a 32-px scene, N = 3 and 10 (the suite runs it)")
     args = ap.parse_args()
+    if args.smoke:
+        args.sizes = "3,10"
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-merge-"))
-    scene = args.scene or _compose_one(work)
+    scene = args.scene or _compose_one(work, args.smoke)
     meta = json.loads((scene / "metadata.json").read_text())
     rows = []
     for n in [int(s) for s in args.sizes.split(",") if s.strip()]:

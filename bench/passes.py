@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/passes.py --scene OUT/scenes/scene_000003   # a scene written with the npy formats
     .venv/bin/python bench/passes.py --resolution 1024 --samples 32    # composes one (npy formats) first
+    .venv/bin/python bench/passes.py --smoke                           # seconds: a 32-px scene
 
 Reads the exact float32 passes (``depth.npy``, ``normal.npy``; compose with ``compose.depth_format="npy"``
 and ``compose.normal_format="npy"``), writes them in every format of :mod:`mixcount.annotate.passes`,
@@ -23,7 +24,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 
-def _compose_npy(work: Path, resolution: int, samples: int, objects: int) -> Path:
+def _compose_npy(work: Path, resolution: int, samples: int, objects: int, extra: list[str]) -> Path:
+    """One real scene (seed 3) written with the exact float32 passes; ``extra``: more config overrides."""
     from mixcount.config import load_config
     from mixcount.demo.demo_pools import ensure_demo_pool
     from mixcount.run.compose import compose_scenes
@@ -31,9 +33,8 @@ def _compose_npy(work: Path, resolution: int, samples: int, objects: int) -> Pat
     pool = ensure_demo_pool(work / "demo")
     cfg = load_config([], [f"compose.resolution={resolution}", f"compose.samples={samples}",
                            f"scene.n_objects=[{objects},{objects}]", "compose.depth_format='npy'",
-                           "compose.normal_format='npy'"])
-    compose_scenes(pool=pool, config=cfg, out_dir=work / "npy", assets_dir=work / "assets", n=1, seed=3,
-                   progress=False)
+                           "compose.normal_format='npy'", "compose.seed=3", *extra])
+    compose_scenes(pool=pool, config=cfg, out_dir=work / "npy", assets_dir=work / "assets", n=1, progress=False)
     return next(d for d in (work / "npy" / "scenes").iterdir() if not d.name.startswith("."))
 
 
@@ -44,7 +45,12 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--objects", type=int, default=100)
     ap.add_argument("--work", type=Path, default=None)
+    ap.add_argument("--smoke", action="store_true", help="seconds: a 32-px, 1-sample, 12-object scene (the suite runs it)")
     args = ap.parse_args()
+    extra: list[str] = []
+    if args.smoke:
+        args.resolution, args.samples, args.objects = 32, 1, 12
+        extra = ["scene.physics_frames=60"]
 
     from mixcount.annotate.passes import (
         DEPTH_FORMATS,
@@ -56,7 +62,7 @@ def main() -> int:
     )
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-passes-"))
-    scene = args.scene or _compose_npy(work, args.resolution, args.samples, args.objects)
+    scene = args.scene or _compose_npy(work, args.resolution, args.samples, args.objects, extra)
     depth = np.load(scene / "depth.npy")
     normals = np.load(scene / "normal.npy")
     surf = depth > 0

@@ -3,6 +3,7 @@
     .venv/bin/python bench/render_quality.py --quick --work W     # 2 stages, 256-spp reference (~25 min on 2 cores)
     .venv/bin/python bench/render_quality.py --work W             # 6 stages, 1024-spp reference (docs/performance.md)
     .venv/bin/python bench/render_quality.py --quick --try "b4:max_bounces=4,diffuse_bounces=2"   # one more setting
+    .venv/bin/python bench/render_quality.py --smoke              # seconds: one tiny light stage (the suite)
 
 Stages come from the heavy pool (bench/pools.py: captures of >= 200k faces, textures kept): with and without a
 container, dark and over-bright light, bpy's bundled HDRIs and the procedural sky. Each stage is settled once
@@ -173,7 +174,13 @@ def _arguments() -> argparse.Namespace:
     ap.add_argument("--pool", default="heavy", help="heavy (captures' size, the default) or light (the demo library)")
     ap.add_argument("--objects", type=int, default=None, help="counted objects of every stage (default: the stage's)")
     ap.add_argument("--work", type=Path, default=None)
-    return ap.parse_args()
+    ap.add_argument("--smoke", action="store_true", help="seconds: one light stage of 12 objects at 32 px, "
+                                                         "previous and default only, 4-spp reference (the suite)")
+    args = ap.parse_args()
+    if args.smoke:
+        args.quick, args.stages, args.pool, args.objects, args.resolution = True, "open_sky_dark", "light", 12, 32
+        args.reference_spp, args.only, args.threads = 4, "", 1
+    return args
 
 
 def _settings(args: argparse.Namespace, cfg: Any, before: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:

@@ -112,7 +112,11 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override (repeatable)")
     ap.add_argument("--work", type=Path, default=None)
     ap.add_argument("--run-stage", default="", help=argparse.SUPPRESS)  # internal: settle one stage here
+    ap.add_argument("--smoke", action="store_true", help="seconds: tiny sizes, same code path (the suite runs it)")
     args = ap.parse_args()
+    if args.smoke:  # one stage of the light pool, 12 objects, 60 frames
+        args.seeds, args.pool = [0], "light"
+        args.set = [*args.set, "scene.n_objects=[12,12]", "scene.physics_frames=60"]
     if args.run_stage:
         print(json.dumps(_settle_one(args)))
         return 0

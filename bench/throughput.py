@@ -139,7 +139,10 @@ def main() -> int:
     ap.add_argument("--pool", choices=("light", "heavy"), default=None, help="--paper pool (default heavy)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="--paper: extra config override (repeatable), e.g. --set compose.denoise_prefilter=FAST")
+    ap.add_argument("--smoke", action="store_true", help="seconds: 2 local scenes at 32 px, 1 sample (the suite runs it)")
     args = ap.parse_args()
+    if args.smoke:  # local executor only: the suite's Ray tests start their own cluster
+        args.scenes, args.workers, args.resolution, args.samples, args.only = 2, 1, 32, 1, "local"
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private 127.0.0.1 cluster
     if args.paper:
         return _paper(args)

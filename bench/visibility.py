@@ -40,7 +40,10 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=0, help="Cycles threads (0 = all cores)")
     ap.add_argument("--work", type=Path, default=None)
     ap.add_argument("--pools", default="light,heavy", help="light, heavy or both")
+    ap.add_argument("--smoke", action="store_true", help="seconds: tiny sizes, same code path (the suite runs it)")
     args = ap.parse_args()
+    if args.smoke:  # one 12-object scene of the light pool at 32 px, 1 sample, 60 frames
+        args.sizes, args.resolution, args.samples, args.frames, args.threads, args.pools = "12", 32, 1, 60, 1, "light"
     sys.path.insert(0, str(ROOT / "bench"))
     from pools import load_pool, run_fresh_scene, warm_mesh_cache, with_proxies
 
@@ -102,7 +105,7 @@ def main() -> int:
         result["growth"] = {"objects_ratio": round(b["objects"] / a["objects"], 2),
                             "filter_ratio": round(b["filter_s"] / max(a["filter_s"], 1e-9), 2)}
     print(json.dumps(result))
-    return 0 if result["target_met"] else 1
+    return 0 if args.smoke or result["target_met"] else 1  # a smoke scene is too small for the target
 
 
 if __name__ == "__main__":

@@ -1,0 +1,182 @@
+"""Every bench in bench/ runs in its ``--smoke`` mode (tiny sizes, the same code path) and prints
+well-formed figures: the keys the docs quote are present and every number is finite. A bench that no
+longer runs (a renamed parameter, a moved module) fails here instead of on the day someone needs it.
+
+The benches that draw scenes share one generated demo library, its converted assets and proxies (each
+bench gets its own work folder with links to them), so the library is generated once for the module."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCH = ROOT / "bench"
+SHARED = ("demo", "assets", "proxies")  # what the scene benches reuse under --work (content-addressed)
+
+
+def _numbers(value: Any, where: str = "") -> list[tuple[str, float]]:
+    """Every number in a JSON value with its path (booleans are not numbers)."""
+    if isinstance(value, bool):
+        return []
+    if isinstance(value, (int, float)):
+        return [(where, float(value))]
+    if isinstance(value, dict):
+        return [n for k, v in value.items() for n in _numbers(v, f"{where}.{k}")]
+    if isinstance(value, list):
+        return [n for i, v in enumerate(value) for n in _numbers(v, f"{where}[{i}]")]
+    return []
+
+
+def _get(doc: dict[str, Any], dotted: str) -> Any:
+    """``doc["a"]["b"][0]`` for ``"a.b.0"``; a KeyError / IndexError names what is missing."""
+    value: Any = doc
+    for part in dotted.split("."):
+        value = value[int(part)] if isinstance(value, list) else value[part]
+    return value
+
+
+@pytest.fixture(scope="module")
+def bench_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder holding the demo library (seed 0) once; benches link to it from their own work folders."""
+    from mixcount.demo.demo_pools import ensure_demo_pool
+
+    root = tmp_path_factory.mktemp("benches")
+    ensure_demo_pool(root / "shared" / "demo")
+    for name in SHARED[1:]:
+        (root / "shared" / name).mkdir()
+    return root
+
+
+def run_smoke(name: str, root: Path | None, *, share: bool = True) -> list[dict[str, Any]]:
+    """Run ``bench/<name>.py --smoke`` in a child process (``--work root/name``, linked to the shared demo
+    library when ``share``; no --work when ``root`` is None); the JSON lines it printed on stdout."""
+    cmd = [sys.executable, str(BENCH / f"{name}.py"), "--smoke"]
+    if root is not None:
+        folder = root / name
+        folder.mkdir()
+        for shared in SHARED if share else ():
+            (folder / shared).symlink_to(root / "shared" / shared, target_is_directory=True)
+        cmd += ["--work", str(folder)]
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, f"bench/{name}.py --smoke exited {done.returncode}:\n{done.stderr[-4000:]}"
+    lines = [json.loads(ln) for ln in done.stdout.splitlines() if ln.startswith("{")]
+    assert lines, f"bench/{name}.py --smoke printed no JSON line:\n{done.stdout[-2000:]}"
+    return lines
+
+
+def check_figures(doc: dict[str, Any], keys: list[str]) -> None:
+    """``keys`` (dotted paths) are present and numbers; every number in ``doc`` is finite."""
+    for key in keys:
+        value = _get(doc, key)
+        assert isinstance(value, (int, float)) and not isinstance(value, bool), f"{key} = {value!r} is not a number"
+    bad = [(where, v) for where, v in _numbers(doc) if not math.isfinite(v)]
+    assert not bad, f"figures that are not finite: {bad}"
+
+
+@pytest.mark.blender
+def test_compose_bench(bench_root: Path) -> None:
+    doc = run_smoke("compose", bench_root)[-1]
+    assert doc["bench"] == "compose" and len(doc["scenes"]) == 1
+    scene = doc["scenes"][0]
+    assert "error" not in scene, scene
+    check_figures(doc, ["scenes.0.counted_kept", "scenes.0.seconds.physics", "scenes.0.seconds.rgb",
+                        "scenes.0.seconds.whole", "scenes.0.whole_over_rgb", "scenes.0.physics_share",
+                        "scenes.0.bytes.total"])
+    assert scene["counted_kept"] > 0 and scene["seconds"]["whole"] >= scene["seconds"]["rgb"] > 0
+
+
+@pytest.mark.blender
+def test_visibility_bench(bench_root: Path) -> None:
+    doc = run_smoke("visibility", bench_root)[-1]
+    assert doc["bench"] == "visibility" and len(doc["scenes"]) == 1 and "error" not in doc["scenes"][0]
+    check_figures(doc, ["scenes.0.filter_s", "scenes.0.rgb_s", "scenes.0.scene_s", "scenes.0.filter_over_scene",
+                        "max_filter_over_scene"])
+    assert 0 < doc["scenes"][0]["filter_over_scene"] < 1
+
+
+@pytest.mark.blender
+def test_settle_bench(bench_root: Path) -> None:
+    rows = run_smoke("settle", bench_root)
+    assert [r["seed"] for r in rows] == [0] and rows[0]["bench"] == "settle"
+    check_figures(rows[0], ["objects", "frames_run", "physics_s", "counted_kept", "spawn_max_z",
+                            "median_settle_distance_m"])
+    assert 0 < rows[0]["frames_run"] <= 60
+
+
+@pytest.mark.blender
+def test_density_bench(bench_root: Path) -> None:
+    rows = run_smoke("density", bench_root)
+    assert [r["pool"] for r in rows] == ["light"] and rows[0]["scenes"] == 2 and rows[0]["failed"] == []
+    check_figures(rows[0], ["counted_spawned", "counted_kept", "retention", "mean_counted_kept",
+                            "distractors_kept", "lost_off_floor_share"])
+    assert 0 < rows[0]["retention"] <= 1
+
+
+@pytest.mark.blender
+def test_throughput_bench(bench_root: Path) -> None:
+    doc = run_smoke("throughput", bench_root)[-1]
+    assert doc["bench"] == "throughput" and [r["executor"] for r in doc["runs"]] == ["local"]
+    check_figures(doc, ["runs.0.wall_s", "runs.0.scenes_per_hour", "runs.0.cpu_s_per_scene", "runs.0.written"])
+    assert doc["runs"][0]["written"] == doc["scenes"] == 2 and doc["runs"][0]["failed"] == 0
+
+
+@pytest.mark.blender
+def test_render_quality_bench(bench_root: Path) -> None:
+    lines = run_smoke("render_quality", bench_root)
+    doc = lines[-1]
+    assert doc["bench"] == "render_quality" and [s["stage"] for s in doc["stages"]] == ["open_sky_dark"]
+    assert {ln["setting"] for ln in lines[:-1]} == {"previous", "default"}
+    check_figures(doc, ["stages.0.reference_s", "previous.rgb_s.0", "previous.psnr.0", "previous.ssim.0",
+                        "default.rgb_s.0", "default.psnr.0", "default.ssim.0", "default_time_ratio.median"])
+    assert 0 < doc["default"]["ssim"][0] <= 1 and doc["default"]["psnr"][0] > 0
+
+
+@pytest.mark.blender
+def test_merge_bench(bench_root: Path) -> None:
+    doc = run_smoke("merge", bench_root)[-1]
+    assert doc["bench"] == "merge" and [r["scenes"] for r in doc["rows"]] == [3, 10]
+    check_figures(doc, ["objects_per_scene", "annotations_per_scene", "rows.0.cold.seconds",
+                        "rows.0.cold.peak_rss_mb", "rows.1.warm_plus_one.seconds", "rows.1.us_per_scene_cold"])
+    assert doc["annotations_per_scene"] > 0
+
+
+@pytest.mark.blender
+def test_passes_bench(bench_root: Path) -> None:
+    doc = run_smoke("passes", bench_root)[-1]
+    assert doc["bench"] == "passes" and doc["shape"] == [32, 32]
+    from mixcount.annotate.passes import DEPTH_FORMATS, NORMAL_FORMATS
+
+    assert set(doc["depth"]) == set(DEPTH_FORMATS) and set(doc["normal"]) == set(NORMAL_FORMATS)
+    check_figures(doc, [f"depth.{f}.bytes" for f in DEPTH_FORMATS] + [f"depth.{f}.max_rel_err" for f in DEPTH_FORMATS]
+                  + [f"normal.{f}.max_err_deg" for f in NORMAL_FORMATS] + ["surface_fraction"])
+    assert all(d["surface_mask_kept"] for d in doc["depth"].values())
+
+
+@pytest.mark.blender
+def test_curation_bench(tmp_path: Path) -> None:
+    doc = run_smoke("curation", tmp_path, share=False)[-1]  # it ingests and renders its own demo catalog
+    arm = doc["arms"][0]
+    check_figures(doc, ["arms.0.objects", "arms.0.median_cold_wall_s", "arms.0.median_warm_wall_s",
+                        "arms.0.precision", "arms.0.recall", "arms.0.clean_flag_rate"])
+    assert doc["reps"] == 1 and arm["objects"] > 0 and arm["by_trap"]
+
+
+def test_capture_bench() -> None:
+    doc = run_smoke("capture", None)[-1]
+    check_figures(doc, ["ingest_s", "filter_s", "peak_rss_mb", "faces.0"])
+    assert doc["broken"] == 0 and len({tuple(p[:2]) for p in doc["pairs"]}) == 6  # the four are one group
+
+
+def test_ingest_bench() -> None:
+    doc = run_smoke("ingest", None)[-1]
+    check_figures(doc, ["objects", "first_s", "first_obj_per_s", "rerun_s", "rerun_obj_per_s", "ratio"])
+    assert doc["subdivide"] == 0 and doc["objects"] > 0 and doc["rerun_obj_per_s"] > doc["first_obj_per_s"]
