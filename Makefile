@@ -9,7 +9,7 @@ DEMO_OUT := out/demo
 MIX := $(VENV)/bin/mixcount --db $(DEMO_DB)
 DEMO_SCENES ?= 4
 
-.PHONY: setup test test-fast lint demo browser clean-demo bench
+.PHONY: setup test test-fast lint demo browser clean-demo bench bench-smoke
 
 setup: $(STAMP)
 
@@ -58,6 +58,10 @@ bench: $(STAMP)
 	$(PY) bench/compose.py
 	$(PY) bench/visibility.py
 	$(PY) bench/throughput.py --scenes 24
+
+# Every bench in its --smoke mode (tiny sizes, the same code path; what tests/test_benches.py runs): about 1.5 min.
+bench-smoke: $(STAMP)
+	$(PY) -m pytest -q tests/test_benches.py
 
 clean-demo:
 	rm -rf catalog/demo catalog/catalog.db* catalog/collision catalog/renders catalog/usd_assets $(DEMO_OUT)
