@@ -19,7 +19,7 @@ import to make, the cost of an asset's first scene). Per scene: ``whole`` = stag
 
 ``--settle-ahead`` measures ``compose.settle_ahead`` (a companion bpy process settles the next scene while
 the current one renders) in its steady state: each scene is run three times in a row through a
-:class:`~mixcount.worker.client.SettleAheadWorker`, copy k + 1 settling in the companion while copy k
+:class:`~mixcount.worker.settle_ahead.SettleAheadWorker`, copy k + 1 settling in the companion while copy k
 renders, and the middle copy is reported. Its ``whole`` is the wall time from the end of copy 0 to the
 end of copy 1 (stage writing excluded: the look-ahead does it during the previous render), its RGB the
 render that ran beside copy 2's settle. ``same_poses`` says copy 1 (settled in the companion) kept the
@@ -73,7 +73,8 @@ def main() -> int:
     from mixcount.engine import mesh_cache
     from mixcount.scene.sampler import sample_scene
     from mixcount.usd.stage import convert_scene_assets
-    from mixcount.worker.client import BlenderWorker, SettleAheadWorker
+    from mixcount.worker.client import BlenderWorker
+    from mixcount.worker.settle_ahead import SettleAheadWorker
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-"))
     sizes = [args.objects] if args.objects else [int(s) for s in args.sizes.split(",") if s.strip()]
@@ -168,12 +169,13 @@ def run_settled_ahead(worker: Any, spec: Any, out: Path, assets: Path, *, thread
     from pools import worker_stages
 
     from mixcount.config import load_config
-    from mixcount.run.scene_task import WRITTEN, SceneTask, compose_outputs, run_scene_task, stage_scene
+    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task, stage_scene
+    from mixcount.worker.contract import SceneOutputs
 
     shutil.rmtree(out, ignore_errors=True)
-    outputs = {**compose_outputs(load_config().compose), "mesh_cache": mesh_cache}
+    outputs = replace(SceneOutputs.from_config(load_config().compose), mesh_cache=mesh_cache)
     tasks = [SceneTask(spec=replace(spec, scene_id=f"{spec.scene_id}_copy{k}"), out_dir=str(out),
-                       assets_dir=str(assets), timeout_s=7200, threads=threads, **outputs) for k in range(3)]
+                       assets_dir=str(assets), timeout_s=7200, threads=threads, outputs=outputs) for k in range(3)]
     staged = [stage_scene(t) for t in tasks]
     ends, outcomes, starter = [], [], None
     for k, (task, st) in enumerate(zip(tasks, staged)):

@@ -69,12 +69,14 @@ def run_fresh_scene(worker: Any, spec: Any, out: Path, assets: Path, *, timeout_
     import shutil
 
     from mixcount.config import load_config
-    from mixcount.run.scene_task import WRITTEN, SceneTask, compose_outputs, run_scene_task
+    from mixcount.run.scene_task import WRITTEN, SceneTask, run_scene_task
+    from mixcount.worker.contract import SceneOutputs
 
     shutil.rmtree(out, ignore_errors=True)
     outcome = run_scene_task(SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=timeout_s,
                                        threads=threads, oracle=oracle,
-                                       **{**compose_outputs(load_config().compose), "mesh_cache": mesh_cache}), worker)
+                                       outputs=dataclasses.replace(SceneOutputs.from_config(load_config().compose),
+                                                       mesh_cache=mesh_cache)), worker)
     if outcome.status != WRITTEN:
         return outcome, None, {}
     meta = json.loads((Path(outcome.path) / "metadata.json").read_text())

@@ -16,15 +16,20 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Iterator, Mapping, Optional, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-CAPTION_TIERS = ("short", "concise", "detailed")
+if TYPE_CHECKING:  # the API's return types, imported lazily at run time (import mixcount stays light)
+    from mixcount.catalog.db import Catalog
+    from mixcount.dataset.package import PackageReport
+    from mixcount.run.compose import ComposeSummary
+
+from mixcount.scene.spec import TIERS as CAPTION_TIERS  # the one caption-tier tuple
 
 
-def open_catalog(db: str | Path, *, data_dir: Optional[str] = None) -> Any:
+def open_catalog(db: str | Path, *, data_dir: Optional[str] = None) -> "Catalog":
     """Open (creating and migrating when needed) the catalog at ``db`` (a SQLite path or SQLAlchemy URL);
     ``data_dir`` as ``catalog.data_dir`` (None: configs/default.toml's, "" = beside the SQLite file). Close
     it with ``.close()``."""
@@ -37,9 +42,9 @@ def open_catalog(db: str | Path, *, data_dir: Optional[str] = None) -> Any:
     return _open(str(db), data_dir=data_dir)
 
 
-def compose(catalog: Any, out: str | Path, *, n: int, split: Optional[str] = None, seed: Optional[int] = None,
+def compose(catalog: "Catalog", out: str | Path, *, n: int, split: Optional[str] = None, seed: Optional[int] = None,
             config: Sequence[str | Path] = (), overrides: Sequence[str] = (), resolution: Optional[int] = None,
-            samples: Optional[int] = None, package_assets: bool = False, progress: bool = False) -> Any:
+            samples: Optional[int] = None, package_assets: bool = False, progress: bool = False) -> "ComposeSummary":
     """Render until ``n`` scenes of ``split`` are complete in ``out`` and merge them, as ``mixcount compose``
     does; returns its summary (``written``, ``failed``, ``outputs`` ...). ``config``: files or names layered
     over configs/default.toml (``"quick"``); ``overrides``: ``"section.key=value"`` strings like ``--set``.
@@ -62,7 +67,7 @@ def compose(catalog: Any, out: str | Path, *, n: int, split: Optional[str] = Non
     return summary
 
 
-def package(out: str | Path, *, search: Sequence[str | Path] = ()) -> Any:
+def package(out: str | Path, *, search: Sequence[str | Path] = ()) -> "PackageReport":
     """Copy every file the dataset's stages use into ``out/assets/`` (``mixcount package``); returns the
     report (``copied``, ``bytes`` ...). ``search``: folders to find assets whose links are broken, before
     ``$MIXCOUNT_ASSETS``."""

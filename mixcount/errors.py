@@ -8,13 +8,15 @@ Like httpx's own list, each class says when it is raised; catch the narrowest on
     │   │                       bad ingest path, unknown layout, unusable --metadata file
     │   └── IngestError         one object could not be ingested (recorded as `broken`, batch goes on)
     ├── CaptionError            a captioner could not caption one object (recorded, batch goes on)
-    │   └── CaptionRequestError an HTTP captioning request failed (``attempts``, ``retryable``)
+    │   ├── CaptionRequestError an HTTP captioning request failed (``attempts``, ``retryable``)
+    │   └── UnusableAnswerError a 200 answer that is not usable (malformed JSON, refusal): worth one repair
     ├── CompositionError        scene sampling / USD writing failed, bad compose options
     ├── RenderError             a Blender worker failed, timed out, died or answered nonsense
     ├── ExecutorError           the Ray cluster could not be reached or set up
     ├── StorageError            an output folder cannot take the run's files: no space, read-only, no permission
     ├── AssetError              a file a scene needs (model, texture, environment map) is missing or unreadable
     ├── DatasetError            a dataset's files do not match their record, or a scene cannot be merged
+    │   └── PackageError        a dataset's assets cannot be packaged (a file missing everywhere looked)
     ├── ExportError             a dataset could not be exported (not a composed dataset, unknown split or
     │                           format, bad output folder)
     └── EvaluationError         evaluation or statistics could not be computed from the given files
@@ -63,6 +65,15 @@ class CaptionRequestError(CaptionError):
         self.retryable = retryable
 
 
+class UnusableAnswerError(CaptionError):
+    """A 200 answer that is not usable (malformed JSON, schema violation, refusal): worth one repair request.
+    ``content`` is the answer text when there was one. The HTTP captioner catches it (mixcount.captions.http)."""
+
+    def __init__(self, message: str, content: str | None) -> None:
+        super().__init__(message)
+        self.content = content
+
+
 class CompositionError(MixcountError):
     """A scene could not be sampled or written."""
 
@@ -87,6 +98,10 @@ class AssetError(MixcountError):
 
 class DatasetError(MixcountError):
     """A dataset's files do not match their record (``mixcount verify``), or a scene cannot be merged."""
+
+
+class PackageError(DatasetError):
+    """A dataset's assets cannot be packaged (a file is missing everywhere it was looked for)."""
 
 
 class ExportError(MixcountError):

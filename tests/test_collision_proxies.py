@@ -183,8 +183,9 @@ def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, t
     the worker's checks, and bodies are at rest at the end."""
     from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
     from mixcount.config import load_config
-    from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
+    from mixcount.run.scene_task import SceneTask, run_scene_task
     from mixcount.worker.client import BlenderWorker
+    from mixcount.worker.contract import SceneOutputs
 
     pool, root = proxy_library
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
@@ -194,7 +195,7 @@ def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, t
             for proxies in (False, True):
                 spec = _spec(pool, seed, proxies)
                 task = SceneTask(spec=spec, out_dir=str(tmp_path / f"p{int(proxies)}"), assets_dir=str(root / "assets"),
-                                 timeout_s=600, threads=2, **compose_outputs(load_config().compose))
+                                 timeout_s=600, threads=2, outputs=SceneOutputs.from_config(load_config().compose))
                 outcome = run_scene_task(task, worker)
                 assert outcome.status == "written", outcome.error
                 results[proxies].append(json.loads((Path(outcome.path) / "metadata.json").read_text()))
@@ -226,8 +227,9 @@ def test_deep_floor_collider_settles_as_well_as_the_thin_floor(proxy_library, tm
     against the bare 0.5 m floor, same seeds: no more settle drops, nothing sinking, a pile at rest."""
     from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
     from mixcount.config import load_config
-    from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
+    from mixcount.run.scene_task import SceneTask, run_scene_task
     from mixcount.worker.client import BlenderWorker
+    from mixcount.worker.contract import SceneOutputs
 
     pool, root = proxy_library
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
@@ -240,7 +242,7 @@ def test_deep_floor_collider_settles_as_well_as_the_thin_floor(proxy_library, tm
                 spec = _spec(pool, seed, True, *overrides)
                 assert (spec.physics.substeps, spec.physics.floor_collider_depth > 0) == (8, name == "default")
                 task = SceneTask(spec=spec, out_dir=str(tmp_path / name), assets_dir=str(root / "assets"),
-                                 timeout_s=600, threads=2, **compose_outputs(load_config().compose))
+                                 timeout_s=600, threads=2, outputs=SceneOutputs.from_config(load_config().compose))
                 outcome = run_scene_task(task, worker)
                 assert outcome.status == "written", outcome.error
                 meta = json.loads((Path(outcome.path) / "metadata.json").read_text())

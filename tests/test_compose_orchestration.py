@@ -22,7 +22,7 @@ from mixcount.config import load_config
 from mixcount.dataset.scene_writer import REJECTED_DIR
 from mixcount.run.compose import compose_scenes
 from mixcount.run.local import LocalExecutor
-from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task
+from mixcount.run.scene_task import SceneTask, run_scene_task
 from mixcount.scene.object_records import ObjectRecord, fallback_captions
 from mixcount.scene.spec import SceneSpec
 from mixcount.worker.contract import (
@@ -31,6 +31,7 @@ from mixcount.worker.contract import (
     STATUS_REJECTED,
     CameraView,
     ObjectResult,
+    SceneOutputs,
     SceneResult,
 )
 
@@ -165,5 +166,5 @@ def test_scene_task_is_picklable_plain_data(setup) -> None:
     config, pool = setup[0], setup[1]
     spec = sample_scene(7, "train", config, pool)
     task = SceneTask(spec=spec, out_dir="o", assets_dir="a", timeout_s=5.0, threads=1,
-                     **compose_outputs(load_config().compose))
+                     outputs=SceneOutputs.from_config(load_config().compose))
     assert pickle.loads(pickle.dumps(task)) == task

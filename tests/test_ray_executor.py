@@ -31,7 +31,8 @@ from typing import Any, Iterator
 import pytest
 
 from mixcount.config import load_config
-from mixcount.run.scene_task import FAILED, WRITTEN, SceneOutcome, SceneTask, compose_outputs
+from mixcount.run.scene_task import FAILED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.worker.contract import SceneOutputs
 
 pytestmark = [pytest.mark.ray]
 
@@ -195,9 +196,9 @@ def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.Mo
 
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # tests/ is not importable on workers
     tasks = [SceneTask(spec=FakeSpec(f"scene_{s:06d}", s), out_dir=str(tmp_path), assets_dir=str(tmp_path),
-                       timeout_s=60, threads=2, **compose_outputs(load_config().compose)) for s in range(6)]
+                       timeout_s=60, threads=2, outputs=SceneOutputs.from_config(load_config().compose)) for s in range(6)]
     missing = SceneTask(spec=FakeSpec("scene_000099", 99), out_dir=str(tmp_path / "nowhere"),
-                        assets_dir=str(tmp_path), timeout_s=60, threads=2, **compose_outputs(load_config().compose))
+                        assets_dir=str(tmp_path), timeout_s=60, threads=2, outputs=SceneOutputs.from_config(load_config().compose))
     with cluster() as c:
         monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
         ex = RayExecutor(address=c.address, slots=2, cpus_per_slot=1.0, threads=1, recycle_after=2, runner=fake_runner,

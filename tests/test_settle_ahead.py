@@ -70,16 +70,17 @@ def test_a_companion_that_dies_mid_settle_leaves_the_scene_to_the_render_worker(
     import os
     import signal
 
-    from mixcount.run.scene_task import SceneTask, compose_outputs, run_scene_task, stage_scene
+    from mixcount.run.scene_task import SceneTask, run_scene_task, stage_scene
     from mixcount.scene.sampler import sample_scene
-    from mixcount.worker.client import SettleAheadWorker
+    from mixcount.worker.contract import SceneOutputs
+    from mixcount.worker.settle_ahead import SettleAheadWorker
 
     pool, assets = library
     cfg = _config()
     out = tmp_path / "out"
     spec = sample_scene(1, "train", cfg, pool)
     task = SceneTask(spec=spec, out_dir=str(out), assets_dir=str(assets), timeout_s=600, threads=2,
-                     **compose_outputs(cfg.compose))
+                     outputs=SceneOutputs.from_config(cfg.compose))
     staged = stage_scene(task)
     assert staged is not None
     with SettleAheadWorker(name="dies", log_dir=tmp_path) as worker:

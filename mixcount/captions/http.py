@@ -46,7 +46,7 @@ import numpy as np
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
 from mixcount.captions.check import ANSWER_BLOCKING, check_tiers_text
 from mixcount.config import CaptionsConfig
-from mixcount.errors import CaptionRequestError, ConfigError
+from mixcount.errors import CaptionRequestError, ConfigError, UnusableAnswerError
 
 log = logging.getLogger("mixcount.captions.http")
 
@@ -82,14 +82,6 @@ GEMINI_SCHEMA: dict[str, Any] = {
     "required": list(TIERS),
     "propertyOrdering": list(TIERS),
 }
-
-
-class _BadAnswer(Exception):
-    """A 200 answer that is not usable (malformed JSON, schema violation): worth one repair."""
-
-    def __init__(self, message: str, content: str | None) -> None:
-        super().__init__(message)
-        self.content = content
 
 
 def check_http_config(config: CaptionsConfig) -> None:
@@ -310,13 +302,13 @@ class HttpCaptioner:
         try:
             data = response.json()
         except (json.JSONDecodeError, UnicodeDecodeError):
-            raise _BadAnswer("response body is not JSON", None) from None
+            raise UnusableAnswerError("response body is not JSON", None) from None
         try:
             if self.provider == "openai":
                 choice = data["choices"][0]
                 message = choice["message"]
                 if message.get("refusal"):
-                    raise _BadAnswer(f"model refused: {message['refusal']}", None)
+                    raise UnusableAnswerError(f"model refused: {message['refusal']}", None)
                 content = message["content"]
                 if isinstance(content, list):  # content parts
                     content = "".join(p.get("text", "") for p in content if isinstance(p, dict))
@@ -324,9 +316,9 @@ class HttpCaptioner:
                 candidate = data["candidates"][0]
                 content = "".join(p.get("text", "") for p in candidate["content"]["parts"] if isinstance(p, dict))
         except (KeyError, IndexError, TypeError, AttributeError):
-            raise _BadAnswer("response lacks the answer text (unexpected envelope)", None) from None
+            raise UnusableAnswerError("response lacks the answer text (unexpected envelope)", None) from None
         if not isinstance(content, str) or not content.strip():
-            raise _BadAnswer("empty answer", None)
+            raise UnusableAnswerError("empty answer", None)
         return content
 
     @staticmethod
@@ -367,7 +359,7 @@ class HttpCaptioner:
                 if status == 200:
                     try:
                         return self._content(response), made
-                    except _BadAnswer as bad:
+                    except UnusableAnswerError as bad:
                         bad.attempts = made  # type: ignore[attr-defined]
                         raise
                 try:
@@ -422,7 +414,7 @@ class HttpCaptioner:
                 return CaptionResult(raw=content, attempts=attempts, **tiers)
             except ValueError as exc:
                 error, bad = str(exc), content
-        except _BadAnswer as exc:
+        except UnusableAnswerError as exc:
             attempts += getattr(exc, "attempts", 1)
             error, bad = str(exc), exc.content
         log.info("object %d: invalid answer (%s); one repair attempt", item.object_id, self.redact(error))
@@ -430,7 +422,7 @@ class HttpCaptioner:
             content, made = self._send(self.repair_body(body, bad, error), item.object_id, attempts)
             attempts += made
             tiers = self.checked(content, item)
-        except _BadAnswer as exc:
+        except UnusableAnswerError as exc:
             attempts += getattr(exc, "attempts", 1)
             raise CaptionRequestError(
                 self.redact(f"invalid answer after repair: {exc}"), attempts=attempts

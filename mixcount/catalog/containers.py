@@ -27,8 +27,9 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog.decisions import CONTAINER_DECISIONS, latest_container_decisions
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject
-from mixcount.catalog.naming import singular, words_of
+from mixcount.catalog.naming import singular
 from mixcount.config import Config
+from mixcount.scene.words import words_of
 
 CONFIG_KEYS = "containers.categories / containers.keywords"
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 import re
 import unicodedata
 
+from mixcount.scene.words import words_of
+
 # Category_ID_Variant; the id (B07Z5P84J2) has a digit, so "apple_granny_smith" is not taken for one
 DTC_NAME = re.compile(r"^(?P<category>[A-Za-z][A-Za-z0-9-]*)_(?P<id>(?=[A-Za-z]*\d)[A-Za-z0-9]{6,})_(?P<variant>.+)$")
 GENERIC_STEMS = {"model", "mesh", "scene", "object", "asset", "untitled", "export", "3d", "textured", "scan",
@@ -26,7 +28,6 @@ SIZE_WORDS = {"big", "small", "large", "tiny", "little", "huge", "mini", "medium
 NOT_NOUNS = COLOUR_WORDS | SIZE_WORDS | GENERIC_STEMS | {"copy", "new", "old", "ver", "version", "rev", "lod"}
 # "mug_scaled", "vase_painted": a past participle describes the noun (len > 4 and not -eed: bed, seed, speed)
 _PARTICIPLE = re.compile(r"^[a-z]{3,}(?<!e)ed$")
-_ID_TOKEN = re.compile(r"^(?=.*\d)[A-Za-z0-9]{5,}$")  # catalogue ids such as B07Z5P84J2
 
 
 def safe_text(text: str) -> str:
@@ -87,16 +88,6 @@ def category_from_dtc_name(name: str, parent: str) -> str:
     category is the noun of the part before the first underscore ('Apple_granny_smith' -> apple, not smith;
     'Teapot-blue' -> teapot); else as :func:`category_from_stem`."""
     return category_from_stem(name.split("_", 1)[0], parent)
-
-
-def words_of(name: str) -> list[str]:
-    """Lower-case words of a name: splits on separators and camelCase, drops ids and numbers."""
-    words: list[str] = []
-    for token in re.split(r"[_\-\s.,/()]+", name.strip()):
-        if not token or _ID_TOKEN.match(token):
-            continue
-        words.extend(w.lower() for w in re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+", token))
-    return words
 
 
 def category_from_name(name: str, fallback: str = "unknown") -> str:

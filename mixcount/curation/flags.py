@@ -55,6 +55,7 @@ import numpy as np
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from mixcount.atomic import write_text_atomic
 from mixcount.catalog.containers import refresh_containers
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.decisions import latest_decisions
@@ -208,9 +209,7 @@ class LayoutCache:
         if self.path is None or not self.dirty:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(self.values, sort_keys=True))
-        tmp.replace(self.path)
+        write_text_atomic(self.path, json.dumps(self.values, sort_keys=True))  # a fresh temporary name per writer
         self.dirty = False
 
 

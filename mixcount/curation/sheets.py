@@ -36,6 +36,7 @@ from mixcount.catalog.records import active_captions
 from mixcount.curation.renders import canonical_render_path
 from mixcount.curation.review import FORMAT
 from mixcount.errors import CatalogError
+from mixcount.scene.spec import TIERS
 
 ONLY = ("all", "flagged", "excluded")
 STATUS_COLOURS = {"active": (46, 139, 87), "excluded": (224, 138, 0), "broken": (192, 57, 43)}
@@ -251,7 +252,7 @@ def _card(e: SheetEntry, thumbs: dict[int, str], pair_thumbs: dict[int, str]) ->
     if e.captions:
         caps = "<dl class=\"captions\">" + "".join(
             f"<dt>{_e(tier)}</dt><dd class=\"cap-{_e(tier)}\">{_e(e.captions.get(tier, ''))}</dd>"
-            for tier in ("short", "concise", "detailed")) + "</dl>"
+            for tier in TIERS) + "</dl>"
     else:
         caps = "<p class=\"meta no-captions\">no captions yet</p>"
     flags = []

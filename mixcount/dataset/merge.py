@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Optional, TextIO
 
+from mixcount.atomic import atomic_path
 from mixcount.dataset.attribution import (
     JSON_NAME,
     AttributionCollector,
@@ -194,9 +195,8 @@ class _SplitWriter:
         self.img_fh.close()
         self.ann_fh.close()
         path = out_dir / "annotations" / f"instances_{self.split}.json"
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         info = json.dumps({"description": f"mixcount {self.split}", "version": "1"})
-        with open(tmp, "w") as out:
+        with atomic_path(path) as tmp, open(tmp, "w") as out:
             out.write('{"info": ' + info + ', "images": [')
             with open(self.tmp / f"{self.split}.images") as fh:
                 shutil.copyfileobj(fh, out, 1 << 20)
@@ -206,7 +206,6 @@ class _SplitWriter:
             cats = [{**self.categories[k], "cross_scene_exemplars": self.cross_scene.for_category(self.categories[k])}
                     for k in sorted(self.categories)]
             out.write('], "categories": ' + json.dumps(cats) + "}")
-        os.replace(tmp, path)
         return path
 
     def summary(self) -> dict[str, Any]:
@@ -273,7 +272,6 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
     ann_dir = out_dir / "annotations"
     ann_dir.mkdir(parents=True, exist_ok=True)
     index_path = ann_dir / INDEX_NAME
-    index_tmp = ann_dir / f".{INDEX_NAME}.{os.getpid()}.tmp"
     splits: dict[str, _SplitWriter] = {}
     timing_sum: dict[str, float] = {}
     timing_n: dict[str, int] = {}
@@ -287,7 +285,7 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
         tmp = Path(tmpdir)
         scenes_fh = open(tmp / "scenes.json", "w")
         try:
-            with open(index_tmp, "w") as index_out:
+            with atomic_path(index_path) as index_tmp, open(index_tmp, "w") as index_out:
                 for d, rec, spec in scan_scenes(out_dir, index_out):
                     listed.add(d.name)
                     split = str(rec.get("split"))
@@ -309,11 +307,9 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
                     n_counted += int(rec.get("n_counted") or 0)
                     if len(preview) < preview_scenes:
                         preview.append((d, int(rec.get("n_counted") or 0)))
-            os.replace(index_tmp, index_path)
             damaged += finished_but_unlisted(out_dir / "scenes", listed)
         finally:
             scenes_fh.close()
-            index_tmp.unlink(missing_ok=True)
         written = {name: w.finish(out_dir) for name, w in sorted(splits.items())}
         head = {
             "config_hash": config_hash, "config": config or {},
@@ -326,14 +322,12 @@ def finalize_dataset(out_dir: Path, *, config: Optional[dict[str, Any]] = None, 
             "settings_variants": variants_summary(out_dir),
         }
         path = out_dir / "dataset.json"
-        part = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(part, "w") as out:
+        with atomic_path(path) as part, open(part, "w") as out:
             text = json.dumps(head, indent=1)
             out.write(text[:-2] + ',\n "scenes": [')  # the head without its closing brace, then the list
             with open(tmp / "scenes.json") as fh:
                 shutil.copyfileobj(fh, out, 1 << 20)
             out.write("\n ]\n}\n")
-        os.replace(part, path)
     preview_path = write_preview(out_dir, preview)
     write_attribution_document(attribution.document(), out_dir)  # every object shown, its source and licence
     return {"annotations": {k: str(v) for k, v in written.items()},

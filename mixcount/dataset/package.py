@@ -32,15 +32,11 @@ from pathlib import Path
 from typing import Any, Iterable, Optional
 
 from mixcount.atomic import atomic_path
-from mixcount.errors import DatasetError
+from mixcount.errors import PackageError
 from mixcount.usd.portable import ASSETS_DIR, SOURCES_DIR, PathRoots, portable_paths
 
 SEARCH_ENV = "MIXCOUNT_ASSETS"
 STAGE_SUFFIXES = (".usda", ".usdc", ".usd")
-
-
-class PackageError(DatasetError):
-    """A dataset's assets cannot be packaged (a file is missing everywhere it was looked for)."""
 
 
 # ------------------------------------------------------------------------------------ packaging

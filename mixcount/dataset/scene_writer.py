@@ -16,10 +16,9 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 
 from mixcount.annotate.coco import build_scene_coco, category_id, class_map, ground_truth_pairs
-from mixcount.atomic import atomic_path
-from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spec import SceneSpec
-from mixcount.worker.contract import KEPT, CameraView, ObjectResult, SceneResult
+from mixcount.usd.settled_stage import decompose, write_settled_stage
+from mixcount.worker.contract import KEPT, SceneResult
 
 TMP_PREFIX = ".tmp-"
 REJECTED_DIR = ".rejected"
@@ -102,80 +101,6 @@ def scene_categories(spec: SceneSpec, captions: Mapping[int, Mapping[str, str]],
                      "detailed": cap.get("detailed", a.name), "size_qualifier": None, "supercategory": a.category,
                      "external_exemplar": ext.get(a.object_id)}
     return [cats[k] for k in sorted(cats)], class_cat
-
-
-def decompose(matrix: Any) -> dict[str, list[float]]:
-    """translate / orient (w, x, y, z) / scale of a 4x4 column-vector matrix (no shear)."""
-    m = np.asarray(matrix, dtype=np.float64)
-    scale = np.linalg.norm(m[:3, :3], axis=0)
-    rot = m[:3, :3] / np.where(scale == 0, 1.0, scale)
-    return {"translate": m[:3, 3].tolist(), "orient": list(quat_from_matrix(rot)), "scale": scale.tolist()}
-
-
-def _set_camera_pose(stage: Any, view: CameraView) -> None:
-    """A camera prim moved to the pose the worker framed (``view``: one of SceneResult.views), with the
-    framing's derivation in its customData (``mixcount:framing``, JSON)."""
-    from pxr import Gf, UsdGeom
-
-    prim = stage.GetPrimAtPath(f"/World/Cameras/{view.name}")
-    if not prim or not prim.IsValid() or "cam_to_world" not in view.camera:
-        return
-    pose = decompose(view.camera["cam_to_world"])
-    for op in UsdGeom.Xformable(prim).GetOrderedXformOps():
-        if op.GetOpType() == UsdGeom.XformOp.TypeTranslate:
-            op.Set(Gf.Vec3d(*pose["translate"]))
-        elif op.GetOpType() == UsdGeom.XformOp.TypeOrient:
-            w, x, y, z = pose["orient"]
-            op.Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)))
-    framing = dict(view.framing)
-    cam = framing.pop("camera", None)
-    if cam is not None:
-        prim.SetCustomDataByKey("mixcount:look_at", Gf.Vec3d(*cam["look_at"]))
-        prim.SetCustomDataByKey("mixcount:distance", float(cam["distance"]))
-    prim.SetCustomDataByKey("mixcount:framing", json.dumps(framing, sort_keys=True))
-
-
-def write_settled_stage(scene_usda: Path, out: Path, objects: Sequence[ObjectResult],
-                        views: Sequence[CameraView]) -> None:
-    """scene.usda -> settled.usda: dropped prims removed, kept ones at their settled pose (same names and
-    customData, plus mixcount:visibility and mixcount:status on each kept instance), every camera at the
-    pose it was rendered from (``views``: SceneResult.views)."""
-    from pxr import Gf, Sdf, Usd, UsdGeom
-
-    src = Sdf.Layer.FindOrOpen(str(scene_usda))
-    # named by a temporary file beside ``out`` (anonymous, its relative asset paths would not resolve)
-    with atomic_path(out) as tmp:
-        layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(tmp))
-        layer.TransferContent(src)
-        stage = Usd.Stage.Open(layer)
-        for rec in objects:
-            if not rec.kept:
-                stage.RemovePrim(rec.path)
-                continue
-            prim = stage.GetPrimAtPath(rec.path)
-            pose = decompose(rec.matrix_world)
-            xf = UsdGeom.Xformable(prim)
-            for op in xf.GetOrderedXformOps():
-                kind = op.GetOpType()
-                if kind == UsdGeom.XformOp.TypeTranslate:
-                    op.Set(Gf.Vec3d(*pose["translate"]))
-                elif kind == UsdGeom.XformOp.TypeOrient:
-                    w, x, y, z = pose["orient"]
-                    op.Set(Gf.Quatf(w, Gf.Vec3f(x, y, z)) if op.GetPrecision() == UsdGeom.XformOp.PrecisionFloat
-                           else Gf.Quatd(w, Gf.Vec3d(x, y, z)))
-                elif kind == UsdGeom.XformOp.TypeScale:
-                    op.Set(Gf.Vec3f(*pose["scale"]))
-            if rec.visibility is not None:
-                prim.SetCustomDataByKey("mixcount:visibility", float(rec.visibility))
-        for view in views:
-            _set_camera_pose(stage, view)
-        data = dict(layer.customLayerData)
-        mc = dict(data.get("mixcount", {}))
-        mc["settled"] = True
-        data["mixcount"] = mc
-        layer.customLayerData = data
-        if not layer.Save():
-            raise OSError(f"could not write {out}")
 
 
 def _png16(arr: np.ndarray, path: Path) -> None:
@@ -310,7 +235,7 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
                    external_exemplars: Optional[Mapping[int, str]] = None,
                    passes: Sequence[str]) -> dict[str, Any]:
     """Turn the worker's raw outputs in ``tmp`` and its SceneResult into the scene's files; returns
-    metadata.json's dict (its ``objects`` are the ObjectResult fields plus category, box, point, amodal
+    metadata.json's dict, for the caller to complete (timings) and write once with :func:`write_metadata` (its ``objects`` are the ObjectResult fields plus category, box, point, amodal
     box, pose of cam_0's image, and per camera the same under ``views``; its ``ground_truth`` the
     evaluation pairs of cam_0's image, distractors included: every camera shows the same kept objects).
 
@@ -331,8 +256,6 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
                 r["visibility_min"] = min(float(v.get("visibility", 1.0)) for v in r["views"])
     (tmp / "coco.json").write_text(json.dumps(coco))
     write_settled_stage(tmp / "scene.usda", tmp / "settled.usda", worker.objects, views)
-    if (tmp / "worker.json").exists():
-        os.remove(tmp / "worker.json")  # everything in it is in metadata.json
     counts: dict[str, int] = {}
     for r in objects:
         if r["status"] == KEPT and r["role"] == "counted":
@@ -370,6 +293,9 @@ def finalize_scene(tmp: Path, spec: SceneSpec, worker: SceneResult, *, captions:
     from mixcount.usd.portable import PathRoots, portable_paths
 
     asset_dirs = tuple(sorted({Path(r.asset).parent for r in worker.objects if r.asset}))
-    meta = portable_paths(meta, PathRoots(tmp.parent.parent, asset_dirs))
-    (tmp / "metadata.json").write_text(json.dumps(meta, indent=1))
-    return meta
+    return portable_paths(meta, PathRoots(tmp.parent.parent, asset_dirs))
+
+
+def write_metadata(scene_dir: Path, meta: Mapping[str, Any]) -> None:
+    """metadata.json, written once, last (its ``"complete": true`` marks a finished scene)."""
+    (scene_dir / "metadata.json").write_text(json.dumps(meta, indent=1))

@@ -17,8 +17,8 @@ Writes into ``out_dir`` per camera k (suffix "" for cam_0, ``_cam_<k>`` after): 
 requested depth pass (planar depth in metres along the optical axis, 0 = no surface) and normal pass
 (unit normals in camera space: x right, y up, z towards the viewer; 0 = none) in the formats of
 :mod:`mixcount.annotate.passes` (recorded in the result's :class:`~mixcount.worker.contract.CameraView`
-``passes``), ``amodal<suffix>.npz`` (each kept object's amodal mask, see :func:`write_amodal_masks`); and
-``worker.json`` (the :class:`~mixcount.worker.contract.SceneResult`). Its ``status`` is "ok", "empty"
+``passes``), ``amodal<suffix>.npz`` (each kept object's amodal mask, see :func:`write_amodal_masks`); and returns
+the :class:`~mixcount.worker.contract.SceneResult` (over the pipe; no file). Its ``status`` is "ok", "empty"
 (no counted object survived: the caller regenerates from the next seed) or "rejected".
 """
 
@@ -553,5 +553,4 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
         visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=renders,
         physics=spec.physics.to_dict(), camera=records[0], lights=state.lights,
         objects=tuple(state.objects), views=views, diagnostics=tuple(state.diagnostics), timings=dict(timer.times))
-    (state.out_dir / "worker.json").write_text(result.to_json())
-    return result
+    return result  # over the pipe: the parent writes what it keeps into metadata.json

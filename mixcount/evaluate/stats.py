@@ -35,8 +35,8 @@ from numpy.typing import NDArray
 from mixcount.errors import GroundTruthError
 from mixcount.evaluate.density import scene_density, summarise_density
 from mixcount.evaluate.metrics import read_coco
+from mixcount.scene.spec import TIERS
 
-TIERS = ("short", "concise", "detailed")
 SPLIT_ORDER = ("train", "val", "test")
 _INSTANCES = re.compile(r"^instances_(.+)\.json$")
 

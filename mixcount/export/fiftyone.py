@@ -31,6 +31,7 @@ from mixcount.export.outputs import ExportFolder
 from mixcount.export.points import object_point
 from mixcount.export.reader import ComposedDataset, caption, check_tier
 from mixcount.progress import ProgressReporter
+from mixcount.scene.spec import TIERS
 
 DATA = "data"
 
@@ -82,7 +83,7 @@ def export_fiftyone(ds: ComposedDataset, out: Path | str, *, split: Optional[str
                                      "count": img.count(int(a["category_id"]))})
                     bar.advance(info=img.key)
                 categories = [{"id": cid, "name": caption(cat, tier), "supercategory": cat.get("supercategory") or "",
-                               **{t: caption(cat, t) for t in ("short", "concise", "detailed")}}
+                               **{t: caption(cat, t) for t in TIERS}}
                               for cid, cat in sorted(ds.categories(s).items())]
                 folder.write_json_members(f"labels_{s}.json", [
                     ("info", {"description": f"mixcount fiftyone export, {s}"}),

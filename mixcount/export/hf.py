@@ -28,6 +28,7 @@ from mixcount.export.outputs import ExportFolder
 from mixcount.export.points import object_point
 from mixcount.export.reader import ComposedDataset, DatasetImage, caption, check_tier
 from mixcount.progress import ProgressReporter
+from mixcount.scene.spec import TIERS
 
 ROWS_PER_SHARD = 500
 DATA = "data"
@@ -89,7 +90,7 @@ def row(img: DatasetImage, tier: str) -> dict[str, Any]:
         cat = img.categories[cid]
         classes["category_id"].append(cid)
         classes["caption"].append(caption(cat, tier))
-        for t in ("short", "concise", "detailed"):
+        for t in TIERS:
             classes[t].append(caption(cat, t))
         classes["count"].append(img.count(cid))
         classes["exemplar_ids"].append([int(a["id"]) for a in img.exemplar_ranking(cid)])

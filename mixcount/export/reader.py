@@ -23,8 +23,8 @@ from typing import Any, Iterator, Mapping, Optional, Sequence
 
 from mixcount.dataset.coco_stream import members
 from mixcount.errors import ExportError
+from mixcount.scene.spec import TIERS as CAPTION_TIERS  # the one caption-tier tuple
 
-CAPTION_TIERS = ("short", "concise", "detailed")
 N_EXEMPLARS = 3
 _SPLIT_FILE = re.compile(r"^instances_(?P<split>.+)\.json$")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")

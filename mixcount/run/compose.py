@@ -32,6 +32,7 @@ from mixcount.errors import AssetError, CompositionError, MixcountError, Storage
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
 from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.worker.contract import SceneOutputs
 
 
 @dataclass
@@ -87,8 +88,8 @@ def compose_scenes(
     # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
     # without them stops the run here with one clear error instead of failing every scene's sampling
     environments = tuple(environments_to_draw(config.scene, environments))
-    outputs = _scene_outputs(config, passes)
-    settings_id = check_settings(out_dir, dataset_settings(config, passes=list(outputs["passes"]), catalog=catalog),
+    outputs = SceneOutputs.from_config(comp, passes)
+    settings_id = check_settings(out_dir, dataset_settings(config, passes=list(outputs.passes), catalog=catalog),
                                  config.hash, allow_mixed=mixed_settings)
     summary = ComposeSummary(requested=n, settings_id=settings_id)
     t0 = time.perf_counter()
@@ -138,23 +139,6 @@ def _prepare_output(out_dir: Path) -> None:
     clean_stale_tmp(out_dir)
 
 
-def _scene_outputs(config: Config, passes: Optional[str | list[str]]) -> dict[str, Any]:
-    """SceneTask's output fields: the chosen passes (``passes`` or ``compose.passes``), checked formats
-    and the mesh cache; a bad value is a CompositionError."""
-    from mixcount.annotate.passes import DEPTH_FORMATS, NORMAL_FORMATS, parse_passes
-
-    comp = config.compose
-    try:
-        chosen = parse_passes(comp.passes if passes is None else passes)
-    except ValueError as exc:
-        raise CompositionError(str(exc)) from None
-    if comp.depth_format not in DEPTH_FORMATS or comp.normal_format not in NORMAL_FORMATS:
-        raise CompositionError(f"compose.depth_format must be one of {', '.join(DEPTH_FORMATS)} and "
-                               f"compose.normal_format one of {', '.join(NORMAL_FORMATS)}")
-    return {"passes": chosen, "depth_format": comp.depth_format, "normal_format": comp.normal_format,
-            "mesh_cache": comp.mesh_cache}
-
-
 def _merge(out_dir: Path, config: Config, summary: ComposeSummary, bar: ProgressReporter) -> None:
     """The merged dataset files from every finished scene (a full disk: one StorageError, scenes kept)."""
     from mixcount.dataset.merge import finalize_dataset
@@ -184,7 +168,7 @@ class _ComposeRun:
     environments: tuple
     materials: tuple
     oracle: bool
-    outputs: dict[str, Any]  # SceneTask's passes, formats and mesh cache
+    outputs: SceneOutputs  # SceneTask's passes, formats and mesh cache
     summary: ComposeSummary
     bar: ProgressReporter
     attempts: int = 0
@@ -296,7 +280,7 @@ class _ComposeRun:
                          timeout_s=self.config.compose.scene_timeout_s, threads=self.threads, oracle=self.oracle,
                          captions={k: v for k, v in self.captions.items() if k in distractors},
                          external_exemplars={k: self.external[k] for k in sorted(used) if k in self.external},
-                         **self.outputs)
+                         outputs=self.outputs)
 
     def info(self) -> str:
         return f"failed {self.summary.failed}  regenerated {self.summary.empty + self.summary.rejected}"

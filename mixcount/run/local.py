@@ -12,7 +12,7 @@ The interface every executor implements (a Ray one lives in ``mixcount/run/ray_e
 one long-lived :class:`~mixcount.worker.client.BlenderWorker` subprocess (bpy never runs in this process),
 recycled after ``compose.recycle_after`` scenes; a worker that crashes or times out is restarted by its
 next task. With ``settle_ahead`` (``compose.settle_ahead``) each slot is a
-:class:`~mixcount.worker.client.SettleAheadWorker`: while a scene renders, the slot's next scene is
+:class:`~mixcount.worker.settle_ahead.SettleAheadWorker`: while a scene renders, the slot's next scene is
 staged and settled in a companion bpy process (the pool's prefetch), and the executor takes two scenes
 per worker (``slots``) so that there is always a next one.
 """
@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import Any, Callable, Optional, Protocol
+from typing import Any, Optional, Protocol
 
-from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, StagedScene, run_scene_task, stage_scene
+from mixcount.run.scene_task import FAILED, SceneOutcome, SceneRunner, SceneTask, run_scene_task
+from mixcount.worker.client import Worker
 
 
 class Executor(Protocol):
@@ -39,43 +40,43 @@ class Executor(Protocol):
 class LocalExecutor:
     """A pool of ``workers`` bpy worker processes on this machine (:class:`~mixcount.worker.pool.WorkerPool`)."""
 
-    def __init__(self, workers: int, *, log_dir: Optional[Path] = None,
-                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task, recycle_after: int,
-                 settle_ahead: bool) -> None:
-        from mixcount.worker.client import BlenderWorker, SettleAheadWorker
+    def __init__(self, workers: int, *, log_dir: Optional[Path] = None, runner: SceneRunner = run_scene_task,
+                 recycle_after: int, settle_ahead: bool) -> None:
+        from mixcount.run.settle_ahead import StagingAhead
+        from mixcount.worker.client import BlenderWorker
         from mixcount.worker.pool import WorkerPool, error_text
+        from mixcount.worker.settle_ahead import SettleAheadWorker
 
         n_workers = max(1, int(workers))
         self.slots = 2 * n_workers if settle_ahead else n_workers
-        # tasks staged and settling ahead, by (scene id, seed); only the pool's own threads touch an entry
-        self._staged: dict[tuple[str, int], StagedScene] = {}
+        self._ahead = StagingAhead() if settle_ahead else None
 
         def failed(task: SceneTask, exc: BaseException) -> SceneOutcome:
             # "OSError: [Errno 28] No space left on device: '...'", as run_scene_task words it, so the
             # run can tell a fault no seed fixes (mixcount.run.faults) from a bad scene
             return SceneOutcome(task.spec.scene_id, task.spec.seed, FAILED, 0.0, error=error_text(exc))
 
-        def handle(worker: Any, task: SceneTask) -> SceneOutcome:
-            staged = self._staged.pop((task.spec.scene_id, task.spec.seed), None)
-            return runner(task, worker) if staged is None else run_scene_task(task, worker, staged)
+        def handle(worker: Worker, task: SceneTask) -> SceneOutcome:
+            staged = self._ahead.claim(task) if self._ahead is not None else None
+            if staged is None:
+                return runner(task, worker)
+            try:  # the runner is never bypassed: it gets the stage written ahead
+                return runner(task, worker, staged)
+            finally:
+                if not task.keep_failed:  # gone already unless the runner left it behind
+                    shutil.rmtree(staged.tmp, ignore_errors=True)
 
-        def prefetch(worker: Any, task: SceneTask) -> None:
-            staged = stage_scene(task)
-            if staged is not None:
-                self._staged[(task.spec.scene_id, task.spec.seed)] = staged
-                worker.begin_settle(staged.request)
-
-        def make(k: int) -> Any:
+        def make(k: int) -> Worker:
             cls = SettleAheadWorker if settle_ahead else BlenderWorker
             return cls(name=f"worker{k}", log_dir=log_dir)
 
         # recycle_after: restart a worker after this many scenes (flat memory), the pool's one rule
         self._pool: WorkerPool[SceneTask, SceneOutcome] = WorkerPool(
             n_workers, make, recycle_after=recycle_after, handle=handle, on_error=failed,
-            prefetch=prefetch if settle_ahead else None)
+            prefetch=self._ahead.prefetch if self._ahead is not None else None)
 
     @property
-    def workers(self) -> list[Any]:
+    def workers(self) -> list[Worker]:
         """The current BlenderWorker of each slot."""
         return self._pool.workers
 
@@ -89,9 +90,8 @@ class LocalExecutor:
         """Stop the workers; one still inside a scene (an interrupted run) is killed, not waited for. The
         stage folders of scenes staged ahead that never ran are removed."""
         self._pool.close()
-        for staged in list(self._staged.values()):
-            shutil.rmtree(staged.tmp, ignore_errors=True)
-        self._staged.clear()
+        if self._ahead is not None:
+            self._ahead.discard_all()
 
     def __enter__(self) -> "LocalExecutor":
         return self

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from mixcount.errors import ExecutorError
-from mixcount.run.scene_task import FAILED, SceneOutcome, SceneTask, run_scene_task
+from mixcount.run.scene_task import FAILED, SceneOutcome, SceneRunner, SceneTask, run_scene_task
 from mixcount.worker.pool import MAX_ERROR_CHARS, WorkerSlot, error_text
 
 #: seconds a call may run beyond its task's ``timeout_s`` before the driver gives up on the actor
@@ -67,7 +67,7 @@ class SceneActor:
     """Body of the Ray actor (wrapped with ``ray.remote`` lazily, so importing this module needs no Ray)."""
 
     def __init__(self, name: str, *, recycle_after: int, log_dir: Optional[str] = None,
-                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task,
+                 runner: SceneRunner = run_scene_task,
                  worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory) -> None:
         self.name = name
         self.log_dir = log_dir
@@ -129,7 +129,7 @@ class RayExecutor:
 
     def __init__(self, address: Optional[str] = None, slots: Optional[int] = None, *, cpus_per_slot: float,
                  threads: Optional[int] = None, recycle_after: int, log_dir: Optional[Path] = None,
-                 runner: Callable[[SceneTask, Any], SceneOutcome] = run_scene_task,
+                 runner: SceneRunner = run_scene_task,
                  worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory,
                  object_store_mb: int = 200, connect_timeout_s: float = 120.0) -> None:
         try:

@@ -5,11 +5,11 @@ The records are filled from the database by :mod:`mixcount.catalog.pool_loader` 
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from typing import Mapping, Optional
 
 from mixcount.scene.spec import Captions
+from mixcount.scene.words import words_of
 
 
 @dataclass(frozen=True)
@@ -61,18 +61,6 @@ class MaterialRecord:
     maps: Mapping[str, str] = field(default_factory=dict)
 
 
-_ID_TOKEN = re.compile(r"^(?=.*\d)[A-Za-z0-9]{6,}$")  # catalogue ids such as B0VL4BA90T
-
-
-def _words(name: str) -> list[str]:
-    words: list[str] = []
-    for token in re.split(r"[_\-\s]+", name.strip()):
-        if not token or _ID_TOKEN.match(token):
-            continue
-        words.extend(w.lower() for w in re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+", token))
-    return words
-
-
 def fallback_captions(name: str, category: str) -> Captions:
     """Captions for an object nobody captioned yet, from its name and category: DTC folder names
     ``Donut_B0VL4BA90T_Pink`` give "pink donut" (the id dropped, the category moved last).
@@ -80,7 +68,7 @@ def fallback_captions(name: str, category: str) -> Captions:
     The short tier is that phrase too when it has at most five words, else the category: objects of one
     category then keep distinct prompts when their names differ (the sampler never puts two objects
     with an identical caption into one scene)."""
-    words = _words(name)
+    words = words_of(name, keep_numbers=True)
     cat = category.lower().strip()
     if words and cat and words[0] == cat:
         words = words[1:] + [cat]

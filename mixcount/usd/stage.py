@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -347,12 +348,25 @@ def convert_scene_assets(spec: SceneSpec, assets_dir: Path) -> dict[int, AssetPa
     return out
 
 
+# usd-core used by one thread at a time in this process: asset conversion, stage and settled-stage writing
+# take it (an executor's worker threads write stages while another scene is finalised, and two threads
+# converting the same asset - Usd.Stage.CreateNew of one path - deadlock)
+USD_WRITING = threading.RLock()
+
+
 def write_stage(spec: SceneSpec, out_dir: Path, catalog: Any = None, *, assets_dir: Optional[Path] = None,
                 scene_dir: Optional[Path] = None) -> Path:
     """Write ``out_dir/scenes/<scene_id>/scene.usda`` (or ``scene_dir/scene.usda``) and return its path.
 
-    ``catalog`` supplies ``usd_assets_dir`` for the converted assets (``assets_dir`` overrides it).
+    ``catalog`` supplies ``usd_assets_dir`` for the converted assets (``assets_dir`` overrides it). Holds
+    :data:`USD_WRITING` while it converts and writes.
     """
+    with USD_WRITING:
+        return _write_stage(spec, out_dir, catalog, assets_dir=assets_dir, scene_dir=scene_dir)
+
+
+def _write_stage(spec: SceneSpec, out_dir: Path, catalog: Any, *, assets_dir: Optional[Path],
+                 scene_dir: Optional[Path]) -> Path:
     from pxr import Sdf
 
     if assets_dir is None:

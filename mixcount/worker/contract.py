@@ -7,8 +7,8 @@ One frozen request / result pair per worker operation, each with a JSON round-tr
 * ``scene`` - :class:`SceneRequest` -> :class:`SceneResult`. The request carries the stage and the output
   folder plus RUN-TIME settings only (render threads, the one-render-per-object reference, which passes
   in which formats, the mesh cache). Everything that describes the scene (samples, denoise, visibility
-  threshold, physics) travels in the stage (its SceneSpec), never here. The result (also written as
-  ``worker.json`` in the scene folder) holds status, camera, lights, the physics values actually used,
+  threshold, physics) travels in the stage (its SceneSpec), never here. The result (answered over the
+  pipe; the parent keeps it in metadata.json) holds status, camera, lights, the physics values actually used,
   one :class:`ObjectResult` per counted object / distractor, one :class:`CameraView` per camera with the
   pass files it wrote, diagnostics and timings.
 * ``canonical`` - :class:`CanonicalRequest` -> :class:`CanonicalResult`: one catalog object's white-
@@ -18,7 +18,7 @@ One frozen request / result pair per worker operation, each with a JSON round-tr
   mesh cache made ahead of the scenes.
 * ``settle`` - :class:`SceneRequest` -> :class:`SettleResult`: only the scene's rigid-body settle, its
   poses written to ``settled.json`` in the request's out_dir, so a second bpy process can settle the next
-  scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.worker.client.SettleAheadWorker`);
+  scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.worker.settle_ahead.SettleAheadWorker`);
   a ``scene`` request whose ``settled`` names that file applies the poses instead of simulating.
 
 No request field has a default: every setting comes from the caller (from the configuration, read once).
@@ -35,6 +35,7 @@ from mixcount.annotate.scene_decisions import STATUS_OK as STATUS_OK
 from mixcount.annotate.scene_decisions import STATUS_REJECTED as STATUS_REJECTED
 from mixcount.config import MESH_CACHE_MODES as MESH_CACHE_MODES  # re-exported for the worker side
 from mixcount.config import ComposeConfig
+from mixcount.errors import CompositionError
 
 KEPT = "kept"
 DROPPED = "dropped"
@@ -55,6 +56,35 @@ def _known(cls: type, d: Mapping[str, Any]) -> dict[str, Any]:
     if missing or unknown:
         raise ValueError(f"{cls.__name__}: missing fields {missing}, unknown fields {unknown}")
     return {n: d[n] for n in names}
+
+
+@dataclass(frozen=True)
+class SceneOutputs:
+    """What a scene writes besides rgb, and how: the passes (canonical order), their file formats and the
+    worker's mesh cache. :meth:`from_config` is the one place ``[compose]`` (or ``--passes``) becomes them;
+    a :class:`SceneRequest` carries them to the worker."""
+
+    passes: tuple[str, ...]
+    depth_format: str  # mixcount.annotate.passes.DEPTH_FORMATS
+    normal_format: str  # mixcount.annotate.passes.NORMAL_FORMATS
+    mesh_cache: str  # one of MESH_CACHE_MODES
+
+    @classmethod
+    def from_config(cls, compose: ComposeConfig, passes: Optional[str | list[str] | tuple[str, ...]] = None
+                    ) -> "SceneOutputs":
+        """``[compose]``'s passes (or ``passes``), pass formats and mesh cache, checked: a bad value is a
+        CompositionError that names it."""
+        from mixcount.annotate.passes import DEPTH_FORMATS, NORMAL_FORMATS, parse_passes
+
+        try:
+            chosen = parse_passes(compose.passes if passes is None else passes)
+        except ValueError as exc:
+            raise CompositionError(str(exc)) from None
+        if compose.depth_format not in DEPTH_FORMATS or compose.normal_format not in NORMAL_FORMATS:
+            raise CompositionError(f"compose.depth_format must be one of {', '.join(DEPTH_FORMATS)} and "
+                                   f"compose.normal_format one of {', '.join(NORMAL_FORMATS)}")
+        return cls(passes=chosen, depth_format=compose.depth_format, normal_format=compose.normal_format,
+                   mesh_cache=compose.mesh_cache)
 
 
 @dataclass(frozen=True)
@@ -82,12 +112,19 @@ class SceneRequest:
         return d
 
     @classmethod
+    def for_outputs(cls, outputs: SceneOutputs, *, stage: str, out_dir: str, threads: int, oracle: bool,
+                    settled: str = "") -> "SceneRequest":
+        """The request that renders ``stage`` into ``out_dir`` writing ``outputs``."""
+        return cls(stage=stage, out_dir=out_dir, threads=threads, oracle=oracle, passes=tuple(outputs.passes),
+                   depth_format=outputs.depth_format, normal_format=outputs.normal_format,
+                   mesh_cache=outputs.mesh_cache, settled=settled)
+
+    @classmethod
     def from_config(cls, compose: ComposeConfig, *, stage: str, out_dir: str, threads: int,
                     oracle: bool) -> "SceneRequest":
-        """A request with ``[compose]``'s passes, pass formats and mesh cache (tests and benchmarks)."""
-        return cls(stage=stage, out_dir=out_dir, threads=threads, oracle=oracle, passes=tuple(compose.passes),
-                   depth_format=compose.depth_format, normal_format=compose.normal_format,
-                   mesh_cache=compose.mesh_cache, settled="")
+        """A request with ``[compose]``'s outputs (:meth:`SceneOutputs.from_config`; tests and benchmarks)."""
+        return cls.for_outputs(SceneOutputs.from_config(compose), stage=stage, out_dir=out_dir, threads=threads,
+                               oracle=oracle)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneRequest":
