@@ -14,12 +14,8 @@ The Python API (:mod:`mixcount.api`, imported on first use)::
 """
 
 import importlib
-from importlib.metadata import PackageNotFoundError, version
 
-try:
-    __version__ = version("mixcount")  # one source of truth: pyproject.toml
-except PackageNotFoundError:  # a source tree that was never installed
-    __version__ = "0+unknown"
+from mixcount.version import __version__ as __version__  # one source of truth: pyproject.toml
 
 API = ("open_catalog", "compose", "package", "load_dataset", "Dataset", "Sample", "Exemplar")
 __all__ = ["__version__", *API]

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "mixcount"
 MAX_FUNCTION_LINES = 120
 
 ROOMS: tuple[tuple[str, ...], ...] = (
-    ("mixcount", "errors", "progress", "resources", "frame", "atomic", "scene_config", "config"),  # the foundation
+    ("version", "errors", "progress", "resources", "frame", "atomic", "scene_config", "config"),  # the foundation
     ("annotate",),  # pure annotation maths, pass formats and the scene job's numpy decisions
     ("scene",),  # engine-free scene sampling
     ("catalog",),
@@ -28,7 +28,8 @@ ROOMS: tuple[tuple[str, ...], ...] = (
     ("evaluate",),
     ("run",),
     ("commands",),
-    ("cli", "__main__", "api"),  # api: the Python facade over every job (mixcount.__init__ imports it lazily)
+    # api: the Python facade over every job; the package root "mixcount" imports it lazily, so it sits on top
+    ("cli", "__main__", "api", "mixcount"),
 )
 LEVEL = {name: i for i, names in enumerate(ROOMS) for name in names}
 

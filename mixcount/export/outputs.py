@@ -180,7 +180,7 @@ class ExportFolder:
 
     def finish(self, dataset_root: Path, options: dict[str, Any], figures: dict[str, Any]) -> dict[str, Any]:
         """Write the manifest; returns it."""
-        from mixcount import __version__
+        from mixcount.version import __version__
 
         manifest = {
             "format": self.fmt, "dataset": str(Path(dataset_root).resolve()), "mixcount": __version__,
