@@ -6,6 +6,7 @@
     .venv/bin/python bench/compose.py --no-proxies                      # collide through full-mesh hulls
     .venv/bin/python bench/compose.py --oracle                          # also the one-render-per-object method
     .venv/bin/python bench/compose.py --settle-ahead --sizes 200 --pools heavy --seed 1   # settle beside the render
+    .venv/bin/python bench/compose.py --smoke                           # seconds: one tiny scene (the suite)
 
 Pools (bench/pools.py): ``light`` = the generated demo library; ``heavy`` = the same objects subdivided to
 >= 200k faces, textures kept (a real capture's size). Asset conversion, proxy building and the bpy start-up
@@ -65,7 +66,11 @@ def main() -> int:
                     help="settle each scene in a companion process during the previous render (3 copies, "
                          "the middle one measured)")
     ap.add_argument("--work", type=Path, default=None)
+    ap.add_argument("--smoke", action="store_true", help="seconds: tiny sizes, same code path (the suite runs it)")
     args = ap.parse_args()
+    if args.smoke:  # one 12-object scene of the light pool at 32 px, 1 sample, 60 frames, no warm-up
+        args.resolution, args.samples, args.sizes, args.objects, args.pools = 32, 1, "12", None, "light"
+        args.frames, args.threads, args.no_warmup = 60, 1, True
 
     from pools import load_pool, run_fresh_scene, scene_bytes, warm_mesh_cache, with_proxies
 
