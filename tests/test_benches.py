@@ -2,8 +2,10 @@
 well-formed figures: the keys the docs quote are present and every number is finite. A bench that no
 longer runs (a renamed parameter, a moved module) fails here instead of on the day someone needs it.
 
-The benches that draw scenes share one generated demo library, its converted assets and proxies (each
-bench gets its own work folder with links to them), so the library is generated once for the module."""
+The benches that draw scenes share the session's seed-0 demo library and one folder of converted assets and
+proxies (each bench gets its own work folder with links to them); bench/curation.py reads the session's
+rendered demo catalog as the ``db_rendered`` it would otherwise make (tests/conftest.py), so nothing here
+generates or renders a library a session fixture already holds."""
 
 from __future__ import annotations
 
@@ -44,12 +46,12 @@ def _get(doc: dict[str, Any], dotted: str) -> Any:
 
 
 @pytest.fixture(scope="module")
-def bench_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A folder holding the demo library (seed 0) once; benches link to it from their own work folders."""
-    from mixcount.demo.demo_pools import ensure_demo_pool
-
+def bench_root(tmp_path_factory: pytest.TempPathFactory, demo_library: tuple[Path, dict]) -> Path:
+    """A folder linking the session's seed-0 demo library (what the benches generate into ``WORK/demo``)
+    and holding the assets and proxies the benches share; each bench links to them from its work folder."""
     root = tmp_path_factory.mktemp("benches")
-    ensure_demo_pool(root / "shared" / "demo")
+    (root / "shared").mkdir()
+    (root / "shared" / "demo").symlink_to(demo_library[0], target_is_directory=True)
     for name in SHARED[1:]:
         (root / "shared" / name).mkdir()
     return root
@@ -61,7 +63,7 @@ def run_smoke(name: str, root: Path | None, *, share: bool = True) -> list[dict[
     cmd = [sys.executable, str(BENCH / f"{name}.py"), "--smoke"]
     if root is not None:
         folder = root / name
-        folder.mkdir()
+        folder.mkdir(exist_ok=True)
         for shared in SHARED if share else ():
             (folder / shared).symlink_to(root / "shared" / shared, target_is_directory=True)
         cmd += ["--work", str(folder)]
@@ -162,8 +164,10 @@ def test_passes_bench(bench_root: Path) -> None:
 
 
 @pytest.mark.blender
-def test_curation_bench(tmp_path: Path) -> None:
-    doc = run_smoke("curation", tmp_path, share=False)[-1]  # it ingests and renders its own demo catalog
+def test_curation_bench(tmp_path: Path, rendered_demo_catalog: tuple[Path, dict]) -> None:
+    (tmp_path / "curation").mkdir()  # its rendered demo catalog: the session's (tests/conftest.py), copied by the bench
+    (tmp_path / "curation" / "db_rendered").symlink_to(rendered_demo_catalog[0], target_is_directory=True)
+    doc = run_smoke("curation", tmp_path, share=False)[-1]
     arm = doc["arms"][0]
     check_figures(doc, ["arms.0.objects", "arms.0.median_cold_wall_s", "arms.0.median_warm_wall_s",
                         "arms.0.precision", "arms.0.recall", "arms.0.clean_flag_rate"])

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -70,12 +71,10 @@ def test_ingest_stores_proxy_and_reingest_fills_an_old_catalog(tmp_path: Path, c
 
 
 @pytest.fixture(scope="module")
-def full_demo_library(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    """The whole demo library (its scans are OBJ files in centimetres, Y-up) and its ground truth."""
-    from mixcount.demo.library import generate_demo_library
-
-    root = tmp_path_factory.mktemp("full_lib") / "demo"
-    return root, generate_demo_library(root, seed=0)
+def full_demo_library(demo_library: tuple[Path, dict]) -> tuple[Path, dict]:
+    """The whole demo library (its scans are OBJ files in centimetres, Y-up) and its ground truth: the
+    session's seed-0 library (tests/conftest.py), read only here."""
+    return demo_library
 
 
 def test_ingested_scan_in_centimetres_gets_a_proxy_of_its_true_size(tmp_path: Path, catalog,
@@ -176,29 +175,47 @@ def test_usd_asset_holds_guide_proxy_with_collision(proxy_library, tmp_path: Pat
         assert prim.HasAPI(UsdPhysics.CollisionAPI) is (not proxies)  # one collider per body
 
 
-@pytest.mark.blender
-@pytest.mark.slow
-def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, tmp_path: Path) -> None:
-    """Same seeds, proxies on and off: no more settle drops, nothing sinks, nothing interpenetrates beyond
-    the worker's checks, and bodies are at rest at the end."""
-    from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
+@pytest.fixture(scope="module")
+def settled_scene(proxy_library, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., dict]]:
+    """``settled_scene(seed, proxies, *overrides)``: the metadata.json of that scene (``_spec``), composed by
+    one bpy worker for the module; a scene two tests ask for (seed 11 with proxies and the default floor)
+    is rendered once. Each call returns a fresh parse: a test may change what it gets."""
     from mixcount.config import load_config
     from mixcount.run.scene_task import SceneTask, run_scene_task
     from mixcount.worker.client import BlenderWorker
     from mixcount.worker.contract import SceneOutputs
 
     pool, root = proxy_library
-    settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
-    results: dict[bool, list[dict]] = {True: [], False: []}
-    with BlenderWorker(name="proxy-test", log_dir=tmp_path) as worker:
-        for seed in (11, 12):
-            for proxies in (False, True):
-                spec = _spec(pool, seed, proxies)
-                task = SceneTask(spec=spec, out_dir=str(tmp_path / f"p{int(proxies)}"), assets_dir=str(root / "assets"),
+    work = tmp_path_factory.mktemp("settled")
+    written: dict[tuple, Path] = {}
+    with BlenderWorker(name="proxy-test", log_dir=work) as worker:
+        def scene(seed: int, proxies: bool, *overrides: str) -> dict:
+            key = (seed, proxies, *overrides)
+            if key not in written:
+                spec = _spec(pool, seed, proxies, *overrides)
+                task = SceneTask(spec=spec, out_dir=str(work / f"out{len(written)}"), assets_dir=str(root / "assets"),
                                  timeout_s=600, threads=2, outputs=SceneOutputs.from_config(load_config().compose))
                 outcome = run_scene_task(task, worker)
                 assert outcome.status == "written", outcome.error
-                results[proxies].append(json.loads((Path(outcome.path) / "metadata.json").read_text()))
+                written[key] = Path(outcome.path) / "metadata.json"
+            return dict(json.loads(written[key].read_text()))
+
+        yield scene
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_settling_through_proxies_is_no_worse_on_the_same_seeds(settled_scene) -> None:
+    """Same seeds, proxies on and off: no more settle drops, nothing sinks, nothing interpenetrates beyond
+    the worker's checks, and bodies are at rest at the end."""
+    from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
+
+    settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
+    results: dict[bool, list[dict]] = {True: [], False: []}
+    for seed in (11, 12):
+        for proxies in (False, True):
+            results[proxies].append(settled_scene(seed, proxies))
+            assert results[proxies][-1]["scene_id"] == f"scene_{seed:06d}"
     moving = {True: 0, False: 0}
     for proxies, metas in results.items():
         for meta in metas:
@@ -222,39 +239,31 @@ def test_settling_through_proxies_is_no_worse_on_the_same_seeds(proxy_library, t
 
 @pytest.mark.blender
 @pytest.mark.slow
-def test_deep_floor_collider_settles_as_well_as_the_thin_floor(proxy_library, tmp_path: Path) -> None:
+def test_deep_floor_collider_settles_as_well_as_the_thin_floor(proxy_library, settled_scene) -> None:
     """The default physics (8 substeps, floor colliding 0.5·s deep, containers through convex parts)
     against the bare 0.5 m floor, same seeds: no more settle drops, nothing sinking, a pile at rest."""
     from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
-    from mixcount.config import load_config
-    from mixcount.run.scene_task import SceneTask, run_scene_task
-    from mixcount.worker.client import BlenderWorker
-    from mixcount.worker.contract import SceneOutputs
 
-    pool, root = proxy_library
+    pool, _root = proxy_library
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
     variants = {"default": (), "before": ("scene.physics_floor_collider_depth=0.0",)}
     drops = {name: 0 for name in variants}
     containers = 0
-    with BlenderWorker(name="substeps-test", log_dir=tmp_path) as worker:
-        for seed in (11, 13):
-            for name, overrides in variants.items():
-                spec = _spec(pool, seed, True, *overrides)
-                assert (spec.physics.substeps, spec.physics.floor_collider_depth > 0) == (8, name == "default")
-                task = SceneTask(spec=spec, out_dir=str(tmp_path / name), assets_dir=str(root / "assets"),
-                                 timeout_s=600, threads=2, outputs=SceneOutputs.from_config(load_config().compose))
-                outcome = run_scene_task(task, worker)
-                assert outcome.status == "written", outcome.error
-                meta = json.loads((Path(outcome.path) / "metadata.json").read_text())
-                kept = [o for o in meta["objects"] if o["status"] == "kept"]
-                for o in kept:
-                    assert o["min_z"] >= -0.02 * o["size_m"], (name, o["name"], o["min_z"])  # no sinking
-                rest = next(d for d in meta["diagnostics"] if d["kind"] == "rest")
-                assert np.median([rest["speed_m_s"][o["name"]] for o in kept if o["role"] == "counted"]) < 0.05, name
-                drops[name] += sum(1 for o in meta["objects"] if o.get("reason") in settle_reasons)
-                if meta["spec"]["container"] is not None:  # it collides through its convex parts
-                    coll = [d for d in meta["diagnostics"] if d["kind"] == "container_collision"]
-                    assert len(coll) == 1 and coll[0]["source"] == "convex parts" and coll[0]["parts"] >= 2, coll
-                    containers += 1
+    for seed in (11, 13):
+        for name, overrides in variants.items():
+            spec = _spec(pool, seed, True, *overrides)
+            assert (spec.physics.substeps, spec.physics.floor_collider_depth > 0) == (8, name == "default")
+            meta = settled_scene(seed, True, *overrides)  # seed 11 "default": the scene the test above settled
+            assert meta["scene_id"] == f"scene_{seed:06d}"
+            kept = [o for o in meta["objects"] if o["status"] == "kept"]
+            for o in kept:
+                assert o["min_z"] >= -0.02 * o["size_m"], (name, o["name"], o["min_z"])  # no sinking
+            rest = next(d for d in meta["diagnostics"] if d["kind"] == "rest")
+            assert np.median([rest["speed_m_s"][o["name"]] for o in kept if o["role"] == "counted"]) < 0.05, name
+            drops[name] += sum(1 for o in meta["objects"] if o.get("reason") in settle_reasons)
+            if meta["spec"]["container"] is not None:  # it collides through its convex parts
+                coll = [d for d in meta["diagnostics"] if d["kind"] == "container_collision"]
+                assert len(coll) == 1 and coll[0]["source"] == "convex parts" and coll[0]["parts"] >= 2, coll
+                containers += 1
     assert containers > 0, "the seeds must draw a container"
     assert drops["default"] <= drops["before"], drops

@@ -10,9 +10,11 @@ ground_truth.json. Also writes the contact sheet `make demo` writes."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
+from conftest import RENDERED_DEMO
 from PIL import Image
 from sqlalchemy import select
 
@@ -21,18 +23,16 @@ from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.cli import main
 from mixcount.curation.flags import DUPLICATE_KINDS, TRAP_KINDS, VARIANT_TRAPS, evaluate_against_ground_truth
-from mixcount.demo.library import generate_demo_library
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 
-def test_demo_library_precision_recall(tmp_path, capsys):
-    truth = generate_demo_library(tmp_path / "demo", seed=0)
+def test_demo_library_precision_recall(tmp_path, capsys, rendered_demo_catalog):
+    rendered, truth = rendered_demo_catalog  # generated, ingested and rendered at 64 px (tests/conftest.py)
     assert all(truth[key] for key, _ in TRAP_KINDS) and truth["broken"] and truth["mesh_quality"]
-    db = str(tmp_path / "catalog.db")
-    base = ["--db", db, "--config", "configs/quick.toml", "--set", "render.resolution=64", "--set", "render.samples=2"]
-    assert main(base + ["catalog", "ingest", str(tmp_path / "demo")]) == 0
-    assert main(base + ["catalog", "render"]) == 0
+    shutil.copytree(rendered, tmp_path / "db")  # this test filters its own copy
+    db = str(tmp_path / "db" / "catalog.db")
+    base = ["--db", db, *RENDERED_DEMO]
     capsys.readouterr()
     assert main(base + ["catalog", "filter", "--json"]) == 0
     captured = capsys.readouterr()

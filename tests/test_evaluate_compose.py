@@ -21,14 +21,14 @@ pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
-def composed(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Two scenes of the test split at 96 px (configs/quick.toml), from a small real demo catalog."""
-    from test_usd_stage import build_demo_catalog
-
+def composed(tmp_path_factory: pytest.TempPathFactory, demo_catalog_copy) -> Path:
+    """Two scenes of the test split at 96 px (configs/quick.toml), from a small real demo catalog (a copy
+    of the session's 12-object one)."""
+    from mixcount.catalog.db import open_catalog
     from mixcount.catalog.models import Split
 
-    root = tmp_path_factory.mktemp("eval_compose")
-    cat = build_demo_catalog(root, n_objects=12)  # every active object lands in train ...
+    root = demo_catalog_copy(tmp_path_factory.mktemp("eval_compose"), 12)
+    cat = open_catalog(f"sqlite:///{root / 'catalog.db'}", data_dir="")  # every active object is in train ...
     with cat.session() as session:
         for row in session.query(Split):
             row.split = "test"  # ... so move them all to test: the split evaluation reads

@@ -5,16 +5,14 @@ from __future__ import annotations
 import json
 
 import pytest
-from test_usd_stage import build_demo_catalog
 
 from mixcount.cli import main
 
 
 @pytest.fixture(scope="module")
-def demo_db(tmp_path_factory):
-    root = tmp_path_factory.mktemp("compose")
-    build_demo_catalog(root).close()
-    return root
+def demo_db(tmp_path_factory, demo_catalog_copy):
+    """A copy of the session's 16-object demo catalog (build_demo_catalog's default size)."""
+    return demo_catalog_copy(tmp_path_factory.mktemp("compose"), 16)
 
 
 def test_dry_run_prints_plan_and_writes_nothing(demo_db, capsys, tmp_path):

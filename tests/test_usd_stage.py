@@ -103,9 +103,11 @@ def build_demo_catalog(root: Path, n_objects: int = 16):
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    root = tmp_path_factory.mktemp("demo_scene")
-    cat = build_demo_catalog(root)
+def demo(tmp_path_factory, demo_catalog_copy):
+    from mixcount.catalog.db import open_catalog
+
+    root = demo_catalog_copy(tmp_path_factory.mktemp("demo_scene"), 16)  # build_demo_catalog(root), copied
+    cat = open_catalog(f"sqlite:///{root / 'catalog.db'}", data_dir="")
     with cat.session() as session:
         pool = load_pool(session, split="train")
     conf = load_config(["quick"], ["scene.no_container_probability=0.0"])
