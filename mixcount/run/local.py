@@ -42,7 +42,7 @@ class LocalExecutor:
 
     def __init__(self, workers: int, *, log_dir: Optional[Path] = None, runner: SceneRunner = run_scene_task,
                  recycle_after: int, settle_ahead: bool) -> None:
-        from mixcount.run.settle_ahead import StagingAhead
+        from mixcount.run.staging_ahead import StagingAhead
         from mixcount.worker.client import BlenderWorker
         from mixcount.worker.pool import WorkerPool, error_text
         from mixcount.worker.settle_ahead import SettleAheadWorker

@@ -1,6 +1,6 @@
 """Settle-ahead, the worker side: a render worker plus a companion bpy process that settles the NEXT scene
 while the current one renders (``compose.settle_ahead``; the run side that writes the next stage ahead is
-:mod:`mixcount.run.settle_ahead`, the engine side the ``settle`` op of :mod:`mixcount.engine.scene_job`).
+:mod:`mixcount.run.staging_ahead`, the engine side the ``settle`` op of :mod:`mixcount.engine.scene_job`).
 Both processes are plain :class:`~mixcount.worker.client.BlenderWorker` s driven through their public
 :meth:`~mixcount.worker.client.BlenderWorker.post` / :meth:`~mixcount.worker.client.BlenderWorker.answer`.
 """
