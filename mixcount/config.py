@@ -182,6 +182,8 @@ class FilterConfig:
     cross_source_proportions: float
     cross_source_min_pattern: float
     cross_source_pattern: float
+    cross_source_occupancy: float
+    cross_source_min_asymmetry: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float

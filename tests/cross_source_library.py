@@ -6,10 +6,13 @@ Built from real scans pymeshlab ships (the textured Stanford bunny, the cow) and
 * ``bunny_*``: the 10k-face textured bunny and copies decimated hard (3-4 % of the faces), flattened
   15-20 % along one axis (a re-export), stored in mm or cm, turned, re-baked (one 10 % darker); one
   re-materialed (hue turned: a colour variant from another source);
-* ``cow_*``: a plain yellow cow, its decimated, flattened, turned copy in cm (same plain colour), and an
-  olive copy (another material);
+* ``cow_*``: a plain yellow cow, its decimated, flattened, turned copy in cm (same plain colour), an
+  olive copy decimated and flattened (another material), and a red copy turned and stored in mm (another
+  material, the shape untouched);
 * clean objects, pairwise different, several of each shape family: balls, bottles, mugs, cans, cups,
-  blocks, dice, figurines, cookies, donuts, fruit.
+  blocks, dice, figurines, cookies, donuts, fruit; and two more real scans in plain colours whose three
+  principal moments differ (the airplane, mirror-asymmetric along two axes like the cow; the bone,
+  mirror-symmetric), the shapes the plain-recolour rule looks at.
 
 :data:`COPIES` holds the groups of one object; every other pair is two different objects."""
 
@@ -27,7 +30,7 @@ from mixcount.demo import traps as T
 SAMPLES = Path(__import__("pymeshlab").__file__).parent / "tests" / "sample_meshes"
 COPIES = (
     ("bunny", "bunny_dec_flat_mm", "bunny_dec_flat_cm_dark", "bunny_dec_flat_recoloured"),
-    ("cow_yellow", "cow_yellow_dec_flat_cm", "cow_olive_dec_flat"),
+    ("cow_yellow", "cow_yellow_dec_flat_cm", "cow_olive_dec_flat", "cow_red_turned_mm"),
 )
 FAMILIES = (("ball", O.build_ball, 5), ("bottle", O.build_bottle, 4), ("mug", O.build_mug, 3),
             ("can", O.build_can, 4), ("cup", O.build_cup, 2), ("block", O.build_block, 3), ("die", O.build_die, 2),
@@ -75,6 +78,9 @@ def objects() -> dict[str, list[L.Part]]:
         "cow_olive_dec_flat": T.republish(_flatten([_plain("cow.obj", (110, 110, 40))], 2, 0.85), method="decimate",
                                           target_faces=300, texture_px=64, rotation=turn((0.0, 90.0, 0.0)),
                                           scale=1.0, seed=4),
+        "cow_red_turned_mm": L._baked([_plain("cow.obj", (190, 50, 45))], turn((0.0, 30.0, 120.0)), 1000.0),
+        "airplane_grey": [_plain("airplane.obj", (150, 155, 160))],
+        "bone_ivory": [_plain("bone.ply", (230, 220, 190))],
     }
     for family, build, n in FAMILIES:
         for k in range(n):

@@ -1,8 +1,9 @@
 """Copies another source published (issue 34), through the CLI on a real catalog with real bpy renders
 (64 px): the textured bunny scan and three copies decimated to 3-4 % of the faces, flattened 15-20 %
 along one axis, stored in mm / cm / m, turned, re-baked (one 10 % darker, one recoloured); a plain
-yellow cow, its decimated, flattened copy in cm and an olive copy; and 33 clean objects of 11 shape
-families (balls, bottles, mugs, cans, cups, blocks, dice, figurines, cookies, donuts, fruit).
+yellow cow, its decimated, flattened copy in cm, an olive copy decimated and flattened and a red copy
+turned and stored in mm; and 35 clean objects: 11 shape families (balls, bottles, mugs, cans, cups, blocks,
+dice, figurines, cookies, donuts, fruit) and two real scans in plain colours (airplane, bone).
 
 * same-look copies on a patterned surface are duplicates (one kept);
 * the same plain colour on a loosely agreeing shape is a ``possible_copy``: both active, shown by
@@ -10,7 +11,10 @@ families (balls, bottles, mugs, cans, cups, blocks, dice, figurines, cookies, do
 * the recoloured bunny copy (another source, other colours) is a ``possible_copy`` of each bunny: its
   colour pattern repeats in other colours;
 * no pair at all between two different objects (before issue 34: none either, and none of the copies);
-* the olive cow (another source, another plain colour) stays unpaired: shape alone is no evidence."""
+* the olive cow (another source, another plain colour, decimated and flattened) is a ``possible_copy`` of
+  the cow: the same shape with each principal axis scaled to its extent (a squash scales one axis);
+* the red cow (another plain colour, turned, in mm, the shape untouched) is a ``colour_variant`` of the
+  cow: both active."""
 
 from __future__ import annotations
 
@@ -54,7 +58,7 @@ def test_copies_from_another_source(tmp_path, capsys):
     pairs: dict[frozenset[str], dict[str, str]] = {}
     for f in flags:
         pairs.setdefault(frozenset((folder[f.object_id], folder[f.pair_object_id])), {})[f.kind] = f.reason
-    assert len(status) == 40 and all(n in status for group in COPIES for n in group)
+    assert len(status) == 43 and all(n in status for group in COPIES for n in group)
 
     # no pairing of any kind between two different objects
     false = sorted(sorted(p) for p in pairs if not same_object(*p))
@@ -81,7 +85,18 @@ def test_copies_from_another_source(tmp_path, capsys):
         assert set(kinds) == {"possible_copy"}, (other, kinds)
         assert "maybe a colour variant from another source" in kinds["possible_copy"]
     assert status["bunny_dec_flat_recoloured"] == "active"
-    assert not any("cow_olive_dec_flat" in p for p in pairs)
+
+    # another source in another plain colour: the axis-normalised shape pairs it, for a person
+    olive = pairs.get(frozenset(("cow_yellow", "cow_olive_dec_flat")), {})
+    assert set(olive) == {"possible_copy"}, olive
+    assert "maybe a colour variant from another source" in olive["possible_copy"]
+    assert "each principal axis scaled to its extent" in olive["possible_copy"]
+    # the same shape at any scale in another plain colour: one geometry in two colours, both active
+    red = pairs.get(frozenset(("cow_yellow", "cow_red_turned_mm")), {})
+    assert set(red) == {"colour_variant"}, red
+    assert all(status[n] == "active" for n in ("cow_yellow", "cow_olive_dec_flat", "cow_red_turned_mm"))
+    # the airplane (mirror-asymmetric along two axes like the cow) and the bone (symmetric) pair with nothing
+    assert not any(n in p for p in pairs for n in ("airplane_grey", "bone_ivory"))
 
     # the review page shows the possible copy with both thumbnails and the figures
     assert main(base + ["catalog", "sheet", "--out", str(tmp_path / "sheet"), "--only", "flagged", "--json"]) == 0
@@ -89,7 +104,8 @@ def test_copies_from_another_source(tmp_path, capsys):
     page = (tmp_path / "sheet" / "review.html").read_text()
     shown = [name for name, i in ids.items() if f'id="obj-{i}"' in page]
     assert written["objects"] == len(shown)
-    assert {*same_look, "bunny_dec_flat_recoloured", "cow_yellow", "cow_yellow_dec_flat_cm"} <= set(shown)
+    assert {*same_look, "bunny_dec_flat_recoloured", "cow_yellow", "cow_yellow_dec_flat_cm",
+            "cow_olive_dec_flat", "cow_red_turned_mm"} <= set(shown)
     a, b = ids["cow_yellow"], ids["cow_yellow_dec_flat_cm"]
     card = page[page.index(f'id="obj-{a}"'):]
     card = card[:card.index("</article>")] if "</article>" in card else card[:20000]

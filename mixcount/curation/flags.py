@@ -21,8 +21,12 @@ flagged in both directions). Thresholds are the ``[filter]`` section; descriptor
   per cent of its faces, flattened by a re-export: ``cross_source_*``) with the same surface colours and
   layout on a *patterned* surface.
 * ``possible_copy``: the evidence is not sure: a loosely agreeing shape with the same *plain* colour,
-  where the layout has no pattern to confirm it (rule (c) on a plain surface). Flagged for a person
-  (``catalog sheet --only flagged``), never excluded or merged.
+  where the layout has no pattern to confirm it (rule (c) on a plain surface); a loosely agreeing shape
+  in other colours whose colour pattern repeats; or, on two plain surfaces in other colours, the same
+  shape once each principal axis is scaled to its extent (a re-export's squash taken out), for shapes
+  mirror-asymmetric along two principal axes (:func:`_plain_recoloured_copy`; ``colour_variant`` there
+  when the shape also agrees tightly). Flagged for a person (``catalog sheet --only flagged``), never
+  excluded or merged.
 * ``degenerate`` means unusable: unreadable (broken) files, too few faces, (near) zero area, zero volume
   although closed, flat beyond repair (thickness below 1/``max_aspect_ratio`` of the length, along the
   principal axes), a blank render.
@@ -113,6 +117,21 @@ class _Item:
     look: D.AppearanceDescriptor | None = None
     surface: A.SurfaceLook | None = None
     appearance: str = "none"
+    _asymmetry: list[float] | None = None
+    _shape_look: A.SurfaceLook | None = None
+
+    def shape_look(self) -> A.SurfaceLook:
+        """The surface samples without their colours (:func:`~mixcount.curation.appearance3d.shape_only`)."""
+        assert self.surface is not None
+        if self._shape_look is None:
+            self._shape_look = A.shape_only(self.surface)
+        return self._shape_look
+
+    def asymmetry(self) -> list[float]:
+        """:func:`~mixcount.curation.appearance3d.mirror_asymmetry`, computed once."""
+        if self._asymmetry is None:
+            self._asymmetry = A.mirror_asymmetry(self.shape_look())
+        return self._asymmetry
 
 
 @dataclass
@@ -200,6 +219,18 @@ class LayoutCache:
         if key is not None and key in self.values:
             return self.values[key]
         value = min(A.refined_layout_distance(first, other), A.refined_layout_distance(other, first))
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
+    def occupancy(self, x: _Item, y: _Item) -> float:
+        """Axis-normalised shape distance (:func:`~mixcount.curation.appearance3d.occupancy_distance`), cached."""
+        key = self.key(x, y, 1.0)
+        key = f"occupancy:{key}" if key is not None else None
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = A.occupancy_distance(x.shape_look(), y.shape_look())
         if key is not None:
             self.values[key] = round(value, 6)
             self.dirty = True
@@ -338,7 +369,7 @@ def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) ->
         return None
     col, gain = _colours(x.surface, y.surface, th)
     if col > th.look_colour:
-        return _recoloured_copy(x, y, th, d2, mom, col)
+        return _recoloured_copy(x, y, th, d2, mom, col, layouts)
     first = A.relit(x.surface, 1.0 / gain) if gain > 1.0 else x.surface  # the brighter side darkened
     other = A.relit(y.surface, gain) if gain < 1.0 else y.surface
     lay = layouts.refined(x, y, first, other, gain)
@@ -358,16 +389,20 @@ def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) ->
 
 
 def _recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float,
-                     col: float) -> tuple[str, float, str] | None:
+                     col: float, layouts: LayoutCache) -> tuple[str, float, str] | None:
     """``possible_copy`` for a loosely agreeing shape in other colours whose colour *pattern* repeats
     (:func:`~mixcount.curation.appearance3d.pattern_correlation` >= ``cross_source_pattern``): maybe a
     colour variant republished by another source. Only for patterned surfaces on shapes whose principal
     axes are all distinct: where moments tie (balls, cans, boxes, mugs, cookies) the frame is chosen by
-    the colours themselves, and two objects of one mould in other prints correlate by construction."""
+    the colours themselves, and two objects of one mould in other prints correlate by construction.
+    Two *plain* surfaces have no pattern: :func:`_plain_recoloured_copy`."""
     assert x.surface is not None and y.surface is not None
     if x.surface.tied or y.surface.tied:
         return None
-    pattern = min(pattern_strength(x.surface), pattern_strength(y.surface))
+    strengths = (pattern_strength(x.surface), pattern_strength(y.surface))
+    if max(strengths) < th.cross_source_min_pattern:
+        return _plain_recoloured_copy(x, y, th, d2, mom, col, layouts)
+    pattern = min(strengths)
     if pattern < th.cross_source_min_pattern:
         return None
     corr = A.pattern_correlation(x.surface, y.surface)
@@ -378,6 +413,36 @@ def _recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float
             f"possible copy for review (maybe a colour variant from another source): the colour pattern repeats "
             f"(correlation {corr:.3f}) in other colours ({col:.3f}), pattern {pattern:.3f}; shape agrees loosely "
             f"(D2 {d2:.4f}, proportions {mom:.3f})")
+
+
+def _plain_recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float,
+                           col: float, layouts: LayoutCache) -> tuple[str, float, str] | None:
+    """A copy from another source in another *plain* colour (the issue's olive duck against the yellow
+    one): nothing but the shape to go on, and the loose gates pass whole shape families. A re-export's
+    flattening scales one axis, so the shape is compared with each principal axis scaled to its extent
+    (``cross_source_occupancy``): unchanged by the squash, units and orientation, and tight. It proves
+    nothing for a shape that the scaling makes one of a family (every box a cube, every can one
+    cylinder, every egg a ball), so both shapes must be mirror-asymmetric along at least two principal
+    axes (``cross_source_min_asymmetry``; a cow, a duck, a bunny are, a box, a can, a bone are not).
+    ``colour_variant`` when the shape also passes the tight gates of the look rule (the same shape at any
+    scale in other colours: one geometry in two colours); else ``possible_copy`` for a person."""
+    asym = [sorted(it.asymmetry(), reverse=True) for it in (x, y)]
+    if min(a[1] for a in asym) < th.cross_source_min_asymmetry:
+        return None
+    occ = layouts.occupancy(x, y)
+    if occ > th.cross_source_occupancy:
+        return None
+    facts = (f"the same shape with each principal axis scaled to its extent (occupancy {occ:.3f}), mirror-asymmetric "
+             f"along two principal axes ({asym[0][1]:.2f} / {asym[1][1]:.2f}), in other plain colours ({col:.3f})")
+    if d2 <= th.look_d2 and mom <= th.look_proportions:
+        score = 1.0 - max(occ / th.cross_source_occupancy, d2 / th.look_d2, mom / th.look_proportions) / 2
+        return (COLOUR_VARIANT, round(max(0.0, score), 4),
+                f"colour variant (another plain colour, the same shape at any scale): {facts}; D2 {d2:.4f}, "
+                f"proportions {mom:.3f}")
+    score = 1.0 - max(occ / th.cross_source_occupancy, d2 / th.cross_source_d2, mom / th.cross_source_proportions) / 2
+    return (POSSIBLE_COPY, round(max(0.0, score), 4),
+            f"possible copy for review (maybe a colour variant from another source): {facts}; shape agrees "
+            f"loosely (D2 {d2:.4f}, proportions {mom:.3f}: decimated or flattened by a re-export?)")
 
 
 def mesh_quality_score(fraction: float) -> float:
