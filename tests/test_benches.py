@@ -174,12 +174,14 @@ def test_curation_bench(tmp_path: Path, rendered_demo_catalog: tuple[Path, dict]
     assert doc["reps"] == 1 and arm["objects"] > 0 and arm["by_trap"]
 
 
+@pytest.mark.slow  # about 10 s each: kept out of make test-fast
 def test_capture_bench() -> None:
     doc = run_smoke("capture", None)[-1]
     check_figures(doc, ["ingest_s", "filter_s", "peak_rss_mb", "faces.0"])
     assert doc["broken"] == 0 and len({tuple(p[:2]) for p in doc["pairs"]}) == 6  # the four are one group
 
 
+@pytest.mark.slow
 def test_ingest_bench() -> None:
     doc = run_smoke("ingest", None)[-1]
     check_figures(doc, ["objects", "first_s", "first_obj_per_s", "rerun_s", "rerun_obj_per_s", "ratio"])
