@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any, Iterator
 
 import numpy as np
 import pytest
@@ -61,6 +62,22 @@ def _with_renders(pool, folder: Path):
 
 
 N_CAMERAS = 2  # every check below runs per camera: the paper's rules are written for several
+
+
+@pytest.fixture(scope="module")
+def fault_worker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
+    """One bpy worker of tests/fault_worker.py (the real worker plus test ops: border_check, mesh_cache,
+    rest_stop, scaled_drop, release_wave) for the module's tests that only send it requests: one bpy start
+    instead of one per test. The entry module is patched while it starts only (a restart would run the real
+    one: these tests expect none). Each op builds its own scene (a stage, or the factory settings)."""
+    from mixcount.worker.client import BlenderWorker
+
+    with BlenderWorker(name="fault", log_dir=tmp_path_factory.mktemp("fault_worker")) as w:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")
+            w.start()
+        yield w
+        assert w.restarts == 0  # every test above ran on the fault worker
 
 
 @pytest.fixture(scope="module")
@@ -388,44 +405,38 @@ def _check_depth_normals(d: Path, camera: dict, files: dict, h: int, w: int, suf
     assert matches >= 2
 
 
-def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_path: Path,
-                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_path: Path, fault_worker) -> None:
     """The visibility loop re-renders only where dropped objects were seen: pasted into the earlier id
     pass, that region must give exactly the full render's ids, depth and normals."""
-    from mixcount.worker.client import BlenderWorker
-
     out, _summary, _pool = composed
-    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "border_check"
-    with BlenderWorker(name="border", log_dir=tmp_path) as w:
-        for scene in _scenes(out):
-            r = w.request({"op": "border_check", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / scene.name),
-                           "drop": 2}, timeout=300)
-            assert r["ok"], r
-            row0, col0, row1, col1 = r["region"]
-            assert 0 < (row1 - row0 + 1) * (col1 - col0 + 1) < 128 * 128  # a part of the image, not all of it
-            assert r["dropped_px"] > 0 and r["changed_px"] > 0  # the dropped objects were seen and are gone
-            assert r["dropped_still_seen"] == 0
-            assert r["equal"] == {"index": True, "depth": True, "normal": True}, r
+    w = fault_worker  # adds "border_check"
+    for scene in _scenes(out):
+        r = w.request({"op": "border_check", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / scene.name),
+                       "drop": 2}, timeout=300)
+        assert r["ok"], r
+        row0, col0, row1, col1 = r["region"]
+        assert 0 < (row1 - row0 + 1) * (col1 - col0 + 1) < 128 * 128  # a part of the image, not all of it
+        assert r["dropped_px"] > 0 and r["changed_px"] > 0  # the dropped objects were seen and are gone
+        assert r["dropped_still_seen"] == 0
+        assert r["equal"] == {"index": True, "depth": True, "normal": True}, r
 
 
 def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, library, tmp_path: Path,
-                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+                                                                     fault_worker) -> None:
     """Asset meshes appended from the .blend cache render exactly as imported from USD: same ids, depth,
     normals and RGB, cold (files written) and warm (files appended); a truncated file is a miss that is
     rewritten, and a file that cannot be written is reported and costs nothing else. The unlit id pass
     equals a lit one."""
-    from mixcount.worker.client import BlenderWorker
     from mixcount.worker.contract import MeshCacheRequest, MeshCacheResult
 
     out, _summary, _pool = composed
     scene = _scenes(out)[0]
-    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "mesh_cache"
-    with BlenderWorker(name="meshcache", log_dir=tmp_path) as w:
-        r = w.request({"op": "mesh_cache", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / "mc")},
-                      timeout=300)
-        paths = [str(library[1] / name) for name in r.get("assets", [])]
-        ahead = w.cache_meshes(MeshCacheRequest(assets=tuple(paths), mode="zstd"), timeout=300)
-        off = w.cache_meshes(MeshCacheRequest(assets=tuple(paths), mode="off"), timeout=300)
+    w = fault_worker  # adds "mesh_cache"
+    r = w.request({"op": "mesh_cache", "stage": str(scene / "scene.usda"), "out_dir": str(tmp_path / "mc")},
+                  timeout=300)
+    paths = [str(library[1] / name) for name in r.get("assets", [])]
+    ahead = w.cache_meshes(MeshCacheRequest(assets=tuple(paths), mode="zstd"), timeout=300)
+    off = w.cache_meshes(MeshCacheRequest(assets=tuple(paths), mode="off"), timeout=300)
     assert r["ok"], r
     # the bench's warm-up: every file there, the one that could not be written made now
     assert ahead == MeshCacheResult(assets={a: ("written" if a == r["blocked"] else "hit") for a in r["assets"]}), ahead
@@ -447,14 +458,10 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
     assert stems == sorted(a[:-len(".usdc")] for a in assets if a != r["blocked"]), r["files"]
 
 
-def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_rest_stop_waits_only_for_bodies_that_can_be_kept(fault_worker) -> None:
     """The early stop ends once the waited-for bodies are calm: a body the scene job would drop anyway
     (here: one still falling far away) no longer keeps the simulation going."""
-    from mixcount.worker.client import BlenderWorker
-
-    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "rest_stop"
-    with BlenderWorker(name="rest", log_dir=tmp_path) as w:
-        r = w.request({"op": "rest_stop"}, timeout=300)
+    r = fault_worker.request({"op": "rest_stop"}, timeout=300)  # a fault_worker op
     assert r["ok"], r
     every, near = r["all"], r["near"]
     assert every["waited_for"] == 5 and near["waited_for"] == 2
@@ -464,14 +471,10 @@ def test_rest_stop_waits_only_for_bodies_that_can_be_kept(tmp_path: Path, monkey
     assert near["frames_run"] <= 30 and near["falling_z"] > 10.0, near
 
 
-def test_large_scale_body_rests_on_the_floor(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_large_scale_body_rests_on_the_floor(fault_worker) -> None:
     """A small real object scaled up (a 2.2 cm die at x51) collides through a proxy with the scale in its
     mesh: dropped 15 m it comes to rest on the floor at Bullet's margins, as a 1.12 m cube should."""
-    from mixcount.worker.client import BlenderWorker
-
-    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "scaled_drop"
-    with BlenderWorker(name="scaled", log_dir=tmp_path) as w:
-        r = w.request({"op": "scaled_drop"}, timeout=300)
+    r = fault_worker.request({"op": "scaled_drop"}, timeout=300)
     assert r["ok"], r
     baked = r["baked"]
     print(f"\n1.12 m cube from 15 m: baked scale lowest point {baked['lowest']:.3f} m; "
@@ -480,14 +483,10 @@ def test_large_scale_body_rests_on_the_floor(tmp_path: Path, monkeypatch: pytest
     assert -0.01 <= baked["lowest"] <= 0.12, baked  # on the floor, within the two 0.04 m collision margins
 
 
-def test_spawn_wave_body_is_held_then_falls_from_its_spot(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_spawn_wave_body_is_held_then_falls_from_its_spot(fault_worker) -> None:
     """A body released at frame 40 takes no part before it (parked far away), then falls from rest at
     its spawn spot; the simulation runs on past the release and leaves no animation behind."""
-    from mixcount.worker.client import BlenderWorker
-
-    monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds "release_wave"
-    with BlenderWorker(name="wave", log_dir=tmp_path) as w:
-        r = w.request({"op": "release_wave"}, timeout=300)
+    r = fault_worker.request({"op": "release_wave"}, timeout=300)
     assert r["ok"], r
     centres = r["centres"]  # at frames 11, 21, 31, 41, ...
     assert all(c[2] > 500 for c in centres[:3]), centres[:4]  # parked until the release
