@@ -1,5 +1,12 @@
 """Shared pytest fixtures. Engine tiers are marked (blender, network, browser, ray); in CI (CI=true)
-a missing engine is a failure, never a skip."""
+a missing engine is a failure, never a skip.
+
+What several modules need is built once per session here, not once per module (the suite must stay
+under 10 minutes on a 2-core machine): the seed-0 demo library (``demo_library``), that library ingested
+and rendered (``rendered_demo_catalog``), the small demo catalogs of ``build_demo_catalog``
+(``demo_catalog_copy``) and one composed dataset (``composed_dataset``). A session fixture's files are
+read only: a test that changes a catalog or a library works on a copy (copying a catalog folder takes
+milliseconds, building it seconds to a minute)."""
 
 from __future__ import annotations
 
@@ -61,7 +68,7 @@ def demo_library(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     return root, generate_demo_library(root, seed=0)
 
 
-RENDERED_DEMO = ["--config", "configs/quick.toml", "--set", "render.resolution=64", "--set", "render.samples=2"]
+RENDERED_DEMO = ["--config", "configs/quick.toml", "--set", "canonical_render.resolution=64", "--set", "canonical_render.samples=2"]
 
 
 @pytest.fixture(scope="session")
