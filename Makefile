@@ -38,7 +38,7 @@ test-fast: $(STAMP)
 demo: $(STAMP)
 	$(MIX) demo-library catalog/demo
 	$(MIX) catalog ingest catalog/demo
-	$(MIX) --set render.resolution=256 --set render.samples=8 catalog render
+	$(MIX) --set canonical_render.resolution=256 --set canonical_render.samples=8 catalog render
 	$(MIX) catalog filter
 	$(MIX) catalog caption --captioner stub
 	$(MIX) catalog split

@@ -58,7 +58,7 @@ def prepare(work: Path, env: dict[str, str], px: int = 64, spp: int = 2) -> Path
     db = work / "db" / "catalog.db"
     shutil.rmtree(db.parent, ignore_errors=True)
     db.parent.mkdir(parents=True)
-    base = ["--config", str(QUICK), "--set", f"render.resolution={px}", "--set", f"render.samples={spp}"]
+    base = ["--config", str(QUICK), "--set", f"canonical_render.resolution={px}", "--set", f"canonical_render.samples={spp}"]
     for step in (["demo-library", str(work / "demo")], ["catalog", "ingest", str(work / "demo")], ["catalog", "render"]):
         wall, _, _ = _mixcount(db, *base, *step, env=env, cwd=work)
         print(f"{work}: {' '.join(step[:2])} {wall:.1f} s", file=sys.stderr)

@@ -64,9 +64,18 @@ def _check_type(key: str, default: Any, value: Any) -> Any:
     )
 
 
+RENAMED_SECTIONS = {"render": "canonical_render"}  # old section name -> new (refused with the new name)
+
+
 def _merge(base: dict[str, Any], overlay: Mapping[str, Any], prefix: str, source: str) -> None:
     for key, value in overlay.items():
         dotted = f"{prefix}{key}"
+        if not prefix and key in RENAMED_SECTIONS and key not in base:
+            new = RENAMED_SECTIONS[key]
+            keys = sorted(value) if isinstance(value, dict) else []
+            example = ", ".join(f"{new}.{k}" for k in keys) or f"{new}.<key>"
+            raise ConfigError(f"config section {key!r} in {source} is now {new!r} (canonical white-background "
+                              f"renders): rename it, e.g. {example}")
         if key not in base:
             near = difflib.get_close_matches(dotted, [f"{prefix}{k}" for k in base], n=1, cutoff=0.5)
             hint = f"; did you mean {near[0]!r}?" if near else f"; known keys here: {', '.join(sorted(base))}"
@@ -144,8 +153,8 @@ class ContainersConfig:
 
 
 @dataclass(frozen=True)
-class RenderConfig:
-    """``[render]``: canonical white-background renders (docs/curation.md)."""
+class CanonicalRenderConfig:
+    """``[canonical_render]``: canonical white-background renders (docs/curation.md)."""
 
     resolution: int
     samples: int
@@ -330,7 +339,7 @@ class Config:
     ingest: IngestConfig
     demo: DemoConfig
     containers: ContainersConfig
-    render: RenderConfig
+    canonical_render: CanonicalRenderConfig
     filter: FilterConfig
     captions: CaptionsConfig
     split: SplitConfig
@@ -353,7 +362,7 @@ class Config:
 
 
 SECTIONS: dict[str, type] = {
-    "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "containers": ContainersConfig, "render": RenderConfig,
+    "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "containers": ContainersConfig, "canonical_render": CanonicalRenderConfig,
     "filter": FilterConfig, "captions": CaptionsConfig, "split": SplitConfig, "scene": SceneConfig,
     "compose": ComposeConfig, "cycles": CyclesConfig,
 }

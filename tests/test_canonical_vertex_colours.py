@@ -43,7 +43,7 @@ def test_obj_and_ply_vertex_colours_survive_the_canonical_render(tmp_path, capsy
     painted(trimesh.creation.cylinder(radius=0.033, height=0.115, sections=32), GREEN).export(lib / "green_can.obj")
     painted(trimesh.creation.torus(major_radius=0.045, minor_radius=0.02), PINK).export(lib / "pink_donut.ply")
     db = str(tmp_path / "catalog.db")
-    small = ["--db", db, "--config", "quick", "--set", "render.resolution=32", "--set", "render.samples=2"]
+    small = ["--db", db, "--config", "quick", "--set", "canonical_render.resolution=32", "--set", "canonical_render.samples=2"]
     assert main([*small, "catalog", "ingest", str(lib), "--workers", "1"]) == 0
     assert main([*small, "catalog", "render"]) == 0
     cap = capsys.readouterr()

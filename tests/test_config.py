@@ -16,7 +16,7 @@ def test_defaults_load_and_hash_is_stable():
 
 def test_quick_overlays_default():
     quick = load_config(["quick"])
-    assert quick.render.resolution < load_config().render.resolution
+    assert quick.canonical_render.resolution < load_config().canonical_render.resolution
     assert quick.hash != load_config().hash
 
 
@@ -85,3 +85,19 @@ def test_cli_builds_the_config_once_with_command_options_last():
     assert st.config() is cfg
     with pytest.raises(MixcountError, match="first config"):
         st.config(values={"compose.samples": 3})
+
+
+def test_the_old_render_section_is_refused_with_the_new_names(tmp_path) -> None:
+    """``[render]`` became ``[canonical_render]`` (issue 36): an old file or ``--set`` is refused with a
+    message that names the new keys, not silently ignored or reported as unknown."""
+    import pytest
+
+    from mixcount.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"'render' .* is now 'canonical_render'.*canonical_render\.samples"):
+        load_config([], ["render.samples=2"])
+    old = tmp_path / "old.toml"
+    old.write_text("[render]\nresolution = 64\nsamples = 2\n")
+    with pytest.raises(ConfigError, match=r"canonical_render\.resolution, canonical_render\.samples"):
+        load_config([old])
+    assert load_config([], ["canonical_render.samples=2"]).canonical_render.samples == 2

@@ -176,4 +176,4 @@ def test_scan_catches_known_offender_shapes(tmp_path: Path):
     assert any("field mesh_cache" in h for h in hits) and any("field seed" in h for h in hits)
     assert any("compose.scene_timeout_s" in h for h in hits)
     assert any("scene.settle_penetration_fraction" in h for h in hits)
-    assert any("render.sun_strength" in h for h in hits)
+    assert any("canonical_render.sun_strength" in h for h in hits)

@@ -37,7 +37,7 @@ pytestmark = [pytest.mark.blender, pytest.mark.slow]
 def test_copies_from_another_source(tmp_path, capsys):
     lib = write_library(tmp_path / "lib")
     db = str(tmp_path / "catalog.db")
-    base = ["--db", db, "--config", "configs/quick.toml", "--set", "render.resolution=64", "--set", "render.samples=2"]
+    base = ["--db", db, "--config", "configs/quick.toml", "--set", "canonical_render.resolution=64", "--set", "canonical_render.samples=2"]
     assert main(base + ["catalog", "ingest", str(lib)]) == 0
     assert main(base + ["catalog", "render"]) == 0
     capsys.readouterr()

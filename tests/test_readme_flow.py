@@ -29,7 +29,7 @@ from PIL import Image
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
-SMALL = ["--config", "quick", "--set", "render.resolution=64", "--set", "render.samples=2",
+SMALL = ["--config", "quick", "--set", "canonical_render.resolution=64", "--set", "canonical_render.samples=2",
          "--set", "compose.resolution=64", "--set", "compose.samples=2"]
 
 

@@ -24,7 +24,7 @@ pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 
 def small_config(**render):
-    values = {"render.resolution": 64, "render.samples": 2, **{f"render.{k}": v for k, v in render.items()}}
+    values = {"canonical_render.resolution": 64, "canonical_render.samples": 2, **{f"canonical_render.{k}": v for k, v in render.items()}}
     return load_config(["configs/quick.toml"], values=values)
 
 
@@ -56,7 +56,7 @@ def test_render_catalog_white_centred_resumable(tmp_path, catalog):
     vanishing = next(o for n, o in objs.items() if "vanishing" in n)
     Path(vanishing.model_path).unlink()  # ingested fine, gone by render time: that object fails, batch goes on
 
-    summary = render_catalog(catalog, cfg.render)
+    summary = render_catalog(catalog, cfg.canonical_render)
     assert (summary.objects, summary.rendered, summary.failed) == (4, 3, 1)
     assert summary.failures[0]["id"] == vanishing.id and summary.failures[0]["error"]
 
@@ -88,10 +88,10 @@ def test_render_catalog_white_centred_resumable(tmp_path, catalog):
     big = np.asarray(Image.open(paths[next(n for n in paths if n.startswith("bigredbox"))]), dtype=float)
     assert np.abs(small - big).mean() < 4.0
 
-    again = render_catalog(catalog, cfg.render)
+    again = render_catalog(catalog, cfg.canonical_render)
     assert (again.rendered, again.skipped, again.failed) == (0, 3, 1)  # failures are retried, the rest skipped
 
-    bigger = render_catalog(catalog, small_config(resolution=48).render)  # settings changed: render again
+    bigger = render_catalog(catalog, small_config(resolution=48).canonical_render)  # settings changed: render again
     assert bigger.rendered == 3
     assert np.asarray(Image.open(paths[next(iter(paths))])).shape == (48, 48, 3)
 
@@ -105,7 +105,7 @@ def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
     glb = tmp_path / "box.glb"
     coloured(trimesh.creation.box(extents=(0.04, 0.04, 0.04)), (200, 200, 30)).export(glb)
     obj = types.SimpleNamespace(model_path=str(glb), id=1, source_up_axis="Y")
-    base = canonical_request(small_config(resolution=32, samples=1, denoise=False).render, obj, tmp_path / "out")
+    base = canonical_request(small_config(resolution=32, samples=1, denoise=False).canonical_render, obj, tmp_path / "out")
     assert isinstance(base, CanonicalRequest) and base.stem == "obj_000001"
     jobs = [(key, dataclasses.replace(base, stem=stem))
             for key, stem in (("first", "first"), ("hang", "hang_300"), ("crash", "crash_3"), ("last", "last"))]

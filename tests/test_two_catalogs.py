@@ -22,7 +22,7 @@ from mixcount.curation.renders import canonical_render_path
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
-SMALL = ["--config", "quick", "--set", "render.resolution=32", "--set", "render.samples=1"]
+SMALL = ["--config", "quick", "--set", "canonical_render.resolution=32", "--set", "canonical_render.samples=1"]
 
 
 def cli(capsys, *args: str) -> tuple[int, str, str]:

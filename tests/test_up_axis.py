@@ -111,8 +111,8 @@ def test_canonical_render_shows_the_object_in_the_stated_frame(tmp_path, capsys)
     read Y-up, standing (wide and low) once its up axis is stated (the render is redone by the re-ingest)."""
     z_up_bowl_glb(tmp_path / "plain" / "bowl.glb")
     db = str(tmp_path / "catalog.db")
-    small = ["--db", db, "--config", "quick", "--set", "render.resolution=48", "--set", "render.samples=1",
-             "--set", "render.elevation_deg=0.0", "--set", "render.azimuth_deg=0.0"]  # seen from the front (-Y)
+    small = ["--db", db, "--config", "quick", "--set", "canonical_render.resolution=48", "--set", "canonical_render.samples=1",
+             "--set", "canonical_render.elevation_deg=0.0", "--set", "canonical_render.azimuth_deg=0.0"]  # seen from the front (-Y)
     assert cli(capsys, *small, "catalog", "ingest", str(tmp_path / "plain"), "--workers", "1")[0] == 0
     assert cli(capsys, *small, "catalog", "render")[0] == 0
     lying = mask_aspect(db)

@@ -27,7 +27,7 @@ def render_cmd(
     st = state(ctx)
     catalog = st.catalog()
     try:
-        summary = render_catalog(catalog, st.config().render, object_ids=ids or None, include_excluded=include_excluded,
+        summary = render_catalog(catalog, st.config().canonical_render, object_ids=ids or None, include_excluded=include_excluded,
                                  force=force, progress=RichProgress())
     finally:
         catalog.close()

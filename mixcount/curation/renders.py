@@ -1,6 +1,6 @@
 """`catalog render`: canonical white-background renders of catalog objects (the external exemplars).
 
-Each active object gets a ``canonical`` view (and ``view_<k>`` extra views when ``render.extra_views`` > 0)
+Each active object gets a ``canonical`` view (and ``view_<k>`` extra views when ``canonical_render.extra_views`` > 0)
 rendered by bpy in worker processes (:mod:`mixcount.worker.canonical_runner`). Files live under
 ``catalog.renders_dir`` (``renders/<catalog>/`` beside the database: the catalog's own folder, since row ids
 repeat between catalogs that share a folder) as ``obj_<id>.png`` (RGB on pure white) plus
@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.hashing import json_hash
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
-from mixcount.config import RenderConfig
+from mixcount.config import CanonicalRenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.worker.contract import CANONICAL, CanonicalRequest, canonical_views
 
@@ -50,8 +50,8 @@ class RenderSummary:
         return asdict(self)
 
 
-def render_settings(config: RenderConfig) -> dict[str, Any]:
-    """The ``[render]`` keys that change the picture, plus the renderer version."""
+def render_settings(config: CanonicalRenderConfig) -> dict[str, Any]:
+    """The ``[canonical_render]`` keys that change the picture, plus the renderer version."""
     settings = {key: getattr(config, key) for key in SETTING_KEYS}
     settings["version"] = RENDER_VERSION
     return settings
@@ -66,8 +66,8 @@ def view_names(extra_views: int) -> list[str]:
     return [name for name, _ in canonical_views(int(extra_views), 0.0)]
 
 
-def canonical_request(config: RenderConfig, obj: CatalogObject, out_dir: Path) -> CanonicalRequest:
-    """The worker request for one object's renders, every setting from ``[render]`` (threads are the
+def canonical_request(config: CanonicalRenderConfig, obj: CatalogObject, out_dir: Path) -> CanonicalRequest:
+    """The worker request for one object's renders, every setting from ``[canonical_render]`` (threads are the
     runner's: it shares the cores among its workers)."""
     return CanonicalRequest(
         model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}", threads=config.threads,
@@ -121,7 +121,7 @@ def _upsert(session: Session, object_id: int, view: str) -> Render:
 
 def render_catalog(
     catalog: Catalog,
-    config: RenderConfig,
+    config: CanonicalRenderConfig,
     *,
     object_ids: Iterable[int] | None = None,
     include_excluded: bool = False,

@@ -299,7 +299,7 @@ def canonical_views(extra_views: int, azimuth_deg: float) -> tuple[tuple[str, fl
 @dataclass(frozen=True)
 class CanonicalRequest:
     """One ``canonical`` request: render the model at ``model_path`` into ``out_dir`` as ``<stem>.png``
-    (+ ``<stem>_<view>.png`` for extra views), each with a ``_mask.png``. Settings are ``[render]``'s."""
+    (+ ``<stem>_<view>.png`` for extra views), each with a ``_mask.png``. Settings are ``[canonical_render]``'s."""
 
     OP: ClassVar[str] = "canonical"
 
