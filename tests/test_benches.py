@@ -117,7 +117,7 @@ def test_settle_bench(bench_root: Path) -> None:
 @pytest.mark.blender
 def test_density_bench(bench_root: Path) -> None:
     rows = run_smoke("density", bench_root)
-    assert [r["pool"] for r in rows] == ["light"] and rows[0]["scenes"] == 2 and rows[0]["failed"] == []
+    assert [r["pool"] for r in rows] == ["light"] and rows[0]["scenes"] == 1 and rows[0]["failed"] == []
     check_figures(rows[0], ["counted_spawned", "counted_kept", "retention", "mean_counted_kept",
                             "distractors_kept", "lost_off_floor_share"])
     assert 0 < rows[0]["retention"] <= 1
