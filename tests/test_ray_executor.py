@@ -228,19 +228,15 @@ def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.Mo
 
 
 @pytest.fixture(scope="module")
-def demo_db(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    sys.path.insert(0, str(Path(__file__).parent))
-    from test_usd_stage import build_demo_catalog
-
-    root = tmp_path_factory.mktemp("ray_demo")
-    build_demo_catalog(root, n_objects=12).close()
-    return root / "catalog.db"
+def demo_db(tmp_path_factory: pytest.TempPathFactory, demo_catalog_copy) -> Path:
+    """A copy of the session's 12-object demo catalog (tests/conftest.py)."""
+    return demo_catalog_copy(tmp_path_factory.mktemp("ray_demo"), 12) / "catalog.db"
 
 
 def compose(db: Path, out: Path, n: int, *extra: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [str(MIX), "--db", str(db), "--config", "quick", "compose", "--n", str(n), "--out", str(out),
-         "--resolution", "64", "--samples", "1", *extra], capture_output=True, text=True, env=ENV, timeout=timeout,
+         "--resolution", "64", "--samples", "1", "--json", *extra], capture_output=True, text=True, env=ENV, timeout=timeout,
         cwd=PROJECT)
 
 
