@@ -57,7 +57,7 @@ def _root(
 def _register_commands() -> None:
     import importlib
 
-    for name in ("ingest", "curate", "captions", "compose", "evaluate", "demo", "export", "verify", "package"):
+    for name in ("ingest", "curate", "captions", "compose", "render", "evaluate", "demo", "export", "verify", "package"):
         try:
             module = importlib.import_module(f"mixcount.commands.{name}")
         except ModuleNotFoundError as exc:

@@ -24,7 +24,7 @@ from typing import Any, Mapping, Optional, Sequence
 
 from mixcount.errors import ConfigError
 from mixcount.resources import data_dir
-from mixcount.scene_config import CyclesConfig, SceneConfig
+from mixcount.scene_config import CyclesConfig, RerenderConfig, SceneConfig
 
 CONFIG_DIR = data_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"
@@ -346,6 +346,7 @@ class Config:
     scene: SceneConfig
     compose: ComposeConfig
     cycles: CyclesConfig
+    rerender: RerenderConfig
     sources: tuple[str, ...]
     data: Mapping[str, Any]
 
@@ -364,7 +365,7 @@ class Config:
 SECTIONS: dict[str, type] = {
     "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "containers": ContainersConfig, "canonical_render": CanonicalRenderConfig,
     "filter": FilterConfig, "captions": CaptionsConfig, "split": SplitConfig, "scene": SceneConfig,
-    "compose": ComposeConfig, "cycles": CyclesConfig,
+    "compose": ComposeConfig, "cycles": CyclesConfig, "rerender": RerenderConfig,
 }
 
 

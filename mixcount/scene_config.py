@@ -241,3 +241,36 @@ class SceneConfig:
         if self.default_environment not in DEFAULT_ENVIRONMENTS:
             raise ConfigError(f"scene.default_environment must be one of {list(DEFAULT_ENVIRONMENTS)}, "
                               f"got {self.default_environment!r}")
+
+
+@dataclass(frozen=True)
+class RerenderConfig:
+    """``[rerender]``: ``mixcount render`` (a finished scene rendered again from its settled stage, no
+    physics; mixcount/run/rerender.py). ``resolution`` / ``samples`` 0 and ``denoise`` "scene" keep each
+    scene's own values; ``device`` is where Cycles renders (run time only, never in a scene's spec)."""
+
+    resolution: int
+    samples: int
+    denoise: str  # scene | on | off
+    new_views: int  # new cameras by the paper's camera rule around the settled pile, besides the scene's own
+    trajectory: str  # none | orbit
+    frames: int  # orbit: cameras along it
+    orbit_elevation_deg: float
+    orbit_distance_factor: float  # x the scene's first camera's distance to the pile centre
+    seed: int  # the new views' draw: default_rng([seed, scene seed])
+    annotation_rule: str  # all_cameras (the paper's) | per_view
+    device: str  # cpu | gpu | auto
+    persistent_data: bool  # keep Cycles' scene data between the views' RGB renders
+    timeout_s: float  # one scene's re-render, all views
+
+    def validate(self) -> None:
+        from mixcount.errors import ConfigError
+
+        checks = {"denoise": (self.denoise, ("scene", "on", "off")), "trajectory": (self.trajectory, ("none", "orbit")),
+                  "annotation_rule": (self.annotation_rule, ("all_cameras", "per_view")),
+                  "device": (self.device, ("cpu", "gpu", "auto"))}
+        for key, (value, allowed) in checks.items():
+            if value not in allowed:
+                raise ConfigError(f"rerender.{key} = {value!r}: choose one of {', '.join(allowed)}")
+        if self.new_views < 0 or self.frames < 1 or self.resolution < 0 or self.samples < 0:
+            raise ConfigError("rerender.new_views, resolution and samples must be >= 0 and rerender.frames >= 1")

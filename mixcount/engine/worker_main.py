@@ -11,6 +11,8 @@ answered ``{"ok": true, "result": <result>.to_dict(), "seconds": ...}``:
 * ``cache_meshes``: MeshCacheRequest -> MeshCacheResult
   (:func:`mixcount.engine.scene_build.cache_asset_meshes`)
 * ``settle``: SceneRequest -> SettleResult (:func:`mixcount.engine.scene_job.settle_ahead`)
+* ``rerender``: RerenderRequest -> SceneResult, ``devices``: DevicesRequest -> DevicesResult
+  (:mod:`mixcount.engine.rerender_job`)
 
 and two plain ones: ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``; ``{"op": "exit"}`` ->
 ``{"ok": true}`` and the process ends.
@@ -65,12 +67,32 @@ def _settle(req: Any) -> Any:
     return settle_ahead(req)
 
 
+def _rerender(req: Any) -> Any:
+    from mixcount.engine.rerender_job import run_rerender
+
+    return run_rerender(req)
+
+
+def _devices(req: Any) -> Any:
+    from mixcount.engine.rerender_job import probe_devices
+
+    return probe_devices(req)
+
+
 def _handlers() -> dict[str, Handler]:
-    from mixcount.worker.contract import CanonicalRequest, MeshCacheRequest, SceneRequest, SettleResult
+    from mixcount.worker.contract import (
+        CanonicalRequest,
+        DevicesRequest,
+        MeshCacheRequest,
+        RerenderRequest,
+        SceneRequest,
+        SettleResult,
+    )
 
     return {SceneRequest.OP: _typed(SceneRequest, _scene), CanonicalRequest.OP: _typed(CanonicalRequest, _canonical),
             MeshCacheRequest.OP: _typed(MeshCacheRequest, _cache_meshes),
-            SettleResult.OP: _typed(SceneRequest, _settle)}
+            SettleResult.OP: _typed(SceneRequest, _settle),
+            RerenderRequest.OP: _typed(RerenderRequest, _rerender), DevicesRequest.OP: _typed(DevicesRequest, _devices)}
 
 
 HANDLERS: dict[str, Handler] = _handlers()

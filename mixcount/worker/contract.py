@@ -387,3 +387,130 @@ class MeshCacheResult:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "MeshCacheResult":
         return cls(assets=dict(_known(cls, d)["assets"]))
+
+
+# ------------------------------------------------------------------------------ re-render of a settled scene
+
+RULE_ALL_CAMERAS = "all_cameras"  # the paper's rule: kept when >= v_t visible in every view (others removed)
+RULE_PER_VIEW = "per_view"  # each view annotates the objects >= v_t visible in it (none removed)
+ANNOTATION_RULES = (RULE_ALL_CAMERAS, RULE_PER_VIEW)
+DEVICES = ("cpu", "gpu", "auto")
+
+
+@dataclass(frozen=True)
+class RenderView:
+    """One camera of a re-render: its pose (4x4 camera-to-world, Blender's -Z forward) and lens."""
+
+    name: str
+    cam_to_world: Matrix
+    focal_length_mm: float
+    sensor_width_mm: float
+    clip_range: tuple[float, float]
+    framing: dict[str, Any]  # how it was chosen ("stage", "paper", "orbit"), recorded in metadata.json
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "cam_to_world": [list(r) for r in self.cam_to_world],
+                "focal_length_mm": self.focal_length_mm, "sensor_width_mm": self.sensor_width_mm,
+                "clip_range": list(self.clip_range), "framing": dict(self.framing)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "RenderView":
+        v = _known(cls, d)
+        m = _matrix(v["cam_to_world"])
+        assert m is not None
+        return cls(name=str(v["name"]), cam_to_world=m, focal_length_mm=float(v["focal_length_mm"]),
+                   sensor_width_mm=float(v["sensor_width_mm"]),
+                   clip_range=(float(v["clip_range"][0]), float(v["clip_range"][1])), framing=dict(v["framing"]))
+
+
+@dataclass(frozen=True)
+class RerenderRequest:
+    """One ``rerender`` request: render a settled stage again (no physics, no placement) -> SceneResult.
+
+    ``poses`` are the settled matrices by instance prim path as the source scene's metadata.json holds them
+    (float64; settled.usda's orientations are float32 quaternions), ``views`` every camera to render (the
+    scene's own first, at their recorded poses, then any new ones). ``resolution`` / ``samples`` 0 and
+    ``denoise`` "scene" keep the stage's values."""
+
+    OP: ClassVar[str] = "rerender"
+
+    stage: str
+    out_dir: str
+    threads: int
+    oracle: bool
+    passes: tuple[str, ...]
+    depth_format: str
+    normal_format: str
+    mesh_cache: str
+    poses: dict[str, Matrix]
+    views: tuple[RenderView, ...]
+    resolution: int
+    samples: int
+    denoise: str  # "scene" | "on" | "off"
+    rule: str  # one of ANNOTATION_RULES
+    device: str  # one of DEVICES
+    persistent_data: bool  # keep Cycles' scene data (BVH, images) between the views' RGB renders
+
+    def scene_request(self) -> SceneRequest:
+        """The fields the stage loader shares with a ``scene`` request."""
+        return SceneRequest(stage=self.stage, out_dir=self.out_dir, threads=self.threads, oracle=self.oracle,
+                            passes=self.passes, depth_format=self.depth_format, normal_format=self.normal_format,
+                            mesh_cache=self.mesh_cache, settled="")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        d["passes"] = list(self.passes)
+        d["poses"] = {p: [list(r) for r in m] for p, m in self.poses.items()}
+        d["views"] = [v.to_dict() for v in self.views]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "RerenderRequest":
+        v = _known(cls, d)
+        poses = {str(p): _matrix(m) for p, m in v["poses"].items()}
+        return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
+                   oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
+                   depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
+                   mesh_cache=str(v["mesh_cache"]), poses={p: m for p, m in poses.items() if m is not None},
+                   views=tuple(RenderView.from_dict(x) for x in v["views"]), resolution=int(v["resolution"]),
+                   samples=int(v["samples"]), denoise=str(v["denoise"]), rule=str(v["rule"]),
+                   device=str(v["device"]), persistent_data=bool(v["persistent_data"]))
+
+
+@dataclass(frozen=True)
+class DevicesRequest:
+    """One ``devices`` request: which Cycles devices ``device`` ("cpu" | "gpu" | "auto") gives here."""
+
+    OP: ClassVar[str] = "devices"
+
+    device: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"device": self.device}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "DevicesRequest":
+        return cls(device=str(_known(cls, d)["device"]))
+
+
+@dataclass(frozen=True)
+class DevicesResult:
+    """What Cycles would render on: ``used`` "CPU" or "GPU", the backend (CUDA / OPTIX / ...), the devices
+    enabled, and every device Cycles found (``found``, "TYPE: name"). ``error`` is non-empty when ``gpu`` was
+    asked for and none exists (one line naming what was found)."""
+
+    used: str
+    backend: str
+    devices: tuple[str, ...]
+    found: tuple[str, ...]
+    error: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"used": self.used, "backend": self.backend, "devices": list(self.devices), "found": list(self.found),
+                "error": self.error}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "DevicesResult":
+        v = _known(cls, d)
+        return cls(used=str(v["used"]), backend=str(v["backend"]), devices=tuple(str(x) for x in v["devices"]),
+                   found=tuple(str(x) for x in v["found"]), error=str(v["error"]))

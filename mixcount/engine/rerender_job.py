@@ -1,0 +1,263 @@
+"""A settled scene rendered again (bpy): the ``rerender`` op and the ``devices`` op.
+
+:func:`run_rerender` loads a settled stage (``settled.usda`` of a finished scene) with the scene job's own
+loader (:func:`~mixcount.engine.scene_build.load_scene`), then, instead of physics and after-physics
+placement, puts every body at the matrix the source scene's metadata.json recorded (``req.poses``,
+float64: exactly what the original render used) and every camera at the pose of ``req.views`` (the scene's
+own cameras at their recorded ``cam_to_world`` first, then any new ones). From there it runs the scene
+job's steps unchanged: frame check, silhouettes, the id-pass visibility loop, passes, amodal masks, RGB,
+and on request the one-render-per-object reference. Nothing is simulated, placed or drawn at random here.
+
+Two annotation rules (``req.rule``): ``all_cameras`` (the paper's: an object whose origin leaves a frame
+or whose visibility is under v_t in any view is removed from the scene and the views re-rendered, as a
+composed scene does with its own cameras) and ``per_view`` (nothing removed; view k's id map and
+annotations hold the objects whose origin is in its frame and that are >= v_t visible in it).
+
+The import, the floor and the lights are paid once for all views; with ``req.persistent_data`` Cycles
+keeps its scene data (BVH, images) between the RGB renders of the views (``render.use_persistent_data``).
+:func:`select_device` enables CUDA / OptiX devices through Cycles' add-on preferences.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from mixcount.annotate import scene_decisions as D
+from mixcount.engine.scene_build import SceneState, load_scene
+from mixcount.engine.scene_job import (
+    Timer,
+    _camera_record,
+    _place_settled,
+    _set_matrix,
+    check_frame,
+    final_status,
+    reference_check,
+    silhouettes,
+    visibility_loop,
+    write_amodal_masks,
+    write_passes,
+)
+from mixcount.worker.contract import (
+    RULE_ALL_CAMERAS,
+    RULE_PER_VIEW,
+    STATUS_EMPTY,
+    STATUS_OK,
+    CameraView,
+    DevicesRequest,
+    DevicesResult,
+    RenderView,
+    RerenderRequest,
+    SceneResult,
+    view_suffix,
+)
+
+GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI")  # tried in this order; the first with a device is used
+
+
+def select_device(device: str, scene: Any = None) -> DevicesResult:
+    """Cycles' devices for ``device``: "cpu" -> the CPU; "gpu" -> every device of the first backend of
+    :data:`GPU_BACKENDS` that has one (an ``error`` line naming what was found when none has); "auto" ->
+    the GPU when there is one, else the CPU. With ``scene`` the choice is applied (``scene.cycles.device``)."""
+    import bpy
+
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    found: list[str] = []
+    chosen, devices = "", []
+    if device != "cpu":
+        for backend in GPU_BACKENDS:
+            try:
+                prefs.compute_device_type = backend
+            except TypeError:  # this Blender build has no such backend
+                continue
+            gpus = [d for d in prefs.get_devices_for_type(backend) if d.type == backend]
+            found.extend(f"{d.type}: {d.name}" for d in gpus)
+            if gpus and not chosen:
+                chosen, devices = backend, gpus
+    if not chosen:
+        prefs.compute_device_type = "NONE"
+        cpus = [d for d in prefs.get_devices_for_type("CPU")]
+        found.extend(f"{d.type}: {d.name}" for d in cpus)
+        if device == "gpu":
+            return DevicesResult(used="", backend="", devices=(), found=tuple(found),
+                                 error="cycles.device = \"gpu\" but Cycles found no GPU (tried "
+                                       f"{', '.join(GPU_BACKENDS)}; found {', '.join(found) or 'nothing'})")
+        if scene is not None:
+            scene.cycles.device = "CPU"
+        return DevicesResult(used="CPU", backend="NONE", devices=tuple(d.name for d in cpus), found=tuple(found),
+                             error="")
+    prefs.compute_device_type = chosen
+    for d in prefs.devices:
+        d.use = d in devices
+    if scene is not None:
+        scene.cycles.device = "GPU"
+    return DevicesResult(used="GPU", backend=chosen, devices=tuple(f"{d.type}: {d.name}" for d in devices),
+                         found=tuple(found), error="")
+
+
+def probe_devices(req: DevicesRequest) -> DevicesResult:
+    """The ``devices`` op: what ``req.device`` would render on in this process (nothing is rendered)."""
+    return select_device(req.device)
+
+
+def _place_cameras(state: SceneState, views: tuple[RenderView, ...]) -> None:
+    """One Blender camera per view: the stage's cameras reused in order, copies of the first for more
+    (same camera data settings), each at its view's pose and lens; stage cameras beyond the views removed."""
+    import bpy
+
+    template = state.cam_objs[0]
+    objs = []
+    for k, view in enumerate(views):
+        if k < len(state.cam_objs):
+            obj = state.cam_objs[k]
+        else:
+            obj = template.copy()
+            obj.data = template.data.copy()
+            obj.name = obj.data.name = view.name
+            state.scene.collection.objects.link(obj)
+        obj.data.lens = view.focal_length_mm
+        obj.data.sensor_width = view.sensor_width_mm
+        obj.data.clip_start, obj.data.clip_end = view.clip_range
+        _set_matrix(obj, np.asarray(view.cam_to_world, dtype=np.float64))
+        objs.append(obj)
+    for extra in state.cam_objs[len(views):]:
+        bpy.data.objects.remove(extra, do_unlink=True)
+    state.cam_objs = objs
+    state.scene.camera = objs[0]
+    state.framings = [dict(v.framing) for v in views]
+
+
+def _apply_settings(state: SceneState, req: RerenderRequest) -> None:
+    """New resolution / samples / denoiser where the request asks (0 / "scene" keep the stage's)."""
+    render = state.spec.render
+    changes: dict[str, Any] = {}
+    if req.resolution:
+        changes["resolution"] = req.resolution
+        state.scene.render.resolution_x = state.scene.render.resolution_y = req.resolution
+    if req.samples:
+        changes["samples"] = req.samples
+    if req.denoise != "scene":
+        changes["denoise"] = req.denoise == "on"
+    if changes:
+        state.spec = replace(state.spec, render=replace(render, **changes))
+
+
+def _apply_poses(state: SceneState, req: RerenderRequest) -> None:
+    """Every body at its recorded matrix (the collision proxies removed): exactly the original's poses."""
+    by_name = {}
+    for i, o in enumerate(state.objects):
+        m = req.poses.get(o.path)
+        if m is None:
+            raise RuntimeError(f"no recorded pose for {o.path} (the source metadata.json and settled.usda disagree)")
+        mat = np.asarray(m, dtype=np.float64)
+        by_name[state.blender_objects[o.path].name] = mat
+        lo, _ = D.world_bounds(state.cache.columns[o.asset], mat)
+        state.update(i, matrix_world=tuple(tuple(float(v) for v in row) for row in mat), min_z=float(lo[2]))
+    _place_settled(state, by_name)
+
+
+def _per_view_keep(state: SceneState, k: int) -> list[int]:
+    """Instance ids annotated in view ``k`` by the per-view rule: origin in its frame, >= v_t visible."""
+    v_t = state.spec.render.visibility_threshold
+    keep = []
+    for i in state.kept():
+        view = state.view(i, k)
+        if view.get("in_frame", True) and float(view.get("visibility", 0.0)) >= v_t:
+            keep.append(state.objects[i].instance_id)
+    return keep
+
+
+def _origins_per_view(state: SceneState, cameras: list[Any]) -> None:
+    """Per-view rule: each object's origin position and in-frame flag per view (nothing dropped)."""
+    for i in state.kept():
+        for k, camera in enumerate(cameras):
+            origin, inside = D.origin_in_frame(camera, np.array(state.objects[i].matrix_world))
+            state.view(i, k).update(origin_px=list(origin), in_frame=bool(inside))
+            if k == 0:
+                state.update(i, origin_px=origin)
+
+
+def run_rerender(req: RerenderRequest) -> SceneResult:
+    """Handle one ``rerender`` request (module docstring); returns the SceneResult like the ``scene`` op."""
+    from mixcount.engine.visibility import camera_model
+
+    timer = Timer()
+    with timer.stage("device"):
+        device = select_device(req.device)
+        if device.error:
+            raise RuntimeError(device.error)
+    with timer.stage("import"):
+        state = load_scene(req.scene_request())
+        state.scene.cycles.device = device.used
+        state.diagnostics.append({"kind": "device", **device.to_dict()})
+    with timer.stage("poses"):
+        _apply_poses(state, req)
+        _place_cameras(state, req.views)
+        _apply_settings(state, req)
+        cameras = [camera_model(state.scene, c) for c in state.cam_objs]
+    with timer.stage("frame_check"):
+        if req.rule == RULE_ALL_CAMERAS:
+            check_frame(state, cameras)
+        else:
+            _origins_per_view(state, cameras)
+    with timer.stage("silhouettes"):
+        masks = [silhouettes(state, cam, req.threads, k) for k, cam in enumerate(cameras)]
+    if req.rule == RULE_PER_VIEW:  # measure every view, drop nothing: v_t 0 for the loop only
+        spec = state.spec
+        state.spec = replace(spec, render=replace(spec.render, visibility_threshold=0.0))
+        id_passes, renders = visibility_loop(state, masks, timer)
+        state.spec = spec
+        keeps = [_per_view_keep(state, k) for k in range(len(cameras))]
+        counted = {o.instance_id for o in state.objects if o.role == "counted"}
+        status = STATUS_OK if any(counted & set(k) for k in keeps) else STATUS_EMPTY
+    else:
+        id_passes, renders = visibility_loop(state, masks, timer)
+        status = final_status(state)
+        keeps = []
+    view_passes: list[dict[str, Any]] = [{} for _ in cameras]
+    if status == STATUS_OK:
+        with timer.stage("write_passes"):
+            for k, cam in enumerate(cameras):
+                view_passes[k] = write_passes(state, id_passes[k], cam, req.scene_request(), k)
+                if keeps:  # per view: only this view's objects in its id map and amodal file
+                    np.save(state.out_dir / f"ids{view_suffix(k)}.npy", D.instance_map(id_passes[k]["index"], keeps[k]))
+                write_amodal_masks(state, masks[k], id_passes[k], k)
+        with timer.stage("rgb"):
+            state.scene.render.use_persistent_data = req.persistent_data
+            rgb_times = []
+            for k in range(len(state.cam_objs)):  # render_rgb per view, each timed
+                t = time.perf_counter()
+                _render_one(state, k)
+                rgb_times.append(round(time.perf_counter() - t, 4))
+            state.diagnostics.append({"kind": "rgb_per_view", "seconds": rgb_times,
+                                      "persistent_data": req.persistent_data})
+        if req.oracle:
+            with timer.stage("oracle"):
+                for k, cam in enumerate(cameras):
+                    reference_check(state, masks[k], cam, k)
+    for i, views in state.views.items():
+        state.update(i, views=tuple({k: v for k, v in view.items() if k != "in_frame"} for view in views))
+    spec = state.spec
+    records = [_camera_record(c, cam) for c, cam in zip(state.cam_objs, cameras)]
+    out_views = tuple(CameraView(name=c.name, suffix=view_suffix(k), camera=records[k], framing=state.framings[k],
+                                 passes=view_passes[k]) for k, c in enumerate(state.cam_objs))
+    return SceneResult(
+        status=status, stage=str(state.stage_path), scene_id=spec.scene_id, seed=spec.seed,
+        visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=renders,
+        physics=spec.physics.to_dict(), camera=records[0], lights=state.lights, objects=tuple(state.objects),
+        views=out_views, diagnostics=tuple(state.diagnostics), timings=dict(timer.times))
+
+
+def _render_one(state: SceneState, k: int) -> None:
+    """View ``k``'s RGB image with the stage's (or the request's) samples and denoiser."""
+    from mixcount.engine import render_passes as P
+
+    if k == 0:
+        applied = P.configure_rgb(state.scene, state.spec.render)
+        state.diagnostics.append({"kind": "rgb", **applied})
+    state.scene.camera = state.cam_objs[k]
+    P.render_to(state.scene, state.out_dir / f"rgb{view_suffix(k)}.png")
+    state.scene.camera = state.cam_objs[0]
