@@ -186,3 +186,12 @@ def test_ingest_bench() -> None:
     doc = run_smoke("ingest", None)[-1]
     check_figures(doc, ["objects", "first_s", "first_obj_per_s", "rerun_s", "rerun_obj_per_s", "ratio"])
     assert doc["subdivide"] == 0 and doc["objects"] > 0 and doc["rerun_obj_per_s"] > doc["first_obj_per_s"]
+
+
+def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
+    """A bench added to bench/ without ``--smoke`` or without its test above fails here (bench/pools.py is
+    the benches' shared helper, not a bench)."""
+    benches = sorted(p.stem for p in BENCH.glob("*.py") if p.stem != "pools")
+    tested = {name[len("test_"):-len("_bench")] for name in globals() if name.startswith("test_") and name.endswith("_bench")}
+    assert [b for b in benches if '"--smoke"' not in (BENCH / f"{b}.py").read_text()] == []
+    assert [b for b in benches if b not in tested] == []
