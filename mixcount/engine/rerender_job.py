@@ -55,6 +55,9 @@ from mixcount.worker.contract import (
     view_suffix,
 )
 
+# an occlusion threshold no object reaches (D.occluded drops visibility <= 1 - threshold = -1): the
+# per-view rule measures every view with the visibility loop and drops nothing
+NEVER_OCCLUDED = 2.0
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI")  # tried in this order; the first with a device is used
 
 
@@ -83,7 +86,7 @@ def select_device(device: str, scene: Any = None) -> DevicesResult:
         found.extend(f"{d.type}: {d.name}" for d in cpus)
         if device == "gpu":
             return DevicesResult(used="", backend="", devices=(), found=tuple(found),
-                                 error="cycles.device = \"gpu\" but Cycles found no GPU (tried "
+                                 error="rerender.device = \"gpu\" but Cycles found no GPU (tried "
                                        f"{', '.join(GPU_BACKENDS)}; found {', '.join(found) or 'nothing'})")
         if scene is not None:
             scene.cycles.device = "CPU"
@@ -160,12 +163,13 @@ def _apply_poses(state: SceneState, req: RerenderRequest) -> None:
 
 
 def _per_view_keep(state: SceneState, k: int) -> list[int]:
-    """Instance ids annotated in view ``k`` by the per-view rule: origin in its frame, >= v_t visible."""
+    """Instance ids annotated in view ``k`` by the per-view rule: origin in its frame and kept by compose's
+    visibility rule in that view alone (more than 1 - v_t visible, :func:`D.occluded`'s complement)."""
     v_t = state.spec.render.visibility_threshold
     keep = []
     for i in state.kept():
         view = state.view(i, k)
-        if view.get("in_frame", True) and float(view.get("visibility", 0.0)) >= v_t:
+        if view["in_frame"] and not D.occluded({0: float(view["visibility"])}, v_t):
             keep.append(state.objects[i].instance_id)
     return keep
 
@@ -205,9 +209,9 @@ def run_rerender(req: RerenderRequest) -> SceneResult:
             _origins_per_view(state, cameras)
     with timer.stage("silhouettes"):
         masks = [silhouettes(state, cam, req.threads, k) for k, cam in enumerate(cameras)]
-    if req.rule == RULE_PER_VIEW:  # measure every view, drop nothing: v_t 0 for the loop only
+    if req.rule == RULE_PER_VIEW:  # measure every view, drop nothing: the loop's threshold set out of reach
         spec = state.spec
-        state.spec = replace(spec, render=replace(spec.render, visibility_threshold=0.0))
+        state.spec = replace(spec, render=replace(spec.render, visibility_threshold=NEVER_OCCLUDED))
         id_passes, renders = visibility_loop(state, masks, timer)
         state.spec = spec
         keeps = [_per_view_keep(state, k) for k in range(len(cameras))]
