@@ -174,6 +174,15 @@ def test_curation_bench(tmp_path: Path, rendered_demo_catalog: tuple[Path, dict]
     assert doc["reps"] == 1 and arm["objects"] > 0 and arm["by_trap"]
 
 
+@pytest.mark.blender
+def test_rerender_bench(bench_root: Path) -> None:
+    doc = run_smoke("rerender", bench_root)[-1]
+    assert doc["bench"] == "rerender" and doc["views"] == 3
+    check_figures(doc, ["total_s", "fresh.seconds", "views_persistent.first_view_s", "views_persistent.view_s.2",
+                        "later_over_first_median", "fresh_over_view_median", "rgb_persistent_over_not_median"])
+    assert len(doc["later_over_first"]) == 2 and doc["fresh_over_view_median"] > 0
+
+
 @pytest.mark.slow  # about 10 s each: kept out of make test-fast
 def test_capture_bench() -> None:
     doc = run_smoke("capture", None)[-1]

@@ -9,9 +9,9 @@ job's steps unchanged: frame check, silhouettes, the id-pass visibility loop, pa
 and on request the one-render-per-object reference. Nothing is simulated, placed or drawn at random here.
 
 Two annotation rules (``req.rule``): ``all_cameras`` (the paper's: an object whose origin leaves a frame
-or whose visibility is under v_t in any view is removed from the scene and the views re-rendered, as a
+or whose occlusion reaches v_t in any view is removed from the scene and the views re-rendered, as a
 composed scene does with its own cameras) and ``per_view`` (nothing removed; view k's id map and
-annotations hold the objects whose origin is in its frame and that are >= v_t visible in it).
+annotations hold the objects whose origin is in its frame and that are more than 1 - v_t visible in it).
 
 The import, the floor and the lights are paid once for all views; with ``req.persistent_data`` Cycles
 keeps its scene data (BVH, images) between the RGB renders of the views (``render.use_persistent_data``).

@@ -83,7 +83,7 @@ def finished_scenes(src: Path) -> list[Path]:
     return found
 
 
-def _link_assets(src: Path, dst: Path) -> None:
+def link_assets(src: Path, dst: Path) -> None:
     """``dst/assets/<entry>`` -> relative link to ``src/assets/<entry>`` (the stages' ``../../assets/``)."""
     assets = src / "assets"
     if not assets.is_dir():
@@ -226,7 +226,7 @@ def rerender_dataset(src: Path, dst: Path, config: Config, worker: Worker, *, or
     device = probe_device(worker, config.rerender.device, config.rerender.timeout_s)
     summary = RerenderSummary(source=str(src), out=str(dst), device=device.to_dict())
     (dst / "scenes").mkdir(parents=True, exist_ok=True)
-    _link_assets(src, dst)
+    link_assets(src, dst)
     for k, scene_dir in enumerate(scenes):
         summary.scenes.append(rerender_scene(scene_dir, dst, config, worker, oracle=oracle))
         if progress is not None:

@@ -391,8 +391,8 @@ class MeshCacheResult:
 
 # ------------------------------------------------------------------------------ re-render of a settled scene
 
-RULE_ALL_CAMERAS = "all_cameras"  # the paper's rule: kept when >= v_t visible in every view (others removed)
-RULE_PER_VIEW = "per_view"  # each view annotates the objects >= v_t visible in it (none removed)
+RULE_ALL_CAMERAS = "all_cameras"  # the paper's rule: kept when occluded less than v_t in every view (others removed)
+RULE_PER_VIEW = "per_view"  # each view annotates the objects occluded less than v_t in it (none removed)
 ANNOTATION_RULES = (RULE_ALL_CAMERAS, RULE_PER_VIEW)
 DEVICES = ("cpu", "gpu", "auto")
 
