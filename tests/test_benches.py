@@ -175,7 +175,8 @@ def test_curation_bench(tmp_path: Path, rendered_demo_catalog: tuple[Path, dict]
 
 
 @pytest.mark.blender
-def test_rerender_bench(bench_root: Path) -> None:
+def test_rerender_bench(bench_root: Path, demo_catalog_copy) -> None:
+    demo_catalog_copy(bench_root / "rerender" / "cat", 12)  # the 12-object catalog it builds in work/cat: the session's
     doc = run_smoke("rerender", bench_root)[-1]
     assert doc["bench"] == "rerender" and doc["views"] == 3
     check_figures(doc, ["total_s", "fresh.seconds", "views_persistent.first_view_s", "views_persistent.view_s.2",
