@@ -137,6 +137,12 @@ class SceneConfig:
     floor_pile_margin: float
     n_objects: IntRange
     n_classes: IntRange
+    count_target: str  # paper | uniform:A-B | histogram:PATH [,imbalance:R1-R2] (scene/count_targets.py)
+    count_spawn_factor: tuple[float, float]  # spawned per visible target: floor scenes, container scenes
+    count_spawn_extra: int
+    count_short_tolerance: tuple[float, float]  # kept when short by <= max(a, b x total)
+    count_class_short_tolerance: int
+    count_min_object_px: float
     class_size: Range
     instance_jitter: Range
     random_orientation: bool
@@ -217,6 +223,8 @@ class SceneConfig:
             raise ConfigError("scene.n_objects and scene.n_classes must be >= 1")
         if self.n_objects[1] < self.n_classes[1]:
             raise ConfigError("scene.n_objects high must be >= scene.n_classes high (one instance per class)")
+        if min(self.count_spawn_factor) < 1.0 or self.count_spawn_extra < 0 or min(self.count_short_tolerance) < 0:
+            raise ConfigError("scene.count_spawn_factor must be >= 1, count_spawn_extra and the tolerances >= 0")
         if self.n_cameras < 1:
             raise ConfigError("scene.n_cameras must be >= 1")
         if self.camera_framing not in ("paper", "fit"):

@@ -15,6 +15,7 @@ import typer
 from mixcount.commands.common import RichProgress, console, json_option, out, result, state
 from mixcount.config import Config
 from mixcount.errors import CompositionError
+from mixcount.scene.count_targets import parse_count_target
 
 
 def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
@@ -116,6 +117,18 @@ def _compose_lines(summary: Any, out_dir: Path, *, merge: bool) -> list[str]:
     return lines
 
 
+def absolute_counts(counts: Optional[str]) -> Optional[str]:
+    """``--counts`` with a histogram's relative path made absolute (the workers and the recorded config
+    read it from any folder); None stays None (the config's value)."""
+    if counts is None:
+        return None
+    head, sep, rest = counts.partition(",")
+    kind, colon, value = head.partition(":")
+    if kind in ("histogram", "hist") and colon and not Path(value).is_absolute():
+        head = f"{kind}:{Path(value).resolve()}"
+    return head + sep + rest
+
+
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
     @app.command("compose")
     def compose(
@@ -136,6 +149,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
         package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
         mixed_settings: bool = typer.Option(False, "--mixed-settings", help="Add scenes to an OUT whose scenes were composed with other settings (resolution, samples, scene rules, catalog): recorded as another variant in OUT/settings.json; without it such a run is refused."),
+        counts: Optional[str] = typer.Option(None, "--counts", help="Visible counted objects per image (scene.count_target): paper (spawned n ~ scene.n_objects, the default), uniform:A-B or histogram:PATH ('count weight' lines), optionally followed by ,imbalance:R1-R2 (largest / smallest class per scene); docs/scene.md."),
         json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
@@ -146,7 +160,8 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             "compose.split": split, "compose.seed": seed, "compose.workers": workers,
             "compose.resolution": resolution, "compose.samples": samples,
             "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()],
-            "compose.merge": False if no_merge else None})
+            "compose.merge": False if no_merge else None, "scene.count_target": absolute_counts(counts)})
+        parse_count_target(cfg.scene.count_target)  # a bad target stops here, before anything is written
         catalog = st.catalog()
         if dry_run:
             specs = plan_scenes(catalog, cfg, n=n)

@@ -106,6 +106,10 @@ def stats_cmd(
         from mixcount.evaluate.plots import write_plots
 
         paths = write_plots(stats, target)
+        if stats.get("count_target"):  # issue 37: the target against the kept counts
+            from mixcount.evaluate.count_stats import plot_counts
+
+            paths.append(plot_counts(stats["count_target"], stats["count_target"]["rows"], target / "count_target.png"))
         console.print(f"wrote {len(paths)} plots and {json_path.name} to {target}", highlight=False)
     else:
         console.print(f"wrote {json_path}", highlight=False)

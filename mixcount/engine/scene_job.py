@@ -37,6 +37,7 @@ from mixcount.engine.scene_build import SceneState, load_scene, pose_with_scale
 from mixcount.worker.contract import (
     SETTLED_FILE,
     STATUS_OK,
+    STATUS_REJECTED,
     CameraView,
     SceneRequest,
     SceneResult,
@@ -528,7 +529,19 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
     with timer.stage("silhouettes"):
         masks = [silhouettes(state, cam, req.threads, k) for k, cam in enumerate(cameras)]
     id_passes, renders = visibility_loop(state, masks, timer)
+    count_verdict = None
+    if state.spec.count_target is not None:  # a visible-count target (issue 37): engine/count_trim.py
+        from mixcount.engine.count_trim import count_outcome, remove_surplus
+
+        with timer.stage("count_target"):
+            removed = remove_surplus(state)
+        if removed:  # measured again on id passes without them (visibility can only have grown)
+            id_passes, more = visibility_loop(state, masks, timer)
+            renders += more
+        count_verdict = count_outcome(state, removed, int(state.spec.render.resolution))
     status = final_status(state)
+    if status == STATUS_OK and count_verdict is not None:
+        status = STATUS_REJECTED  # cannot be brought to its target: the caller regenerates from the next seed
     view_passes: list[dict[str, Any]] = [{} for _ in cameras]
     if status == STATUS_OK:
         with timer.stage("write_passes"):

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.errors import GroundTruthError
+from mixcount.evaluate.count_stats import count_lines, dataset_count_stats
 from mixcount.evaluate.density import scene_density, summarise_density
 from mixcount.evaluate.metrics import read_coco
 from mixcount.scene.spec import TIERS
@@ -165,6 +166,7 @@ def compute_stats(dataset: str | Path) -> dict[str, Any]:
         },
         "distinct_categories": len(captions),
         "density": density_stats(dataset, scene_splits),
+        "count_target": dataset_count_stats(Path(dataset)),  # issue 37: None without count targets
     }
 
 
@@ -234,7 +236,7 @@ def summary_lines(stats: dict[str, Any]) -> list[str]:
             for tier in TIERS
         ),
     ]
-    return lines + density_lines(stats.get("density"))
+    return lines + density_lines(stats.get("density")) + count_lines(stats.get("count_target"))
 
 
 def _top(reasons: dict[str, int]) -> str:

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from mixcount.errors import CompositionError
 from mixcount.scene.caption_text import normalise_caption, size_qualified
+from mixcount.scene.count_targets import PAPER, count_distribution, draw_total, spawn_counts, split_total, target_record
 from mixcount.scene.environment_sampling import sample_environment, sample_floor_material
 from mixcount.scene.framing import camera_position, look_at_rotation
 from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, ObjectRecord
@@ -565,9 +566,21 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         raise CompositionError(f"no eligible objects in split {split!r} (active, with a split and valid size)")
 
     n = _ui(rng, config.n_objects)
+    target = None if config.count_target == PAPER else count_distribution(config.count_target)
+    if target is not None:  # a visible-count target (issue 37): n is drawn from its own stream instead
+        n = draw_total(target, seed)
     n_classes = min(_ui(rng, config.n_classes), n)
     drafts = _build_classes(rng, config, eligible, n_classes)
-    counts = _split_counts(rng, n, len(drafts))
+    count_target = None
+    if target is None:
+        counts = _split_counts(rng, n, len(drafts))
+    else:
+        aims, ratio = split_total(target, seed, n, len(drafts))
+        factor = float(config.count_spawn_factor[1 if container_obj is not None else 0])
+        counts = spawn_counts(aims, factor, config.count_spawn_extra)
+        count_target = target_record(n, aims, ratio, target, factor, config.count_short_tolerance,
+                                     config.count_class_short_tolerance, config.count_min_object_px)
+        n = sum(counts)
     classes = _build_object_classes(drafts, counts)
 
     # a random class per spawn position, sizes, then the container fitted to the pile it must hold
@@ -622,4 +635,5 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
             distractor_tries=config.distractor_max_tries, distractor_max_overlap=config.distractor_max_overlap,
             # the early stop waits for bodies within 1.5 x the farthest provisional camera of the centre
             view_radius=round(1.5 * max(c.distance for c in cameras), _R)),
+        count_target=count_target,
     )

@@ -405,6 +405,8 @@ class SceneSpec:
     assets: tuple[AssetRef, ...]
     version: int = 1
     placement: Optional[PlacementSpec] = None  # None: a spec written before after-physics placement
+    # the visible counts asked for (scene/count_targets.py target_record); None: the paper's spawned-count rule
+    count_target: Optional[Mapping[str, Any]] = None
 
     @property
     def n_counted(self) -> int:
@@ -434,6 +436,8 @@ class SceneSpec:
             "cameras": [c.to_dict() for c in self.cameras], "physics": self.physics.to_dict(),
             "render": self.render.to_dict(), "assets": [a.to_dict() for a in self.assets],
             "placement": None if self.placement is None else self.placement.to_dict(),
+            # only with a target: the paper's specs keep their bytes (and config hash) as before
+            **({} if self.count_target is None else {"count_target": dict(self.count_target)}),
         }
 
     def to_json(self) -> str:
@@ -454,6 +458,7 @@ class SceneSpec:
             physics=PhysicsSpec.from_dict(d["physics"]), render=RenderSpec.from_dict(d["render"]),
             assets=tuple(AssetRef.from_dict(a) for a in d["assets"]), version=int(d.get("version", 1)),
             placement=None if d.get("placement") is None else PlacementSpec.from_dict(d["placement"]),
+            count_target=None if d.get("count_target") is None else dict(d["count_target"]),
         )
 
     @classmethod

@@ -1,0 +1,205 @@
+"""Count targets: what scenes asked for a number of *visible* objects keep (issue 37's figures).
+
+    .venv/bin/python bench/counts.py --work W --counts uniform:1-200 --scenes 60 --pool heavy --paper
+    .venv/bin/python bench/counts.py --work W --counts uniform:1-200,imbalance:2-4 --scenes 20 --pool heavy
+    .venv/bin/python bench/counts.py --work W --counts uniform:1000-1000 --scenes 1 --resolution 1024 --pool heavy
+
+Scenes are sampled with the default config and ``scene.count_target`` = ``--counts`` from the chosen pool
+(bench/pools.py: ``heavy`` = the capture-like >= 200k-face demo copy, ``light`` = the demo library) and run
+end to end by the worker, as compose does: a seed whose scene cannot be brought to its target (or comes out
+empty / rejected) is regenerated from the next seed, until ``--scenes`` scenes are kept. ``--paper`` then
+runs the paper's rule (spawned n ~ UniformInt[30, 200]) on the same seeds for the time ratio.
+
+stdout: one JSON line per run: the figures of :func:`mixcount.evaluate.count_stats.summarise_counts` (exact
+and within-tolerance shares, KS distance against the target distribution, per-bin counts, per-class offsets
+and imbalance, the scenes regenerated with why), seconds per kept scene (the regenerated seeds' time
+included), physics and RGB seconds, and the worker's peak resident memory. stderr: one line per scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "bench"))
+sys.path.append(str(ROOT))
+
+
+def _worker_peak_mb(worker: Any) -> Optional[float]:
+    """The bpy worker's peak resident memory (VmHWM of its process), MB; None when not readable."""
+    pid = getattr(getattr(worker, "proc", None), "pid", None) or getattr(worker, "pid", None)
+    if pid is None:
+        return None
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return round(int(line.split()[1]) / 1024, 1)
+    except OSError:
+        return None
+    return None
+
+
+class Run:
+    """One count target's scenes on its own worker, one kept scene per :meth:`step` (regenerated seeds
+    included), so two runs can alternate and share the machine's load evenly."""
+
+    def __init__(self, counts: str, args: Any, work: Path, worker: Any, pool: list[Any], label: str) -> None:
+        from mixcount.config import load_config
+        from mixcount.scene.count_targets import parse_count_target
+
+        self.counts, self.args, self.work, self.worker, self.pool, self.label = counts, args, work, worker, pool, label
+        self.cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
+                                    f"scene.count_target={counts}", *args.set])
+        self.dist = parse_count_target(counts)
+        self.rows: list[dict[str, Any]] = []
+        self.rejected: list[dict[str, Any]] = []
+        self.failed: list[dict[str, Any]] = []
+        self.seconds = self.physics = self.rgb = 0.0
+        self.seed = args.seed
+        self.oracle_lines: list[dict[str, Any]] = []
+
+    @property
+    def done(self) -> bool:
+        return len(self.rows) >= self.args.scenes or self.seed >= self.args.seed + self.args.scenes * 3 + 4
+
+    def step(self) -> None:
+        """Seeds from the next one until a scene is kept (or the seed budget is spent)."""
+        kept = len(self.rows)
+        while len(self.rows) == kept and not self.done:
+            self._one(self.seed)
+            self.seed += 1
+
+    def _one(self, seed: int) -> None:
+        from pools import run_fresh_scene, warm_mesh_cache, with_proxies
+
+        from mixcount.evaluate.count_stats import rejected_record, scene_record
+        from mixcount.scene.sampler import sample_scene
+        from mixcount.usd.stage import convert_scene_assets
+
+        args, cfg = self.args, self.cfg
+        spec = with_proxies(sample_scene(seed, "train", cfg, self.pool), self.work / "proxies",
+                            cfg.ingest.proxy_max_vertices)
+        converted = convert_scene_assets(spec, self.work / "assets")
+        warm_mesh_cache(self.worker, converted, cfg.compose.mesh_cache)
+        t_scene = time.perf_counter()
+        out = self.work / f"out_{self.label}" / f"seed_{seed}"
+        outcome, meta, stages = run_fresh_scene(self.worker, spec, out, self.work / "assets", timeout_s=args.timeout,
+                                                threads=args.threads, mesh_cache=cfg.compose.mesh_cache,
+                                                oracle=args.oracle)
+        dt = time.perf_counter() - t_scene
+        self.seconds += dt
+        line: dict[str, Any] = {"bench": "counts.scene", "run": self.label, "seed": seed, "seconds": round(dt, 2),
+                                "spawned": spec.n_counted, "status": outcome.status}
+        if meta is not None:
+            rec = scene_record(meta) if not self.dist.is_paper else {"kept": meta["n_counted"]}
+            self.rows.append(rec or {})
+            self.physics += stages.get("physics", 0.0)
+            self.rgb += stages.get("rgb", 0.0)
+            line.update({"target": (rec or {}).get("target"), "kept": (rec or {}).get("kept"),
+                         "physics_s": stages.get("physics"), "rgb_s": stages.get("rgb")})
+            if args.oracle:
+                kept_objs = [o for o in meta["objects"] if o.get("status") == "kept"]
+                ious = [o["oracle_iou"] for o in kept_objs if o.get("oracle_iou") is not None]
+                v_t = meta["visibility_threshold"]
+                line.update({"oracle_objects": len(ious), "oracle_iou_min": round(min(ious), 4) if ious else None,
+                             "oracle_iou_mean": round(sum(ious) / len(ious), 4) if ious else None,
+                             # the keep rule (> 1 - v_t visible) read from the one-render-per-object masks
+                             "oracle_below_rule": sum(1 for o in kept_objs
+                                                      if (o.get("oracle_visibility") or 0.0) <= 1 - v_t)})
+                self.oracle_lines.append(line)
+        else:
+            rej = sorted((out / "scenes" / ".rejected").glob("*.json"))
+            if rej:
+                self.rejected.append(rejected_record(json.loads(rej[0].read_text())) or {})
+                line["why"] = self.rejected[-1].get("why")
+            else:
+                self.failed.append({"seed": seed, "error": str(outcome.error)[:300]})
+        print(json.dumps(line), file=sys.stderr, flush=True)
+
+    def result(self) -> dict[str, Any]:
+        from mixcount.evaluate.count_stats import summarise_counts
+
+        args, n = self.args, max(len(self.rows), 1)
+        out: dict[str, Any] = {
+            "bench": "counts", "run": self.label, "counts": self.counts, "pool": args.pool,
+            "resolution": args.resolution, "samples": args.samples, "scenes_kept": len(self.rows),
+            "seeds": f"{args.seed}-{self.seed - 1}", "seconds_per_kept_scene": round(self.seconds / n, 2),
+            "physics_s_per_scene": round(self.physics / n, 2), "rgb_s_per_scene": round(self.rgb / n, 2),
+            "worker_peak_mb": _worker_peak_mb(self.worker), "failed": self.failed}
+        if self.dist.is_paper:
+            kept = sorted(r["kept"] for r in self.rows)
+            out.update({"kept_median": kept[len(kept) // 2] if kept else None, "kept_range": [kept[0], kept[-1]]
+                        if kept else None, "regenerated": len(self.rejected)})
+        else:
+            out.update(summarise_counts(self.rows, self.rejected, target_cdf=self.dist.cdf))
+        if self.oracle_lines:
+            out["oracle"] = self.oracle_lines
+        return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--counts", default="uniform:1-200", help="the count target (scene.count_target)")
+    ap.add_argument("--pool", choices=("light", "heavy"), default="heavy")
+    ap.add_argument("--scenes", type=int, default=60, help="scenes to keep")
+    ap.add_argument("--seed", type=int, default=100, help="first seed")
+    ap.add_argument("--paper", action="store_true", help="also run the paper's rule on the same number of scenes")
+    ap.add_argument("--oracle", action="store_true", help="the reference check (one render per object)")
+    ap.add_argument("--resolution", type=int, default=128)
+    ap.add_argument("--samples", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=2, help="Cycles threads")
+    ap.add_argument("--timeout", type=float, default=3600, help="seconds per scene")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override (repeatable)")
+    ap.add_argument("--budget-s", type=float, default=0, help="stop after this many seconds (0: never), "
+                    "figures of the scenes kept by then")
+    ap.add_argument("--work", type=Path, default=None, help="pools, assets and scenes (reused across runs)")
+    ap.add_argument("--smoke", action="store_true", help="seconds: tiny sizes, same code path (the suite runs it)")
+    args = ap.parse_args()
+    if args.smoke:  # two light-pool scenes of 3-8 visible objects at 32 px, 1 sample, 60 frames
+        args.pool, args.scenes, args.resolution, args.samples, args.threads = "light", 2, 32, 1, 1
+        args.counts = "uniform:3-8,imbalance:1-2"
+        args.set = [*args.set, "scene.physics_frames=60", "scene.n_classes=[1, 2]", "scene.n_distractors=[0, 1]"]
+
+    from pools import load_pool
+
+    from mixcount.worker.client import BlenderWorker
+
+    work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-counts-"))
+    pool = load_pool(args.pool, work)
+    t0 = time.perf_counter()
+    label = args.counts.replace(":", "_").replace(",", "_").replace("/", "_")
+    with contextlib.ExitStack() as stack:
+        runs = []
+        for counts, name in [(args.counts, label)] + ([("paper", "paper")] if args.paper else []):
+            worker = stack.enter_context(BlenderWorker(name=f"bench-counts-{name}", log_dir=work))
+            worker.request({"op": "ping"}, timeout=300)
+            runs.append(Run(counts, args, work, worker, pool, name))
+        while not all(r.done for r in runs):  # alternate: both runs see the same load on the machine
+            if args.budget_s and time.perf_counter() - t0 > args.budget_s:
+                print(f"bench/counts.py: --budget-s {args.budget_s} spent: figures of the scenes so far",
+                      file=sys.stderr)
+                break
+            for r in runs:
+                if not r.done:
+                    r.step()
+        results = [r.result() for r in runs]
+    for res in results:
+        print(json.dumps(res), flush=True)
+    if len(results) == 2:
+        ratio = results[0]["seconds_per_kept_scene"] / max(results[1]["seconds_per_kept_scene"], 1e-9)
+        print(json.dumps({"bench": "counts.time_ratio", "target_over_paper": round(ratio, 3)}), flush=True)
+    print(f"bench/counts.py: {time.perf_counter() - t0:.1f} s, own peak {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB",
+          file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""The count target's decisions in the worker (numpy only, no bpy; issue 37): which settled bodies rest on
+which, which surplus counted bodies may be taken out, and whether a scene ended on its target.
+
+A body may be taken out only when nothing rests on it, so every body left lies where physics put it: no
+object floats after a neighbour is removed. "B rests on A" is read from the settled world boxes,
+conservatively (more pairs than real contacts, never fewer): their XY boxes overlap (grown by ``tol``), B's
+centre is higher than A's and B's bottom is no higher than A's top + ``tol``. Taking a body out never lowers
+another body's visibility (the id pass records the first surface along each ray), so the kept objects
+stay above v_t; the worker measures them again anyway.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, Optional, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[Any]
+
+COUNT_SURPLUS = "count_surplus"  # drop reason: a counted body beyond its class's target that supported nothing
+
+
+def rests_on(lo: Array, hi: Array, tol: Array) -> Array:
+    """(N, N) bool: ``out[a, b]`` when body b may rest on body a (see the module docstring); ``lo``/``hi``
+    are the (N, 3) world boxes, ``tol`` (N,) each body's contact tolerance (the pair uses the larger)."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    t = np.maximum(np.asarray(tol, dtype=np.float64)[:, None], np.asarray(tol, dtype=np.float64)[None, :])
+    overlap_xy = ((lo[None, :, 0] <= hi[:, None, 0] + t) & (lo[:, None, 0] <= hi[None, :, 0] + t)
+                  & (lo[None, :, 1] <= hi[:, None, 1] + t) & (lo[:, None, 1] <= hi[None, :, 1] + t))
+    cz = (lo[:, 2] + hi[:, 2]) / 2
+    higher = cz[None, :] > cz[:, None]
+    touching = lo[None, :, 2] <= hi[:, None, 2] + t
+    out = overlap_xy & higher & touching
+    np.fill_diagonal(out, False)
+    return np.asarray(out)
+
+
+def hull_distance(points_world: Array, matrix_world: Array, equations: Array) -> float:
+    """The smallest signed distance (world metres, > 0 outside) of ``points_world`` (K, 3) to a body's
+    convex hull (local half-space ``equations``, pose ``matrix_world`` with a uniform scale): the largest
+    plane distance per point, a lower bound of the true outside distance (so contacts are never missed)."""
+    m = np.asarray(matrix_world, dtype=np.float64)
+    inv = np.linalg.inv(m)
+    local = np.asarray(points_world, dtype=np.float64) @ inv[:3, :3].T + inv[:3, 3]
+    scale = float(np.cbrt(abs(np.linalg.det(m[:3, :3]))))
+    signed = local @ equations[:, :3].T + equations[:, 3]
+    return float(signed.max(axis=1).min() * scale)
+
+
+def rests_on_hulls(points_world: Sequence[Array], matrices: Sequence[Array], equations: Sequence[Array],
+                   lo: Array, hi: Array, tol: Array) -> Array:
+    """(N, N) bool: ``out[a, b]`` when body b may rest on body a, from the shapes that collided (each body's
+    hull points in the world and its hull equations): the boxes' pairs of :func:`rests_on` whose hulls
+    come within ``tol`` of each other (either's points near the other's hull)."""
+    out = rests_on(lo, hi, tol)
+    for a, b in zip(*np.nonzero(out)):
+        t = max(float(tol[a]), float(tol[b]))
+        near = (hull_distance(points_world[b], matrices[a], equations[a]) <= t
+                or hull_distance(points_world[a], matrices[b], equations[b]) <= t)
+        if not near:
+            out[a, b] = False
+    return out
+
+
+def surplus_to_remove(classes: Sequence[int], targets: Mapping[int, int], resting: Array,
+                      rng: np.random.Generator) -> tuple[list[int], dict[int, int]]:
+    """Bodies to take out so each class keeps its target: repeatedly a random body (``rng``) of a class
+    still over its target on which no remaining body rests. ``classes`` is each body's class index (-1:
+    not counted, never removed), ``resting`` the :func:`rests_on` matrix. Returns the removed body
+    indices in order and, per class, the surplus that could not be taken out (every candidate held
+    something up)."""
+    classes = [int(c) for c in classes]
+    alive = np.ones(len(classes), dtype=bool)
+    kept = {c: 0 for c in targets}
+    for c in classes:
+        if c in kept:
+            kept[c] += 1
+    surplus = {c: max(0, kept[c] - int(targets[c])) for c in targets}
+    removed: list[int] = []
+    cls = np.asarray(classes, dtype=int)
+    while any(surplus.values()):
+        over = [c for c, s in surplus.items() if s > 0]
+        supports_alive = (np.asarray(resting)[:, alive]).any(axis=1) if alive.any() else np.zeros(len(classes), bool)
+        free = np.flatnonzero(alive & ~supports_alive & np.isin(cls, over))
+        if len(free) == 0:
+            break
+        pick = int(free[int(rng.integers(len(free)))])
+        alive[pick] = False
+        removed.append(pick)
+        surplus[classes[pick]] -= 1
+    return removed, {c: s for c, s in surplus.items() if s > 0}
+
+
+def count_verdict(targets: Mapping[int, int], kept: Mapping[int, int], short_total: int,
+                  short_class: int) -> Optional[str]:
+    """None when the scene may be kept (its total within ``short_total`` of the target, no class more than
+    ``short_class`` off), else "count_short" or "count_over" (the worker rejects the scene: regenerated)."""
+    total_t = sum(int(v) for v in targets.values())
+    total_k = sum(int(kept.get(c, 0)) for c in targets)
+    worst = max((abs(int(kept.get(c, 0)) - int(t)) for c, t in targets.items()), default=0)
+    if abs(total_k - total_t) <= short_total and worst <= short_class:
+        return None
+    return "count_short" if total_k < total_t or any(kept.get(c, 0) < t for c, t in targets.items()) else "count_over"
+
+
+def pixels_needed(median_px: float, resolution: int, min_px: float) -> Optional[int]:
+    """The image side at which the median kept object would cover ``min_px`` visible pixels, or None when
+    it already does (pixels grow with the square of the side)."""
+    if median_px >= min_px:
+        return None
+    if median_px <= 0:
+        return -1
+    return int(np.ceil(resolution * np.sqrt(min_px / median_px)))

@@ -1,0 +1,97 @@
+"""A scene brought to its count target in the worker (issue 37): after the visibility loop, the surplus
+counted bodies that support nothing are taken out of the Blender scene, visibility is measured again and
+the scene's count verdict recorded (a ``count_target`` diagnostic; ``count_short`` / ``count_over`` when the
+scene cannot be kept). The decisions are :mod:`mixcount.annotate.count_decisions`'; this module only reads
+the state and removes objects (bpy through :class:`~mixcount.engine.scene_build.SceneState`)."""
+
+from __future__ import annotations
+
+from typing import Any, Optional
+
+import numpy as np
+
+from mixcount.annotate import count_decisions as C
+from mixcount.annotate import scene_decisions as D
+from mixcount.engine.scene_build import SceneState
+
+# two bodies whose collision hulls come this close (x the larger size) may touch: Bullet's contact margin
+# and the proxy / render-mesh difference stay under it
+CONTACT_TOLERANCE = 0.05
+COUNT_TRIM_STREAM = 41  # which free surplus body goes first: default_rng([scene seed, COUNT_TRIM_STREAM])
+
+
+def _hull_points(columns: np.ndarray) -> np.ndarray:
+    from scipy.spatial import ConvexHull
+
+    pts = np.asarray(columns, dtype=np.float64).T
+    try:
+        return np.asarray(pts[ConvexHull(pts).vertices])
+    except Exception:  # flat or degenerate: its box corners
+        lo, hi = pts.min(0), pts.max(0)
+        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
+def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
+    kept = {c: 0 for c in range(n_classes)}
+    for i in state.kept("counted"):
+        kept[int(state.objects[i].class_index)] += 1
+    return kept
+
+
+def remove_surplus(state: SceneState) -> int:
+    """Take out, per class, the counted bodies beyond its target on which nothing rests (kept counted
+    objects and distractors alike are considered resting bodies); returns how many were taken out."""
+    target = state.spec.count_target
+    assert target is not None
+    targets = {ci: int(n) for ci, n in enumerate(target["per_class"])}
+    kept = state.kept()
+    if not kept:
+        return 0
+    lo = np.zeros((len(kept), 3))
+    hi = np.zeros((len(kept), 3))
+    for row, i in enumerate(kept):
+        o = state.objects[i]
+        lo[row], hi[row] = D.world_bounds(state.cache.columns[o.asset], np.asarray(o.matrix_world))
+    tol = np.array([CONTACT_TOLERANCE * float(state.objects[i].size_m) for i in kept])
+    classes = [int(state.objects[i].class_index) if state.objects[i].role == "counted" else -1 for i in kept]
+    mats = [np.asarray(state.objects[i].matrix_world, dtype=np.float64) for i in kept]
+    points = []
+    for row, i in enumerate(kept):  # the shape that collided: the proxy's points, else the mesh's
+        asset = state.objects[i].asset
+        local = state.cache.proxy_points.get(asset)
+        if local is None:  # no proxy collided: the hull's own vertices (not every vertex of a capture)
+            local = _hull_points(state.cache.columns[asset])
+        points.append(np.asarray(local, dtype=np.float64) @ mats[row][:3, :3].T + mats[row][:3, 3])
+    eqs = [state.cache.hull(state.objects[i].asset) for i in kept]
+    resting = C.rests_on_hulls(points, mats, eqs, lo, hi, tol)
+    rng = np.random.default_rng([int(state.spec.seed), COUNT_TRIM_STREAM])
+    removed, left = C.surplus_to_remove(classes, targets, resting, rng)
+    for row in removed:
+        state.drop(kept[row], C.COUNT_SURPLUS, "count_target")
+    if left:
+        state.diagnostics.append({"kind": "count_surplus_held", "per_class": {str(c): s for c, s in left.items()}})
+    return len(removed)
+
+
+def count_outcome(state: SceneState, removed: int, resolution: int) -> Optional[str]:
+    """The ``count_target`` diagnostic (target, kept and surplus removed per class; the median visible
+    pixels of a kept counted object and, below the target's ``min_object_px``, the image side needed) and
+    the verdict: None, or the reason the scene cannot be kept."""
+    target = state.spec.count_target
+    assert target is not None
+    targets = {ci: int(n) for ci, n in enumerate(target["per_class"])}
+    kept = _kept_per_class(state, len(targets))
+    verdict = C.count_verdict(targets, kept, int(target["short_total"]), int(target["short_class"]))
+    px = [float(state.objects[i].visible_px or 0) for i in state.kept("counted")]
+    median_px = float(np.median(px)) if px else 0.0
+    record: dict[str, Any] = {
+        "kind": "count_target", "total": int(target["total"]), "kept": sum(kept.values()),
+        "per_class_target": [targets[c] for c in sorted(targets)], "per_class_kept": [kept[c] for c in sorted(kept)],
+        "surplus_removed": int(removed), "verdict": verdict or "ok", "median_visible_px": round(median_px, 1)}
+    min_px = target.get("min_object_px")
+    if min_px is not None:
+        need = C.pixels_needed(median_px, resolution, float(min_px))
+        if need is not None:
+            record["too_small"] = {"min_object_px": float(min_px), "resolution_needed": need}
+    state.diagnostics.append(record)
+    return verdict

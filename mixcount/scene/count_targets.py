@@ -1,0 +1,198 @@
+"""Count targets: the number of *visible* counted objects a scene should keep, total and per class (issue 37).
+
+The paper draws the number *spawned* (n ~ UniformInt[30, 200], ``[scene] n_objects``) and the visible count
+follows from physics and occlusion. A count target instead names a distribution of visible counts:
+
+- ``paper``: no target (the paper's rule, the default; the sampler's spawned-count path is untouched);
+- ``uniform:A-B``: the total uniform over the integers A..B;
+- ``histogram:PATH``: the total drawn from a text file of ``count weight`` lines (``#`` comments,
+  commas or spaces), e.g. shaped like a benchmark's per-image counts;
+
+optionally followed by ``,imbalance:R1-R2`` for the per-class split: each scene draws a ratio R in
+[R1, R2] and splits the total so the largest class holds about R times the smallest (class weights
+geometric between 1 and R, in a random class order). Without it the split is the sampler's stars-and-bars
+(uniform over the compositions with every class >= 1).
+
+Everything is drawn from ``numpy.random.default_rng([scene seed, COUNT_TARGET_STREAM])``: a generator of its
+own, so the target is reproducible by seed and the sampler's main stream draws what it always drew.
+:func:`spawn_counts` turns a class's visible target into the number spawned (the retention prior of the
+config: ``count_spawn_factor`` per floor / container scene); the worker then takes out the surplus
+(:mod:`mixcount.annotate.count_decisions`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Optional, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mixcount.errors import ConfigError
+
+COUNT_TARGET_STREAM = 37  # the count target's generator: default_rng([scene seed, COUNT_TARGET_STREAM])
+PAPER = "paper"
+
+
+@dataclass(frozen=True)
+class CountDistribution:
+    """A parsed count target: ``kind`` paper | uniform | histogram, the support and weights of the total,
+    and the per-class ``imbalance`` range (None: stars-and-bars)."""
+
+    kind: str
+    text: str
+    counts: tuple[int, ...] = ()
+    weights: tuple[float, ...] = ()
+    imbalance: Optional[tuple[float, float]] = None
+
+    @property
+    def is_paper(self) -> bool:
+        return self.kind == PAPER
+
+    def probabilities(self) -> NDArray[Any]:
+        w = np.asarray(self.weights, dtype=np.float64)
+        return np.asarray(w / w.sum())
+
+    def cdf(self, x: NDArray[Any]) -> NDArray[Any]:
+        """The target's cumulative distribution at the integers ``x`` (for the Kolmogorov-Smirnov distance)."""
+        c = np.cumsum(self.probabilities())
+        idx = np.searchsorted(np.asarray(self.counts), np.asarray(x), side="right") - 1
+        return np.asarray(np.where(idx >= 0, c[np.clip(idx, 0, len(c) - 1)], 0.0))
+
+
+def _range(text: str, what: str, integer: bool) -> tuple[float, float]:
+    m = re.fullmatch(r"\s*([0-9.]+)\s*-\s*([0-9.]+)\s*", text)
+    if not m:
+        raise ConfigError(f"count target: {what} must be LOW-HIGH, got {text!r}")
+    lo, hi = float(m.group(1)), float(m.group(2))
+    if integer and (lo != int(lo) or hi != int(hi)):
+        raise ConfigError(f"count target: {what} takes whole numbers, got {text!r}")
+    if lo > hi:
+        raise ConfigError(f"count target: {what} {text!r} has its low end above its high end")
+    return lo, hi
+
+
+def read_histogram(path: Path) -> tuple[tuple[int, ...], tuple[float, ...]]:
+    """``count weight`` per line (``#`` comments, blank lines, commas or spaces) -> sorted counts and weights."""
+    if not path.is_file():
+        raise ConfigError(f"count target histogram {path} does not exist")
+    table: dict[int, float] = {}
+    for no, line in enumerate(path.read_text().splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = [p for p in re.split(r"[,\s]+", line) if p]
+        try:
+            count, weight = int(parts[0]), float(parts[1])
+            if len(parts) != 2:
+                raise ValueError
+        except (ValueError, IndexError):
+            raise ConfigError(f"{path}:{no}: expected 'count weight', got {line!r}") from None
+        if count < 1 or weight < 0 or not math.isfinite(weight):
+            raise ConfigError(f"{path}:{no}: count must be >= 1 and weight >= 0, got {line!r}")
+        table[count] = table.get(count, 0.0) + weight
+    if not table or sum(table.values()) <= 0:
+        raise ConfigError(f"count target histogram {path} holds no positive weight")
+    keys = tuple(sorted(table))
+    return keys, tuple(table[k] for k in keys)
+
+
+def parse_count_target(text: str, base_dir: Optional[Path] = None) -> CountDistribution:
+    """``paper`` | ``uniform:A-B`` | ``histogram:PATH``, each optionally ``,imbalance:R1-R2``; a relative
+    histogram path is read from ``base_dir`` (the current folder when None). Bad text: ConfigError."""
+    head, *rest = [p.strip() for p in str(text).split(",")]
+    imbalance = None
+    for part in rest:
+        key, _, value = part.partition(":")
+        if key != "imbalance":
+            raise ConfigError(f"count target: unknown part {part!r} (only imbalance:R1-R2 may follow)")
+        imbalance = _range(value, "imbalance", integer=False)
+        if imbalance[0] < 1.0:
+            raise ConfigError(f"count target: the imbalance is max/min per scene, >= 1; got {value!r}")
+    kind, _, value = head.partition(":")
+    if kind == PAPER and not value:
+        if imbalance is not None:
+            raise ConfigError("count target: an imbalance needs a target (uniform:A-B or histogram:PATH)")
+        return CountDistribution(PAPER, text)
+    if kind == "uniform":
+        lo, hi = _range(value, "uniform", integer=True)
+        if lo < 1:
+            raise ConfigError(f"count target: uniform counts start at 1, got {value!r}")
+        counts = tuple(range(int(lo), int(hi) + 1))
+        return CountDistribution("uniform", text, counts, (1.0,) * len(counts), imbalance)
+    if kind in ("histogram", "hist"):
+        path = Path(value)
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        counts, weights = read_histogram(path)
+        return CountDistribution("histogram", text, counts, weights, imbalance)
+    raise ConfigError(f"count target {text!r}: expected paper, uniform:A-B or histogram:PATH "
+                      "(optionally followed by ,imbalance:R1-R2)")
+
+
+@functools.lru_cache(maxsize=8)
+def count_distribution(text: str) -> CountDistribution:
+    """:func:`parse_count_target` once per text (the sampler draws from it for every scene); a relative
+    histogram path is read from the current folder (``compose --counts`` makes it absolute)."""
+    return parse_count_target(text)
+
+
+def draw_total(dist: CountDistribution, seed: int) -> int:
+    """The scene's visible total, from the seed's own count-target stream."""
+    rng = np.random.default_rng([int(seed), COUNT_TARGET_STREAM])
+    return int(rng.choice(np.asarray(dist.counts), p=dist.probabilities()))
+
+
+def split_total(dist: CountDistribution, seed: int, total: int, n_classes: int) -> tuple[list[int], Optional[float]]:
+    """``total`` over ``n_classes`` classes, every class >= 1 (the caller keeps n_classes <= total): the
+    stars-and-bars composition, or with an imbalance range a drawn ratio R (returned) and counts
+    proportional to R**(j / (k - 1)) in a random class order (largest remainder rounding)."""
+    rng = np.random.default_rng([int(seed), COUNT_TARGET_STREAM, 1])
+    k = int(n_classes)
+    if k <= 1:
+        return [int(total)], None
+    if dist.imbalance is None:
+        cuts = np.sort(rng.choice(np.arange(1, total), size=k - 1, replace=False))
+        return [int(c) for c in np.diff(np.concatenate([[0], cuts, [total]]))], None
+    ratio = float(rng.uniform(dist.imbalance[0], dist.imbalance[1]))
+    weights = ratio ** (np.arange(k) / (k - 1))
+    weights = weights[rng.permutation(k)]
+    spare = total - k  # every class holds one; the rest in proportion
+    share = weights / weights.sum() * total - 1.0
+    share = np.clip(share, 0.0, None)
+    share = share / share.sum() * spare if share.sum() > 0 else np.full(k, spare / k)
+    counts = np.floor(share).astype(int)
+    order = np.argsort(-(share - counts), kind="stable")
+    counts[order[: spare - int(counts.sum())]] += 1
+    return [int(c) + 1 for c in counts], ratio
+
+
+def spawn_counts(targets: Sequence[int], factor: float, extra: int) -> list[int]:
+    """Bodies spawned per class for its visible target: ceil(target x factor) + extra (the retention prior
+    with a margin; the worker takes the surplus out)."""
+    return [int(math.ceil(t * factor)) + int(extra) for t in targets]
+
+
+def target_record(total: int, per_class: Sequence[int], ratio: Optional[float], dist: CountDistribution,
+                  factor: float, short_tolerance: Sequence[float], class_short_tolerance: int,
+                  min_object_px: float) -> dict[str, Any]:
+    """What the spec records: the distribution's text, the drawn total, per class index, the drawn
+    imbalance ratio, the spawn factor used and how short the worker may end (``short_total``: max(a, b x
+    total) objects, ``short_class``) before the scene is regenerated, and ``min_object_px`` (below it the
+    worker records the image side its objects would need)."""
+    short = max(float(short_tolerance[0]), float(short_tolerance[1]) * total)
+    return {"distribution": dist.text, "total": int(total), "per_class": [int(c) for c in per_class],
+            "imbalance": None if ratio is None else round(ratio, 6), "spawn_factor": float(factor),
+            "short_total": int(math.floor(short)), "short_class": int(class_short_tolerance),
+            "min_object_px": float(min_object_px)}
+
+
+def per_category(record: Mapping[str, Any], class_category: Mapping[int, int]) -> dict[str, Any]:
+    """metadata.json's ``count_target``: total and ``{category_id: n}`` (class index -> category id)."""
+    per = {str(class_category[ci]): int(n) for ci, n in enumerate(record["per_class"])}
+    return {"total": int(record["total"]), "per_class": per, "distribution": record["distribution"],
+            "imbalance": record.get("imbalance"), "spawn_factor": record.get("spawn_factor")}

@@ -1,0 +1,165 @@
+"""Count targets (issue 37) without Blender: parsing and its errors, the draws (reproducible by seed, on their
+own stream), the per-class split, the sampler's spawn for a target, the paper's rule untouched, the worker's
+which-body-may-go decisions and the statistics. The worker path itself runs in tests/test_benches.py
+(bench/counts.py --smoke: real bpy scenes brought to their target)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from library_pool import library_pool
+
+from mixcount.annotate import count_decisions as C
+from mixcount.config import load_config
+from mixcount.errors import ConfigError
+from mixcount.evaluate.count_stats import count_lines, dataset_count_stats, ks_distance, summarise_counts
+from mixcount.scene.count_targets import draw_total, parse_count_target, spawn_counts, split_total
+from mixcount.scene.sampler import sample_scene
+
+
+@pytest.mark.parametrize("text, message", [
+    ("uniform:5", "LOW-HIGH"), ("uniform:0-5", "start at 1"), ("uniform:9-3", "low end above"),
+    ("poisson:4", "expected paper, uniform"), ("uniform:1-9,skew:2", "unknown part"),
+    ("uniform:1-9,imbalance:0.5-2", ">= 1"), ("paper,imbalance:2-3", "needs a target"),
+    ("histogram:/nonexistent/h.txt", "does not exist"),
+])
+def test_bad_targets_are_named(text: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        parse_count_target(text)
+
+
+def test_histogram_file(tmp_path: Path) -> None:
+    path = tmp_path / "pairtally_like.txt"
+    path.write_text("# count weight\n14 1\n112, 3\n\n1147 1  # the densest\n112 1\n")
+    dist = parse_count_target(f"histogram:{path}")
+    assert dist.counts == (14, 112, 1147) and dist.weights == (1.0, 4.0, 1.0)
+    draws = [draw_total(dist, s) for s in range(600)]
+    assert set(draws) == {14, 112, 1147}
+    assert abs(draws.count(112) / 600 - 4 / 6) < 0.06
+    bad = tmp_path / "bad.txt"
+    bad.write_text("14 1\nmany 2\n")
+    with pytest.raises(ConfigError, match=r"bad.txt:2: expected 'count weight'"):
+        parse_count_target(f"histogram:{bad}")
+
+
+def test_draws_reproducible_and_split() -> None:
+    dist = parse_count_target("uniform:1-200")
+    totals = [draw_total(dist, s) for s in range(2000)]
+    assert totals == [draw_total(dist, s) for s in range(2000)]
+    assert min(totals) == 1 and max(totals) == 200 and abs(np.mean(totals) - 100.5) < 4
+    for s in range(200):
+        counts, ratio = split_total(dist, s, 40, 3)
+        assert sum(counts) == 40 and min(counts) >= 1 and ratio is None
+    imb = parse_count_target("uniform:1-200,imbalance:3-5")
+    for s in range(200):
+        counts, ratio = split_total(imb, s, 120, 4)
+        assert sum(counts) == 120 and min(counts) >= 1 and ratio is not None and 3 <= ratio <= 5
+        assert abs(max(counts) / min(counts) - ratio) <= 0.5 * ratio / min(counts) + 0.15
+    assert spawn_counts([1, 10], 1.5, 2) == [4, 17]
+
+
+def test_sampler_spawns_for_the_target_and_paper_rule_is_untouched() -> None:
+    pool = library_pool()
+    paper = load_config([], [])
+    assert paper.scene.count_target == "paper"
+    explicit = load_config([], ["scene.count_target=paper"])
+    for seed in range(20):
+        spec = sample_scene(seed, "train", paper, pool)
+        assert "count_target" not in spec.to_dict() and spec.count_target is None
+        assert 30 <= spec.n_counted <= 200
+        assert spec.to_json() == sample_scene(seed, "train", explicit, pool).to_json()
+    cfg = load_config([], ["scene.count_target=uniform:1-200,imbalance:2-4"])
+    for seed in range(20):
+        spec = sample_scene(seed, "train", cfg, pool)
+        t = spec.count_target
+        assert t is not None and t["total"] == draw_total(parse_count_target(t["distribution"]), seed)
+        assert sum(t["per_class"]) == t["total"] and len(t["per_class"]) == len(spec.classes)
+        factor = cfg.scene.count_spawn_factor[1 if spec.container is not None else 0]
+        assert [c.count for c in spec.classes] == spawn_counts(t["per_class"], factor, cfg.scene.count_spawn_extra)
+        assert t["short_total"] == max(2, int(0.05 * t["total"]))
+        assert spec.to_json() == sample_scene(seed, "train", cfg, pool).to_json()  # reproducible by seed
+        assert type(spec).from_json(spec.to_json()) == spec
+
+
+def _box(x: float, y: float, z: float, s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    return np.array([x - s / 2, y - s / 2, z - s / 2]), np.array([x + s / 2, y + s / 2, z + s / 2])
+
+
+def test_only_bodies_that_support_nothing_go() -> None:
+    # a column of three boxes of class 0 and a box of class 1 beside it, all touching the floor's column
+    boxes = [_box(0, 0, 0.5), _box(0, 0, 1.5), _box(0.1, 0, 2.5), _box(3, 0, 0.5)]
+    lo = np.array([b[0] for b in boxes])
+    hi = np.array([b[1] for b in boxes])
+    resting = C.rests_on(lo, hi, np.full(4, 0.05))
+    assert resting[0, 1] and resting[1, 2] and not resting[2, 1] and not resting[0, 3] and not resting[3, 0]
+    removed, left = C.surplus_to_remove([0, 0, 0, 1], {0: 1, 1: 1}, resting, np.random.default_rng(0))
+    assert removed == [2, 1] and left == {}  # top first, then the one it uncovered; the bottom one stays
+    # class 1 stands on a box of class 0: that box cannot go, and its surplus is reported
+    boxes = [_box(0, 0, 0.5), _box(0, 0, 1.5), _box(5, 0, 0.5)]
+    lo, hi = np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes])
+    removed, left = C.surplus_to_remove([0, 1, 0], {0: 0, 1: 1}, C.rests_on(lo, hi, np.full(3, 0.05)),
+                                        np.random.default_rng(0))
+    assert removed == [2] and left == {0: 1}
+
+
+def test_hull_contact_is_tighter_than_boxes() -> None:
+    # two unit cubes whose boxes overlap in XY, the upper one 0.3 above the lower one: boxes say "may
+    # rest" (tolerance 0.5), the hulls are 0.3 apart, more than a tolerance of 0.1
+    cube = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    from mixcount.annotate.scene_decisions import hull_equations
+
+    eq = hull_equations(cube)
+    mats = [np.eye(4), np.eye(4)]
+    mats[1][:3, 3] = [0.2, 0.0, 1.3]
+    pts = [cube + m[:3, 3] for m in mats]
+    lo = np.array([p.min(0) for p in pts])
+    hi = np.array([p.max(0) for p in pts])
+    assert C.rests_on(lo, hi, np.full(2, 0.5))[0, 1]
+    assert not C.rests_on_hulls(pts, mats, [eq, eq], lo, hi, np.full(2, 0.1))[0, 1]
+    assert C.rests_on_hulls(pts, mats, [eq, eq], lo, hi, np.full(2, 0.35))[0, 1]
+    assert C.hull_distance(pts[1], mats[0], eq) == pytest.approx(0.3)
+
+
+def test_count_verdict_and_resolution_needed() -> None:
+    assert C.count_verdict({0: 10, 1: 5}, {0: 10, 1: 5}, 2, 1) is None
+    assert C.count_verdict({0: 10, 1: 5}, {0: 10, 1: 4}, 2, 1) is None
+    assert C.count_verdict({0: 10, 1: 5}, {0: 10, 1: 3}, 2, 1) == "count_short"
+    assert C.count_verdict({0: 10, 1: 5}, {0: 14, 1: 5}, 2, 1) == "count_over"
+    assert C.pixels_needed(100.0, 512, 64.0) is None
+    assert C.pixels_needed(16.0, 512, 64.0) == 1024
+
+
+def test_stats_of_a_dataset(tmp_path: Path) -> None:
+    scenes = tmp_path / "scenes"
+    for i, (target, kept) in enumerate([(10, 10), (50, 50), (120, 118)]):
+        d = scenes / f"scene_{i:06d}"
+        d.mkdir(parents=True)
+        per_t = {"101": target - target // 3, "202": target // 3}
+        per_k = {"101": per_t["101"] - (target - kept), "202": per_t["202"]}
+        objects = [{"role": "counted", "status": "kept"}] * kept + [{"role": "counted", "reason": "count_surplus"}] * 3
+        meta = {"scene_id": d.name, "seed": i, "counts": per_k, "objects": objects,
+                "count_target": {"total": target, "per_class": per_t, "distribution": "uniform:1-200",
+                                 "imbalance": 2.0},
+                "diagnostics": [{"kind": "count_target", "median_visible_px": 30.0,
+                                 "too_small": {"min_object_px": 64.0, "resolution_needed": 188}}]}
+        (d / "metadata.json").write_text(json.dumps(meta))
+    (scenes / ".rejected").mkdir()
+    (scenes / ".rejected" / "scene_000009.json").write_text(json.dumps({
+        "scene_id": "scene_000009", "seed": 9, "status": "rejected",
+        "diagnostics": [{"kind": "count_target", "verdict": "count_short", "kept": 80, "total": 95}]}))
+    stats = dataset_count_stats(tmp_path)
+    assert stats is not None
+    assert (stats["scenes"], stats["exact"], stats["within_tolerance"], stats["max_abs_miss"]) == (3, 2, 3, 2)
+    assert stats["regenerated_scenes"][0]["why"] == "count_short: kept 80 of 95"
+    assert stats["per_class"] == {"classes": 6, "within_one": 5, "exact": 5, "max_off": 2}
+    assert stats["surplus_removed"] == 9 and len(stats["too_small"]) == 3
+    text = "\n".join(count_lines(stats))
+    assert "2 of 3 scenes kept exactly their target" in text and "count_short: kept 80 of 95" in text
+    assert "188 px per side" in text
+    # KS: kept equal to a point mass target -> 0; half the mass off -> 0.5
+    assert ks_distance([5, 5], lambda xs: (np.asarray(xs) >= 5).astype(float)) == 0.0
+    assert ks_distance([5, 9], lambda xs: (np.asarray(xs) >= 5).astype(float)) == 0.5
+    assert summarise_counts([], [])["scenes"] == 0
