@@ -163,10 +163,12 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=None, help="pools, assets and scenes (reused across runs)")
     ap.add_argument("--smoke", action="store_true", help="seconds: tiny sizes, same code path (the suite runs it)")
     args = ap.parse_args()
-    if args.smoke:  # two light-pool scenes of 3-8 visible objects at 32 px, 1 sample, 60 frames
+    if args.smoke:  # two light-pool scenes of 3-8 visible objects at 32 px, 1 sample, 60 frames; the paper's too
         args.pool, args.scenes, args.resolution, args.samples, args.threads = "light", 2, 32, 1, 1
+        args.paper = True
         args.counts = "uniform:3-8,imbalance:1-2"
-        args.set = [*args.set, "scene.physics_frames=60", "scene.n_classes=[1, 2]", "scene.n_distractors=[0, 1]"]
+        args.set = [*args.set, "scene.physics_frames=60", "scene.n_classes=[1, 2]", "scene.n_distractors=[0, 1]",
+                    "scene.n_objects=[6, 14]"]
 
     from pools import load_pool
 

@@ -124,6 +124,19 @@ def test_density_bench(bench_root: Path) -> None:
 
 
 @pytest.mark.blender
+def test_counts_bench(bench_root: Path) -> None:
+    """Two light-pool scenes with a count target, real bpy (issue 37): both kept exactly their target,
+    every class on its drawn count, surplus bodies taken out; then the paper's rule on the same seeds."""
+    lines = run_smoke("counts", bench_root)
+    target, paper, ratio = lines
+    assert target["counts"] == "uniform:3-8,imbalance:1-2" and target["scenes_kept"] == 2 and target["failed"] == []
+    check_figures(target, ["seconds_per_kept_scene", "physics_s_per_scene", "rgb_s_per_scene", "ks_distance",
+                           "exact_share", "bins.kept.0", "per_class.max_off", "spawned_per_target"])
+    assert target["exact"] == 2 and target["per_class"]["max_off"] == 0 and target["surplus_removed"] > 0
+    assert paper["run"] == "paper" and paper["scenes_kept"] == 2 and ratio["target_over_paper"] > 0
+
+
+@pytest.mark.blender
 def test_throughput_bench(bench_root: Path) -> None:
     doc = run_smoke("throughput", bench_root)[-1]
     assert doc["bench"] == "throughput" and [r["executor"] for r in doc["runs"]] == ["local"]
