@@ -54,11 +54,18 @@ def rests_on_hulls(points_world: Sequence[Array], matrices: Sequence[Array], equ
     hull points in the world and its hull equations): the boxes' pairs of :func:`rests_on` whose hulls
     come within ``tol`` of each other (either's points near the other's hull)."""
     out = rests_on(lo, hi, tol)
+    # each body's inverse pose and scale once (a dense pile has ~10 candidate pairs per body)
+    inverses = [np.linalg.inv(np.asarray(m, dtype=np.float64)) for m in matrices]
+    scales = [float(np.cbrt(abs(np.linalg.det(np.asarray(m, dtype=np.float64)[:3, :3])))) for m in matrices]
+
+    def distance(points: Array, body: int) -> float:
+        inv, eq = inverses[body], equations[body]
+        local = points @ inv[:3, :3].T + inv[:3, 3]
+        return float((local @ eq[:, :3].T + eq[:, 3]).max(axis=1).min() * scales[body])
+
     for a, b in zip(*np.nonzero(out)):
         t = max(float(tol[a]), float(tol[b]))
-        near = (hull_distance(points_world[b], matrices[a], equations[a]) <= t
-                or hull_distance(points_world[a], matrices[b], equations[b]) <= t)
-        if not near:
+        if not (distance(points_world[b], a) <= t or distance(points_world[a], b) <= t):
             out[a, b] = False
     return out
 
@@ -79,14 +86,16 @@ def surplus_to_remove(classes: Sequence[int], targets: Mapping[int, int], restin
     surplus = {c: max(0, kept[c] - int(targets[c])) for c in targets}
     removed: list[int] = []
     cls = np.asarray(classes, dtype=int)
+    resting = np.asarray(resting, dtype=bool)
+    held = resting.sum(axis=1)  # per body: how many remaining bodies rest on it
     while any(surplus.values()):
         over = [c for c, s in surplus.items() if s > 0]
-        supports_alive = (np.asarray(resting)[:, alive]).any(axis=1) if alive.any() else np.zeros(len(classes), bool)
-        free = np.flatnonzero(alive & ~supports_alive & np.isin(cls, over))
+        free = np.flatnonzero(alive & (held == 0) & np.isin(cls, over))
         if len(free) == 0:
             break
         pick = int(free[int(rng.integers(len(free)))])
         alive[pick] = False
+        held -= resting[:, pick]  # the bodies it rested on hold one body less
         removed.append(pick)
         surplus[classes[pick]] -= 1
     return removed, {c: s for c, s in surplus.items() if s > 0}
