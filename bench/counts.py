@@ -145,6 +145,55 @@ class Run:
         return out
 
 
+def summarise_logs(logs: list[Path], work: Path, counts: str) -> list[dict[str, Any]]:
+    """The figures of runs already made (several runs' stderr logs, e.g. one stopped and one continued),
+    from their per-scene lines and the scene folders under ``work``: one result per run label, then the
+    time ratio when the paper's rule ran too (over the seeds both runs kept)."""
+    from mixcount.evaluate.count_stats import rejected_record, scene_record, summarise_counts
+    from mixcount.scene.count_targets import parse_count_target
+
+    lines = [json.loads(ln) for log in logs for ln in log.read_text().splitlines()
+             if ln.startswith('{"bench": "counts.scene"')]
+    out = []
+    by_label: dict[str, dict[int, dict[str, Any]]] = {}
+    for ln in lines:
+        by_label.setdefault(ln["run"], {})[int(ln["seed"])] = ln
+    for label, scenes in by_label.items():
+        rows, rejected = [], []
+        for seed, ln in sorted(scenes.items()):
+            folder = work / f"out_{label}" / f"seed_{seed}" / "scenes"
+            if ln["status"] == "written":
+                meta = json.loads(next(folder.glob("scene_*/metadata.json")).read_text())
+                rows.append(scene_record(meta) if label != "paper" else {"kept": meta["n_counted"]})
+            else:
+                rej = sorted((folder / ".rejected").glob("*.json"))
+                if rej:
+                    rejected.append(rejected_record(json.loads(rej[0].read_text())) or {})
+        kept_lines = [ln for ln in scenes.values() if ln["status"] == "written"]
+        n = max(len(kept_lines), 1)
+        res: dict[str, Any] = {
+            "bench": "counts", "run": label, "scenes_kept": len(kept_lines), "seeds": f"{min(scenes)}-{max(scenes)}",
+            "seconds_per_kept_scene": round(sum(ln["seconds"] for ln in scenes.values()) / n, 2),
+            "scene_seconds_median": sorted(ln["seconds"] for ln in kept_lines)[len(kept_lines) // 2] if kept_lines else None,
+            "physics_s_per_scene": round(sum(ln.get("physics_s") or 0 for ln in kept_lines) / n, 2),
+            "rgb_s_per_scene": round(sum(ln.get("rgb_s") or 0 for ln in kept_lines) / n, 2)}
+        if label == "paper":
+            kept = sorted(r["kept"] for r in rows)
+            res.update({"kept_median": kept[len(kept) // 2] if kept else None, "regenerated": len(rejected)})
+        else:
+            res.update({k: v for k, v in summarise_counts(rows, rejected, target_cdf=parse_count_target(counts).cdf)
+                        .items() if k != "imbalance"})
+        out.append(res)
+    if "paper" in by_label and len(by_label) == 2:
+        other = next(v for k, v in by_label.items() if k != "paper")
+        both = sorted(set(other) & set(by_label["paper"]))
+        t_target = sum(other[s]["seconds"] for s in both)
+        t_paper = sum(by_label["paper"][s]["seconds"] for s in both)
+        out.append({"bench": "counts.time_ratio", "seeds_both_ran": len(both),
+                    "target_over_paper": round(t_target / max(t_paper, 1e-9), 3)})
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--counts", default="uniform:1-200", help="the count target (scene.count_target)")
@@ -162,7 +211,13 @@ def main() -> int:
                     "figures of the scenes kept by then")
     ap.add_argument("--work", type=Path, default=None, help="pools, assets and scenes (reused across runs)")
     ap.add_argument("--smoke", action="store_true", help="seconds: tiny sizes, same code path (the suite runs it)")
+    ap.add_argument("--summarise", type=Path, nargs="*", default=None, metavar="LOG",
+                    help="print the figures of runs already made from their stderr logs and --work's scene folders")
     args = ap.parse_args()
+    if args.summarise:
+        for res in summarise_logs(args.summarise, args.work, args.counts):
+            print(json.dumps(res), flush=True)
+        return 0
     if args.smoke:  # two light-pool scenes of 3-8 visible objects at 32 px, 1 sample, 60 frames; the paper's too
         args.pool, args.scenes, args.resolution, args.samples, args.threads = "light", 2, 32, 1, 1
         args.paper = True
