@@ -15,7 +15,7 @@ from library_pool import library_pool
 from mixcount.annotate import count_decisions as C
 from mixcount.config import load_config
 from mixcount.errors import ConfigError
-from mixcount.evaluate.count_stats import count_lines, dataset_count_stats, ks_distance, summarise_counts
+from mixcount.evaluate.count_stats import count_lines, dataset_count_stats, ks_distance, plot_counts, summarise_counts
 from mixcount.scene.count_targets import draw_total, parse_count_target, spawn_counts, split_total
 from mixcount.scene.sampler import sample_scene
 
@@ -159,6 +159,8 @@ def test_stats_of_a_dataset(tmp_path: Path) -> None:
     text = "\n".join(count_lines(stats))
     assert "2 of 3 scenes kept exactly their target" in text and "count_short: kept 80 of 95" in text
     assert "188 px per side" in text
+    png = plot_counts(stats, stats["rows"], tmp_path / "stats" / "count_target.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
     # KS: kept equal to a point mass target -> 0; half the mass off -> 0.5
     assert ks_distance([5, 5], lambda xs: (np.asarray(xs) >= 5).astype(float)) == 0.0
     assert ks_distance([5, 9], lambda xs: (np.asarray(xs) >= 5).astype(float)) == 0.5
