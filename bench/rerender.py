@@ -8,14 +8,16 @@ One scene is composed (demo library, configs/quick.toml), then in ONE bpy worker
 re-render outside the clock (Cycles' and OIDN's one-off start-up):
 ``fresh``  - the same scene.usda through the ``scene`` op (import, physics, placement, id passes, RGB: what a
              fresh scene of the same pile costs, one camera);
+``own_view`` - the ``rerender`` op with the scene's own camera only (the fresh scene's image, no physics);
 ``views``  - the ``rerender`` op with the K new views only (paper camera rule around the settled pile),
              Cycles' persistent data on: the import once, no physics, one RGB render per view;
 ``views_no_persistent`` - the same request with persistent data off (what keeping Cycles' scene data saves).
 Per view: ``rgb_s`` (its RGB render) and ``view_s`` = rgb_s + the request's per-view work shared evenly
 (frame check, silhouettes, id passes, passes); the first view also pays the import (``first_view_s``).
 Figures: ``total_s`` (the whole K-view request), ``later_over_first`` (view k's view_s / view 1's for
-k = 2..K), ``fresh_over_view`` (fresh scene / view k's view_s for k = 2..K) with their medians. One JSON
-line on stdout, a short table on stderr.
+k = 2..K), ``fresh_over_view`` (fresh scene / view k's view_s for k = 2..K) with their medians, and the
+same in CPU seconds of the worker process (``*_cpu``: all its threads; on a shared machine other processes
+stretch wall times, much less CPU times). One JSON line on stdout, a short summary on stderr.
 """
 
 from __future__ import annotations
@@ -58,22 +60,41 @@ def _catalog(work: Path) -> Path:
     return root / "catalog.db"
 
 
+CPU: dict[str, float] = {}  # the last request's CPU seconds of the worker process (all its threads)
+
+
+def _cpu(pid: int) -> float:
+    import psutil
+
+    t = psutil.Process(pid).cpu_times()
+    return float(t.user + t.system)
+
+
 def _request(worker: Any, req: Any, timeout: float) -> tuple[Any, float]:
+    """Wall seconds of one request (and its worker CPU seconds in ``CPU["last"]``: the measure that other
+    processes on a shared machine disturb least)."""
     from mixcount.worker.contract import SceneResult
 
-    t = time.perf_counter()
+    worker.start()
+    c, t = _cpu(worker.pid), time.perf_counter()
     answer = worker.request({"op": req.OP, "request": req.to_dict()}, timeout=timeout)
     seconds = time.perf_counter() - t
+    CPU["last"] = round(_cpu(worker.pid) - c, 3)
     if not answer.get("ok"):
         raise RuntimeError(answer.get("error"))
     return SceneResult.from_dict(answer["result"]), seconds
 
 
-def _per_view(result: Any, first_extra: float) -> dict[str, Any]:
-    rgb = next(d["seconds"] for d in result.diagnostics if d.get("kind") == "rgb_per_view")
+def _per_view(result: Any, first_extra: float, cpu_total: float) -> dict[str, Any]:
+    """Per view: RGB wall / CPU seconds; ``view_s`` / ``view_cpu_s`` add the request's per-view work (wall)
+    or the rest of the request's CPU (import included), shared evenly."""
+    diag = next(d for d in result.diagnostics if d.get("kind") == "rgb_per_view")
+    rgb, rgb_cpu = diag["seconds"], diag["cpu_seconds"]
     shared = sum(result.timings.get(k, 0.0) for k in SHARED_STEPS) / len(rgb)
     view_s = [round(r + shared, 4) for r in rgb]
+    shared_cpu = max(0.0, cpu_total - sum(rgb_cpu)) / len(rgb)
     return {"rgb_s": rgb, "view_s": view_s, "first_view_s": round(view_s[0] + first_extra, 4),
+            "rgb_cpu_s": rgb_cpu, "view_cpu_s": [round(r + shared_cpu, 3) for r in rgb_cpu], "cpu_s": cpu_total,
             "timings": dict(result.timings)}
 
 
@@ -93,7 +114,7 @@ def main() -> int:
     from mixcount.cli import main as cli
     from mixcount.config import load_config
     from mixcount.dataset.scene_writer import tmp_dir_for
-    from mixcount.run.rerender import finished_scenes, link_assets, new_views
+    from mixcount.run.rerender import finished_scenes, link_assets, new_views, own_views
     from mixcount.scene.spec import SceneSpec
     from mixcount.worker.client import BlenderWorker
     from mixcount.worker.contract import RerenderRequest, SceneOutputs, SceneRequest
@@ -121,14 +142,16 @@ def main() -> int:
              for o in meta["objects"] if o["status"] == "kept"}
     views = tuple(new_views(meta, spec, cfg))
 
-    def rerender(persistent: bool, tag: str, only: int = 0) -> Any:
+    own = tuple(own_views(meta))[:1]
+
+    def rerender(persistent: bool, tag: str, only: int = 0, cams: tuple[Any, ...] = ()) -> Any:
         tmp = tmp_dir_for(out, f"{spec.scene_id}-{tag}", tag)
         tmp.mkdir(parents=True)
         shutil.copyfile(scene_dir / "settled.usda", tmp / "scene.usda")
         return RerenderRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=0, oracle=False,
                                passes=outputs.passes, depth_format=outputs.depth_format,
                                normal_format=outputs.normal_format, mesh_cache=outputs.mesh_cache, poses=poses,
-                               views=views[:only] if only else views, resolution=0, samples=0, denoise="scene", rule="all_cameras",
+                               views=cams or (views[:only] if only else views), resolution=0, samples=0, denoise="scene", rule="all_cameras",
                                device="cpu", persistent_data=persistent)
 
     worker = BlenderWorker(name="bench-rerender", log_dir=work)
@@ -140,29 +163,42 @@ def main() -> int:
         fresh_req = SceneRequest.for_outputs(outputs, stage=str(fresh_tmp / "scene.usda"), out_dir=str(fresh_tmp),
                                              threads=0, oracle=False)
         fresh_result, fresh_s = _request(worker, fresh_req, 3600)
+        fresh_cpu = CPU["last"]
+        res_own, own_s = _request(worker, rerender(False, "own", cams=own), 3600)
+        own_cpu = CPU["last"]
         res_on, total_on = _request(worker, rerender(True, "on"), 3600)
+        on = _per_view(res_on, res_on.timings.get("import", 0.0), CPU["last"])
         res_off, total_off = _request(worker, rerender(False, "off"), 3600)
+        off = _per_view(res_off, res_off.timings.get("import", 0.0), CPU["last"])
     finally:
         worker.close()
-    on = _per_view(res_on, res_on.timings.get("import", 0.0))
-    off = _per_view(res_off, res_off.timings.get("import", 0.0))
     later = [round(v / on["view_s"][0], 3) for v in on["view_s"][1:]]
     fresh_over = [round(fresh_s / v, 2) for v in on["view_s"][1:]]
+    later_cpu = [round(v / on["view_cpu_s"][0], 3) for v in on["view_cpu_s"][1:]]
+    fresh_over_cpu = [round(fresh_cpu / v, 2) for v in on["view_cpu_s"][1:]]
     doc = {
         "bench": "rerender", "resolution": args.resolution, "samples": args.samples, "views": len(views),
         "counted_kept": sum(1 for o in meta["objects"] if o["status"] == "kept" and o["role"] == "counted"),
-        "fresh": {"seconds": round(fresh_s, 3), "timings": dict(fresh_result.timings)},
+        "fresh": {"seconds": round(fresh_s, 3), "cpu_s": fresh_cpu, "timings": dict(fresh_result.timings)},
+        # the scene's own camera re-rendered alone (no physics): the same image as the fresh scene's
+        "own_view": {"seconds": round(own_s, 3), "cpu_s": own_cpu, "timings": dict(res_own.timings)},
+        "fresh_over_own_view": round(fresh_s / own_s, 3),
         "total_s": round(total_on, 3), "total_no_persistent_s": round(total_off, 3),
         "views_persistent": on, "views_no_persistent": off,
         "later_over_first": later, "later_over_first_median": statistics.median(later) if later else 1.0,
         "fresh_over_view": fresh_over, "fresh_over_view_median": statistics.median(fresh_over) if fresh_over else 0.0,
+        "later_over_first_cpu": later_cpu, "later_over_first_cpu_median": statistics.median(later_cpu) if later_cpu else 1.0,
+        "fresh_over_view_cpu": fresh_over_cpu,
+        "fresh_over_view_cpu_median": statistics.median(fresh_over_cpu) if fresh_over_cpu else 0.0,
         "rgb_persistent_over_not_median": round(statistics.median(
             a / b for a, b in zip(on["rgb_s"][1:], off["rgb_s"][1:])), 3) if len(views) > 1 else 1.0,
     }
     print(f"{len(views)} views at {args.resolution} px / {args.samples} spp: total {doc['total_s']} s "
-          f"(persistent data off: {doc['total_no_persistent_s']} s); fresh scene {doc['fresh']['seconds']} s; "
+          f"(persistent data off: {doc['total_no_persistent_s']} s); fresh scene {doc['fresh']['seconds']} s, "
+          f"its camera re-rendered {doc['own_view']['seconds']} s; "
           f"view 1 {on['first_view_s']} s (with the import), views 2-{len(views)} {on['view_s'][1:]} s; "
-          f"later/first median {doc['later_over_first_median']}, fresh/view median {doc['fresh_over_view_median']}",
+          f"later/first median {doc['later_over_first_median']}, fresh/view median {doc['fresh_over_view_median']}; "
+          f"in CPU s: later/first {doc['later_over_first_cpu_median']}, fresh/view {doc['fresh_over_view_cpu_median']}",
           file=sys.stderr)
     print(json.dumps(doc))
     return 0
