@@ -68,7 +68,8 @@ class Run:
 
     @property
     def done(self) -> bool:
-        return len(self.rows) >= self.args.scenes or self.seed >= self.args.seed + self.args.scenes * 3 + 4
+        scenes = self.args.paper_scenes if self.dist.is_paper and self.args.paper_scenes else self.args.scenes
+        return len(self.rows) >= scenes or self.seed >= self.args.seed + scenes * 3 + 4
 
     def step(self) -> None:
         """Seeds from the next one until a scene is kept (or the seed budget is spent)."""
@@ -201,6 +202,7 @@ def main() -> int:
     ap.add_argument("--scenes", type=int, default=60, help="scenes to keep")
     ap.add_argument("--seed", type=int, default=100, help="first seed")
     ap.add_argument("--paper", action="store_true", help="also run the paper's rule on the same number of scenes")
+    ap.add_argument("--paper-scenes", type=int, default=0, help="the paper's rule stops after this many (0: --scenes)")
     ap.add_argument("--oracle", action="store_true", help="the reference check (one render per object)")
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--samples", type=int, default=1)

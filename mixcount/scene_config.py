@@ -140,6 +140,8 @@ class SceneConfig:
     count_target: str  # paper | uniform:A-B | histogram:PATH [,imbalance:R1-R2] (scene/count_targets.py)
     count_spawn_factor: tuple[float, float]  # spawned per visible target: floor scenes, container scenes
     count_spawn_extra: int
+    count_spawn_size_exponent: float  # x (largest class size / class size) ** this
+    count_spawn_sqrt: float  # + ceil(this x sqrt(target)) per class
     count_short_tolerance: tuple[float, float]  # kept when short by <= max(a, b x total)
     count_class_short_tolerance: int
     count_min_object_px: float

@@ -59,6 +59,8 @@ def test_draws_reproducible_and_split() -> None:
         assert sum(counts) == 120 and min(counts) >= 1 and ratio is not None and 3 <= ratio <= 5
         assert abs(max(counts) / min(counts) - ratio) <= 0.5 * ratio / min(counts) + 0.15
     assert spawn_counts([1, 10], 1.5, 2) == [4, 17]
+    # the smaller class (half the size) spawns sqrt(2) x more; + ceil(sqrt(target))
+    assert spawn_counts([16, 16], 1.0, 0, [1.0, 0.5], 0.5, 1.0) == [16 + 4, 23 + 4]
 
 
 def test_sampler_spawns_for_the_target_and_paper_rule_is_untouched() -> None:
@@ -78,7 +80,11 @@ def test_sampler_spawns_for_the_target_and_paper_rule_is_untouched() -> None:
         assert t is not None and t["total"] == draw_total(parse_count_target(t["distribution"]), seed)
         assert sum(t["per_class"]) == t["total"] and len(t["per_class"]) == len(spec.classes)
         factor = cfg.scene.count_spawn_factor[1 if spec.container is not None else 0]
-        assert [c.count for c in spec.classes] == spawn_counts(t["per_class"], factor, cfg.scene.count_spawn_extra)
+        sizes = [c.target_size_m for c in spec.classes]
+        assert [c.count for c in spec.classes] == spawn_counts(t["per_class"], factor, cfg.scene.count_spawn_extra,
+                                                               sizes, cfg.scene.count_spawn_size_exponent,
+                                                               cfg.scene.count_spawn_sqrt)
+        assert all(c.count >= n + cfg.scene.count_spawn_extra for c, n in zip(spec.classes, t["per_class"]))
         assert t["short_total"] == max(2, int(0.05 * t["total"]))
         assert spec.to_json() == sample_scene(seed, "train", cfg, pool).to_json()  # reproducible by seed
         assert type(spec).from_json(spec.to_json()) == spec

@@ -171,10 +171,17 @@ def split_total(dist: CountDistribution, seed: int, total: int, n_classes: int) 
     return [int(c) + 1 for c in counts], ratio
 
 
-def spawn_counts(targets: Sequence[int], factor: float, extra: int) -> list[int]:
-    """Bodies spawned per class for its visible target: ceil(target x factor) + extra (the retention prior
-    with a margin; the worker takes the surplus out)."""
-    return [int(math.ceil(t * factor)) + int(extra) for t in targets]
+def spawn_counts(targets: Sequence[int], factor: float, extra: int, sizes: Optional[Sequence[float]] = None,
+                 size_exponent: float = 0.0, sqrt_extra: float = 0.0) -> list[int]:
+    """Bodies spawned per class for its visible target (the retention prior with a margin; the worker takes
+    the surplus out): ceil(target x factor x (largest class size / this class's size) ** size_exponent)
+    + extra + ceil(sqrt_extra x sqrt(target)). Smaller classes lose more to occlusion by larger ones, and a
+    small class's retention varies most from scene to scene (measured: docs/performance.md)."""
+    ratios = [1.0] * len(targets)
+    if sizes is not None and len(sizes) == len(targets) and min(sizes) > 0:
+        ratios = [(max(sizes) / s) ** size_exponent for s in sizes]
+    return [int(math.ceil(t * factor * r - 1e-9)) + int(extra) + int(math.ceil(sqrt_extra * math.sqrt(t) - 1e-9))
+            for t, r in zip(targets, ratios)]
 
 
 def target_record(total: int, per_class: Sequence[int], ratio: Optional[float], dist: CountDistribution,

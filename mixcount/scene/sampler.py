@@ -577,7 +577,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     else:
         aims, ratio = split_total(target, seed, n, len(drafts))
         factor = float(config.count_spawn_factor[1 if container_obj is not None else 0])
-        counts = spawn_counts(aims, factor, config.count_spawn_extra)
+        counts = spawn_counts(aims, factor, config.count_spawn_extra, [d.size for d in drafts],
+                              config.count_spawn_size_exponent, config.count_spawn_sqrt)
         count_target = target_record(n, aims, ratio, target, factor, config.count_short_tolerance,
                                      config.count_class_short_tolerance, config.count_min_object_px)
         n = sum(counts)
