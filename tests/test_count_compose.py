@@ -18,10 +18,12 @@ def demo_db(tmp_path_factory, demo_catalog_copy):
 
 
 @pytest.mark.blender
-def test_compose_keeps_the_target_and_stats_report_it(demo_db, capsys, tmp_path):
+@pytest.mark.parametrize("settle_ahead", ["true", "false"])  # poses settled by the companion, or here
+def test_compose_keeps_the_target_and_stats_report_it(demo_db, capsys, tmp_path, settle_ahead):
     out = tmp_path / "out"
     db = str(demo_db / "catalog.db")
-    rc = main(["--db", db, "--config", "quick", "--set", "scene.physics_frames=60", "--set", "compose.settle_ahead=false",
+    rc = main(["--db", db, "--config", "quick", "--set", "scene.physics_frames=60",
+               "--set", f"compose.settle_ahead={settle_ahead}",
                "compose", "--n", "2", "--seed", "3", "--split", "train", "--resolution", "32", "--samples", "1",
                "--counts", "uniform:3-7,imbalance:1-2", "--out", str(out), "--json"])
     assert rc == 0, capsys.readouterr().err
