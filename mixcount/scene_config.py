@@ -142,6 +142,7 @@ class SceneConfig:
     count_spawn_extra: int
     count_spawn_size_exponent: float  # x (largest class size / class size) ** this
     count_spawn_sqrt: float  # + ceil(this x sqrt(target)) per class
+    count_spawn_elevation: float  # x 1 / (1 - this x cos(lowest camera elevation))
     count_short_tolerance: tuple[float, float]  # kept when short by <= max(a, b x total)
     count_class_short_tolerance: int
     count_min_object_px: float
@@ -225,6 +226,8 @@ class SceneConfig:
             raise ConfigError("scene.n_objects and scene.n_classes must be >= 1")
         if self.n_objects[1] < self.n_classes[1]:
             raise ConfigError("scene.n_objects high must be >= scene.n_classes high (one instance per class)")
+        if not 0.0 <= self.count_spawn_elevation < 1.0:
+            raise ConfigError("scene.count_spawn_elevation must lie in [0, 1)")
         if min(self.count_spawn_factor) < 1.0 or self.count_spawn_extra < 0 or min(self.count_short_tolerance) < 0:
             raise ConfigError("scene.count_spawn_factor must be >= 1, count_spawn_extra and the tolerances >= 0")
         if self.n_cameras < 1:

@@ -16,7 +16,14 @@ from mixcount.annotate import count_decisions as C
 from mixcount.config import load_config
 from mixcount.errors import ConfigError
 from mixcount.evaluate.count_stats import count_lines, dataset_count_stats, ks_distance, plot_counts, summarise_counts
-from mixcount.scene.count_targets import draw_total, parse_count_target, spawn_counts, split_total
+from mixcount.scene.count_targets import (
+    draw_elevations,
+    draw_total,
+    elevation_factor,
+    parse_count_target,
+    spawn_counts,
+    split_total,
+)
 from mixcount.scene.sampler import sample_scene
 
 
@@ -59,6 +66,7 @@ def test_draws_reproducible_and_split() -> None:
         assert sum(counts) == 120 and min(counts) >= 1 and ratio is not None and 3 <= ratio <= 5
         assert abs(max(counts) / min(counts) - ratio) <= 0.5 * ratio / min(counts) + 0.15
     assert spawn_counts([1, 10], 1.5, 2) == [4, 17]
+    assert elevation_factor(90.0, 0.45) == pytest.approx(1.0) and elevation_factor(20.0, 0.45) > 1.7
     # the smaller class (half the size) spawns sqrt(2) x more; + ceil(sqrt(target))
     assert spawn_counts([16, 16], 1.0, 0, [1.0, 0.5], 0.5, 1.0) == [16 + 4, 23 + 4]
 
@@ -79,7 +87,11 @@ def test_sampler_spawns_for_the_target_and_paper_rule_is_untouched() -> None:
         t = spec.count_target
         assert t is not None and t["total"] == draw_total(parse_count_target(t["distribution"]), seed)
         assert sum(t["per_class"]) == t["total"] and len(t["per_class"]) == len(spec.classes)
-        factor = cfg.scene.count_spawn_factor[1 if spec.container is not None else 0]
+        elevations = draw_elevations(seed, cfg.scene.n_cameras, cfg.scene.camera_elevation_deg)
+        assert [c.elevation_deg for c in spec.cameras] == pytest.approx(elevations, abs=1e-5)
+        factor = cfg.scene.count_spawn_factor[1 if spec.container is not None else 0] * elevation_factor(
+            min(elevations), cfg.scene.count_spawn_elevation)
+        assert t["spawn_factor"] == factor
         sizes = [c.target_size_m for c in spec.classes]
         assert [c.count for c in spec.classes] == spawn_counts(t["per_class"], factor, cfg.scene.count_spawn_extra,
                                                                sizes, cfg.scene.count_spawn_size_exponent,

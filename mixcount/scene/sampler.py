@@ -32,7 +32,16 @@ from numpy.typing import NDArray
 
 from mixcount.errors import CompositionError
 from mixcount.scene.caption_text import normalise_caption, size_qualified
-from mixcount.scene.count_targets import PAPER, count_distribution, draw_total, spawn_counts, split_total, target_record
+from mixcount.scene.count_targets import (
+    PAPER,
+    count_distribution,
+    draw_elevations,
+    draw_total,
+    elevation_factor,
+    spawn_counts,
+    split_total,
+    target_record,
+)
 from mixcount.scene.environment_sampling import sample_environment, sample_floor_material
 from mixcount.scene.framing import camera_position, look_at_rotation
 from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, ObjectRecord
@@ -490,15 +499,16 @@ def _place_distractors(rng: np.random.Generator, config: SceneConfig, picks: lis
 
 
 def _draw_cameras(rng: np.random.Generator, config: SceneConfig, resolution: int, target0: NDArray[Any],
-                  diag: float) -> list[CameraSpec]:
+                  diag: float, elevations: Optional[Sequence[float]] = None) -> list[CameraSpec]:
     """Each camera's drawn angles and jitters, at a provisional pose around the expected pile (the
-    worker re-frames it on the settled pile by ``camera_framing``, mixcount.scene.framing)."""
+    worker re-frames it on the settled pile by ``camera_framing``, mixcount.scene.framing). ``elevations``
+    (a count target's scene: drawn before the spawn, which depends on them) replace the elevation draws."""
     s = config.scale
     cameras = []
     for k in range(config.n_cameras):
         offset = rng.uniform(-1, 1, 3) * config.camera_lookat_jitter * s
         target = target0 + offset
-        elev = _u(rng, config.camera_elevation_deg)
+        elev = _u(rng, config.camera_elevation_deg) if elevations is None else float(elevations[k])
         azim = _u(rng, (0.0, 360.0))
         roll = _u(rng, config.camera_roll_deg)
         scale = 1 + _u(rng, (-config.camera_distance_jitter, config.camera_distance_jitter))
@@ -572,11 +582,16 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     n_classes = min(_ui(rng, config.n_classes), n)
     drafts = _build_classes(rng, config, eligible, n_classes)
     count_target = None
+    elevations: Optional[list[float]] = None
     if target is None:
         counts = _split_counts(rng, n, len(drafts))
     else:
         aims, ratio = split_total(target, seed, n, len(drafts))
-        factor = float(config.count_spawn_factor[1 if container_obj is not None else 0])
+        # the cameras' elevations first (their own stream): a low camera sees the pile from the side and
+        # loses more to occlusion, so the spawn is sized for the lowest one
+        elevations = draw_elevations(seed, config.n_cameras, config.camera_elevation_deg)
+        factor = float(config.count_spawn_factor[1 if container_obj is not None else 0]) * elevation_factor(
+            min(elevations), config.count_spawn_elevation)
         counts = spawn_counts(aims, factor, config.count_spawn_extra, [d.size for d in drafts],
                               config.count_spawn_size_exponent, config.count_spawn_sqrt)
         count_target = target_record(n, aims, ratio, target, factor, config.count_short_tolerance,
@@ -620,7 +635,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     else:
         diag = float(math.hypot(2 * pile.semi[0], 2 * pile.semi[1]))
     target0 = np.array([pile.centre[0], pile.centre[1], pile.base_z + float(np.mean(sizes)) / 2])
-    cameras = _draw_cameras(rng, config, compose.resolution, target0, diag)
+    cameras = _draw_cameras(rng, config, compose.resolution, target0, diag, elevations)
 
     return SceneSpec(
         scene_id=scene_id or scene_id_for(seed), seed=int(seed), split=split, scale=s,
