@@ -153,8 +153,9 @@ def test_rerun_is_idempotent_and_resumes(fsc, composed_dataset: Path, capsys: py
     (out / "images_384_VarV2" / "stale.jpg").write_bytes(b"x")  # a file no sample names
     capsys.readouterr()
     assert main(["export", str(composed_dataset), "--format", "fsc147", "--out", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert "export fsc147" in err and "1 file(s) written" in err  # the progress bar and the summary
+    captured = capsys.readouterr()
+    assert "export fsc147" in captured.err  # the progress bar, on stderr
+    assert "1 file(s) written" in captured.out  # the result, on stdout
     after = tree_digest(out)
     changed = {k for k in set(before) | set(after) if before.get(k) != after.get(k)}
     assert changed == {"mixcount_export.json"}  # same files, same bytes; only the run's figures differ
