@@ -158,6 +158,19 @@ def test_max_attempts_bounds_a_split_that_never_yields_a_scene(setup) -> None:
     assert len(list((setup[2] / "scenes" / REJECTED_DIR).iterdir())) == limit
 
 
+def test_compose_of_a_split_without_objects_makes_nothing_on_disk(tmp_path: Path) -> None:
+    """Through the Python API too (the CLI checks first on its own): no OUT, no empty scenes/ left behind."""
+    from types import SimpleNamespace
+
+    from mixcount.errors import CompositionError
+
+    out = tmp_path / "out"
+    config = load_config(["quick"], values={"compose.split": "val"})
+    with pytest.raises(CompositionError, match="no active objects in split 'val'.*nothing was written"):
+        compose_scenes(pool=[SimpleNamespace(split="train")], config=config, out_dir=out, assets_dir=tmp_path, n=1)
+    assert not out.exists()
+
+
 def test_scene_task_is_picklable_plain_data(setup) -> None:
     import pickle
 

@@ -82,9 +82,10 @@ def compose_scenes(
 
     comp = config.compose
     out_dir = Path(out_dir)
+    if not any(getattr(o, "split", None) == comp.split for o in pool):  # before anything is made on disk
+        raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog "
+                               "first; nothing was written")
     _prepare_output(out_dir)
-    if not any(getattr(o, "split", None) == comp.split for o in pool):
-        raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog first")
     # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
     # without them stops the run here with one clear error instead of failing every scene's sampling
     environments = tuple(environments_to_draw(config.scene, environments))
