@@ -132,9 +132,12 @@ def settle_ahead(req: SceneRequest) -> SettleResult:
 
     if not Path(req.out_dir).is_dir():  # its run is gone (interrupted, cleaned): do not make the folder again
         raise FileNotFoundError(f"the scene folder {req.out_dir} no longer exists")
+    from mixcount.engine.count_topup import set_reserves_aside
+
     timer = Timer()
     with timer.stage("import"):
         state = load_scene(req)
+        set_reserves_aside(state)  # as run_scene does: a count target's top-up bodies are not settled
     with timer.stage("physics"):
         settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
     path_of = {obj.name: path for path, obj in state.blender_objects.items()}
@@ -513,11 +516,13 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
 
     ``render`` replaces :func:`render_rgb` (``bench/render_quality.py`` renders the finished scene with
     several Cycles settings through :mod:`mixcount.engine.render_sweep`)."""
+    from mixcount.engine.count_topup import set_reserves_aside
     from mixcount.engine.visibility import camera_model
 
     timer = Timer()
     with timer.stage("import"):
         state = load_scene(req)
+        reserves = set_reserves_aside(state)  # a count target's top-up bodies wait outside the first settle
     with timer.stage("physics"):
         if req.settled:  # settled ahead by another worker (settle_ahead)
             settled = apply_settled(state, req.settled)
@@ -530,18 +535,19 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
         masks = [silhouettes(state, cam, req.threads, k) for k, cam in enumerate(cameras)]
     id_passes, renders = visibility_loop(state, masks, timer)
     count_verdict = None
-    if state.spec.count_target is not None:  # a visible-count target (issue 37): engine/count_trim.py
-        from mixcount.engine.count_trim import count_outcome, remove_surplus
+    if state.spec.count_target is not None:  # a visible-count target (issue 37): take-out, top-up, rest check
+        from mixcount.engine.count_topup import bring_to_target
 
-        with timer.stage("count_target"):
-            removed = remove_surplus(state)
-        if removed:  # measured again on id passes without them (visibility can only have grown)
-            id_passes, more = visibility_loop(state, masks, timer)
-            renders += more
-        count_verdict = count_outcome(state, removed, int(state.spec.render.resolution))
+        masks, id_passes, more, count_verdict = bring_to_target(state, reserves, cameras, masks, id_passes,
+                                                                req.threads, timer)
+        renders += more
     status = final_status(state)
     if status == STATUS_OK and count_verdict is not None:
         status = STATUS_REJECTED  # cannot be brought to its target: the caller regenerates from the next seed
+    if status == STATUS_OK and req.more_views is not None:  # compose --views: the new cameras, in this process
+        from mixcount.engine.rerender_job import render_more_views
+
+        return render_more_views(state, req, cameras, renders, timer)
     view_passes: list[dict[str, Any]] = [{} for _ in cameras]
     if status == STATUS_OK:
         with timer.stage("write_passes"):
