@@ -143,6 +143,10 @@ class SceneConfig:
     count_spawn_size_exponent: float  # x (largest class size / class size) ** this
     count_spawn_sqrt: float  # + ceil(this x sqrt(target)) per class
     count_spawn_elevation: float  # x 1 / (1 - this x cos(lowest camera elevation))
+    count_reserve: tuple[float, float]  # per class ceil(a x target) + b bodies held out for a top-up
+    count_topup_rounds: int
+    count_rest_frames: int  # the rest check after the take-out (frames at most)
+    count_rest_tolerance: float  # x size: a body moving more in the rest check takes that pose
     count_short_tolerance: tuple[float, float]  # kept when short by <= max(a, b x total)
     count_class_short_tolerance: int
     count_min_object_px: float
@@ -230,6 +234,10 @@ class SceneConfig:
             raise ConfigError("scene.count_spawn_elevation must lie in [0, 1)")
         if min(self.count_spawn_factor) < 1.0 or self.count_spawn_extra < 0 or min(self.count_short_tolerance) < 0:
             raise ConfigError("scene.count_spawn_factor must be >= 1, count_spawn_extra and the tolerances >= 0")
+        if min(self.count_reserve) < 0 or self.count_topup_rounds < 0 or self.count_rest_frames < 0 \
+                or self.count_rest_tolerance <= 0:
+            raise ConfigError("scene.count_reserve, count_topup_rounds and count_rest_frames must be >= 0, "
+                              "count_rest_tolerance > 0")
         if self.n_cameras < 1:
             raise ConfigError("scene.n_cameras must be >= 1")
         if self.camera_framing not in ("paper", "fit"):

@@ -121,3 +121,54 @@ def pixels_needed(median_px: float, resolution: int, min_px: float) -> Optional[
     if median_px <= 0:
         return -1
     return int(np.ceil(resolution * np.sqrt(min_px / median_px)))
+
+
+COUNT_RESERVE = "count_reserve"  # drop reason: a reserve body a top-up never needed (it never entered the scene)
+
+
+def short_classes(targets: Mapping[int, int], kept: Mapping[int, int]) -> dict[int, int]:
+    """Per class still below its target: how many objects it lacks."""
+    return {c: int(t) - int(kept.get(c, 0)) for c, t in targets.items() if int(kept.get(c, 0)) < int(t)}
+
+
+def topup_draw(short: Mapping[int, int], available: Mapping[int, int], factor: float) -> dict[int, int]:
+    """Reserve bodies to drop per short class: ceil(factor x lacking) + 1 (some land occluded or roll out of
+    view; the surplus is taken out again), at most what the class holds in reserve."""
+    return {c: min(int(available.get(c, 0)), int(np.ceil(float(factor) * n - 1e-9)) + 1)
+            for c, n in short.items() if available.get(c, 0) > 0}
+
+
+def drop_spots(lo_xy: Array, hi_xy: Array, top_z: float, sizes: Sequence[float],
+               rng: np.random.Generator) -> Array:
+    """(K, 3) positions to drop K bodies (``sizes``: their largest sides) onto a settled pile: a grid over the
+    pile's XY box (``lo_xy``..``hi_xy``, shrunk by half a cell) with one cell per body of side 1.2 x the
+    largest, cells in a random order (``rng``), layers stacked from half a cell above ``top_z``; a jitter
+    of 0.1 cell. No two bodies overlap at their release, and each falls onto the pile."""
+    side = np.asarray(sizes, dtype=np.float64)
+    k = len(side)
+    if k == 0:
+        return np.zeros((0, 3))
+    cell = 1.2 * float(side.max())
+    lo = np.asarray(lo_xy, dtype=np.float64) + cell / 2
+    hi = np.asarray(hi_xy, dtype=np.float64) - cell / 2
+    mid = (np.asarray(lo_xy, dtype=np.float64) + np.asarray(hi_xy, dtype=np.float64)) / 2
+    lo, hi = np.minimum(lo, mid), np.maximum(hi, mid)
+    n_xy = np.maximum(1, np.floor((hi - lo) / cell).astype(int) + 1)
+    xs = lo[0] + (np.arange(n_xy[0]) + 0.5) * (hi[0] - lo[0]) / n_xy[0] if n_xy[0] > 1 else np.array([mid[0]])
+    ys = lo[1] + (np.arange(n_xy[1]) + 0.5) * (hi[1] - lo[1]) / n_xy[1] if n_xy[1] > 1 else np.array([mid[1]])
+    grid = np.array([(x, y) for x in xs for y in ys])
+    out = np.zeros((k, 3))
+    per_layer = len(grid)
+    for layer in range((k + per_layer - 1) // per_layer):
+        cells = grid[rng.permutation(per_layer)]
+        for j in range(min(per_layer, k - layer * per_layer)):
+            row = layer * per_layer + j
+            out[row, :2] = cells[j] + rng.uniform(-0.1, 0.1, 2) * cell
+            out[row, 2] = float(top_z) + cell * (layer + 0.5)
+    return out
+
+
+def displacements(before: Array, after: Array) -> Array:
+    """Per body the distance (m) its origin moved between two (N, 4, 4) poses."""
+    b, a = np.asarray(before, dtype=np.float64), np.asarray(after, dtype=np.float64)
+    return np.asarray(np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1))

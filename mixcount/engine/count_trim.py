@@ -73,10 +73,12 @@ def remove_surplus(state: SceneState) -> int:
     return len(removed)
 
 
-def count_outcome(state: SceneState, removed: int, resolution: int) -> Optional[str]:
-    """The ``count_target`` diagnostic (target, kept and surplus removed per class; the median visible
-    pixels of a kept counted object and, below the target's ``min_object_px``, the image side needed) and
-    the verdict: None, or the reason the scene cannot be kept."""
+def count_outcome(state: SceneState, removed: int, resolution: int, *, topped_up: int = 0, topup_rounds: int = 0,
+                  reserve_unused: int = 0) -> Optional[str]:
+    """The ``count_target`` diagnostic (target, kept and surplus removed per class, the reserve bodies a
+    top-up dropped in and its rounds, the reserve never used; the median visible pixels of a kept counted
+    object and, below the target's ``min_object_px``, the image side needed) and the verdict: None, or the
+    reason the scene cannot be kept."""
     target = state.spec.count_target
     assert target is not None
     targets = {ci: int(n) for ci, n in enumerate(target["per_class"])}
@@ -87,7 +89,8 @@ def count_outcome(state: SceneState, removed: int, resolution: int) -> Optional[
     record: dict[str, Any] = {
         "kind": "count_target", "total": int(target["total"]), "kept": sum(kept.values()),
         "per_class_target": [targets[c] for c in sorted(targets)], "per_class_kept": [kept[c] for c in sorted(kept)],
-        "surplus_removed": int(removed), "verdict": verdict or "ok", "median_visible_px": round(median_px, 1)}
+        "surplus_removed": int(removed), "topped_up": int(topped_up), "topup_rounds": int(topup_rounds),
+        "reserve_unused": int(reserve_unused), "verdict": verdict or "ok", "median_visible_px": round(median_px, 1)}
     min_px = target.get("min_object_px")
     if min_px is not None:
         need = C.pixels_needed(median_px, resolution, float(min_px))

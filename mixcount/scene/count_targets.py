@@ -17,7 +17,8 @@ Everything is drawn from ``numpy.random.default_rng([scene seed, COUNT_TARGET_ST
 own, so the target is reproducible by seed and the sampler's main stream draws what it always drew.
 :func:`spawn_counts` turns a class's visible target into the number spawned (the retention prior of the
 config: ``count_spawn_factor`` per floor / container scene); the worker then takes out the surplus
-(:mod:`mixcount.annotate.count_decisions`).
+(:mod:`mixcount.annotate.count_decisions`), or tops a short class up from the bodies
+:func:`reserve_counts` holds out of the first settle (:mod:`mixcount.engine.count_topup`).
 """
 
 from __future__ import annotations
@@ -198,18 +199,39 @@ def spawn_counts(targets: Sequence[int], factor: float, extra: int, sizes: Optio
             for t, r in zip(targets, ratios)]
 
 
+def reserve_counts(targets: Sequence[int], reserve: Sequence[float]) -> list[int]:
+    """Bodies per class held out of the first settle for a top-up: ceil(reserve[0] x target) + reserve[1].
+    They are the class's last instances in the spec (:func:`reserve_instances`); a short class is topped up
+    from them by dropping them onto the settled pile, the rest never enter the scene."""
+    return [int(math.ceil(float(reserve[0]) * int(t) - 1e-9)) + int(reserve[1]) for t in targets]
+
+
+def reserve_instances(classes: Sequence[int], instance_ids: Sequence[int], reserve: Sequence[int]) -> list[int]:
+    """The instance ids held in reserve: per class ``c`` its ``reserve[c]`` highest instance ids (the
+    sampler fills spawn positions in instance order, so these are the top of the spawn column)."""
+    out: list[int] = []
+    for c, r in enumerate(reserve):
+        ids = sorted(int(i) for i, k in zip(instance_ids, classes) if int(k) == c)
+        out.extend(ids[len(ids) - int(r):] if int(r) > 0 else [])
+    return sorted(out)
+
+
 def target_record(total: int, per_class: Sequence[int], ratio: Optional[float], dist: CountDistribution,
                   factor: float, short_tolerance: Sequence[float], class_short_tolerance: int,
-                  min_object_px: float) -> dict[str, Any]:
+                  min_object_px: float, *, reserve: Sequence[int], topup_rounds: int, rest_frames: int,
+                  rest_tolerance: float) -> dict[str, Any]:
     """What the spec records: the distribution's text, the drawn total, per class index, the drawn
     imbalance ratio, the spawn factor used and how short the worker may end (``short_total``: max(a, b x
-    total) objects, ``short_class``) before the scene is regenerated, and ``min_object_px`` (below it the
-    worker records the image side its objects would need)."""
+    total) objects, ``short_class``) before the scene is regenerated, ``min_object_px`` (below it the
+    worker records the image side its objects would need), the reserve bodies per class and the top-up
+    rounds allowed, and the rest check's frames and tolerance (x size)."""
     short = max(float(short_tolerance[0]), float(short_tolerance[1]) * total)
     return {"distribution": dist.text, "total": int(total), "per_class": [int(c) for c in per_class],
             "imbalance": None if ratio is None else round(ratio, 6), "spawn_factor": float(factor),
             "short_total": int(math.floor(short)), "short_class": int(class_short_tolerance),
-            "min_object_px": float(min_object_px)}
+            "min_object_px": float(min_object_px), "reserve": [int(r) for r in reserve],
+            "topup_rounds": int(topup_rounds), "rest_frames": int(rest_frames),
+            "rest_tolerance": float(rest_tolerance)}
 
 
 def per_category(record: Mapping[str, Any], class_category: Mapping[int, int]) -> dict[str, Any]:

@@ -38,6 +38,7 @@ from mixcount.scene.count_targets import (
     draw_elevations,
     draw_total,
     elevation_factor,
+    reserve_counts,
     spawn_counts,
     split_total,
     target_record,
@@ -594,8 +595,12 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
             min(elevations), config.count_spawn_elevation)
         counts = spawn_counts(aims, factor, config.count_spawn_extra, [d.size for d in drafts],
                               config.count_spawn_size_exponent, config.count_spawn_sqrt)
+        reserve = reserve_counts(aims, config.count_reserve)  # held out of the first settle, for a top-up
+        counts = [c + r for c, r in zip(counts, reserve)]
         count_target = target_record(n, aims, ratio, target, factor, config.count_short_tolerance,
-                                     config.count_class_short_tolerance, config.count_min_object_px)
+                                     config.count_class_short_tolerance, config.count_min_object_px,
+                                     reserve=reserve, topup_rounds=config.count_topup_rounds,
+                                     rest_frames=config.count_rest_frames, rest_tolerance=config.count_rest_tolerance)
         n = sum(counts)
     classes = _build_object_classes(drafts, counts)
 
