@@ -117,6 +117,20 @@ def _compose_lines(summary: Any, out_dir: Path, *, merge: bool) -> list[str]:
     return lines
 
 
+def _views_lines(config: Config) -> list[str]:
+    """What ``--views`` / ``--trajectory orbit`` added to every scene (nothing without them)."""
+    from mixcount.worker.contract import MoreViews
+
+    more = MoreViews.from_config(config.rerender, config.scene)
+    if more is None:
+        return []
+    added = [f"{more.plan.new_views} by the paper's camera rule"] if more.plan.new_views else []
+    if more.plan.trajectory == "orbit":
+        added.append(f"{more.plan.frames} along an orbit")
+    return [f"views: each scene's own camera(s) and {' and '.join(added)}, rendered in its one worker pass "
+            f"(annotation rule {more.rule})"]
+
+
 def absolute_counts(counts: Optional[str]) -> Optional[str]:
     """``--counts`` with a histogram's relative path made absolute (the workers and the recorded config
     read it from any folder); None stays None (the config's value)."""
@@ -149,6 +163,10 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
         package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
         mixed_settings: bool = typer.Option(False, "--mixed-settings", help="Add scenes to an OUT whose scenes were composed with other settings (resolution, samples, scene rules, catalog): recorded as another variant in OUT/settings.json; without it such a run is refused."),
+        views: Optional[int] = typer.Option(None, "--views", min=0, help="New cameras per scene by the paper's camera rule around its settled pile, rendered in the same worker pass as its own (rerender.new_views; default 0)."),
+        trajectory: Optional[str] = typer.Option(None, "--trajectory", help="none or orbit: --frames more cameras on a circle around each pile (rerender.trajectory)."),
+        frames: Optional[int] = typer.Option(None, "--frames", min=1, help="Cameras along the orbit (rerender.frames)."),
+        rule: Optional[str] = typer.Option(None, "--rule", help="How the views are annotated: all_cameras (the paper's) or per_view (rerender.annotation_rule)."),
         counts: Optional[str] = typer.Option(None, "--counts", help="Visible counted objects per image (scene.count_target): paper (spawned n ~ scene.n_objects, the default), uniform:A-B or histogram:PATH ('count weight' lines), optionally followed by ,imbalance:R1-R2 (largest / smallest class per scene); docs/scene.md."),
         json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
     ) -> None:
@@ -160,7 +178,9 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             "compose.split": split, "compose.seed": seed, "compose.workers": workers,
             "compose.resolution": resolution, "compose.samples": samples,
             "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()],
-            "compose.merge": False if no_merge else None, "scene.count_target": absolute_counts(counts)})
+            "compose.merge": False if no_merge else None, "scene.count_target": absolute_counts(counts),
+            "rerender.new_views": views, "rerender.trajectory": trajectory, "rerender.frames": frames,
+            "rerender.annotation_rule": rule})
         parse_count_target(cfg.scene.count_target)  # a bad target stops here, before anything is written
         catalog = st.catalog()
         if dry_run:
@@ -200,7 +220,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
 
             packaged = copy_assets(out_dir, assets_dirs=[Path(catalog.usd_assets_dir)])
             console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB)", highlight=False)
-        result(_compose_lines(summary, out_dir, merge=cfg.compose.merge), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
+        result(_compose_lines(summary, out_dir, merge=cfg.compose.merge) + _views_lines(cfg), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
                json_out)
         if summary.written < n:
             raise CompositionError(f"only {summary.written} of {n} scenes could be written (see failures above)")

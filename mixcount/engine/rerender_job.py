@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -51,6 +51,7 @@ from mixcount.worker.contract import (
     DevicesResult,
     RenderView,
     RerenderRequest,
+    SceneRequest,
     SceneResult,
     view_suffix,
 )
@@ -131,6 +132,8 @@ def _place_cameras(state: SceneState, views: tuple[RenderView, ...]) -> None:
     state.cam_objs = objs
     state.scene.camera = objs[0]
     state.framings = [dict(v.framing) for v in views]
+    for recs in state.views.values():  # records of the scene's own cameras (compose --views): one per new camera
+        recs.extend({"camera": c.name} for c in objs[len(recs):])
 
 
 def _apply_settings(state: SceneState, req: RerenderRequest) -> None:
@@ -186,8 +189,6 @@ def _origins_per_view(state: SceneState, cameras: list[Any]) -> None:
 
 def run_rerender(req: RerenderRequest) -> SceneResult:
     """Handle one ``rerender`` request (module docstring); returns the SceneResult like the ``scene`` op."""
-    from mixcount.engine.visibility import camera_model
-
     timer = Timer()
     with timer.stage("device"):
         device = select_device(req.device)
@@ -199,61 +200,106 @@ def run_rerender(req: RerenderRequest) -> SceneResult:
         state.diagnostics.append({"kind": "device", **device.to_dict()})
     with timer.stage("poses"):
         _apply_poses(state, req)
-        _place_cameras(state, req.views)
         _apply_settings(state, req)
+    return render_views(state, req.views, rule=req.rule, persistent_data=req.persistent_data,
+                        req=req.scene_request(), timer=timer)
+
+
+def render_more_views(state: SceneState, req: SceneRequest, cameras: list[Any], renders: int,
+                      timer: Timer) -> SceneResult:
+    """``compose --views``: a scene whose own cameras the scene job has just settled, placed and checked
+    (status ok) gets ``req.more_views``' cameras in the same process, then every view is annotated and
+    rendered by :func:`render_views` exactly as ``mixcount render`` does from the finished scene: the own
+    cameras at the poses they rendered from, the new ones drawn by :func:`~mixcount.scene.views.plan_views`
+    from the same settled pile. No second import, no physics."""
+    from mixcount.scene.views import plan_views
+
+    more = req.more_views
+    assert more is not None
+    own = [RenderView(name=c.name, cam_to_world=tuple(tuple(float(v) for v in row) for row in cam.cam_to_world),
+                      focal_length_mm=float(c.data.lens), sensor_width_mm=float(c.data.sensor_width),
+                      clip_range=(float(c.data.clip_start), float(c.data.clip_end)),
+                      framing=state.framings[k] if state.framings else {"framing": "fixed"})
+           for k, (c, cam) in enumerate(zip(state.cam_objs, cameras))]
+    spec = state.spec
+    counted = state.kept("counted")
+    centres = np.array([np.asarray(state.objects[i].matrix_world)[:3, 3] for i in counted]).reshape(-1, 3)
+    sizes = np.array([state.objects[i].size_m for i in counted])
+    diag = float(np.linalg.norm(spec.container.extent_m)) if spec.container is not None else None
+    drawn = plan_views(more.plan, spec.cameras[0], diag, spec.seed, centres, sizes, own[0].cam_to_world, len(own))
+    state.diagnostics.append({"kind": "more_views", "own": len(own), "new": len(drawn), "rule": more.rule})
+    return render_views(state, own + [RenderView.of(v) for v in drawn], rule=more.rule,
+                        persistent_data=more.persistent_data, req=req, timer=timer, renders=renders)
+
+
+def render_views(state: SceneState, views: Sequence[RenderView], *, rule: str, persistent_data: bool,
+                 req: SceneRequest, timer: Timer, renders: int = 0) -> SceneResult:
+    """Every view of a settled scene (bodies at their final poses, proxies gone): one Blender camera per
+    view, then the scene job's steps under ``rule`` (module docstring): frame check, silhouettes, the
+    id-pass visibility loop, passes and amodal masks of ``req``, RGB per view (each timed), the reference
+    check on ``req.oracle``; ``renders`` id passes were rendered before (the SceneResult counts them all)."""
+    from mixcount.engine.visibility import camera_model
+
+    with timer.stage("poses"):
+        _place_cameras(state, tuple(views))
         cameras = [camera_model(state.scene, c) for c in state.cam_objs]
     with timer.stage("frame_check"):
-        if req.rule == RULE_ALL_CAMERAS:
+        if rule == RULE_ALL_CAMERAS:
             check_frame(state, cameras)
         else:
             _origins_per_view(state, cameras)
     with timer.stage("silhouettes"):
         masks = [silhouettes(state, cam, req.threads, k) for k, cam in enumerate(cameras)]
-    if req.rule == RULE_PER_VIEW:  # measure every view, drop nothing: the loop's threshold set out of reach
+    if rule == RULE_PER_VIEW:  # measure every view, drop nothing: the loop's threshold set out of reach
         spec = state.spec
         state.spec = replace(spec, render=replace(spec.render, visibility_threshold=NEVER_OCCLUDED))
-        id_passes, renders = visibility_loop(state, masks, timer)
+        id_passes, more = visibility_loop(state, masks, timer)
         state.spec = spec
         keeps = [_per_view_keep(state, k) for k in range(len(cameras))]
-        counted = {o.instance_id for o in state.objects if o.role == "counted"}
+        counted = {o.instance_id for o in state.objects if o.role == "counted" and o.kept}
         status = STATUS_OK if any(counted & set(k) for k in keeps) else STATUS_EMPTY
     else:
-        id_passes, renders = visibility_loop(state, masks, timer)
+        id_passes, more = visibility_loop(state, masks, timer)
         status = final_status(state)
         keeps = []
     view_passes: list[dict[str, Any]] = [{} for _ in cameras]
     if status == STATUS_OK:
         with timer.stage("write_passes"):
             for k, cam in enumerate(cameras):
-                view_passes[k] = write_passes(state, id_passes[k], cam, req.scene_request(), k)
+                view_passes[k] = write_passes(state, id_passes[k], cam, req, k)
                 if keeps:  # per view: only this view's objects in its id map and amodal file
                     np.save(state.out_dir / f"ids{view_suffix(k)}.npy", D.instance_map(id_passes[k]["index"], keeps[k]))
                 write_amodal_masks(state, masks[k], id_passes[k], k)
         with timer.stage("rgb"):
-            state.scene.render.use_persistent_data = req.persistent_data
-            rgb_times, rgb_cpu = [], []
-            for k in range(len(state.cam_objs)):  # render_rgb per view, each timed (wall and this process's CPU)
-                t, c = time.perf_counter(), time.process_time()
-                _render_one(state, k)
-                rgb_times.append(round(time.perf_counter() - t, 4))
-                rgb_cpu.append(round(time.process_time() - c, 4))
-            state.diagnostics.append({"kind": "rgb_per_view", "seconds": rgb_times, "cpu_seconds": rgb_cpu,
-                                      "persistent_data": req.persistent_data})
+            _render_all(state, persistent_data)
         if req.oracle:
             with timer.stage("oracle"):
                 for k, cam in enumerate(cameras):
                     reference_check(state, masks[k], cam, k)
-    for i, views in state.views.items():
-        state.update(i, views=tuple({k: v for k, v in view.items() if k != "in_frame"} for view in views))
+    for i, recs in state.views.items():
+        state.update(i, views=tuple({k: v for k, v in view.items() if k != "in_frame"} for view in recs))
     spec = state.spec
     records = [_camera_record(c, cam) for c, cam in zip(state.cam_objs, cameras)]
     out_views = tuple(CameraView(name=c.name, suffix=view_suffix(k), camera=records[k], framing=state.framings[k],
                                  passes=view_passes[k]) for k, c in enumerate(state.cam_objs))
     return SceneResult(
         status=status, stage=str(state.stage_path), scene_id=spec.scene_id, seed=spec.seed,
-        visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=renders,
+        visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=renders + more,
         physics=spec.physics.to_dict(), camera=records[0], lights=state.lights, objects=tuple(state.objects),
         views=out_views, diagnostics=tuple(state.diagnostics), timings=dict(timer.times))
+
+
+def _render_all(state: SceneState, persistent_data: bool) -> None:
+    """Every view's RGB image, each timed (wall and this process's CPU: the ``rgb_per_view`` diagnostic)."""
+    state.scene.render.use_persistent_data = persistent_data
+    rgb_times, rgb_cpu = [], []
+    for k in range(len(state.cam_objs)):
+        t, c = time.perf_counter(), time.process_time()
+        _render_one(state, k)
+        rgb_times.append(round(time.perf_counter() - t, 4))
+        rgb_cpu.append(round(time.process_time() - c, 4))
+    state.diagnostics.append({"kind": "rgb_per_view", "seconds": rgb_times, "cpu_seconds": rgb_cpu,
+                              "persistent_data": persistent_data})
 
 
 def _render_one(state: SceneState, k: int) -> None:

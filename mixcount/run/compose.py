@@ -32,7 +32,7 @@ from mixcount.errors import AssetError, CompositionError, MixcountError, Storage
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
 from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
-from mixcount.worker.contract import SceneOutputs
+from mixcount.worker.contract import MoreViews, SceneOutputs
 
 
 @dataclass
@@ -85,13 +85,17 @@ def compose_scenes(
     if not any(getattr(o, "split", None) == comp.split for o in pool):  # before anything is made on disk
         raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog "
                                "first; nothing was written")
+    more_views = more_views_of(config)  # a refused pair stops here, before OUT is made
     _prepare_output(out_dir)
     # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
     # without them stops the run here with one clear error instead of failing every scene's sampling
     environments = tuple(environments_to_draw(config.scene, environments))
     outputs = SceneOutputs.from_config(comp, passes)
-    settings_id = check_settings(out_dir, dataset_settings(config, passes=list(outputs.passes), catalog=catalog),
-                                 config.hash, allow_mixed=mixed_settings)
+    settings = dataset_settings(config, passes=list(outputs.passes), catalog=catalog)
+    if more_views is not None:  # the views a scene holds are part of what the dataset is
+        settings.update({f"rerender.{k}": v for k, v in more_views.to_dict()["plan"].items() if k != "camera_rule"})
+        settings["rerender.annotation_rule"] = more_views.rule
+    settings_id = check_settings(out_dir, settings, config.hash, allow_mixed=mixed_settings)
     summary = ComposeSummary(requested=n, settings_id=settings_id)
     t0 = time.perf_counter()
     own_executor = executor is None
@@ -103,7 +107,7 @@ def compose_scenes(
     bar = as_reporter(progress)
     run = _ComposeRun(config=config, pool=pool, out_dir=out_dir, assets_dir=Path(assets_dir), n=n,
                       environments=environments, materials=materials, oracle=oracle, outputs=outputs,
-                      summary=summary, bar=bar)
+                      summary=summary, bar=bar, more_views=more_views)
     warning = container_warning(pool, comp.split, config.scene)
     if warning:  # once per run, not once per scene
         summary.warnings.append(warning)
@@ -122,6 +126,20 @@ def compose_scenes(
     if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
         _merge(out_dir, config, summary, bar)
     return summary
+
+
+def more_views_of(config: Config) -> Optional[MoreViews]:
+    """``compose --views K`` / ``--trajectory orbit``: the new cameras each scene gets in its own worker request
+    (``[rerender]``'s views, rule and persistent data); None for none. Under the paper's all-cameras rule the
+    new views can remove objects a count target (``scene.count_target``) was met with: that pair is refused."""
+    from mixcount.scene.count_targets import parse_count_target
+
+    more = MoreViews.from_config(config.rerender, config.scene)
+    if more is not None and more.rule == "all_cameras" and not parse_count_target(config.scene.count_target).is_paper:
+        raise CompositionError("compose --views with a count target (--counts): the all_cameras rule would remove "
+                               "objects the target counted in the new views; use --rule per_view (nothing is "
+                               "removed), or compose then `mixcount render --views`; nothing was written")
+    return more
 
 
 def _prepare_output(out_dir: Path) -> None:
@@ -172,6 +190,7 @@ class _ComposeRun:
     outputs: SceneOutputs  # SceneTask's passes, formats and mesh cache
     summary: ComposeSummary
     bar: ProgressReporter
+    more_views: Optional[MoreViews]  # compose --views: each task's new cameras (None: the scene's own only)
     attempts: int = 0
     in_flight: int = 0
     fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
@@ -281,7 +300,7 @@ class _ComposeRun:
                          timeout_s=self.config.compose.scene_timeout_s, threads=self.threads, oracle=self.oracle,
                          captions={k: v for k, v in self.captions.items() if k in distractors},
                          external_exemplars={k: self.external[k] for k in sorted(used) if k in self.external},
-                         outputs=self.outputs)
+                         outputs=self.outputs, more_views=self.more_views)
 
     def info(self) -> str:
         return f"failed {self.summary.failed}  regenerated {self.summary.empty + self.summary.rejected}"

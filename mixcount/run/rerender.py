@@ -17,7 +17,6 @@ one is a RenderError (one line naming what Cycles found; exit 2) and ``NEW`` is 
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import time
@@ -109,34 +108,17 @@ def own_views(meta: dict[str, Any]) -> list[RenderView]:
 
 def new_views(meta: dict[str, Any], spec: SceneSpec, config: Config) -> list[RenderView]:
     """``[rerender] views`` cameras by the paper's rule and/or an orbit of ``frames`` cameras, named after
-    the scene's own (cam_<n>, cam_<n+1>, ...)."""
-    from mixcount.scene.views import orbit_views, paper_views
+    the scene's own (cam_<n>, cam_<n+1>, ...): :func:`mixcount.scene.views.plan_views` on the settled pile
+    metadata.json records (the worker draws them the same way for ``compose --views``)."""
+    from mixcount.scene.views import ViewPlan, plan_views
 
-    rr = config.rerender
     kept = [o for o in meta["objects"] if o["status"] == "kept" and o["role"] == "counted"]
-    if not kept or (rr.new_views == 0 and rr.trajectory == "none"):
-        return []
-    centres = np.array([np.asarray(o["matrix_world"], dtype=np.float64)[:3, 3] for o in kept])
+    centres = np.array([np.asarray(o["matrix_world"], dtype=np.float64)[:3, 3] for o in kept]).reshape(-1, 3)
     sizes = np.array([float(o["size_m"]) for o in kept])
-    first = len(meta["cameras"])
-    template = spec.cameras[0]
-    out = []
-    if rr.new_views:
-        diag = float(np.linalg.norm(spec.container.extent_m)) if spec.container is not None else None
-        out += paper_views(template, config.scene, centres, sizes, diag, k=rr.new_views, seed=rr.seed,
-                           scene_seed=spec.seed, first_index=first)
-    if rr.trajectory == "orbit":
-        from mixcount.scene.framing import pile_centre
-
-        centre = pile_centre(centres)
-        cam0 = np.asarray(meta["cameras"][0]["record"]["cam_to_world"], dtype=np.float64)[:3, 3]
-        radius = rr.orbit_distance_factor * float(np.linalg.norm(cam0 - centre))
-        start = math.degrees(math.atan2(cam0[1] - centre[1], cam0[0] - centre[0]))
-        out += orbit_views(template, centres, frames=rr.frames, elevation_deg=rr.orbit_elevation_deg, radius=radius,
-                           start_azimuth_deg=start, first_index=first + len(out))
-    return [RenderView(name=v.name, cam_to_world=tuple(tuple(float(x) for x in r) for r in v.cam_to_world),
-                       focal_length_mm=v.focal_length_mm, sensor_width_mm=v.sensor_width_mm, clip_range=v.clip_range,
-                       framing=v.framing) for v in out]
+    diag = float(np.linalg.norm(spec.container.extent_m)) if spec.container is not None else None
+    drawn = plan_views(ViewPlan.from_config(config.rerender, config.scene), spec.cameras[0], diag, spec.seed,
+                       centres, sizes, meta["cameras"][0]["record"]["cam_to_world"], len(meta["cameras"]))
+    return [RenderView.of(v) for v in drawn]
 
 
 def _captions_and_exemplars(meta: dict[str, Any]) -> tuple[dict[int, dict[str, str]], dict[int, str]]:

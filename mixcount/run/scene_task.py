@@ -17,7 +17,7 @@ from typing import Any, Optional, Protocol
 
 from mixcount.scene.spec import SceneSpec
 from mixcount.worker.client import Worker
-from mixcount.worker.contract import STATUS_EMPTY, STATUS_OK, SceneOutputs, SceneRequest
+from mixcount.worker.contract import STATUS_EMPTY, STATUS_OK, MoreViews, SceneOutputs, SceneRequest, SceneResult
 
 WRITTEN = "written"
 SKIPPED = "skipped"  # already complete
@@ -38,6 +38,7 @@ class SceneTask:
     captions: dict[int, dict[str, str]] = field(default_factory=dict)  # distractor captions by object id
     external_exemplars: dict[int, str] = field(default_factory=dict)  # object id -> render copy, relative to OUT
     keep_failed: bool = False
+    more_views: Optional[MoreViews] = None  # compose --views: new cameras rendered in the same worker request
 
 
 @dataclass
@@ -66,7 +67,17 @@ class StagedScene:
 
 def _request(task: SceneTask, tmp: Path) -> SceneRequest:
     return SceneRequest.for_outputs(task.outputs, stage=str(tmp / "scene.usda"), out_dir=str(tmp),
-                                    threads=task.threads, oracle=task.oracle)
+                                    threads=task.threads, oracle=task.oracle, more_views=task.more_views)
+
+
+def _views_record(task: SceneTask, result: SceneResult) -> Optional[dict[str, Any]]:
+    """metadata.json's ``more_views`` for ``compose --views`` (as ``mixcount render`` records ``rerender``);
+    None without new views (nothing added)."""
+    if task.more_views is None:
+        return None
+    own = next((d["own"] for d in result.diagnostics if d.get("kind") == "more_views"), len(result.views))
+    return {"more_views": {"rule": task.more_views.rule, "views": len(result.views), "own_views": int(own),
+                           "plan": task.more_views.plan.to_dict()}}
 
 
 def stage_scene(task: SceneTask) -> Optional[StagedScene]:
@@ -144,7 +155,8 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         t = time.perf_counter()
         timings["total"] = 0.0
         meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings,
-                              external_exemplars=task.external_exemplars, passes=task.outputs.passes)
+                              external_exemplars=task.external_exemplars, passes=task.outputs.passes,
+                              extra=_views_record(task, result))
         timings["annotate"] = round(time.perf_counter() - t, 4)
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])

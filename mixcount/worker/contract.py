@@ -20,6 +20,10 @@ One frozen request / result pair per worker operation, each with a JSON round-tr
   poses written to ``settled.json`` in the request's out_dir, so a second bpy process can settle the next
   scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.worker.settle_ahead.SettleAheadWorker`);
   a ``scene`` request whose ``settled`` names that file applies the poses instead of simulating.
+* ``rerender`` - :class:`RerenderRequest` -> :class:`SceneResult`: a settled stage rendered again from
+  recorded poses and cameras (``mixcount render``); ``devices`` - :class:`DevicesRequest` ->
+  :class:`DevicesResult`. A ``scene`` request with ``more_views`` (:class:`MoreViews`, ``compose --views``)
+  renders the new cameras in the same request, right after the scene's own.
 
 No request field has a default: every setting comes from the caller (from the configuration, read once).
 """
@@ -36,6 +40,8 @@ from mixcount.annotate.scene_decisions import STATUS_REJECTED as STATUS_REJECTED
 from mixcount.config import MESH_CACHE_MODES as MESH_CACHE_MODES  # re-exported for the worker side
 from mixcount.config import ComposeConfig
 from mixcount.errors import CompositionError
+from mixcount.scene.views import NewView, ViewPlan
+from mixcount.scene_config import RerenderConfig, SceneConfig
 
 KEPT = "kept"
 DROPPED = "dropped"
@@ -105,19 +111,22 @@ class SceneRequest:
     mesh_cache: str  # compose.mesh_cache, one of MESH_CACHE_MODES
     # a settled.json a ``settle`` request wrote for this stage ("" = simulate in this request)
     settled: str
+    # new cameras rendered after the scene's own, in this request (``compose --views``; None: none)
+    more_views: Optional["MoreViews"]
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["passes"] = list(self.passes)
+        d["more_views"] = None if self.more_views is None else self.more_views.to_dict()
         return d
 
     @classmethod
     def for_outputs(cls, outputs: SceneOutputs, *, stage: str, out_dir: str, threads: int, oracle: bool,
-                    settled: str = "") -> "SceneRequest":
-        """The request that renders ``stage`` into ``out_dir`` writing ``outputs``."""
+                    settled: str = "", more_views: Optional["MoreViews"] = None) -> "SceneRequest":
+        """The request that renders ``stage`` into ``out_dir`` writing ``outputs`` (and ``more_views``)."""
         return cls(stage=stage, out_dir=out_dir, threads=threads, oracle=oracle, passes=tuple(outputs.passes),
                    depth_format=outputs.depth_format, normal_format=outputs.normal_format,
-                   mesh_cache=outputs.mesh_cache, settled=settled)
+                   mesh_cache=outputs.mesh_cache, settled=settled, more_views=more_views)
 
     @classmethod
     def from_config(cls, compose: ComposeConfig, *, stage: str, out_dir: str, threads: int,
@@ -132,7 +141,35 @@ class SceneRequest:
         return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
                    oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
                    depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
-                   mesh_cache=str(v["mesh_cache"]), settled=str(v["settled"]))
+                   mesh_cache=str(v["mesh_cache"]), settled=str(v["settled"]),
+                   more_views=None if v["more_views"] is None else MoreViews.from_dict(v["more_views"]))
+
+
+@dataclass(frozen=True)
+class MoreViews:
+    """``compose --views K``: the cameras ``plan`` adds to a scene once its own are rendered, in the same
+    ``scene`` request (the pile settled and imported once), annotated over all views by ``rule`` (one of
+    ANNOTATION_RULES), with Cycles' scene data kept between the views' RGB renders when ``persistent_data``."""
+
+    plan: ViewPlan
+    rule: str
+    persistent_data: bool
+
+    @classmethod
+    def from_config(cls, rerender: RerenderConfig, scene: SceneConfig) -> Optional["MoreViews"]:
+        """``[rerender]``'s views, rule and persistent data (``[scene]``'s camera rule); None when it adds no view."""
+        plan = ViewPlan.from_config(rerender, scene)
+        if not plan.adds_views:
+            return None
+        return cls(plan=plan, rule=rerender.annotation_rule, persistent_data=rerender.persistent_data)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"plan": self.plan.to_dict(), "rule": self.rule, "persistent_data": self.persistent_data}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "MoreViews":
+        v = _known(cls, d)
+        return cls(plan=ViewPlan.from_dict(v["plan"]), rule=str(v["rule"]), persistent_data=bool(v["persistent_data"]))
 
 
 SETTLED_FILE = "settled.json"  # what a ``settle`` request writes into its out_dir
@@ -408,6 +445,14 @@ class RenderView:
     clip_range: tuple[float, float]
     framing: dict[str, Any]  # how it was chosen ("stage", "paper", "orbit"), recorded in metadata.json
 
+    @classmethod
+    def of(cls, view: NewView) -> "RenderView":
+        """A drawn camera (:class:`mixcount.scene.views.NewView`) as the worker places it."""
+        m = _matrix(view.cam_to_world)
+        assert m is not None
+        return cls(name=view.name, cam_to_world=m, focal_length_mm=view.focal_length_mm,
+                   sensor_width_mm=view.sensor_width_mm, clip_range=view.clip_range, framing=view.framing)
+
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "cam_to_world": [list(r) for r in self.cam_to_world],
                 "focal_length_mm": self.focal_length_mm, "sensor_width_mm": self.sensor_width_mm,
@@ -455,7 +500,7 @@ class RerenderRequest:
         """The fields the stage loader shares with a ``scene`` request."""
         return SceneRequest(stage=self.stage, out_dir=self.out_dir, threads=self.threads, oracle=self.oracle,
                             passes=self.passes, depth_format=self.depth_format, normal_format=self.normal_format,
-                            mesh_cache=self.mesh_cache, settled="")
+                            mesh_cache=self.mesh_cache, settled="", more_views=None)
 
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
