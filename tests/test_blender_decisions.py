@@ -156,7 +156,8 @@ def test_pass_conversions() -> None:
 
 def test_contract_json_round_trip() -> None:
     req = SceneRequest(stage="/x/scene.usda", out_dir="/x", threads=2, oracle=True, passes=("instance", "depth"),
-                       depth_format="exr32", normal_format="png8", mesh_cache="raw", settled="/x/settled.json")
+                       depth_format="exr32", normal_format="png8", mesh_cache="raw", settled="/x/settled.json",
+                       more_views=None)
     assert SceneRequest.from_dict(json.loads(json.dumps(req.to_dict()))) == req
     with pytest.raises(ValueError, match=r"SceneRequest: missing fields \['mesh_cache'\]"):
         SceneRequest.from_dict({k: v for k, v in req.to_dict().items() if k != "mesh_cache"})
