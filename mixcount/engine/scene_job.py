@@ -317,8 +317,9 @@ def silhouettes(state: SceneState, camera: PinholeCamera, threads: int, k: int =
     return masks
 
 
-def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
-                    timer: Timer) -> tuple[list[dict[str, np.ndarray]], int]:
+def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer,
+                    start: Optional[tuple[list[dict[str, np.ndarray]], list[Optional[tuple[int, int, int, int]]]]] = None,
+                    ) -> tuple[list[dict[str, np.ndarray]], int]:
     """Render each camera's id pass, measure every kept object's visibility (visible / amodal pixels) in
     each, drop the occluded ones - counted objects and distractors under the same rule, occlusion the
     maximum over the cameras - and re-render (up to MAX_VISIBILITY_ROUNDS times); returns the last id
@@ -328,19 +329,24 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]],
     no longer show it; the loop only ends on id passes that hold no dropped object. A re-render covers
     only the box of pixels where the dropped objects were seen (:func:`D.changed_region`; no render at
     all when they were seen nowhere) and is pasted into the previous passes: those are the only pixels
-    that removing them changes, and a border render gives them exactly as a full one does."""
+    that removing them changes, and a border render gives them exactly as a full one does.
+
+    ``start`` (id passes per camera and the region each must re-render first, None: none) continues from
+    earlier passes instead of full renders: a count target's rest check moves a few bodies
+    (:mod:`mixcount.engine.count_topup`)."""
     from mixcount.engine import render_passes as P
 
     exrs = [state.out_dir / f"_ids{view_suffix(k)}.exr" for k in range(len(state.cam_objs))]
     with P.id_pass_series(state.scene):
-        id_passes, renders = _visibility_rounds(state, masks, timer, exrs)
+        id_passes, renders = _visibility_rounds(state, masks, timer, exrs, start)
     for exr in exrs:
         P.remove_quiet(exr)
     return id_passes, renders
 
 
-def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer,
-                       exrs: list[Path]) -> tuple[list[dict[str, np.ndarray]], int]:
+def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer, exrs: list[Path],
+                       start: Optional[tuple[list[dict[str, np.ndarray]], list[Optional[tuple[int, int, int, int]]]]]
+                       = None) -> tuple[list[dict[str, np.ndarray]], int]:
     """:func:`visibility_loop`'s rounds, rendering camera k's id pass into ``exrs[k]``."""
     from mixcount.engine import render_passes as P
 
@@ -349,6 +355,8 @@ def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], ti
     rounds = renders = 0
     id_passes: list[Optional[dict[str, np.ndarray]]] = [None] * n_cams
     regions: list[Optional[tuple[int, int, int, int]]] = [None] * n_cams
+    if start is not None:
+        id_passes, regions = list(start[0]), list(start[1])
     while True:
         with timer.stage("id_pass"):
             for k in range(n_cams):
