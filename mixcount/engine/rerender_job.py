@@ -16,6 +16,10 @@ annotations hold the objects whose origin is in its frame and that are more than
 The import, the floor and the lights are paid once for all views; with ``req.persistent_data`` Cycles
 keeps its scene data (BVH, images) between the RGB renders of the views (``render.use_persistent_data``).
 :func:`select_device` enables CUDA / OptiX devices through Cycles' add-on preferences.
+
+:func:`render_views` (every step after the poses) is shared with ``compose --views``:
+:func:`render_more_views` runs it inside the ``scene`` request on the pile that request has just settled,
+with the new cameras drawn as ``mixcount render`` draws them (:func:`mixcount.scene.views.plan_views`).
 """
 
 from __future__ import annotations

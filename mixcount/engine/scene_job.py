@@ -7,7 +7,10 @@ Blender scene, :mod:`mixcount.engine.scene_build`), :func:`settle` (physics), :f
 :func:`final_status`, :func:`write_passes`, :func:`write_amodal_masks`, :func:`render_rgb` and, on
 request, :func:`reference_check`. A request whose ``settled`` names a file that :func:`settle_ahead` (the
 ``settle`` op, run by a companion process for the next scene) wrote applies those poses
-(:func:`apply_settled`) instead of running :func:`settle`. Every decision between them is a pure function of
+(:func:`apply_settled`) instead of running :func:`settle`. A request with ``more_views`` (``compose
+--views``) whose own cameras came out ok goes on in this process to
+:func:`mixcount.engine.rerender_job.render_more_views` (new cameras, then every view annotated and
+rendered as ``mixcount render`` does). Every decision between them is a pure function of
 :mod:`mixcount.annotate.scene_decisions`. What describes the scene (samples, denoise, visibility threshold,
 physics) is read from the stage's SceneSpec only; the :class:`~mixcount.worker.contract.SceneRequest`
 adds run-time settings (threads, oracle, passes and their formats, mesh cache).
