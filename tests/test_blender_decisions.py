@@ -16,6 +16,7 @@ from mixcount.worker.contract import (
     CameraView,
     CanonicalRequest,
     CanonicalResult,
+    CanonicalSettings,
     CanonicalView,
     MeshCacheRequest,
     MeshCacheResult,
@@ -163,9 +164,10 @@ def test_contract_json_round_trip() -> None:
         SceneRequest.from_dict({k: v for k, v in req.to_dict().items() if k != "mesh_cache"})
     settled = SettleResult(settled="/x/settled.json", frames_run=140, seconds={"import": 1.5, "physics": 8.25})
     assert SettleResult.from_dict(json.loads(json.dumps(settled.to_dict()))) == settled
-    canonical = CanonicalRequest(model_path="/m.glb", out_dir="/r", stem="obj_000001", threads=0, resolution=64,
-                                 samples=4, denoise=True, elevation_deg=30.0, azimuth_deg=10.0, extra_views=2,
-                                 margin=0.1, world_strength=0.5, sun_strength=2.0)
+    look = CanonicalSettings(resolution=64, samples=4, denoise=True, elevation_deg=30.0, azimuth_deg=10.0,
+                             extra_views=2, margin=0.1, world_strength=0.5, sun_strength=2.0)
+    canonical = CanonicalRequest(model_path="/m.glb", out_dir="/r", stem="obj_000001", threads=0, settings=look,
+                                 up_axis="")
     assert CanonicalRequest.from_dict(json.loads(json.dumps(canonical.to_dict()))) == canonical
     assert canonical.views() == (("canonical", 10.0), ("view_1", 130.0), ("view_2", 250.0))
     rendered = CanonicalResult(views=(CanonicalView(view="canonical", path="/r/a.png", mask_path="/r/a_mask.png",

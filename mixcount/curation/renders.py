@@ -30,7 +30,7 @@ from mixcount.catalog.hashing import json_hash
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
 from mixcount.config import CanonicalRenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
-from mixcount.worker.contract import CANONICAL, CanonicalRequest, canonical_views
+from mixcount.worker.contract import CANONICAL, CanonicalRequest, CanonicalSettings, canonical_views
 
 RENDER_VERSION = "canonical-v2"  # bump when the renderer changes what a render looks like (v2: vertex colours)
 SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
@@ -69,12 +69,9 @@ def view_names(extra_views: int) -> list[str]:
 def canonical_request(config: CanonicalRenderConfig, obj: CatalogObject, out_dir: Path) -> CanonicalRequest:
     """The worker request for one object's renders, every setting from ``[canonical_render]`` (threads are the
     runner's: it shares the cores among its workers)."""
-    return CanonicalRequest(
-        model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}", threads=config.threads,
-        resolution=config.resolution, samples=config.samples, denoise=config.denoise,
-        elevation_deg=config.elevation_deg, azimuth_deg=config.azimuth_deg, extra_views=config.extra_views,
-        margin=config.margin, world_strength=config.world_strength, sun_strength=config.sun_strength,
-        up_axis=obj.source_up_axis or "")
+    return CanonicalRequest(model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}",
+                            threads=config.threads, settings=CanonicalSettings.from_config(config),
+                            up_axis=obj.source_up_axis or "")
 
 
 def model_key(obj: CatalogObject) -> str:

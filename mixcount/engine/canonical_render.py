@@ -293,11 +293,12 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     orient_to_catalog(Path(req.model_path), req.up_axis)
     use_vertex_colours(objects)
     pts = centre_objects(objects)
-    configure_render(scene, resolution=req.resolution, samples=req.samples, denoise=req.denoise, threads=req.threads)
-    add_lighting(scene, world_strength=req.world_strength, sun_strength=req.sun_strength, azimuth_deg=req.azimuth_deg)
+    look = req.settings
+    configure_render(scene, resolution=look.resolution, samples=look.samples, denoise=look.denoise, threads=req.threads)
+    add_lighting(scene, world_strength=look.world_strength, sun_strength=look.sun_strength, azimuth_deg=look.azimuth_deg)
     results = []
     for view, az in req.views():
-        cam = add_camera(pts, elevation_deg=req.elevation_deg, azimuth_deg=az, margin=req.margin)
+        cam = add_camera(pts, elevation_deg=look.elevation_deg, azimuth_deg=az, margin=look.margin)
         stem = req.stem if view == CANONICAL else f"{req.stem}_{view}"
         raw = out_dir / f".{stem}.raw.png"
         scene.render.filepath = str(raw)

@@ -38,7 +38,7 @@ from mixcount.annotate.scene_decisions import STATUS_EMPTY as STATUS_EMPTY  # de
 from mixcount.annotate.scene_decisions import STATUS_OK as STATUS_OK
 from mixcount.annotate.scene_decisions import STATUS_REJECTED as STATUS_REJECTED
 from mixcount.config import MESH_CACHE_MODES as MESH_CACHE_MODES  # re-exported for the worker side
-from mixcount.config import ComposeConfig
+from mixcount.config import CanonicalRenderConfig, ComposeConfig
 from mixcount.errors import CompositionError
 from mixcount.scene.views import NewView, ViewPlan
 from mixcount.scene_config import RerenderConfig, SceneConfig
@@ -334,16 +334,11 @@ def canonical_views(extra_views: int, azimuth_deg: float) -> tuple[tuple[str, fl
 
 
 @dataclass(frozen=True)
-class CanonicalRequest:
-    """One ``canonical`` request: render the model at ``model_path`` into ``out_dir`` as ``<stem>.png``
-    (+ ``<stem>_<view>.png`` for extra views), each with a ``_mask.png``. Settings are ``[canonical_render]``'s."""
+class CanonicalSettings:
+    """How every canonical render looks: ``[canonical_render]``'s image settings, carried as one object
+    (:meth:`from_config` is the one place the config section becomes them; workers and threads stay the
+    runner's)."""
 
-    OP: ClassVar[str] = "canonical"
-
-    model_path: str
-    out_dir: str
-    stem: str
-    threads: int  # Cycles threads (0 = Blender's automatic choice)
     resolution: int
     samples: int
     denoise: bool
@@ -353,19 +348,42 @@ class CanonicalRequest:
     margin: float
     world_strength: float
     sun_strength: float
+
+    @classmethod
+    def from_config(cls, config: CanonicalRenderConfig) -> "CanonicalSettings":
+        return cls(**{f.name: getattr(config, f.name) for f in fields(cls)})
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalSettings":
+        return cls(**_known(cls, d))
+
+
+@dataclass(frozen=True)
+class CanonicalRequest:
+    """One ``canonical`` request: render the model at ``model_path`` into ``out_dir`` as ``<stem>.png``
+    (+ ``<stem>_<view>.png`` for extra views), each with a ``_mask.png``, with ``settings``."""
+
+    OP: ClassVar[str] = "canonical"
+
+    model_path: str
+    out_dir: str
+    stem: str
+    threads: int  # Cycles threads (0 = Blender's automatic choice)
+    settings: CanonicalSettings
     # the up axis the catalog reads the model with (objects.source_up_axis); the render turns the import
     # into that frame. "" = as Blender's importer reads it (glTF/OBJ Y-up, PLY/STL Z-up, USD its own)
-    up_axis: str = ""
+    up_axis: str
 
     def views(self) -> tuple[tuple[str, float], ...]:
-        return canonical_views(self.extra_views, self.azimuth_deg)
+        return canonical_views(self.settings.extra_views, self.settings.azimuth_deg)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalRequest":
-        return cls(**_known(cls, d))
+        v = _known(cls, d)
+        return cls(**{**v, "settings": CanonicalSettings.from_dict(v["settings"])})
 
 
 @dataclass(frozen=True)
