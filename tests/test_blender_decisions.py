@@ -157,12 +157,13 @@ def test_pass_conversions() -> None:
 
 def test_contract_json_round_trip() -> None:
     req = SceneRequest(stage="/x/scene.usda", out_dir="/x", threads=2, oracle=True, passes=("instance", "depth"),
-                       depth_format="exr32", normal_format="png8", mesh_cache="raw", settled="/x/settled.json",
+                       depth_format="exr32", normal_format="png8", mesh_cache="raw",
+                       settled_poses_file="/x/settled.json",
                        more_views=None)
     assert SceneRequest.from_dict(json.loads(json.dumps(req.to_dict()))) == req
     with pytest.raises(ValueError, match=r"SceneRequest: missing fields \['mesh_cache'\]"):
         SceneRequest.from_dict({k: v for k, v in req.to_dict().items() if k != "mesh_cache"})
-    settled = SettleResult(settled="/x/settled.json", frames_run=140, seconds={"import": 1.5, "physics": 8.25})
+    settled = SettleResult(poses_file="/x/settled.json", frames_run=140, seconds={"import": 1.5, "physics": 8.25})
     assert SettleResult.from_dict(json.loads(json.dumps(settled.to_dict()))) == settled
     look = CanonicalSettings(resolution=64, samples=4, denoise=True, elevation_deg=30.0, azimuth_deg=10.0,
                              extra_views=2, margin=0.1, world_strength=0.5, sun_strength=2.0)

@@ -513,7 +513,7 @@ def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPa
         second = w.request({"op": "ping"}, timeout=120)["pid"]
         assert second != first and w.restarts == 1
         with pytest.raises(RenderError, match="scene failed"):
-            w.render_scene(SceneRequest.from_config(load_config().compose, stage=str(tmp_path / "missing.usda"),
+            w.run_scene_job(SceneRequest.from_config(load_config().compose, stage=str(tmp_path / "missing.usda"),
                                                     out_dir=str(tmp_path / "x"), threads=1, oracle=False), timeout=60)
         assert w.request({"op": "ping"}, timeout=60)["pid"] == second  # a failed scene keeps the worker
 

@@ -39,13 +39,13 @@ SIDE = 96
 
 
 class FakeWorker:
-    """Answers ``render_scene`` like the bpy worker: ids.npy + rgb.png in the request's folder and a
+    """Answers ``run_scene_job`` like the bpy worker: ids.npy + rgb.png in the request's folder and a
     SceneResult. ``plan(seed)`` picks "ok", "empty", "rejected" or "crash"."""
 
     def __init__(self, spec: SceneSpec, plan: Callable[[int], str], calls: list[int]) -> None:
         self.spec, self.plan, self.calls = spec, plan, calls
 
-    def render_scene(self, request, timeout=None):  # noqa: ANN001 - the BlenderWorker signature
+    def run_scene_job(self, request, timeout=None):  # noqa: ANN001 - the BlenderWorker signature
         spec = self.spec
         self.calls.append(spec.seed)
         what = self.plan(spec.seed)

@@ -38,8 +38,8 @@ class FaultyWorker(FakeWorker):
         super().__init__(spec, lambda s: "ok", calls)
         self.fault = fault
 
-    def render_scene(self, request, timeout=None):  # noqa: ANN001
-        result = super().render_scene(request, timeout)
+    def run_scene_job(self, request, timeout=None):  # noqa: ANN001
+        result = super().run_scene_job(request, timeout)
         self.fault(self.spec.seed, Path(request.out_dir))
         return result
 

@@ -186,9 +186,10 @@ def test_moved_dataset_opens_merges_exports_and_rerenders_without_the_catalog(tw
         with BlenderWorker(name="moved", log_dir=tmp_path) as worker:
             req = SceneRequest(stage=str(scene / "scene.usda"), out_dir=str(tmp_path / "again"), threads=2, oracle=False,
                                passes=("instance",), depth_format=cfg.compose.depth_format,
-                               normal_format=cfg.compose.normal_format, mesh_cache="off", settled="", more_views=None)
+                               normal_format=cfg.compose.normal_format, mesh_cache="off", settled_poses_file="",
+                               more_views=None)
             (tmp_path / "again").mkdir()
-            result = worker.render_scene(req, timeout=600)
+            result = worker.run_scene_job(req, timeout=600)
         assert result.status == "ok"
         ids = np.load(tmp_path / "again" / "ids.npy").astype(np.uint16)
         assert np.array_equal(ids, np.asarray(Image.open(scene / "instance.png")))  # the same masks

@@ -5,7 +5,7 @@ Blender scene, :mod:`mixcount.engine.scene_build`), :func:`settle` (physics), :f
 (:func:`check_settled`, then for specs with a placement :func:`frame_cameras` and
 :func:`place_distractors_in_view`), :func:`check_frame`, :func:`silhouettes`, :func:`visibility_loop`,
 :func:`final_status`, :func:`write_passes`, :func:`write_amodal_masks`, :func:`render_rgb` and, on
-request, :func:`reference_check`. A request whose ``settled`` names a file that :func:`settle_ahead` (the
+request, :func:`reference_check`. A request whose ``settled_poses_file`` names a file that :func:`settle_ahead` (the
 ``settle`` op, run by a companion process for the next scene) wrote applies those poses
 (:func:`apply_settled`) instead of running :func:`settle`. A request with ``more_views`` (``compose
 --views``) whose own cameras came out ok goes on in this process to
@@ -94,26 +94,26 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
     run = simulate(state.scene, state.bodies, frames=ph.frames, substeps=ph.substeps,
                    iterations=ph.solver_iterations, gravity=ph.gravity, rest_speed=ph.rest_speed,
                    waited_for=waited_for, releases=releases)
-    settled = run.matrices
+    poses = run.matrices
     names = {pobj.name: name for name, pobj in state.proxies.items()}
     state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies), "frames_run": run.frames_run,
                               "waited_for": run.waited_for, "released_later": len(releases),
                               "last_release": run.last_release,
                               "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(run.speeds.items())}})
     for name, pobj in state.proxies.items():  # proxy pose (x the scale baked into it) -> render object
-        mat = settled.pop(pobj.name, None)
+        mat = poses.pop(pobj.name, None)
         if mat is not None:
             scale = state.proxy_scales.get(name)
-            settled[name] = mat if scale is None else pose_with_scale(mat, scale)
-    _place_settled(state, settled)
-    return settled
+            poses[name] = mat if scale is None else pose_with_scale(mat, scale)
+    _place_settled(state, poses)
+    return poses
 
 
-def _place_settled(state: SceneState, settled: dict[str, np.ndarray]) -> None:
+def _place_settled(state: SceneState, poses: dict[str, np.ndarray]) -> None:
     """The settled matrices (by render object name) onto the objects; the collision proxies removed."""
     import bpy
 
-    for name, mat in settled.items():
+    for name, mat in poses.items():
         _set_matrix(bpy.data.objects[name], mat)
     proxy_objs = list(state.proxies.values())
     state.bodies = [b for b in state.bodies if b.obj not in proxy_objs]
@@ -142,13 +142,13 @@ def settle_ahead(req: SceneRequest) -> SettleResult:
         state = load_scene(req)
         set_reserves_aside(state)  # as run_scene does: a count target's top-up bodies are not settled
     with timer.stage("physics"):
-        settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
+        poses = settle(state, camera_model(state.scene, state.cam_objs[0]))
     path_of = {obj.name: path for path, obj in state.blender_objects.items()}
     rest = next(d for d in state.diagnostics if d.get("kind") == "rest")
     out = state.out_dir / SETTLED_FILE
     out.write_text(json.dumps({"stage": str(state.stage_path), "rest": rest, "seconds": dict(timer.times),
-                               "matrices": {path_of[name]: np.asarray(m).tolist() for name, m in settled.items()}}))
-    return SettleResult(settled=str(out), frames_run=int(rest["frames_run"]), seconds=dict(timer.times))
+                               "matrices": {path_of[name]: np.asarray(m).tolist() for name, m in poses.items()}}))
+    return SettleResult(poses_file=str(out), frames_run=int(rest["frames_run"]), seconds=dict(timer.times))
 
 
 def apply_settled(state: SceneState, settled_json: str) -> dict[str, np.ndarray]:
@@ -161,15 +161,15 @@ def apply_settled(state: SceneState, settled_json: str) -> dict[str, np.ndarray]
     data = json.loads(path.read_text())
     if Path(data["stage"]) != state.stage_path:
         raise RuntimeError(f"{path} holds the settle of {data['stage']}, not of {state.stage_path}")
-    settled = {state.blender_objects[p].name: np.array(m, dtype=np.float64) for p, m in data["matrices"].items()}
+    poses = {state.blender_objects[p].name: np.array(m, dtype=np.float64) for p, m in data["matrices"].items()}
     state.diagnostics.append(data["rest"])
     state.diagnostics.append({"kind": "settled_ahead", "seconds": data["seconds"]})
-    _place_settled(state, settled)
+    _place_settled(state, poses)
     path.unlink()
-    return settled
+    return poses
 
 
-def check_settled(state: SceneState, settled: dict[str, np.ndarray], roles: tuple[str, ...]) -> None:
+def check_settled(state: SceneState, settled_poses: dict[str, np.ndarray], roles: tuple[str, ...]) -> None:
     """Record settled poses of the objects of ``roles``; drop unstable / below-floor / flung-out bodies,
     then deep interpenetrations among them."""
     ph, floor = state.spec.physics, state.spec.floor
@@ -179,7 +179,7 @@ def check_settled(state: SceneState, settled: dict[str, np.ndarray], roles: tupl
         if o.role not in roles or not o.kept:
             continue
         obj = state.blender_objects[o.path]
-        mat = settled.get(obj.name, np.array(obj.matrix_world))
+        mat = settled_poses.get(obj.name, np.array(obj.matrix_world))
         lo, hi = D.world_bounds(state.cache.columns[o.asset], mat)
         state.bounds[i] = (lo, hi)
         min_z = float(lo[2])
@@ -503,16 +503,16 @@ def _camera_record(cam_obj: Any, camera: PinholeCamera) -> dict[str, Any]:
     }
 
 
-def place_after_physics(state: SceneState, settled: dict[str, np.ndarray], timer: Timer) -> list[PinholeCamera]:
+def place_after_physics(state: SceneState, settled_poses: dict[str, np.ndarray], timer: Timer) -> list[PinholeCamera]:
     """Settle checks, then (specs with a placement) cameras framed on the settled pile and distractors
     placed in view; returns each camera's pixel model."""
     from mixcount.engine.visibility import camera_model
 
     with timer.stage("settle_checks"):
         if state.placed_after_physics:
-            check_settled(state, settled, ("counted",))
+            check_settled(state, settled_poses, ("counted",))
         else:
-            check_settled(state, settled, ("counted", "distractor"))
+            check_settled(state, settled_poses, ("counted", "distractor"))
     with timer.stage("placement"):
         if state.placed_after_physics:
             frame_cameras(state)
@@ -535,11 +535,11 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
         state = load_scene(req)
         reserves = set_reserves_aside(state)  # a count target's top-up bodies wait outside the first settle
     with timer.stage("physics"):
-        if req.settled:  # settled ahead by another worker (settle_ahead)
-            settled = apply_settled(state, req.settled)
+        if req.settled_poses_file:  # settled ahead by another worker (settle_ahead)
+            settled_poses = apply_settled(state, req.settled_poses_file)
         else:
-            settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
-    cameras = place_after_physics(state, settled, timer)
+            settled_poses = settle(state, camera_model(state.scene, state.cam_objs[0]))
+    cameras = place_after_physics(state, settled_poses, timer)
     with timer.stage("frame_check"):
         check_frame(state, cameras)
     with timer.stage("silhouettes"):

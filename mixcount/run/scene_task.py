@@ -141,7 +141,7 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
             timings["stage"] = staged.stage_s
             request = staged.request
         t = time.perf_counter()
-        result = worker.render_scene(request, timeout=task.timeout_s)
+        result = worker.run_scene_job(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
         status = result.status
         if status != STATUS_OK:

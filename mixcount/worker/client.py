@@ -187,7 +187,7 @@ class BlenderWorker:
         result: dict[str, Any] = answer["result"]
         return result
 
-    def render_scene(self, req: SceneRequest, *, timeout: float) -> SceneResult:
+    def run_scene_job(self, req: SceneRequest, *, timeout: float) -> SceneResult:
         """Run one scene; returns its SceneResult. Raises RenderError on failure, crash or timeout."""
         return SceneResult.from_dict(self._call(req.OP, req.to_dict(), timeout, "scene"))
 
@@ -211,7 +211,7 @@ class Worker(Protocol):
 
     def alive(self) -> bool: ...
 
-    def render_scene(self, req: SceneRequest, *, timeout: float) -> SceneResult: ...
+    def run_scene_job(self, req: SceneRequest, *, timeout: float) -> SceneResult: ...
 
     def render_canonical(self, req: CanonicalRequest, *, timeout: float) -> CanonicalResult: ...
 

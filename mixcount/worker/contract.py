@@ -19,7 +19,7 @@ One frozen request / result pair per worker operation, each with a JSON round-tr
 * ``settle`` - :class:`SceneRequest` -> :class:`SettleResult`: only the scene's rigid-body settle, its
   poses written to ``settled.json`` in the request's out_dir, so a second bpy process can settle the next
   scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.worker.settle_ahead.SettleAheadWorker`);
-  a ``scene`` request whose ``settled`` names that file applies the poses instead of simulating.
+  a ``scene`` request whose ``settled_poses_file`` names that file applies the poses instead of simulating.
 * ``rerender`` - :class:`RerenderRequest` -> :class:`SceneResult`: a settled stage rendered again from
   recorded poses and cameras (``mixcount render``); ``devices`` - :class:`DevicesRequest` ->
   :class:`DevicesResult`. A ``scene`` request with ``more_views`` (:class:`MoreViews`, ``compose --views``)
@@ -109,8 +109,8 @@ class SceneRequest:
     depth_format: str
     normal_format: str
     mesh_cache: str  # compose.mesh_cache, one of MESH_CACHE_MODES
-    # a settled.json a ``settle`` request wrote for this stage ("" = simulate in this request)
-    settled: str
+    # the settled.json a ``settle`` request wrote for this stage: poses by prim path ("" = simulate here)
+    settled_poses_file: str
     # new cameras rendered after the scene's own, in this request (``compose --views``; None: none)
     more_views: Optional["MoreViews"]
 
@@ -122,11 +122,12 @@ class SceneRequest:
 
     @classmethod
     def for_outputs(cls, outputs: SceneOutputs, *, stage: str, out_dir: str, threads: int, oracle: bool,
-                    settled: str = "", more_views: Optional["MoreViews"] = None) -> "SceneRequest":
+                    settled_poses_file: str = "", more_views: Optional["MoreViews"] = None) -> "SceneRequest":
         """The request that renders ``stage`` into ``out_dir`` writing ``outputs`` (and ``more_views``)."""
         return cls(stage=stage, out_dir=out_dir, threads=threads, oracle=oracle, passes=tuple(outputs.passes),
                    depth_format=outputs.depth_format, normal_format=outputs.normal_format,
-                   mesh_cache=outputs.mesh_cache, settled=settled, more_views=more_views)
+                   mesh_cache=outputs.mesh_cache, settled_poses_file=settled_poses_file,
+                   more_views=more_views)
 
     @classmethod
     def from_config(cls, compose: ComposeConfig, *, stage: str, out_dir: str, threads: int,
@@ -141,7 +142,7 @@ class SceneRequest:
         return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
                    oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
                    depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
-                   mesh_cache=str(v["mesh_cache"]), settled=str(v["settled"]),
+                   mesh_cache=str(v["mesh_cache"]), settled_poses_file=str(v["settled_poses_file"]),
                    more_views=None if v["more_views"] is None else MoreViews.from_dict(v["more_views"]))
 
 
@@ -181,17 +182,17 @@ class SettleResult:
 
     OP: ClassVar[str] = "settle"
 
-    settled: str  # path of the settled.json (stage, poses by instance prim path, the rest diagnostic)
+    poses_file: str  # path of the settled.json (stage, poses by instance prim path, the rest diagnostic)
     frames_run: int
     seconds: dict[str, float]  # import, physics
 
     def to_dict(self) -> dict[str, Any]:
-        return {"settled": self.settled, "frames_run": self.frames_run, "seconds": dict(self.seconds)}
+        return {"poses_file": self.poses_file, "frames_run": self.frames_run, "seconds": dict(self.seconds)}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SettleResult":
         v = _known(cls, d)
-        return cls(settled=str(v["settled"]), frames_run=int(v["frames_run"]),
+        return cls(poses_file=str(v["poses_file"]), frames_run=int(v["frames_run"]),
                    seconds={str(k): float(x) for k, x in v["seconds"].items()})
 
 
@@ -518,7 +519,7 @@ class RerenderRequest:
         """The fields the stage loader shares with a ``scene`` request."""
         return SceneRequest(stage=self.stage, out_dir=self.out_dir, threads=self.threads, oracle=self.oracle,
                             passes=self.passes, depth_format=self.depth_format, normal_format=self.normal_format,
-                            mesh_cache=self.mesh_cache, settled="", more_views=None)
+                            mesh_cache=self.mesh_cache, settled_poses_file="", more_views=None)
 
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in fields(self)}

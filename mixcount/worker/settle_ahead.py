@@ -32,7 +32,7 @@ class SettleAheadWorker:
     Bullet steps on one thread, and a heavy container heap settles for seconds (docs/performance.md): run
     beside a render that uses every core, it costs that render about half its own time instead of all of
     it. :meth:`begin_settle` sends the next scene's stage to the companion (``settle`` op, nothing waits);
-    :meth:`render_scene` of that stage collects its ``settled.json`` and lets the render worker apply the
+    :meth:`run_scene_job` of that stage collects its ``settled.json`` and lets the render worker apply the
     poses instead of simulating. The poses are the ones the render worker would have simulated (same code,
     same stage; tests/test_settle_ahead.py compares the outputs). When the companion fails, crashes or
     overruns, the diagnostic is logged and the render worker settles the scene itself: nothing is lost.
@@ -61,14 +61,14 @@ class SettleAheadWorker:
 
     def begin_settle(self, req: SceneRequest) -> bool:
         """Start settling ``req``'s stage in the companion; returns once it is sent (after the settle in
-        flight, if any, has been collected by :meth:`render_scene`). False when this worker was closed or
+        flight, if any, has been collected by :meth:`run_scene_job`). False when this worker was closed or
         the companion cannot start: the scene then settles in the render worker."""
         with self._turn:
             self._turn.wait_for(lambda: self._pending is None or self._closed)
             if self._closed:
                 return False
         try:
-            self.settler.start()  # outside the lock: bpy's start-up must not hold up render_scene
+            self.settler.start()  # outside the lock: bpy's start-up must not hold up run_scene_job
         except RenderError as exc:
             self.settle_failures.append(str(exc))
             return False
@@ -103,13 +103,13 @@ class SettleAheadWorker:
             return None
         return SettleResult.from_dict(answer["result"])
 
-    def render_scene(self, req: SceneRequest, *, timeout: float) -> SceneResult:
+    def run_scene_job(self, req: SceneRequest, *, timeout: float) -> SceneResult:
         """Run one scene with the companion's poses when it settled this stage, else settling it here."""
         ahead = self._collect(req.stage, timeout)
         if ahead is not None:
-            req = replace(req, settled=ahead.settled)
+            req = replace(req, settled_poses_file=ahead.poses_file)
             self.settled_ahead += 1
-        return self.render.render_scene(req, timeout=timeout)
+        return self.render.run_scene_job(req, timeout=timeout)
 
     def render_canonical(self, req: CanonicalRequest, *, timeout: float) -> CanonicalResult:
         return self.render.render_canonical(req, timeout=timeout)
