@@ -40,12 +40,46 @@ def test_compose_keeps_the_target_and_stats_report_it(demo_db, capsys, tmp_path,
         removed += sum(1 for o in meta["objects"] if o.get("reason") == "count_surplus")
         diag = next(d for d in meta["diagnostics"] if d["kind"] == "count_target")
         assert diag["verdict"] == "ok" and diag["kept"] == target["total"]
+        rest = next(d for d in meta["diagnostics"] if d["kind"] == "count_rest")
+        assert rest["checks"] >= 1 and rest["largest_displacement_x_size"] >= rest["largest_drop_x_size"] >= 0
+        reserve = [o for o in meta["objects"] if o.get("reason") == "count_reserve"]
+        assert len(reserve) == diag["reserve_unused"] and all(o.get("matrix_world") is None for o in reserve)
     assert removed > 0  # spawned above the target, brought down to it
     rc = main(["stats", str(out), "--no-plots", "--json"])
     assert rc == 0
     stats = json.loads(capsys.readouterr().out)["count_target"]
     assert stats["scenes"] == 2 and stats["exact"] == 2 and stats["per_class"]["max_off"] == 0
     assert stats["distributions"] == ["uniform:3-7,imbalance:1-2"] and stats["ks_against"] == "distribution"
+
+
+@pytest.mark.blender
+def test_a_short_scene_is_topped_up(demo_db, capsys, tmp_path):
+    """Spawned at the target itself (no margin): bodies lost to occlusion or the frame are made up from the
+    reserve dropped onto the settled pile; every object kept rests (the rest check after the take-out)."""
+    out = tmp_path / "out"
+    rc = main(["--db", str(demo_db / "catalog.db"), "--config", "quick", "--set", "scene.physics_frames=60",
+               "--set", "scene.count_spawn_factor=[1.0, 1.0]", "--set", "scene.count_spawn_elevation=0.0",
+               "--set", "scene.count_spawn_extra=0", "--set", "scene.count_spawn_sqrt=0.0",
+               "--set", "scene.count_spawn_size_exponent=0.0", "--set", "compose.settle_ahead=false",
+               "compose", "--n", "2", "--seed", "11", "--split", "train", "--resolution", "32", "--samples", "1",
+               "--counts", "uniform:8-12", "--out", str(out), "--json"])
+    assert rc == 0, capsys.readouterr().err
+    topped = 0
+    for meta_path in sorted((out / "scenes").glob("scene_*/metadata.json")):
+        meta = json.loads(meta_path.read_text())
+        diag = next(d for d in meta["diagnostics"] if d["kind"] == "count_target")
+        assert diag["verdict"] == "ok" and abs(diag["kept"] - diag["total"]) <= 2
+        topped += diag["topped_up"]
+        ups = [d for d in meta["diagnostics"] if d["kind"] == "count_topup"]
+        assert len(ups) == diag["topup_rounds"]
+        ids = {o["instance_id"]: o for o in meta["objects"]}
+        for o in meta["objects"]:
+            if o["status"] == "kept" and o["role"] == "counted":
+                assert o["matrix_world"] is not None and o["min_z"] > -0.01
+        assert len(ids) == len(meta["objects"])
+        rest = next(d for d in meta["diagnostics"] if d["kind"] == "count_rest")
+        assert rest["last_drop_x_size"] <= rest["tolerance_x_size"] or rest["checks"] >= 2
+    assert topped > 0  # the reserve was used
 
 
 def test_bad_target_is_refused_before_writing(demo_db, capsys, tmp_path):

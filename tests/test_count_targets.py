@@ -21,6 +21,8 @@ from mixcount.scene.count_targets import (
     draw_total,
     elevation_factor,
     parse_count_target,
+    reserve_counts,
+    reserve_instances,
     spawn_counts,
     split_total,
 )
@@ -93,10 +95,12 @@ def test_sampler_spawns_for_the_target_and_paper_rule_is_untouched() -> None:
             min(elevations), cfg.scene.count_spawn_elevation)
         assert t["spawn_factor"] == factor
         sizes = [c.target_size_m for c in spec.classes]
-        assert [c.count for c in spec.classes] == spawn_counts(t["per_class"], factor, cfg.scene.count_spawn_extra,
-                                                               sizes, cfg.scene.count_spawn_size_exponent,
-                                                               cfg.scene.count_spawn_sqrt)
-        assert all(c.count >= n + cfg.scene.count_spawn_extra for c, n in zip(spec.classes, t["per_class"]))
+        spawn = spawn_counts(t["per_class"], factor, cfg.scene.count_spawn_extra, sizes,
+                             cfg.scene.count_spawn_size_exponent, cfg.scene.count_spawn_sqrt)
+        assert t["reserve"] == reserve_counts(t["per_class"], cfg.scene.count_reserve)
+        assert [c.count for c in spec.classes] == [a + r for a, r in zip(spawn, t["reserve"])]
+        assert all(a >= n + cfg.scene.count_spawn_extra for a, n in zip(spawn, t["per_class"]))
+        assert t["topup_rounds"] == cfg.scene.count_topup_rounds and t["rest_frames"] == cfg.scene.count_rest_frames
         assert t["short_total"] == max(2, int(0.05 * t["total"]))
         assert spec.to_json() == sample_scene(seed, "train", cfg, pool).to_json()  # reproducible by seed
         assert type(spec).from_json(spec.to_json()) == spec
@@ -183,3 +187,42 @@ def test_stats_of_a_dataset(tmp_path: Path) -> None:
     assert ks_distance([5, 5], lambda xs: (np.asarray(xs) >= 5).astype(float)) == 0.0
     assert ks_distance([5, 9], lambda xs: (np.asarray(xs) >= 5).astype(float)) == 0.5
     assert summarise_counts([], [])["scenes"] == 0
+
+
+def test_reserve_is_each_class_top_instances() -> None:
+    assert reserve_counts([10, 1], [0.6, 3]) == [9, 4]
+    classes = [0, 1, 0, 0, 1, 0]
+    ids = [1, 2, 3, 4, 5, 6]
+    assert reserve_instances(classes, ids, [2, 1]) == [4, 5, 6]
+    assert reserve_instances(classes, ids, [0, 0]) == []
+
+
+def test_topup_draw_and_short_classes() -> None:
+    short = C.short_classes({0: 10, 1: 5, 2: 3}, {0: 10, 1: 2, 2: 1})
+    assert short == {1: 3, 2: 2}
+    # ceil(1.5 x lacking) + 1, capped by the reserve; a class with no reserve left gets nothing
+    assert C.topup_draw(short, {1: 20, 2: 2}, 1.5) == {1: 6, 2: 2}
+    assert C.topup_draw(short, {1: 0}, 1.5) == {}
+
+
+def test_drop_spots_fall_onto_the_pile_without_overlap() -> None:
+    rng = np.random.default_rng(4)
+    sizes = [0.05] * 30 + [0.08] * 5
+    spots = C.drop_spots(np.array([-0.2, -0.1]), np.array([0.2, 0.1]), 0.3, sizes, rng)
+    assert spots.shape == (35, 3)
+    assert (spots[:, 2] > 0.3).all()  # above the pile's top
+    assert (np.abs(spots[:, 0]) <= 0.2).all() and (np.abs(spots[:, 1]) <= 0.1).all()  # over its footprint
+    d = np.linalg.norm(spots[:, None, :] - spots[None, :, :], axis=2) + np.eye(35)
+    assert d.min() >= 0.8 * 1.2 * 0.08  # one cell (1.2 x the largest) apart, less the jitter
+    again = C.drop_spots(np.array([-0.2, -0.1]), np.array([0.2, 0.1]), 0.3, sizes, np.random.default_rng(4))
+    assert np.array_equal(spots, again)
+    # a footprint smaller than a cell: a column over its centre
+    col = C.drop_spots(np.array([0.0, 0.0]), np.array([0.01, 0.01]), 0.0, [0.05] * 3, rng)
+    assert np.allclose(col[:, :2], 0.005, atol=0.1 * 0.06 + 1e-9) and len(set(np.round(col[:, 2], 6))) == 3
+
+
+def test_displacements() -> None:
+    a = np.stack([np.eye(4)] * 2)
+    b = a.copy()
+    b[1, :3, 3] = [0.0, 0.3, 0.4]
+    assert C.displacements(a, b).tolist() == pytest.approx([0.0, 0.5])

@@ -154,8 +154,9 @@ def drop_spots(lo_xy: Array, hi_xy: Array, top_z: float, sizes: Sequence[float],
     mid = (np.asarray(lo_xy, dtype=np.float64) + np.asarray(hi_xy, dtype=np.float64)) / 2
     lo, hi = np.minimum(lo, mid), np.maximum(hi, mid)
     n_xy = np.maximum(1, np.floor((hi - lo) / cell).astype(int) + 1)
-    xs = lo[0] + (np.arange(n_xy[0]) + 0.5) * (hi[0] - lo[0]) / n_xy[0] if n_xy[0] > 1 else np.array([mid[0]])
-    ys = lo[1] + (np.arange(n_xy[1]) + 0.5) * (hi[1] - lo[1]) / n_xy[1] if n_xy[1] > 1 else np.array([mid[1]])
+    # n points from lo to hi: at least one cell apart (n - 1 <= (hi - lo) / cell)
+    xs = np.linspace(lo[0], hi[0], n_xy[0]) if n_xy[0] > 1 else np.array([mid[0]])
+    ys = np.linspace(lo[1], hi[1], n_xy[1]) if n_xy[1] > 1 else np.array([mid[1]])
     grid = np.array([(x, y) for x in xs for y in ys])
     out = np.zeros((k, 3))
     per_layer = len(grid)

@@ -30,7 +30,7 @@ from mixcount.engine.scene_build import SceneState, pose_with_scale, scaled_prox
 from mixcount.worker.contract import DROPPED, KEPT
 
 COUNT_TOPUP_STREAM = 43  # where reserve bodies drop: default_rng([scene seed, COUNT_TOPUP_STREAM, round])
-TOPUP_FACTOR = 1.3  # reserve bodies dropped per missing object (+1): some land occluded or out of view
+TOPUP_FACTOR = 1.5  # reserve bodies dropped per missing object (+1): some land occluded or out of view
 
 
 @dataclass
@@ -159,48 +159,122 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
     return len(picks)
 
 
-def rest_check(state: SceneState) -> tuple[float, int]:
-    """The kept counted bodies simulated again (``rest_frames``): returns the largest displacement (x the
-    body's size) and how many moved more than ``rest_tolerance`` x their size; when any did, every body
-    keeps the pose of that run (else the poses stay exactly as they were)."""
+def rest_check(state: SceneState) -> tuple[float, float, list[int]]:
+    """The kept counted bodies simulated again (``rest_frames``): returns the largest displacement and the
+    largest drop (each x the body's size) and the bodies whose centre fell more than ``rest_tolerance`` x
+    their size (they were not held up: a body under them was taken out or dropped as occluded); those keep
+    the pose of that run, every other body goes back exactly to its settled pose. A body rolling on over
+    the floor (the settle's early stop lets up to 5 % of them roll on, as in every scene) moves without
+    falling and is not one."""
     import mathutils
 
     target = state.spec.count_target
     assert target is not None
     kept = state.kept("counted")
     if not kept or int(target["rest_frames"]) <= 0:
-        return 0.0, 0
+        return 0.0, 0.0, []
     before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in kept}
     after = _simulate(state, kept, int(target["rest_frames"]))
     rows = [i for i in kept if i in after]
-    disp = C.displacements(np.array([before[i] for i in rows]), np.array([after[i] for i in rows]))
-    rel = disp / np.array([max(state.objects[i].size_m, 1e-9) for i in rows])
-    moved = int((rel > float(target["rest_tolerance"])).sum())
-    if not moved:  # nothing moved beyond the tolerance: the poses stay exactly the settled ones
-        for i in rows:
-            state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
-    return (float(rel.max()) if len(rel) else 0.0), moved
+    b = np.array([before[i] for i in rows]).reshape(-1, 4, 4)
+    a = np.array([after[i] for i in rows]).reshape(-1, 4, 4)
+    size = np.array([max(state.objects[i].size_m, 1e-9) for i in rows])
+    moved_by = C.displacements(b, a) / size
+    fell_by = (b[:, 2, 3] - a[:, 2, 3]) / size
+    fell = [i for i, f in zip(rows, fell_by) if f > float(target["rest_tolerance"])]
+    for i in set(rows) - set(fell):  # held up: exactly the settled pose
+        state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
+    return (float(moved_by.max()) if len(rows) else 0.0), (float(max(fell_by.max(), 0.0)) if len(rows) else 0.0), fell
 
 
-def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int,
-                   timer: Any) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int]:
-    """After bodies moved: settle checks, frame check, silhouettes and the visibility loop from fresh id passes."""
+def _union(a: Optional[tuple[int, int, int, int]], b: Optional[tuple[int, int, int, int]]
+           ) -> Optional[tuple[int, int, int, int]]:
+    if a is None or b is None:
+        return a if b is None else b
+    return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
+
+
+def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int, timer: Any,
+                   masks: list[dict[int, np.ndarray]], id_passes: Optional[list[dict[str, np.ndarray]]] = None,
+                   moved: Optional[list[int]] = None
+                   ) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int]:
+    """After bodies moved: settle checks, frame check, then silhouettes and visibility again. With
+    ``id_passes`` and ``moved`` only the moved bodies' silhouettes are drawn again and each camera re-renders
+    only the box where they were seen and where they are now (else everything, from fresh id passes)."""
     from mixcount.engine.scene_job import check_frame, check_settled, silhouettes, visibility_loop
+    from mixcount.engine.visibility import unoccluded_mask
+    from mixcount.scene.framing import image_box
 
+    before = set(state.kept())
     with timer.stage("count_target"):
         check_settled(state, {}, ("counted",))
         check_frame(state, cameras)
+    if id_passes is None or moved is None:
+        with timer.stage("silhouettes"):
+            masks = [silhouettes(state, cam, threads, k) for k, cam in enumerate(cameras)]
+        id_passes, renders = visibility_loop(state, masks, timer)
+        return masks, id_passes, renders
+    gone = before - set(state.kept())
+    still = [i for i in moved if state.objects[i].kept]
+    ids = [state.objects[i].instance_id for i in (*moved, *gone)]
+    regions: list[Optional[tuple[int, int, int, int]]] = []
     with timer.stage("silhouettes"):
-        masks = [silhouettes(state, cam, threads, k) for k, cam in enumerate(cameras)]
-    id_passes, renders = visibility_loop(state, masks, timer)
-    return masks, id_passes, renders
+        for k, cam in enumerate(cameras):
+            region = D.changed_region(id_passes[k]["index"], ids)
+            for i in still:
+                o = state.objects[i]
+                masks[k][o.instance_id] = mask = unoccluded_mask(cam, state.cache.columns[o.asset],
+                                                                 state.cache.corners[o.asset], np.array(o.matrix_world))
+                state.view(i, k)["unoccluded_px"] = px = int(np.count_nonzero(mask))
+                if k == 0:
+                    state.update(i, unoccluded_px=px)
+                lo, hi = state.bounds[i]
+                box = image_box(cam, lo, hi)
+                if box is None:  # behind the camera or out of the image: the whole image
+                    region = (0, 0, cam.height - 1, cam.width - 1)
+                    continue
+                x0, y0, x1, y1 = (int(np.floor(box[0])), int(np.floor(box[1])), int(np.ceil(box[2])),
+                                  int(np.ceil(box[3])))
+                region = _union(region, (max(0, y0 - 1), max(0, x0 - 1), min(cam.height - 1, y1 + 1),
+                                         min(cam.width - 1, x1 + 1)))
+            regions.append(region)
+    passes, renders = visibility_loop(state, masks, timer, start=(id_passes, regions))
+    return masks, passes, renders
+
+
+def _rest(state: SceneState, cameras: list[PinholeCamera], threads: int, timer: Any,
+          masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]], record: dict[str, Any]
+          ) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int, int]:
+    """The rest check, twice at most (a body that fell may have held another up); each fallen body's
+    pixels measured again. ``record`` collects the largest displacement and drop and how many fell.
+    Returns the masks, id passes, renders made and how many fell."""
+    renders = fallen = 0
+    for _ in range(2):
+        with timer.stage("count_rest"):
+            moved_by, fell_by, fell = rest_check(state)
+        record["checks"] = record.get("checks", 0) + 1
+        record["largest_displacement_x_size"] = round(max(record.get("largest_displacement_x_size", 0.0), moved_by), 4)
+        record["largest_drop_x_size"] = round(max(record.get("largest_drop_x_size", 0.0), fell_by), 4)
+        record["last_drop_x_size"] = round(fell_by, 4)
+        record["fell"] = record.get("fell", 0) + len(fell)
+        fallen += len(fell)
+        if not fell:
+            break
+        masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks, id_passes, fell)
+        renders += more
+    return masks, id_passes, renders, fallen
 
 
 def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[PinholeCamera],
                     masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]], threads: int,
                     timer: Any) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int, Optional[str]]:
-    """Take-out, top-ups and the rest check (module docstring); returns the masks and id passes to write,
-    the id-pass renders made and the count verdict (None: the scene may be kept)."""
+    """Take-out, top-ups, rest check (module docstring); returns the masks and id passes to write, the
+    id-pass renders made and the count verdict (None: the scene may be kept).
+
+    The rest check runs once the scene holds its target (or no top-up is left), on every kept body: bodies
+    dropped as occluded, taken out (only ones nothing rests on) or still settling may have left one
+    unsupported. One that fell takes its new pose and visibility is measured again; when that leaves a class
+    short and a top-up round is left, the scene is topped up again (and checked again)."""
     from mixcount.engine.count_trim import count_outcome, remove_surplus
     from mixcount.engine.scene_job import visibility_loop
 
@@ -209,6 +283,7 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     targets = {ci: int(n) for ci, n in enumerate(target["per_class"])}
     renders = removed = dropped = 0
     rounds = 0
+    record: dict[str, Any] = {"kind": "count_rest", "tolerance_x_size": float(target["rest_tolerance"])}
     while True:
         with timer.stage("count_target"):
             out = remove_surplus(state)
@@ -217,29 +292,21 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
             id_passes, more = visibility_loop(state, masks, timer)
             renders += more
         short = C.short_classes(targets, _kept_per_class(state, len(targets)))
-        if not short or rounds >= int(target.get("topup_rounds", 0)):
-            break
-        with timer.stage("count_topup"):
-            n = top_up(state, reserves, short, rounds)
-        if not n:
-            break
-        dropped += n
-        rounds += 1
-        masks, id_passes, more = _measure_again(state, cameras, threads, timer)
+        if short and rounds < int(target["topup_rounds"]) and reserves.objects:
+            with timer.stage("count_topup"):
+                n = top_up(state, reserves, short, rounds)
+            if n:
+                dropped += n
+                rounds += 1
+                masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks)
+                renders += more
+                continue
+        masks, id_passes, more, fallen = _rest(state, cameras, threads, timer, masks, id_passes, record)
         renders += more
-    worst, moved_total = 0.0, 0
-    for _ in range(2):  # a body that moved may have held another up: one more check after it
-        with timer.stage("count_rest"):
-            rel, moved = rest_check(state)
-        worst = max(worst, rel)
-        moved_total += moved
-        if not moved:
+        short = C.short_classes(targets, _kept_per_class(state, len(targets)))
+        if not (fallen and short and rounds < int(target["topup_rounds"]) and reserves.objects):
             break
-        masks, id_passes, more = _measure_again(state, cameras, threads, timer)
-        renders += more
-    state.diagnostics.append({"kind": "count_rest", "largest_displacement_x_size": round(worst, 4),
-                              "moved": moved_total, "tolerance_x_size": float(target["rest_tolerance"])})
-    unused = sorted(reserves.objects)
+    state.diagnostics.append(record)
     verdict = count_outcome(state, removed, int(state.spec.render.resolution), topped_up=dropped,
-                            topup_rounds=rounds, reserve_unused=len(unused))
+                            topup_rounds=rounds, reserve_unused=len(reserves.objects))
     return masks, id_passes, renders, verdict

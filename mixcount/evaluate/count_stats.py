@@ -28,12 +28,17 @@ def scene_record(meta: Mapping[str, Any]) -> Optional[dict[str, Any]]:
     per_t = {str(k): int(v) for k, v in target["per_class"].items()}
     diag: dict[str, Any] = next((d for d in meta.get("diagnostics", []) if d.get("kind") == "count_target"), {})
     objects = meta.get("objects", [])
-    spawned = sum(1 for o in objects if o.get("role") == "counted")
+    # spawned: the bodies that entered the scene (a reserve body no top-up needed never did)
+    spawned = sum(1 for o in objects if o.get("role") == "counted" and o.get("reason") != "count_reserve")
     removed = sum(1 for o in objects if o.get("reason") == "count_surplus")
+    rest: dict[str, Any] = next((d for d in meta.get("diagnostics", []) if d.get("kind") == "count_rest"), {})
     return {"scene_id": meta.get("scene_id"), "seed": meta.get("seed"), "target": int(target["total"]),
             "kept": sum(kept_per.get(c, 0) for c in per_t), "per_class_target": per_t,
             "per_class_kept": {c: kept_per.get(c, 0) for c in per_t}, "imbalance": target.get("imbalance"),
             "spawned": spawned, "surplus_removed": removed, "distribution": target.get("distribution"),
+            "topped_up": int(diag.get("topped_up", 0)), "topup_rounds": int(diag.get("topup_rounds", 0)),
+            "rest_fell": int(rest.get("fell", 0)), "rest_largest_drop": rest.get("largest_drop_x_size"),
+            "rest_largest_displacement": rest.get("largest_displacement_x_size"),
             "median_visible_px": diag.get("median_visible_px"), "too_small": diag.get("too_small")}
 
 
@@ -124,6 +129,13 @@ def summarise_counts(rows: Sequence[Mapping[str, Any]], rejected: Sequence[Mappi
         "regenerated_scenes": list(rejected), "brought_to_target": len(brought),
         "surplus_removed": int(sum(r["surplus_removed"] for r in rows)),
         "spawned_per_target": round(float(sum(r["spawned"] for r in rows) / max(1, targets.sum())), 4),
+        "topped_up_scenes": int(sum(1 for r in rows if r.get("topped_up"))),
+        "topped_up_bodies": int(sum(r.get("topped_up", 0) for r in rows)),
+        # the rest check after the take-out: bodies that fell (took the re-simulated pose), the largest drop
+        # and displacement (x the body's size) seen in any scene
+        "rest_fell": int(sum(r.get("rest_fell", 0) for r in rows)),
+        "rest_largest_drop": max((r.get("rest_largest_drop") or 0.0 for r in rows), default=0.0),
+        "rest_largest_displacement": max((r.get("rest_largest_displacement") or 0.0 for r in rows), default=0.0),
         "too_small": small,
     }
 
@@ -196,7 +208,11 @@ def count_lines(counts: Optional[Mapping[str, Any]], max_listed: int = 10) -> li
         f"  per class: {pc['exact']} of {pc['classes']} classes exactly on their drawn count, {pc['within_one']} within "
         f"one, largest offset {pc['max_off']}",
         f"  brought to target: {counts['brought_to_target']} scenes ({counts['surplus_removed']} surplus bodies taken "
-        f"out, {counts['spawned_per_target']} spawned per target object); regenerated: {counts['regenerated']}",
+        f"out, {counts['spawned_per_target']} spawned per target object); topped up: "
+        f"{counts.get('topped_up_scenes', 0)} scenes ({counts.get('topped_up_bodies', 0)} reserve bodies dropped in); "
+        f"regenerated: {counts['regenerated']}",
+        f"  rest check: {counts.get('rest_fell', 0)} bodies fell when simulated again (took that pose); largest drop "
+        f"{counts.get('rest_largest_drop', 0.0)} x size, largest displacement {counts.get('rest_largest_displacement', 0.0)} x size",
     ]
     if counts["imbalance"]:
         kept = [r["kept"] for r in counts["imbalance"]]
