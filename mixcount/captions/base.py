@@ -12,13 +12,13 @@ was built from (hashed into the caption set, never stored whole).
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render, count_parts
 from mixcount.scene.spec import TIERS
+from mixcount.scene.words import words_of
 
 COLOUR_SOURCES = ("model", "render")
 
@@ -28,18 +28,15 @@ COLOUR_SOURCES = ("model", "render")
 STUB_WORD_BOUNDS = {"short": (2, 5), "concise": (5, 10), "detailed": (8, 60)}
 LLM_WORD_BOUNDS = {"short": (1, 8), "concise": (3, 16), "detailed": (5, 80)}
 
-_ID_TOKEN = re.compile(r"\d")  # any token with a digit is an id, variant or version number
-
-
 def words(text: str) -> list[str]:
     return text.split()
 
 
 def name_tokens(name: str) -> list[str]:
-    """Lower-case words of an object name: splits snake/kebab/camel case, drops ids like ``B07XYZ1``."""
-    spaced = re.sub(r"(?<=[a-z])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", " ", name)
-    raw = re.split(r"[^A-Za-z0-9]+", spaced)
-    return [t for t in (r.lower() for r in raw) if len(t) > 1 and not _ID_TOKEN.search(t)]
+    """Lower-case words of an object name by the one tokenizer (:func:`mixcount.scene.words.words_of`:
+    separators and camelCase split, catalogue ids and numbers dropped), less single letters (what a
+    version such as ``v2`` leaves)."""
+    return [w for w in words_of(name) if len(w) > 1]
 
 
 def display_name(obj: Any) -> str:
