@@ -224,7 +224,7 @@ def main() -> int:
         args.pool, args.scenes, args.resolution, args.samples, args.threads = "light", 2, 32, 1, 1
         args.paper = True
         args.counts = "uniform:3-8,imbalance:1-2"
-        args.set = [*args.set, "scene.physics_frames=60", "scene.n_classes=[1, 2]", "scene.n_distractors=[0, 1]",
+        args.set = [*args.set, "compose.denoise=false", "scene.physics_frames=60", "scene.n_classes=[1, 2]", "scene.n_distractors=[0, 1]",
                     "scene.n_objects=[6, 14]"]
 
     from pools import load_pool

@@ -196,19 +196,21 @@ def _union(a: Optional[tuple[int, int, int, int]], b: Optional[tuple[int, int, i
 
 def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int, timer: Any,
                    masks: list[dict[int, np.ndarray]], id_passes: Optional[list[dict[str, np.ndarray]]] = None,
-                   moved: Optional[list[int]] = None
+                   moved: Optional[list[int]] = None, removed_ids: tuple[int, ...] = ()
                    ) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int]:
     """After bodies moved: settle checks, frame check, then silhouettes and visibility again. With
     ``id_passes`` and ``moved`` only the moved bodies' silhouettes are drawn again and each camera re-renders
-    only the box where they were seen and where they are now (else everything, from fresh id passes)."""
+    only the box where they (and the bodies ``removed_ids`` taken out since those passes) were seen and
+    where they are now (else everything, from fresh id passes)."""
     from mixcount.engine.scene_job import check_frame, check_settled, silhouettes, visibility_loop
     from mixcount.engine.visibility import unoccluded_mask
     from mixcount.scene.framing import image_box
 
     before = set(state.kept())
-    with timer.stage("count_target"):
-        check_settled(state, {}, ("counted",))
-        check_frame(state, cameras)
+    if moved is None or moved:  # (nothing moved: the poses are exactly the checked ones)
+        with timer.stage("count_target"):
+            check_settled(state, {}, ("counted",))
+            check_frame(state, cameras)
     if id_passes is None or moved is None:
         with timer.stage("silhouettes"):
             masks = [silhouettes(state, cam, threads, k) for k, cam in enumerate(cameras)]
@@ -216,7 +218,7 @@ def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int
         return masks, id_passes, renders
     gone = before - set(state.kept())
     still = [i for i in moved if state.objects[i].kept]
-    ids = [state.objects[i].instance_id for i in (*moved, *gone)]
+    ids = [state.objects[i].instance_id for i in (*moved, *gone)] + list(removed_ids)
     regions: list[Optional[tuple[int, int, int, int]]] = []
     with timer.stage("silhouettes"):
         for k, cam in enumerate(cameras):
@@ -242,13 +244,10 @@ def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int
     return masks, passes, renders
 
 
-def _rest(state: SceneState, cameras: list[PinholeCamera], threads: int, timer: Any,
-          masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]], record: dict[str, Any]
-          ) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int, int]:
-    """The rest check, twice at most (a body that fell may have held another up); each fallen body's
-    pixels measured again. ``record`` collects the largest displacement and drop and how many fell.
-    Returns the masks, id passes, renders made and how many fell."""
-    renders = fallen = 0
+def _rest(state: SceneState, timer: Any, record: dict[str, Any]) -> list[int]:
+    """The rest check, twice at most (a body that fell may have held another up); returns the bodies that
+    fell. ``record`` collects the checks, the largest displacement and drop and how many fell."""
+    fallen: list[int] = []
     for _ in range(2):
         with timer.stage("count_rest"):
             moved_by, fell_by, fell = rest_check(state)
@@ -257,26 +256,25 @@ def _rest(state: SceneState, cameras: list[PinholeCamera], threads: int, timer: 
         record["largest_drop_x_size"] = round(max(record.get("largest_drop_x_size", 0.0), fell_by), 4)
         record["last_drop_x_size"] = round(fell_by, 4)
         record["fell"] = record.get("fell", 0) + len(fell)
-        fallen += len(fell)
+        fallen.extend(i for i in fell if i not in fallen)
         if not fell:
             break
-        masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks, id_passes, fell)
-        renders += more
-    return masks, id_passes, renders, fallen
+    return fallen
 
 
 def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[PinholeCamera],
                     masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]], threads: int,
                     timer: Any) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int, Optional[str]]:
-    """Take-out, top-ups, rest check (module docstring); returns the masks and id passes to write, the
+    """Take-out, rest check, top-ups (module docstring); returns the masks and id passes to write, the
     id-pass renders made and the count verdict (None: the scene may be kept).
 
-    The rest check runs once the scene holds its target (or no top-up is left), on every kept body: bodies
-    dropped as occluded, taken out (only ones nothing rests on) or still settling may have left one
-    unsupported. One that fell takes its new pose and visibility is measured again; when that leaves a class
-    short and a top-up round is left, the scene is topped up again (and checked again)."""
+    Each round: the surplus is taken out (bodies nothing rests on), then every kept body is simulated again
+    (the rest check: bodies dropped as occluded, taken out or still settling may have left one unsupported;
+    one that fell takes its new pose), then one visibility loop re-renders only the boxes where the bodies
+    taken out were seen and where the fallen ones were and are. If that loop drops a body (a fallen one now
+    occluded), the rest check runs again. Then a class still short is topped up (full re-measure) and the
+    round repeats, at most ``topup_rounds`` times."""
     from mixcount.engine.count_trim import count_outcome, remove_surplus
-    from mixcount.engine.scene_job import visibility_loop
 
     target = state.spec.count_target
     assert target is not None
@@ -285,27 +283,29 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     rounds = 0
     record: dict[str, Any] = {"kind": "count_rest", "tolerance_x_size": float(target["rest_tolerance"])}
     while True:
+        before = {state.objects[i].instance_id for i in state.kept()}
         with timer.stage("count_target"):
-            out = remove_surplus(state)
-        removed += out
-        if out:  # measured again on id passes without them (visibility can only have grown)
-            id_passes, more = visibility_loop(state, masks, timer)
+            removed += remove_surplus(state)
+        for _ in range(3):
+            out_ids = tuple(sorted(before - {state.objects[i].instance_id for i in state.kept()}))
+            fell = _rest(state, timer, record)
+            kept_before = len(state.kept())
+            masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks, id_passes, fell, out_ids)
             renders += more
+            before = {state.objects[i].instance_id for i in state.kept()}
+            if len(state.kept()) == kept_before or not fell:  # nothing dropped after a fall: all rest
+                break
         short = C.short_classes(targets, _kept_per_class(state, len(targets)))
-        if short and rounds < int(target["topup_rounds"]) and reserves.objects:
-            with timer.stage("count_topup"):
-                n = top_up(state, reserves, short, rounds)
-            if n:
-                dropped += n
-                rounds += 1
-                masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks)
-                renders += more
-                continue
-        masks, id_passes, more, fallen = _rest(state, cameras, threads, timer, masks, id_passes, record)
-        renders += more
-        short = C.short_classes(targets, _kept_per_class(state, len(targets)))
-        if not (fallen and short and rounds < int(target["topup_rounds"]) and reserves.objects):
+        if not (short and rounds < int(target["topup_rounds"]) and reserves.objects):
             break
+        with timer.stage("count_topup"):
+            n = top_up(state, reserves, short, rounds)
+        if not n:
+            break
+        dropped += n
+        rounds += 1
+        masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks)
+        renders += more
     state.diagnostics.append(record)
     verdict = count_outcome(state, removed, int(state.spec.render.resolution), topped_up=dropped,
                             topup_rounds=rounds, reserve_unused=len(reserves.objects))
