@@ -79,7 +79,8 @@ def _settle_one(args: Any) -> dict[str, Any]:
     t = time.perf_counter()
     settled = J.settle(state, camera)
     seconds = time.perf_counter() - t
-    J.check_frame(state, J.place_after_physics(state, settled, J.Timer()))
+    J.place_settled(state, settled)
+    J.check_frame(state, J.place_after_physics(state, settled.poses, J.Timer()).cameras)
     drops = collections.Counter(d["reason"] for d in state.diagnostics if d.get("kind") == "dropped")
     rest = next(d for d in state.diagnostics if d.get("kind") == "rest")
     final = np.array([np.array(o.matrix_world)[:3, 3] for o in state.objects])

@@ -60,7 +60,9 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
 
     state = B.load_scene(SceneRequest.from_config(load_config().compose, stage=req["stage"], out_dir=req["out_dir"],
                                                   threads=2, oracle=False))
-    J.check_frame(state, J.place_after_physics(state, J.settle(state), J.Timer()))
+    settled = J.settle(state)
+    J.place_settled(state, settled)
+    J.check_frame(state, J.place_after_physics(state, settled.poses, J.Timer()).cameras)
     exr = state.out_dir / "_border.exr"
     with P.id_pass_series(state.scene):  # as the visibility loop renders: Cycles' sync kept
         before = P.render_id_passes(state.scene, exr)

@@ -33,12 +33,13 @@ import numpy as np
 from mixcount.annotate import scene_decisions as D
 from mixcount.engine.scene_build import SceneState, load_scene
 from mixcount.engine.scene_job import (
+    Placement,
     Timer,
     _camera_record,
-    _place_settled,
     _set_matrix,
     check_frame,
     final_status,
+    place_poses,
     reference_check,
     silhouettes,
     visibility_loop,
@@ -111,9 +112,10 @@ def probe_devices(req: DevicesRequest) -> DevicesResult:
     return select_device(req.device)
 
 
-def _place_cameras(state: SceneState, views: tuple[RenderView, ...]) -> None:
+def _place_cameras(state: SceneState, views: tuple[RenderView, ...]) -> list[dict[str, Any]]:
     """One Blender camera per view: the stage's cameras reused in order, copies of the first for more
-    (same camera data settings), each at its view's pose and lens; stage cameras beyond the views removed."""
+    (same camera data settings), each at its view's pose and lens; stage cameras beyond the views removed.
+    Returns each view's framing record."""
     import bpy
 
     template = state.cam_objs[0]
@@ -135,9 +137,9 @@ def _place_cameras(state: SceneState, views: tuple[RenderView, ...]) -> None:
         bpy.data.objects.remove(extra, do_unlink=True)
     state.cam_objs = objs
     state.scene.camera = objs[0]
-    state.framings = [dict(v.framing) for v in views]
     for recs in state.views.values():  # records of the scene's own cameras (compose --views): one per new camera
         recs.extend({"camera": c.name} for c in objs[len(recs):])
+    return [dict(v.framing) for v in views]
 
 
 def _apply_settings(state: SceneState, req: RerenderRequest) -> None:
@@ -166,7 +168,7 @@ def _apply_poses(state: SceneState, req: RerenderRequest) -> None:
         by_name[state.blender_objects[o.path].name] = mat
         lo, _ = D.world_bounds(state.cache.columns[o.asset], mat)
         state.update(i, matrix_world=tuple(tuple(float(v) for v in row) for row in mat), min_z=float(lo[2]))
-    _place_settled(state, by_name)
+    place_poses(state, by_name)
 
 
 def _per_view_keep(state: SceneState, k: int) -> list[int]:
@@ -209,7 +211,7 @@ def run_rerender(req: RerenderRequest) -> SceneResult:
                         req=req.scene_request(), timer=timer)
 
 
-def render_more_views(state: SceneState, req: SceneRequest, cameras: list[Any], renders: int,
+def render_more_views(state: SceneState, req: SceneRequest, placement: Placement, renders: int,
                       timer: Timer) -> SceneResult:
     """``compose --views``: a scene whose own cameras the scene job has just settled, placed and checked
     (status ok) gets ``req.more_views``' cameras in the same process, then every view is annotated and
@@ -223,8 +225,8 @@ def render_more_views(state: SceneState, req: SceneRequest, cameras: list[Any], 
     own = [RenderView(name=c.name, cam_to_world=tuple(tuple(float(v) for v in row) for row in cam.cam_to_world),
                       focal_length_mm=float(c.data.lens), sensor_width_mm=float(c.data.sensor_width),
                       clip_range=(float(c.data.clip_start), float(c.data.clip_end)),
-                      framing=state.framings[k] if state.framings else {"framing": "fixed"})
-           for k, (c, cam) in enumerate(zip(state.cam_objs, cameras))]
+                      framing=placement.framing(k))
+           for k, (c, cam) in enumerate(zip(state.cam_objs, placement.cameras))]
     spec = state.spec
     counted = state.kept("counted")
     centres = np.array([np.asarray(state.objects[i].matrix_world)[:3, 3] for i in counted]).reshape(-1, 3)
@@ -245,7 +247,7 @@ def render_views(state: SceneState, views: Sequence[RenderView], *, rule: str, p
     from mixcount.engine.visibility import camera_model
 
     with timer.stage("poses"):
-        _place_cameras(state, tuple(views))
+        framings = _place_cameras(state, tuple(views))
         cameras = [camera_model(state.scene, c) for c in state.cam_objs]
     with timer.stage("frame_check"):
         if rule == RULE_ALL_CAMERAS:
@@ -284,7 +286,7 @@ def render_views(state: SceneState, views: Sequence[RenderView], *, rule: str, p
         state.update(i, views=tuple({k: v for k, v in view.items() if k != "in_frame"} for view in recs))
     spec = state.spec
     records = [_camera_record(c, cam) for c, cam in zip(state.cam_objs, cameras)]
-    out_views = tuple(CameraView(name=c.name, suffix=view_suffix(k), camera=records[k], framing=state.framings[k],
+    out_views = tuple(CameraView(name=c.name, suffix=view_suffix(k), camera=records[k], framing=framings[k],
                                  passes=view_passes[k]) for k, c in enumerate(state.cam_objs))
     return SceneResult(
         status=status, stage=str(state.stage_path), scene_id=spec.scene_id, seed=spec.seed,

@@ -332,7 +332,10 @@ def _build_lights(scene: Any, stage: Any, stage_dir: Path) -> dict[str, Any]:
 
 @dataclass
 class SceneState:
-    """One job's Blender scene and its per-object results as the steps refine them."""
+    """One job's Blender scene as :func:`load_scene` built it (scene, spec, cameras, lights, asset cache,
+    bodies and proxies) and the per-object record the steps write (``objects``, their per-camera
+    ``views``, the settle checks' ``bounds``, ``diagnostics``). What a step makes besides that record is
+    its return value (``scene_job.Settled``, ``scene_job.Placement``, id passes, masks, status)."""
 
     scene: Any
     spec: SceneSpec
@@ -347,7 +350,6 @@ class SceneState:
     diagnostics: list[dict[str, Any]] = field(default_factory=list)
     proxies: dict[str, Any] = field(default_factory=dict)  # render object name -> its hidden collision proxy
     proxy_scales: dict[str, np.ndarray] = field(default_factory=dict)  # render object name -> scale baked in its proxy
-    framings: list[dict[str, Any]] = field(default_factory=list)  # per camera: how it was framed
     views: dict[int, list[dict[str, Any]]] = field(default_factory=dict)  # object index -> per-camera records
     bounds: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # object index -> settled world AABB
 

@@ -7,7 +7,7 @@ Blender scene, :mod:`mixcount.engine.scene_build`), :func:`settle` (physics), :f
 :func:`final_status`, :func:`write_passes`, :func:`write_amodal_masks`, :func:`render_rgb` and, on
 request, :func:`reference_check`. A request whose ``settled_poses_file`` names a file that :func:`settle_ahead` (the
 ``settle`` op, run by a companion process for the next scene) wrote applies those poses
-(:func:`apply_settled`) instead of running :func:`settle`. A request with ``more_views`` (``compose
+(:func:`read_settled`) instead of running :func:`settle`; either way :func:`place_settled` puts them in. A request with ``more_views`` (``compose
 --views``) whose own cameras came out ok goes on in this process to
 :func:`mixcount.engine.rerender_job.render_more_views` (new cameras, then every view annotated and
 rendered as ``mixcount render`` does). Every decision between them is a pure function of
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional
 
@@ -68,8 +69,23 @@ class _Stage:
         self.timer.times[self.name] = round(self.timer.times.get(self.name, 0.0) + time.perf_counter() - self.t0, 4)
 
 
-def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[str, np.ndarray]:
-    """Rigid-body simulation with exactly the stage's physics values; settled matrix per active body.
+@dataclass(frozen=True)
+class Settled:
+    """What a settle gives (:func:`settle` here, or :func:`read_settled` from a ``settle`` op's file): the
+    settled matrix of every simulated render object, by Blender name, and what happened (the ``rest``
+    diagnostic, and ``settled_ahead`` when it was read). :func:`place_settled` puts it into the scene."""
+
+    poses: dict[str, np.ndarray]
+    diagnostics: tuple[dict[str, Any], ...]
+
+    @property
+    def rest(self) -> dict[str, Any]:
+        return next(d for d in self.diagnostics if d.get("kind") == "rest")
+
+
+def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> Settled:
+    """Rigid-body simulation with exactly the stage's physics values; the settled matrix per active body
+    (nothing is placed yet: :func:`place_settled`).
 
     The early stop waits only for bodies that can still be kept: with after-physics placement those
     above the floor's top within the placement's ``view_radius`` of the scene centre (the cameras are
@@ -96,21 +112,26 @@ def settle(state: SceneState, camera: Optional[PinholeCamera] = None) -> dict[st
                    waited_for=waited_for, releases=releases)
     poses = run.matrices
     names = {pobj.name: name for name, pobj in state.proxies.items()}
-    state.diagnostics.append({"kind": "rest", "proxies": len(state.proxies), "frames_run": run.frames_run,
-                              "waited_for": run.waited_for, "released_later": len(releases),
-                              "last_release": run.last_release,
-                              "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(run.speeds.items())}})
+    rest = {"kind": "rest", "proxies": len(state.proxies), "frames_run": run.frames_run,
+            "waited_for": run.waited_for, "released_later": len(releases), "last_release": run.last_release,
+            "speed_m_s": {names.get(k, k): round(v, 5) for k, v in sorted(run.speeds.items())}}
     for name, pobj in state.proxies.items():  # proxy pose (x the scale baked into it) -> render object
         mat = poses.pop(pobj.name, None)
         if mat is not None:
             scale = state.proxy_scales.get(name)
             poses[name] = mat if scale is None else pose_with_scale(mat, scale)
-    _place_settled(state, poses)
-    return poses
+    return Settled(poses, (rest,))
 
 
-def _place_settled(state: SceneState, poses: dict[str, np.ndarray]) -> None:
-    """The settled matrices (by render object name) onto the objects; the collision proxies removed."""
+def place_settled(state: SceneState, settled: Settled) -> None:
+    """The settled matrices (by render object name) onto the objects, the collision proxies removed, the
+    settle's diagnostics recorded."""
+    state.diagnostics.extend(settled.diagnostics)
+    place_poses(state, settled.poses)
+
+
+def place_poses(state: SceneState, poses: dict[str, np.ndarray]) -> None:
+    """Matrices (by render object name) onto the objects; the collision proxies removed."""
     import bpy
 
     for name, mat in poses.items():
@@ -142,19 +163,18 @@ def settle_ahead(req: SceneRequest) -> SettleResult:
         state = load_scene(req)
         set_reserves_aside(state)  # as run_scene does: a count target's top-up bodies are not settled
     with timer.stage("physics"):
-        poses = settle(state, camera_model(state.scene, state.cam_objs[0]))
+        settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
     path_of = {obj.name: path for path, obj in state.blender_objects.items()}
-    rest = next(d for d in state.diagnostics if d.get("kind") == "rest")
     out = state.out_dir / SETTLED_FILE
-    out.write_text(json.dumps({"stage": str(state.stage_path), "rest": rest, "seconds": dict(timer.times),
-                               "matrices": {path_of[name]: np.asarray(m).tolist() for name, m in poses.items()}}))
-    return SettleResult(poses_file=str(out), frames_run=int(rest["frames_run"]), seconds=dict(timer.times))
+    out.write_text(json.dumps({"stage": str(state.stage_path), "rest": settled.rest, "seconds": dict(timer.times),
+                               "matrices": {path_of[name]: np.asarray(m).tolist() for name, m in settled.poses.items()}}))
+    return SettleResult(poses_file=str(out), frames_run=int(settled.rest["frames_run"]), seconds=dict(timer.times))
 
 
-def apply_settled(state: SceneState, settled_json: str) -> dict[str, np.ndarray]:
+def read_settled(state: SceneState, settled_json: str) -> Settled:
     """What :func:`settle` returns, read from a ``settle`` request's file instead of simulated here: the
-    same matrices (by render object name), the same rest diagnostic, the proxies removed. The file is
-    removed (it is not part of the scene folder). A file for another stage is an error."""
+    same matrices (by render object name), the same rest diagnostic (and a ``settled_ahead`` one). The
+    file is removed (it is not part of the scene folder). A file for another stage is an error."""
     import json
 
     path = Path(settled_json)
@@ -162,11 +182,8 @@ def apply_settled(state: SceneState, settled_json: str) -> dict[str, np.ndarray]
     if Path(data["stage"]) != state.stage_path:
         raise RuntimeError(f"{path} holds the settle of {data['stage']}, not of {state.stage_path}")
     poses = {state.blender_objects[p].name: np.array(m, dtype=np.float64) for p, m in data["matrices"].items()}
-    state.diagnostics.append(data["rest"])
-    state.diagnostics.append({"kind": "settled_ahead", "seconds": data["seconds"]})
-    _place_settled(state, poses)
     path.unlink()
-    return poses
+    return Settled(poses, (data["rest"], {"kind": "settled_ahead", "seconds": data["seconds"]}))
 
 
 def check_settled(state: SceneState, settled_poses: dict[str, np.ndarray], roles: tuple[str, ...]) -> None:
@@ -206,9 +223,10 @@ def _set_matrix(obj: Any, matrix: np.ndarray) -> None:
     obj.matrix_world = mathutils.Matrix(np.asarray(matrix).tolist())
 
 
-def frame_cameras(state: SceneState) -> None:
+def frame_cameras(state: SceneState) -> list[dict[str, Any]]:
     """Every camera re-aimed at the settled counted objects by its framing rule
-    (:func:`mixcount.scene.framing.frame_camera`); the Blender cameras move there."""
+    (:func:`mixcount.scene.framing.frame_camera`); the Blender cameras move there. Returns how each
+    camera was framed (its derivation and the framed camera)."""
     from mixcount.scene.framing import frame_camera, rotation_of
 
     kept = state.kept("counted")
@@ -217,16 +235,17 @@ def frame_cameras(state: SceneState) -> None:
     container = state.spec.container
     diag = float(np.linalg.norm(container.extent_m)) if container is not None else None
     margin = state.spec.placement.frame_margin if state.spec.placement is not None else 0.0
-    state.framings = []
+    framings = []
     for cam_obj, cam in zip(state.cam_objs, state.spec.cameras):
         framed = frame_camera(cam, centres, sizes, diag, margin=margin)
         m = np.eye(4)
         m[:3, :3], m[:3, 3] = rotation_of(framed.camera), framed.camera.position
         _set_matrix(cam_obj, m)
-        state.framings.append({**framed.derivation, "camera": framed.camera.to_dict()})
+        framings.append({**framed.derivation, "camera": framed.camera.to_dict()})
+    return framings
 
 
-def place_distractors_in_view(state: SceneState, cameras: list[PinholeCamera]) -> None:
+def place_distractors_in_view(state: SceneState, cameras: list[PinholeCamera], framings: list[dict[str, Any]]) -> None:
     """Distractors on free floor where every camera sees them (:func:`mixcount.scene.framing.place_distractors`),
     resting on the floor at their drawn yaw and size; one without a spot is dropped (``no_spot_in_view``)."""
     from mixcount.scene.framing import DistractorShape, image_box, place_distractors
@@ -257,7 +276,7 @@ def place_distractors_in_view(state: SceneState, cameras: list[PinholeCamera]) -
     centres = np.array([np.asarray(state.objects[i].matrix_world)[:3, 3] for i in counted]).reshape(-1, 3)
     centre = np.median(centres[:, :2], axis=0) if len(centres) else np.zeros(2)
     # candidates within 1.5 x the farthest camera's distance of the pile (a low view sees floor far beyond it)
-    reach = 1.5 * max(float(f["camera"]["distance"]) for f in state.framings)
+    reach = 1.5 * max(float(f["camera"]["distance"]) for f in framings)
     rng = np.random.default_rng([state.spec.seed, PLACEMENT_STREAM])
     spots = place_distractors(rng, shapes, cameras, state.spec.floor, np.array(occupied).reshape(-1, 4),
                               counted_boxes, centre=centre, max_radius=reach, margin=placement.distractor_margin,
@@ -503,9 +522,21 @@ def _camera_record(cam_obj: Any, camera: PinholeCamera) -> dict[str, Any]:
     }
 
 
-def place_after_physics(state: SceneState, settled_poses: dict[str, np.ndarray], timer: Timer) -> list[PinholeCamera]:
+@dataclass(frozen=True)
+class Placement:
+    """Where the cameras ended up after physics: each camera's pixel model and how it was framed (empty
+    for a spec without after-physics placement: the stage's cameras, unmoved)."""
+
+    cameras: list[PinholeCamera]
+    framings: list[dict[str, Any]]
+
+    def framing(self, k: int) -> dict[str, Any]:
+        return self.framings[k] if self.framings else {"framing": "fixed"}
+
+
+def place_after_physics(state: SceneState, settled_poses: dict[str, np.ndarray], timer: Timer) -> Placement:
     """Settle checks, then (specs with a placement) cameras framed on the settled pile and distractors
-    placed in view; returns each camera's pixel model."""
+    placed in view; returns each camera's pixel model and framing."""
     from mixcount.engine.visibility import camera_model
 
     with timer.stage("settle_checks"):
@@ -514,12 +545,11 @@ def place_after_physics(state: SceneState, settled_poses: dict[str, np.ndarray],
         else:
             check_settled(state, settled_poses, ("counted", "distractor"))
     with timer.stage("placement"):
-        if state.placed_after_physics:
-            frame_cameras(state)
+        framings = frame_cameras(state) if state.placed_after_physics else []
         cameras = [camera_model(state.scene, c) for c in state.cam_objs]
         if state.placed_after_physics:
-            place_distractors_in_view(state, cameras)
-    return cameras
+            place_distractors_in_view(state, cameras, framings)
+    return Placement(cameras, framings)
 
 
 def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] = None) -> SceneResult:
@@ -536,10 +566,12 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
         reserves = set_reserves_aside(state)  # a count target's top-up bodies wait outside the first settle
     with timer.stage("physics"):
         if req.settled_poses_file:  # settled ahead by another worker (settle_ahead)
-            settled_poses = apply_settled(state, req.settled_poses_file)
+            settled = read_settled(state, req.settled_poses_file)
         else:
-            settled_poses = settle(state, camera_model(state.scene, state.cam_objs[0]))
-    cameras = place_after_physics(state, settled_poses, timer)
+            settled = settle(state, camera_model(state.scene, state.cam_objs[0]))
+        place_settled(state, settled)
+    placement = place_after_physics(state, settled.poses, timer)
+    cameras = placement.cameras
     with timer.stage("frame_check"):
         check_frame(state, cameras)
     with timer.stage("silhouettes"):
@@ -558,7 +590,7 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
     if status == STATUS_OK and req.more_views is not None:  # compose --views: the new cameras, in this process
         from mixcount.engine.rerender_job import render_more_views
 
-        return render_more_views(state, req, cameras, renders, timer)
+        return render_more_views(state, req, placement, renders, timer)
     view_passes: list[dict[str, Any]] = [{} for _ in cameras]
     if status == STATUS_OK:
         with timer.stage("write_passes"):
@@ -576,8 +608,7 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
     spec = state.spec
     records = [_camera_record(c, cam) for c, cam in zip(state.cam_objs, cameras)]
     views = tuple(CameraView(name=c.name, suffix=view_suffix(k), camera=records[k],
-                             framing=state.framings[k] if state.framings else {"framing": "fixed"},
-                             passes=view_passes[k]) for k, c in enumerate(state.cam_objs))
+                             framing=placement.framing(k), passes=view_passes[k]) for k, c in enumerate(state.cam_objs))
     result = SceneResult(
         status=status, stage=str(state.stage_path), scene_id=spec.scene_id, seed=spec.seed,
         visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=renders,
