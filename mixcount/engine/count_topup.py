@@ -207,17 +207,19 @@ def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int
     from mixcount.scene.framing import image_box
 
     before = set(state.kept())
-    if moved is None or moved:  # (nothing moved: the poses are exactly the checked ones)
-        with timer.stage("count_target"):
+    with timer.stage("count_target"):
+        if moved is None:
             check_settled(state, {}, ("counted",))
             check_frame(state, cameras)
+        elif moved:  # only the fallen bodies moved: their settle verdict and frame check
+            _check_moved(state, moved, cameras)
     if id_passes is None or moved is None:
         with timer.stage("silhouettes"):
             masks = [silhouettes(state, cam, threads, k) for k, cam in enumerate(cameras)]
         id_passes, renders = visibility_loop(state, masks, timer)
         return masks, id_passes, renders
     gone = before - set(state.kept())
-    still = [i for i in moved if state.objects[i].kept]
+    still = [i for i in moved if state.objects[i].kept]  # (dropped ones are in gone)
     ids = [state.objects[i].instance_id for i in (*moved, *gone)] + list(removed_ids)
     regions: list[Optional[tuple[int, int, int, int]]] = []
     with timer.stage("silhouettes"):
@@ -242,6 +244,34 @@ def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int
             regions.append(region)
     passes, renders = visibility_loop(state, masks, timer, start=(id_passes, regions))
     return masks, passes, renders
+
+
+def _check_moved(state: SceneState, moved: list[int], cameras: list[PinholeCamera]) -> None:
+    """The settle verdict (unstable, below the floor, flung out) and the frame check of the bodies that
+    fell in a rest check, at their new poses (the others did not move: their checks stand). The rest
+    check's own simulation resolved their contacts, so no interpenetration check is run again."""
+    floor, ph = state.spec.floor, state.spec.physics
+    for i in moved:
+        o = state.objects[i]
+        mat = np.array(state.blender_objects[o.path].matrix_world)
+        lo, hi = D.world_bounds(state.cache.columns[o.asset], mat)
+        state.bounds[i] = (lo, hi)
+        state.update(i, matrix_world=tuple(tuple(float(v) for v in row) for row in mat), min_z=float(lo[2]))
+        reason = D.settle_verdict(mat, float(lo[2]), o.size_m, floor_shape=floor.shape,
+                                  half_extent=(float(floor.half_extent[0]), float(floor.half_extent[1])),
+                                  below_floor_fraction=ph.settle_below_floor_fraction)
+        if reason is not None:
+            state.drop(i, reason, "count_rest")
+            continue
+        inside = True
+        for k, camera in enumerate(cameras):
+            origin, ok = D.origin_in_frame(camera, mat)
+            state.view(i, k)["origin_px"] = list(origin)
+            if k == 0:
+                state.update(i, origin_px=origin)
+            inside = inside and ok
+        if not inside:
+            state.drop(i, D.OUTSIDE_FRAME, "count_rest")
 
 
 def _rest(state: SceneState, timer: Any, record: dict[str, Any]) -> list[int]:
@@ -286,7 +316,7 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
         before = {state.objects[i].instance_id for i in state.kept()}
         with timer.stage("count_target"):
             removed += remove_surplus(state)
-        for _ in range(3):
+        for _ in range(2):
             out_ids = tuple(sorted(before - {state.objects[i].instance_id for i in state.kept()}))
             fell = _rest(state, timer, record)
             kept_before = len(state.kept())
