@@ -28,8 +28,11 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check mixcount tests bench
 	$(VENV)/bin/mypy
 
+# Two pytest-xdist processes, each module's tests in one (--dist loadfile); session fixtures are built once
+# for both (tests/conftest.py). TEST_WORKERS=0 runs in one process.
+TEST_WORKERS ?= 2
 test: $(STAMP) browser lint
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # Engine-free tests only (no bpy, Ray, browser or slow statistics): about a minute.
 test-fast: $(STAMP)
