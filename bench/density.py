@@ -9,7 +9,7 @@ ingested environments or materials) from the chosen pool (bench/pools.py: ``ligh
 ``heavy`` = its capture-like >= 200k-face copy), with collision proxies and container collision meshes as
 ingest stores them, and run end to end by the worker (physics, checks, visibility, passes, RGB, scene
 files) at a reduced resolution and sample count (``--resolution`` / ``--samples``: what is kept hardly
-depends on them). Each scene's ``metadata.json`` is read by :mod:`mixcount.evaluate.density`.
+depends on them). Each scene's ``metadata.json`` is read by :mod:`mixcount.evaluate.scene_density`.
 
 stdout: one JSON line per pool: counted retention (kept / spawned) overall and in container /
 no-container scenes, mean counted kept per scene, distractors spawned / kept per scene, drop reasons
@@ -19,7 +19,7 @@ also writes the per-scene records as JSON lines.
 
 Before / after: mixcount is imported as Python resolves it (``PYTHONPATH`` first, else this checkout),
 so ``cd OLD && PYTHONPATH=OLD python NEW/bench/density.py`` measures the code in OLD with this bench;
-the figures are always computed by this checkout's ``mixcount/evaluate/density.py``. The run prints
+the figures are always computed by this checkout's ``mixcount/evaluate/scene_density.py``. The run prints
 where mixcount came from in this process and in the bpy worker (``python -m`` puts the current folder
 first on the worker's path: run from OLD) and stops if the two differ.
 """
@@ -43,7 +43,7 @@ sys.path.append(str(ROOT))  # last: a PYTHONPATH (or installed) mixcount wins, s
 
 
 def _density_module() -> ModuleType:
-    """This checkout's mixcount/evaluate/density.py (stdlib only), whatever mixcount is imported."""
+    """This checkout's mixcount/evaluate/scene_density.py (stdlib only), whatever mixcount is imported."""
     spec = importlib.util.spec_from_file_location("_bench_density", ROOT / "mixcount" / "evaluate" / "density.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)

@@ -192,7 +192,7 @@ class Dataset:
                 yield self._sample(s, img)
 
     def _sample(self, split: str, img: Any) -> Sample:
-        from mixcount.export.points import object_point
+        from mixcount.export.object_points import object_point
 
         anns = tuple(img.annotations)
         boxes = np.array([[float(v) for v in a["bbox"]] for a in anns], dtype=np.float64).reshape(-1, 4)

@@ -221,7 +221,7 @@ def test_merge_renumbers_and_loads_with_pycocotools(tmp_path: Path) -> None:
 
 
 def test_interior_point_lies_deep_inside_the_visible_pixels() -> None:
-    from mixcount.annotate.points import interior_point
+    from mixcount.annotate.interior_points import interior_point
 
     ring = np.zeros((30, 30), bool)  # a ring: its centroid (15, 15) is not on the mask
     ring[5:25, 5:25] = True

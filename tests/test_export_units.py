@@ -15,10 +15,10 @@ from mixcount.annotate.coco import build_scene_coco, mask_to_rle
 from mixcount.cli import main
 from mixcount.dataset.attribution import collect_attribution, write_attribution
 from mixcount.errors import ExportError
-from mixcount.export.density import adaptive_density_map, adaptive_sigmas, loca_object_density_map
+from mixcount.export.density_maps import adaptive_density_map, adaptive_sigmas, loca_object_density_map
 from mixcount.export.fsc147 import corners, negative_class
+from mixcount.export.object_points import decode_mask, object_point
 from mixcount.export.outputs import ExportFolder
-from mixcount.export.points import decode_mask, object_point
 from mixcount.export.reader import ComposedDataset
 
 # ------------------------------------------------------------------------------------------- points

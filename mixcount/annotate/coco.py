@@ -82,7 +82,7 @@ def class_map(ids: NDArray[Any], inst_to_category: Mapping[int, int]) -> NDArray
     return np.asarray(lut[ids])
 
 
-KEYPOINT_NAMES = ["center"]  # one keypoint per annotation: its point (see mixcount.annotate.points)
+KEYPOINT_NAMES = ["center"]  # one keypoint per annotation: its point (see mixcount.annotate.interior_points)
 
 
 def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], categories: Sequence[Mapping[str, Any]],
@@ -100,7 +100,7 @@ def build_scene_coco(ids: NDArray[Any], objects: Sequence[Mapping[str, Any]], ca
     """
     from scipy.ndimage import find_objects
 
-    from mixcount.annotate.points import interior_point
+    from mixcount.annotate.interior_points import interior_point
 
     h, w = ids.shape
     anns: list[dict[str, Any]] = []

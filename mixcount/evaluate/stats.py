@@ -15,7 +15,7 @@ Reads every ``OUT/annotations/instances_<split>.json`` (COCO, see docs/contracts
                          counted objects and distractors, drop reasons by role and the counted classes that
                          ended with no visible instance (with their objects' drop reasons); in ``summary``
                          the same pooled (retention overall and in container / no-container scenes, share
-                         lost off the floor, ...; :func:`mixcount.evaluate.density.summarise_density`);
+                         lost off the floor, ...; :func:`mixcount.evaluate.scene_density.summarise_density`);
                          ``kept_per_scene`` / ``spawned_per_scene`` / ``retention_per_scene`` summaries and
                          histograms (bins of 10 objects)
 Engine-free; plotting lives in mixcount.evaluate.plots.
@@ -34,8 +34,8 @@ from numpy.typing import NDArray
 
 from mixcount.errors import GroundTruthError
 from mixcount.evaluate.count_stats import count_lines, dataset_count_stats
-from mixcount.evaluate.density import scene_density, summarise_density
 from mixcount.evaluate.metrics import read_coco
+from mixcount.evaluate.scene_density import scene_density, summarise_density
 from mixcount.scene.spec import TIERS
 
 SPLIT_ORDER = ("train", "val", "test")
@@ -171,7 +171,7 @@ def compute_stats(dataset: str | Path) -> dict[str, Any]:
 
 
 def density_stats(dataset: Path, scene_splits: dict[str, str]) -> dict[str, Any] | None:
-    """The ``density`` key: :func:`~mixcount.evaluate.density.scene_density` of every scene the COCO
+    """The ``density`` key: :func:`~mixcount.evaluate.scene_density.scene_density` of every scene the COCO
     files name (``scene_splits``: scene id -> split) whose ``scenes/<id>/metadata.json`` is there, pooled;
     None when the dataset has no ``scenes`` folder (an export). One metadata.json is read at a time."""
     scenes_dir = Path(dataset) / "scenes"

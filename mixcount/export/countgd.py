@@ -35,8 +35,8 @@ from pathlib import Path
 from typing import Any, Mapping, Optional
 
 from mixcount.dataset.attribution import write_attribution
+from mixcount.export.object_points import object_point
 from mixcount.export.outputs import ExportFolder
-from mixcount.export.points import object_point
 from mixcount.export.reader import ComposedDataset, DatasetImage, caption, check_tier, image_key
 from mixcount.progress import ProgressReporter
 

@@ -14,7 +14,7 @@ FSC-147 labels one class per image, so every (image, class) pair of the dataset 
 - ``Train_Test_Val_FSC_147.json``: ``{"train": [...], "val": [...], "test": [...]}`` (+ any other split).
 - ``ImageClasses_FSC147.txt``: ``sample<TAB>class text`` (the chosen caption tier).
 - ``gt_density_map_adaptive_384_VarV2/<sample>.npy`` and ``gt_density_map_adaptive_512_512_object_VarV2/
-  <sample>.npy``: the two density maps of :mod:`mixcount.export.density`, each summing to the count.
+  <sample>.npy``: the two density maps of :mod:`mixcount.export.density_maps`, each summing to the count.
 - ``instances_<split>.json``: COCO boxes of each sample's class (file_name = sample), which DAVE and
   GeCo read for val / test box evaluation.
 
@@ -32,9 +32,9 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 
 from mixcount.dataset.attribution import write_attribution
-from mixcount.export.density import adaptive_density_map, density_sum_error, loca_object_density_map
+from mixcount.export.density_maps import adaptive_density_map, density_sum_error, loca_object_density_map
+from mixcount.export.object_points import object_point
 from mixcount.export.outputs import ExportFolder
-from mixcount.export.points import object_point
 from mixcount.export.reader import ComposedDataset, DatasetImage, caption, check_tier
 from mixcount.progress import ProgressReporter
 

@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any, Optional
 
 from mixcount.dataset.attribution import write_attribution
+from mixcount.export.object_points import object_point
 from mixcount.export.outputs import ExportFolder
-from mixcount.export.points import object_point
 from mixcount.export.reader import ComposedDataset, DatasetImage, caption, check_tier
 from mixcount.progress import ProgressReporter
 from mixcount.scene.spec import TIERS

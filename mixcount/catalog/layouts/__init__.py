@@ -31,7 +31,10 @@ One module per layout (``dtc``, ``gso``, ``omniobject3d``: folder layouts with `
 ``objaverse`` and ``folder``: file-level readers), shared pieces in :mod:`.base`, the walk in :mod:`.walk`.
 """
 
-from mixcount.catalog.layouts.base import (
+from mixcount.catalog.layouts.gso import gso_identity, parse_pbtxt
+from mixcount.catalog.layouts.objaverse import SideMetadata
+from mixcount.catalog.layouts.walk import LAYOUTS, discover, stage
+from mixcount.catalog.layouts.walker import (
     SOURCE_DTC,
     SOURCE_FOLDER,
     SOURCE_GSO,
@@ -41,9 +44,6 @@ from mixcount.catalog.layouts.base import (
     broken_path_candidate,
     record_identity,
 )
-from mixcount.catalog.layouts.gso import gso_identity, parse_pbtxt
-from mixcount.catalog.layouts.objaverse import SideMetadata
-from mixcount.catalog.layouts.walk import LAYOUTS, discover, stage
 
 __all__ = ["LAYOUTS", "SOURCE_DTC", "SOURCE_FOLDER", "SOURCE_GSO", "SOURCE_OBJAVERSE", "SOURCE_OMNI", "Candidate",
            "SideMetadata", "broken_path_candidate", "discover", "gso_identity", "parse_pbtxt", "record_identity",

@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from mixcount.catalog.layouts.base import (
+from mixcount.catalog.layouts.walker import (
     SOURCE_DTC,
     Candidate,
     Walker,

@@ -11,7 +11,7 @@ import re
 from pathlib import Path
 from typing import Any, Iterator
 
-from mixcount.catalog.layouts.base import (
+from mixcount.catalog.layouts.walker import (
     SOURCE_FOLDER,
     Candidate,
     Walker,

@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from mixcount.catalog.layouts.base import (
+from mixcount.catalog.layouts.walker import (
     SOURCE_GSO,
     Candidate,
     Walker,

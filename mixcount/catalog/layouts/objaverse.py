@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Optional
 
-from mixcount.catalog.layouts.base import (
+from mixcount.catalog.layouts.walker import (
     SOURCE_OBJAVERSE,
     Candidate,
     Walker,

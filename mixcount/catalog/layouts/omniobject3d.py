@@ -7,7 +7,7 @@ import os
 import re
 from pathlib import Path
 
-from mixcount.catalog.layouts.base import SOURCE_OMNI, Candidate, Walker, _model_files, _preferred, _scan, is_dir
+from mixcount.catalog.layouts.walker import SOURCE_OMNI, Candidate, Walker, _model_files, _preferred, _scan, is_dir
 from mixcount.catalog.naming import category_text, odd_name_reason, safe_text
 
 NAME = SOURCE_OMNI

@@ -19,7 +19,7 @@ from typing import Iterable, Iterator
 
 from mixcount.catalog.layouts import folder as folder_layout
 from mixcount.catalog.layouts import objaverse
-from mixcount.catalog.layouts.base import (
+from mixcount.catalog.layouts.walker import (
     LICENCE_NAMES,
     SOURCE_FOLDER,
     Candidate,

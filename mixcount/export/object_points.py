@@ -15,7 +15,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from mixcount.annotate.points import interior_point
+from mixcount.annotate.interior_points import interior_point
 
 
 def decode_mask(segmentation: Mapping[str, Any]) -> "np.ndarray[Any, Any]":
@@ -36,7 +36,7 @@ def object_point(annotation: Mapping[str, Any]) -> tuple[float, float]:
 
     The annotation's ``point`` (integer pixel indices [column, row], docs/annotations.md) is used when
     present; otherwise the same pixel is computed from the visible mask with
-    :func:`mixcount.annotate.points.interior_point`. Either way the result is that pixel's centre."""
+    :func:`mixcount.annotate.interior_points.interior_point`. Either way the result is that pixel's centre."""
     given = annotation.get("point")
     if given is not None:
         col, row = int(given[0]), int(given[1])
