@@ -30,6 +30,7 @@ from mixcount.engine.scene_build import SceneState, pose_with_scale, scaled_prox
 from mixcount.worker.contract import DROPPED, KEPT
 
 COUNT_TOPUP_STREAM = 43  # where reserve bodies drop: default_rng([scene seed, COUNT_TOPUP_STREAM, round])
+NOT_AT_REST = "count_not_at_rest"  # verdict: the last rest check still saw a body fall more than the tolerance
 TOPUP_FACTOR = 1.5  # reserve bodies dropped per missing object (+1): some land occluded or out of view
 
 
@@ -339,4 +340,8 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     state.diagnostics.append(record)
     verdict = count_outcome(state, removed, int(state.spec.render.resolution), topped_up=dropped,
                             topup_rounds=rounds, reserve_unused=len(reserves.objects))
+    if verdict is None and float(record.get("last_drop_x_size", 0.0)) > float(target["rest_tolerance"]):
+        # the last rest check still saw a body fall (still sliding after its checks): not shipped
+        verdict = NOT_AT_REST
+        state.diagnostics[-1]["verdict"] = verdict
     return masks, id_passes, renders, verdict
