@@ -44,7 +44,7 @@ sys.path.append(str(ROOT))  # last: a PYTHONPATH (or installed) mixcount wins, s
 
 def _density_module() -> ModuleType:
     """This checkout's mixcount/evaluate/scene_density.py (stdlib only), whatever mixcount is imported."""
-    spec = importlib.util.spec_from_file_location("_bench_density", ROOT / "mixcount" / "evaluate" / "density.py")
+    spec = importlib.util.spec_from_file_location("_bench_density", ROOT / "mixcount" / "evaluate" / "scene_density.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
