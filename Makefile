@@ -34,9 +34,9 @@ TEST_WORKERS ?= 2
 test: $(STAMP) browser lint
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
-# Engine-free tests only (no bpy, Ray, browser or slow statistics): about a minute.
+# Engine-free tests only (no bpy, Ray, browser or slow ones), in the same two processes: 80-90 s on 2 cores.
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not blender and not ray and not browser and not slow"
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not blender and not ray and not browser and not slow"
 
 demo: $(STAMP)
 	$(MIX) demo-library catalog/demo

@@ -17,6 +17,8 @@ from mixcount.captions.check import check_catalog, check_tiers_text
 from mixcount.catalog.db import open_catalog
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag
 
+pytestmark = pytest.mark.slow  # each layout's library is built, ingested, filtered and captioned: ~20 s
+
 COLOUR_WORDS = {"black", "grey", "white", "red", "maroon", "orange", "brown", "tan", "beige", "yellow", "gold",
                 "olive", "lime", "green", "teal", "blue", "navy", "purple", "magenta", "pink", "light", "dark"}
 
