@@ -252,6 +252,8 @@ def _check_moved(state: SceneState, moved: list[int], cameras: list[PinholeCamer
     """The settle verdict (unstable, below the floor, flung out) and the frame check of the bodies that
     fell in a rest check, at their new poses (the others did not move: their checks stand). The rest
     check's own simulation resolved their contacts, so no interpenetration check is run again."""
+    from mixcount.engine.scene_job import check_frame
+
     floor, ph = state.spec.floor, state.spec.physics
     for i in moved:
         o = state.objects[i]
@@ -265,15 +267,7 @@ def _check_moved(state: SceneState, moved: list[int], cameras: list[PinholeCamer
         if reason is not None:
             state.drop(i, reason, "count_rest")
             continue
-        inside = True
-        for k, camera in enumerate(cameras):
-            origin, ok = D.origin_in_frame(camera, mat)
-            state.view(i, k)["origin_px"] = list(origin)
-            if k == 0:
-                state.update(i, origin_px=origin)
-            inside = inside and ok
-        if not inside:
-            state.drop(i, D.OUTSIDE_FRAME, "count_rest")
+        check_frame(state, cameras, [i], "count_rest")
 
 
 def _rest(state: SceneState, timer: Any, record: dict[str, Any]) -> list[int]:

@@ -296,10 +296,13 @@ def place_distractors_in_view(state: SceneState, cameras: list[PinholeCamera], f
 PLACEMENT_STREAM = 23  # the distractor placement's generator: default_rng([scene seed, PLACEMENT_STREAM])
 
 
-def check_frame(state: SceneState, cameras: list[PinholeCamera]) -> None:
+def check_frame(state: SceneState, cameras: list[PinholeCamera], indices: Optional[list[int]] = None,
+                stage: str = "frame") -> None:
     """Drop objects whose origin projects outside any camera's image (or behind it): the paper keeps an
-    object "only if their origin projects inside every camera frame"."""
-    for i in state.kept():
+    object "only if their origin projects inside every camera frame". ``indices``: only those objects
+    (default: every kept one); ``stage``: the step a drop is recorded under (a count target's rest check
+    checks the bodies that moved, under ``count_rest``)."""
+    for i in state.kept() if indices is None else indices:
         inside_all = True
         for k, camera in enumerate(cameras):
             origin, inside = D.origin_in_frame(camera, np.array(state.objects[i].matrix_world))
@@ -308,7 +311,7 @@ def check_frame(state: SceneState, cameras: list[PinholeCamera]) -> None:
                 state.update(i, origin_px=origin)
             inside_all = inside_all and inside
         if not inside_all:
-            state.drop(i, D.OUTSIDE_FRAME, "frame")
+            state.drop(i, D.OUTSIDE_FRAME, stage)
 
 
 def silhouettes(state: SceneState, camera: PinholeCamera, threads: int, k: int = 0) -> dict[int, np.ndarray]:
