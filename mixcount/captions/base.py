@@ -83,6 +83,9 @@ class CaptionInput:
     # "darker" / "lighter": set only for a colour variant whose captions came out the same as its pair's
     # (same colour names): the measured mean luminance of the two tells them apart
     tone: str | None = None
+    # the model file's content hash: seeds the surface-colour sampling, so the same asset gets the same
+    # colour shares whatever row id an ingest gave it ("" = seed by object_id)
+    content_hash: str = ""
 
     @classmethod
     def from_object(cls, obj: Any, *, render_path: Path | None = None) -> "CaptionInput":
@@ -92,6 +95,7 @@ class CaptionInput:
         """
         item = cls(
             object_id=int(obj.id),
+            content_hash=str(getattr(obj, "content_hash", "") or ""),
             name=display_name(obj),
             category=(obj.category or "object").strip().lower(),
             dims=(float(obj.dim_x or 0.0), float(obj.dim_y or 0.0), float(obj.dim_z or 0.0)),
@@ -105,6 +109,14 @@ class CaptionInput:
             render_path=Path(render_path) if render_path is not None and Path(render_path).is_file() else None,
         )
         return item
+
+    def colour_seed(self) -> int:
+        """The surface-colour sampling's seed: from the content hash (the same asset, the same shares in
+        every catalog; ingest order sets row ids), else the object id."""
+        try:
+            return int(self.content_hash[:16], 16) if self.content_hash else self.object_id
+        except ValueError:  # not hex: a stable integer of its bytes instead
+            return int.from_bytes(self.content_hash.encode()[:8], "big")
 
     def with_measured_colours(self, source: str) -> "CaptionInput":
         """A copy with dominant colours measured from ``source`` first ("model": the surface albedo
@@ -124,7 +136,7 @@ class CaptionInput:
                 except (OSError, ValueError):  # unreadable/corrupt PNG: use the other source
                     colours = EMPTY
             elif kind == "model" and self.model_path and Path(self.model_path).is_file():
-                colours = colours_from_model(Path(self.model_path), seed=self.object_id)
+                colours = colours_from_model(Path(self.model_path), seed=self.colour_seed())
             if colours.names:
                 break
         parts = count_parts(Path(self.model_path)) if self.model_path and Path(self.model_path).is_file() else None
