@@ -76,11 +76,17 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
                 state.drop(i, D.OCCLUDED, "test")
         assert region is not None
         pasted = D.paste_region(before, P.render_id_passes(state.scene, exr, region), region)
-    full = P.render_id_passes(state.scene, exr)  # a fresh sync of the scene without them
+        twins = [o.name for o in state.scene.objects if o.name.endswith(P.TWIN_SUFFIX)]
+    plain = P.render_id_passes(state.scene, exr)  # outside a series: no twins, Cycles' own sync
+    with P.id_pass_series(state.scene):  # a fresh sync of the scene without them, as the loop renders
+        full = P.render_id_passes(state.scene, exr)
     return {"ok": True, "region": list(region), "dropped_px": sum(seen[k] for k in drop),
             "changed_px": int((full["index"] != before["index"]).sum()),
             "equal": {k: bool(np.array_equal(pasted[k], full[k])) for k in ("index", "depth", "normal")},
-            "dropped_still_seen": int(np.isin(pasted["index"], drop).sum())}
+            "dropped_still_seen": int(np.isin(pasted["index"], drop).sum()),
+            "twins": len(twins), "twins_left": sum(1 for o in state.scene.objects if o.name.endswith(P.TWIN_SUFFIX)),
+            "plain_index_equal": bool(np.array_equal(plain["index"], full["index"])),
+            "plain_depth_rel": float(np.max(np.abs(plain["depth"] - full["depth"]) / np.maximum(full["depth"], 1e-6)))}
 
 
 def _cube(scene: Any, name: str, loc: tuple[float, float, float], size: float) -> Any:

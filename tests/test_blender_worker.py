@@ -407,7 +407,8 @@ def _check_depth_normals(d: Path, camera: dict, files: dict, h: int, w: int, suf
 
 def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_path: Path, fault_worker) -> None:
     """The visibility loop re-renders only where dropped objects were seen: pasted into the earlier id
-    pass, that region must give exactly the full render's ids, depth and normals."""
+    pass, that region must give exactly the full render's ids, depth and normals (both in an id-pass
+    series, as the loop renders)."""
     out, _summary, _pool = composed
     w = fault_worker  # adds "border_check"
     for scene in _scenes(out):
@@ -419,6 +420,10 @@ def test_border_rerender_of_dropped_objects_equals_a_full_render(composed, tmp_p
         assert r["dropped_px"] > 0 and r["changed_px"] > 0  # the dropped objects were seen and are gone
         assert r["dropped_still_seen"] == 0
         assert r["equal"] == {"index": True, "depth": True, "normal": True}, r
+        # single-user meshes (each distractor's) are instanced by a twin beyond the far clip for the
+        # series only; the ids equal a render without twins, depth to float precision
+        assert r["twins"] >= 1 and r["twins_left"] == 0, r
+        assert r["plain_index_equal"] and r["plain_depth_rel"] < 1e-4, r
 
 
 def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, library, tmp_path: Path,
