@@ -4,14 +4,13 @@ of the first settle, the top-up of a short class and the rest check after the ta
 - :func:`set_reserves_aside` (right after the scene is loaded, before any settle): each class's reserve
   bodies (``count_target["reserve"]``, the class's highest instance ids) leave the scene and the
   simulation; they wait, marked ``count_reserve``.
-- :func:`bring_to_target` (after the first visibility loop): take out the surplus
-  (:func:`mixcount.engine.count_trim.remove_surplus`); while a class is short and holds reserves, drop
-  reserve bodies of the short classes from above onto the settled pile, simulate the pile again, re-run the
-  settle checks, the frame check, the silhouettes and the visibility loop, then take out the surplus again
-  (at most ``topup_rounds``); then the rest check (:func:`rest_check`): the kept bodies simulated again
-  for ``rest_frames``; a body that moved more than ``rest_tolerance`` x its size (held up by a body taken
-  out or dropped as occluded) takes that pose and visibility is measured again. The largest displacement
-  goes into the ``count_rest`` diagnostic.
+- :func:`bring_to_target` (after the first visibility round, before its re-render): take out the surplus
+  (:func:`mixcount.engine.count_trim.remove_surplus`), then the rest check (:func:`rest_check`): the kept
+  bodies simulated again for ``rest_frames``; a body that moved more than ``rest_tolerance`` x its size
+  (held up by a body taken out or dropped as occluded) takes that pose; then one re-render of the boxes
+  where anything changed. While a class is short and holds reserves, reserve bodies of the short classes
+  drop from above onto the settled pile (which holds still), are checked and measured, and the round
+  repeats (at most ``topup_rounds``). The largest displacement goes into the ``count_rest`` diagnostic.
 
 The decisions are :mod:`mixcount.annotate.count_decisions`'; this module moves objects and runs Bullet.
 """
@@ -73,9 +72,11 @@ def set_reserves_aside(state: SceneState) -> Reserves:
     return out
 
 
-def _simulate(state: SceneState, indices: list[int], frames: int) -> dict[int, np.ndarray]:
+def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[int, ...] = ()) -> dict[int, np.ndarray]:
     """The counted bodies ``indices`` (their current poses) simulated with the floor and the container for
-    at most ``frames`` frames (the stage's physics, early stop when calm); returns each one's new pose."""
+    at most ``frames`` frames (the stage's physics, early stop when calm); returns each one's new pose.
+    The counted bodies ``still`` take part as static colliders where they are (a top-up's bodies land on
+    the settled pile, which keeps its poses)."""
     import bpy
     import mathutils
 
@@ -85,18 +86,20 @@ def _simulate(state: SceneState, indices: list[int], frames: int) -> dict[int, n
     bodies = [b for b in state.bodies if b.kind == "passive"]
     back: dict[str, tuple[int, Optional[np.ndarray]]] = {}
     temporary = []
-    for i in indices:
+    for i, kind in [(i, "active") for i in indices] + [(i, "passive") for i in still]:
         o = state.objects[i]
         obj = state.blender_objects[o.path]
         mesh = state.cache.proxies.get(o.asset)
         if mesh is not None:
             pobj, scale = scaled_proxy_collider(state.scene, obj.name + "_again", mesh, np.array(obj.matrix_world))
             temporary.append(pobj)
-            bodies.append(Body(pobj, "active", "CONVEX_HULL"))
-            back[pobj.name] = (i, scale)
+            bodies.append(Body(pobj, kind, "CONVEX_HULL"))
+            if kind == "active":
+                back[pobj.name] = (i, scale)
         else:
-            bodies.append(Body(obj, "active", "CONVEX_HULL"))
-            back[obj.name] = (i, None)
+            bodies.append(Body(obj, kind, "CONVEX_HULL"))
+            if kind == "active":
+                back[obj.name] = (i, None)
     waited_for = None
     if state.spec.placement is not None:
         import functools
@@ -122,9 +125,11 @@ def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
     return kept
 
 
-def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_no: int) -> int:
+def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_no: int) -> list[int]:
     """Drop reserve bodies of the ``short`` classes (lacking objects per class) from above onto the settled
-    pile and simulate it again; returns how many were dropped (0: no reserve left for them)."""
+    pile, which holds still (static colliders at its settled poses: the bodies landing on it are light
+    and the rest check after the top-up simulates the whole pile again); returns the bodies dropped
+    (none: no reserve left for them)."""
     from mixcount.annotate.count_decisions import drop_spots, topup_draw
 
     available: dict[int, list[int]] = {}
@@ -133,7 +138,7 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
     draw = topup_draw(short, {c: len(v) for c, v in available.items()}, TOPUP_FACTOR)
     picks = [i for c in sorted(draw) for i in available[c][: draw[c]]]
     if not picks:
-        return 0
+        return []
     kept = state.kept("counted")
     boxes = [state.bounds.get(i) or D.world_bounds(state.cache.columns[state.objects[i].asset],
                                                     np.asarray(state.objects[i].matrix_world)) for i in kept]
@@ -154,11 +159,11 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
         obj.matrix_world = mathutils.Matrix(m.tolist())
         state.blender_objects[state.objects[i].path] = obj
         state.update(i, status=KEPT, reason=None, matrix_world=tuple(tuple(float(v) for v in r) for r in m))
-    _simulate(state, state.kept("counted"), int(state.spec.physics.frames))
+    _simulate(state, picks, int(state.spec.physics.frames), still=tuple(kept))
     state.diagnostics.append({"kind": "count_topup", "round": int(round_no),
                               "dropped_per_class": {str(c): n for c, n in sorted(draw.items())},
                               "short_per_class": {str(c): n for c, n in sorted(short.items())}})
-    return len(picks)
+    return picks
 
 
 def rest_check(state: SceneState) -> tuple[float, float, list[int]]:
@@ -196,30 +201,22 @@ def _union(a: Optional[tuple[int, int, int, int]], b: Optional[tuple[int, int, i
     return min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])
 
 
-def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int, timer: Any,
-                   masks: list[dict[int, np.ndarray]], id_passes: Optional[list[dict[str, np.ndarray]]] = None,
-                   moved: Optional[list[int]] = None, removed_ids: tuple[int, ...] = ()
+def _measure_again(state: SceneState, cameras: list[PinholeCamera], timer: Any,
+                   masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]],
+                   moved: list[int], removed_ids: tuple[int, ...] = ()
                    ) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int]:
-    """After bodies moved: settle checks, frame check, then silhouettes and visibility again. With
-    ``id_passes`` and ``moved`` only the moved bodies' silhouettes are drawn again and each camera re-renders
-    only the box where they (and the bodies ``removed_ids`` taken out since those passes) were seen and
-    where they are now (else everything, from fresh id passes)."""
-    from mixcount.engine.scene_job import check_frame, check_settled, silhouettes, visibility_loop
+    """After bodies moved (fell in a rest check, or were dropped in by a top-up) or were taken out: the
+    moved bodies' settle verdict and frame check, their silhouettes drawn again, and each camera re-renders
+    only the box where they (and the bodies ``removed_ids`` taken out since ``id_passes``) were seen and
+    where they are now; then the visibility loop goes on from there."""
+    from mixcount.engine.scene_job import visibility_loop
     from mixcount.engine.visibility import unoccluded_mask
     from mixcount.scene.framing import image_box
 
     before = set(state.kept())
-    with timer.stage("count_target"):
-        if moved is None:
-            check_settled(state, {}, ("counted",))
-            check_frame(state, cameras)
-        elif moved:  # only the fallen bodies moved: their settle verdict and frame check
+    if moved:
+        with timer.stage("count_target"):
             _check_moved(state, moved, cameras)
-    if id_passes is None or moved is None:
-        with timer.stage("silhouettes"):
-            masks = [silhouettes(state, cam, threads, k) for k, cam in enumerate(cameras)]
-        id_passes, renders = visibility_loop(state, masks, timer)
-        return masks, id_passes, renders
     gone = before - set(state.kept())
     still = [i for i in moved if state.objects[i].kept]  # (dropped ones are in gone)
     ids = [state.objects[i].instance_id for i in (*moved, *gone)] + list(removed_ids)
@@ -250,8 +247,9 @@ def _measure_again(state: SceneState, cameras: list[PinholeCamera], threads: int
 
 def _check_moved(state: SceneState, moved: list[int], cameras: list[PinholeCamera]) -> None:
     """The settle verdict (unstable, below the floor, flung out) and the frame check of the bodies that
-    fell in a rest check, at their new poses (the others did not move: their checks stand). The rest
-    check's own simulation resolved their contacts, so no interpenetration check is run again."""
+    fell in a rest check or were dropped in by a top-up, at their new poses (the others did not move:
+    their checks stand). The simulation that moved them resolved their contacts, so no interpenetration
+    check is run again."""
     from mixcount.engine.scene_job import check_frame
 
     floor, ph = state.spec.floor, state.spec.physics
@@ -291,16 +289,22 @@ def _rest(state: SceneState, timer: Any, record: dict[str, Any]) -> list[int]:
 
 def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[PinholeCamera],
                     masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]], threads: int,
-                    timer: Any) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int, Optional[str]]:
+                    timer: Any, occluded: tuple[int, ...] = ()
+                    ) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int, Optional[str]]:
     """Take-out, rest check, top-ups (module docstring); returns the masks and id passes to write, the
     id-pass renders made and the count verdict (None: the scene may be kept).
+
+    ``id_passes`` may still show the bodies ``occluded`` (instance ids) that the first visibility round
+    dropped without re-rendering (``visibility_loop(deferred=...)``): their pixels join the first
+    re-render's region, so one re-render covers the occluded, the surplus and the fallen bodies.
 
     Each round: the surplus is taken out (bodies nothing rests on), then every kept body is simulated again
     (the rest check: bodies dropped as occluded, taken out or still settling may have left one unsupported;
     one that fell takes its new pose), then one visibility loop re-renders only the boxes where the bodies
     taken out were seen and where the fallen ones were and are. If that loop drops a body (a fallen one now
-    occluded), the rest check runs again. Then a class still short is topped up (full re-measure) and the
-    round repeats, at most ``topup_rounds`` times."""
+    occluded), the rest check runs again. Then a class still short is topped up: its bodies land on the
+    pile, only they are measured (their silhouettes, the boxes where they are) and the round repeats, at
+    most ``topup_rounds`` times."""
     from mixcount.engine.count_trim import count_outcome, remove_surplus
 
     target = state.spec.count_target
@@ -309,15 +313,17 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     renders = removed = dropped = 0
     rounds = 0
     record: dict[str, Any] = {"kind": "count_rest", "tolerance_x_size": float(target["rest_tolerance"])}
+    pending = set(occluded)  # seen in id_passes, gone from the scene
     while True:
-        before = {state.objects[i].instance_id for i in state.kept()}
+        before = {state.objects[i].instance_id for i in state.kept()} | pending
+        pending = set()
         with timer.stage("count_target"):
             removed += remove_surplus(state)
         for _ in range(2):
             out_ids = tuple(sorted(before - {state.objects[i].instance_id for i in state.kept()}))
             fell = _rest(state, timer, record)
             kept_before = len(state.kept())
-            masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks, id_passes, fell, out_ids)
+            masks, id_passes, more = _measure_again(state, cameras, timer, masks, id_passes, fell, out_ids)
             renders += more
             before = {state.objects[i].instance_id for i in state.kept()}
             if len(state.kept()) == kept_before or not fell:  # nothing dropped after a fall: all rest
@@ -326,12 +332,12 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
         if not (short and rounds < int(target["topup_rounds"]) and reserves.objects):
             break
         with timer.stage("count_topup"):
-            n = top_up(state, reserves, short, rounds)
-        if not n:
+            picks = top_up(state, reserves, short, rounds)
+        if not picks:
             break
-        dropped += n
+        dropped += len(picks)
         rounds += 1
-        masks, id_passes, more = _measure_again(state, cameras, threads, timer, masks)
+        masks, id_passes, more = _measure_again(state, cameras, timer, masks, id_passes, picks)
         renders += more
     state.diagnostics.append(record)
     verdict = count_outcome(state, removed, int(state.spec.render.resolution), topped_up=dropped,

@@ -20,17 +20,6 @@ CONTACT_TOLERANCE = 0.05
 COUNT_TRIM_STREAM = 41  # which free surplus body goes first: default_rng([scene seed, COUNT_TRIM_STREAM])
 
 
-def _hull_points(columns: np.ndarray) -> np.ndarray:
-    from scipy.spatial import ConvexHull
-
-    pts = np.asarray(columns, dtype=np.float64).T
-    try:
-        return np.asarray(pts[ConvexHull(pts).vertices])
-    except Exception:  # flat or degenerate: its box corners
-        lo, hi = pts.min(0), pts.max(0)
-        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-
-
 def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
     kept = {c: 0 for c in range(n_classes)}
     for i in state.kept("counted"):
@@ -44,7 +33,9 @@ def remove_surplus(state: SceneState) -> int:
     target = state.spec.count_target
     assert target is not None
     targets = {ci: int(n) for ci, n in enumerate(target["per_class"])}
-    kept = state.kept()
+    # distractors placed after physics stand on free floor beside the pile: nothing rests on them and they
+    # rest on nothing counted, so they take no part (their hulls are captures' hulls: seconds a scene)
+    kept = state.kept("counted") if state.placed_after_physics else state.kept()
     if not kept:
         return 0
     lo = np.zeros((len(kept), 3))
@@ -57,10 +48,7 @@ def remove_surplus(state: SceneState) -> int:
     mats = [np.asarray(state.objects[i].matrix_world, dtype=np.float64) for i in kept]
     points = []
     for row, i in enumerate(kept):  # the shape that collided: the proxy's points, else the mesh's
-        asset = state.objects[i].asset
-        local = state.cache.proxy_points.get(asset)
-        if local is None:  # no proxy collided: the hull's own vertices (not every vertex of a capture)
-            local = _hull_points(state.cache.columns[asset])
+        local = state.cache.collider_points(state.objects[i].asset)
         points.append(np.asarray(local, dtype=np.float64) @ mats[row][:3, :3].T + mats[row][:3, 3])
     eqs = [state.cache.hull(state.objects[i].asset) for i in kept]
     resting = C.rests_on_hulls(points, mats, eqs, lo, hi, tol)

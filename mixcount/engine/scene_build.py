@@ -57,6 +57,7 @@ class AssetCache:
         self.columns: dict[str, np.ndarray] = {}  # local vertices as (3, V): rows reduce fast
         self.corners: dict[str, np.ndarray] = {}  # triangles' vertex indices as (3, T): rows gather fast
         self.hulls: dict[str, np.ndarray] = {}
+        self.hull_vertices: dict[str, np.ndarray] = {}
         self.proxies: dict[str, Any] = {}
         self.proxy_points: dict[str, np.ndarray] = {}
         self.cache_events: dict[str, str] = {}
@@ -106,6 +107,16 @@ class AssetCache:
         """Asset file name -> what the .blend cache did for it ("hit", "written" or why not)."""
         return {Path(k).name: v for k, v in sorted(self.cache_events.items())}
 
+    def collider_points(self, path: Path) -> np.ndarray:
+        """Local points (P, 3) of the shape that collided: the proxy's points, else the convex hull's
+        vertices of the mesh (not every vertex of a capture: a rest test over 786k points per body
+        cost seconds a scene). Computed once per asset."""
+        key = str(path)
+        if key not in self.hull_vertices:
+            local = self.proxy_points.get(key)
+            self.hull_vertices[key] = local if local is not None else hull_vertices(self.columns[key].T)
+        return self.hull_vertices[key]
+
     def hull(self, path: Path) -> np.ndarray:
         from mixcount.annotate.scene_decisions import hull_equations
 
@@ -113,6 +124,18 @@ class AssetCache:
         if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= proxy_max_vertices points)
             self.hulls[key] = hull_equations(self.proxy_points.get(key, self.columns[key].T))
         return self.hulls[key]
+
+
+def hull_vertices(points: np.ndarray) -> np.ndarray:
+    """The convex hull's vertices of ``points`` (N, 3); a flat or degenerate set: its box corners."""
+    from scipy.spatial import ConvexHull
+
+    pts = np.asarray(points, dtype=np.float64)
+    try:
+        return np.asarray(pts[ConvexHull(pts).vertices])
+    except Exception:
+        lo, hi = pts.min(0), pts.max(0)
+        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
 
 
 def cache_asset_meshes(req: MeshCacheRequest) -> MeshCacheResult:

@@ -344,7 +344,7 @@ def silhouettes(state: SceneState, camera: PinholeCamera, threads: int, k: int =
 
 def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer,
                     start: Optional[tuple[list[dict[str, np.ndarray]], list[Optional[tuple[int, int, int, int]]]]] = None,
-                    ) -> tuple[list[dict[str, np.ndarray]], int]:
+                    deferred: Optional[list[int]] = None) -> tuple[list[dict[str, np.ndarray]], int]:
     """Render each camera's id pass, measure every kept object's visibility (visible / amodal pixels) in
     each, drop the occluded ones - counted objects and distractors under the same rule, occlusion the
     maximum over the cameras - and re-render (up to MAX_VISIBILITY_ROUNDS times); returns the last id
@@ -358,12 +358,18 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]], timer
 
     ``start`` (id passes per camera and the region each must re-render first, None: none) continues from
     earlier passes instead of full renders: a count target's rest check moves a few bodies
-    (:mod:`mixcount.engine.count_topup`)."""
+    (:mod:`mixcount.engine.count_topup`).
+
+    ``deferred`` (a list, filled in): stop after the first round's drops without re-rendering; the instance
+    ids dropped are appended to it and the passes returned still show them. A count target takes out its
+    surplus and runs its rest check before the one re-render that covers all of it
+    (:func:`mixcount.engine.count_topup.bring_to_target`): the drops only raise the others' visibility, so
+    the objects kept by then are exactly those the re-render would keep."""
     from mixcount.engine import render_passes as P
 
     exrs = [state.out_dir / f"_ids{view_suffix(k)}.exr" for k in range(len(state.cam_objs))]
     with P.id_pass_series(state.scene):
-        id_passes, renders = _visibility_rounds(state, masks, timer, exrs, start)
+        id_passes, renders = _visibility_rounds(state, masks, timer, exrs, start, deferred)
     for exr in exrs:
         P.remove_quiet(exr)
     return id_passes, renders
@@ -371,7 +377,7 @@ def visibility_loop(state: SceneState, masks: list[dict[int, np.ndarray]], timer
 
 def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], timer: Timer, exrs: list[Path],
                        start: Optional[tuple[list[dict[str, np.ndarray]], list[Optional[tuple[int, int, int, int]]]]]
-                       = None) -> tuple[list[dict[str, np.ndarray]], int]:
+                       = None, deferred: Optional[list[int]] = None) -> tuple[list[dict[str, np.ndarray]], int]:
     """:func:`visibility_loop`'s rounds, rendering camera k's id pass into ``exrs[k]``."""
     from mixcount.engine import render_passes as P
 
@@ -424,6 +430,9 @@ def _visibility_rounds(state: SceneState, masks: list[dict[int, np.ndarray]], ti
                 regions[k] = D.changed_region(passes_k["index"], low)
             for inst in low:
                 state.drop(by_inst[inst], D.OCCLUDED, "visibility", visibility=round(worst[inst], 4))
+            if deferred is not None:  # the caller re-renders once, after its own changes
+                deferred.extend(sorted(low))
+                break
             rounds += 1
     return [p for p in id_passes if p is not None], renders
 
@@ -579,13 +588,16 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
         check_frame(state, cameras)
     with timer.stage("silhouettes"):
         masks = [silhouettes(state, cam, req.threads, k) for k, cam in enumerate(cameras)]
-    id_passes, renders = visibility_loop(state, masks, timer)
     count_verdict = None
-    if state.spec.count_target is not None:  # a visible-count target (issue 37): take-out, top-up, rest check
+    if state.spec.count_target is None:
+        id_passes, renders = visibility_loop(state, masks, timer)
+    else:  # a visible-count target (issue 37): take-out, rest check and top-up before the first re-render
         from mixcount.engine.count_topup import bring_to_target
 
+        occluded: list[int] = []
+        id_passes, renders = visibility_loop(state, masks, timer, deferred=occluded)
         masks, id_passes, more, count_verdict = bring_to_target(state, reserves, cameras, masks, id_passes,
-                                                                req.threads, timer)
+                                                                req.threads, timer, occluded=tuple(occluded))
         renders += more
     status = final_status(state)
     if status == STATUS_OK and count_verdict is not None:
