@@ -111,8 +111,10 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
     for name, mat in run.matrices.items():
         i, scale = back[name]
         out[i] = mat if scale is None else pose_with_scale(mat, scale)
-    for pobj in temporary:
+    for pobj in temporary:  # the collider and its own scaled copy of the proxy mesh
+        data = pobj.data
         bpy.data.objects.remove(pobj, do_unlink=True)
+        bpy.data.meshes.remove(data)
     for i, mat in out.items():
         state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(np.asarray(mat).tolist())
     return out
@@ -318,7 +320,7 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
         before = {state.objects[i].instance_id for i in state.kept()} | pending
         pending = set()
         with timer.stage("count_target"):
-            removed += remove_surplus(state)
+            removed += len(remove_surplus(state))
         for _ in range(2):
             out_ids = tuple(sorted(before - {state.objects[i].instance_id for i in state.kept()}))
             fell = _rest(state, timer, record)

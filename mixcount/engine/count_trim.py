@@ -27,9 +27,27 @@ def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
     return kept
 
 
-def remove_surplus(state: SceneState) -> int:
+def resting_graph(state: SceneState, indices: list[int]) -> np.ndarray:
+    """(N, N) bool over the bodies ``indices`` at their recorded poses (``matrix_world``; a body dropped
+    since keeps the pose it had): ``out[a, b]`` when body b may rest on body a
+    (:func:`mixcount.annotate.count_decisions.rests_on_hulls` of the shapes that collided: the proxies'
+    points, else the hull of the mesh, kept per asset)."""
+    n = len(indices)
+    lo = np.zeros((n, 3))
+    hi = np.zeros((n, 3))
+    mats = [np.asarray(state.objects[i].matrix_world, dtype=np.float64) for i in indices]
+    for row, i in enumerate(indices):
+        lo[row], hi[row] = D.world_bounds(state.cache.columns[state.objects[i].asset], mats[row])
+    tol = np.array([CONTACT_TOLERANCE * float(state.objects[i].size_m) for i in indices])
+    points = [np.asarray(state.cache.collider_points(state.objects[i].asset), dtype=np.float64)
+              @ mats[row][:3, :3].T + mats[row][:3, 3] for row, i in enumerate(indices)]
+    eqs = [state.cache.hull(state.objects[i].asset) for i in indices]
+    return np.asarray(C.rests_on_hulls(points, mats, eqs, lo, hi, tol), dtype=bool).reshape(n, n)
+
+
+def remove_surplus(state: SceneState) -> list[int]:
     """Take out, per class, the counted bodies beyond its target on which nothing rests (kept counted
-    objects and distractors alike are considered resting bodies); returns how many were taken out."""
+    objects and distractors alike are considered resting bodies); returns the bodies taken out."""
     target = state.spec.count_target
     assert target is not None
     targets = {ci: int(n) for ci, n in enumerate(target["per_class"])}
@@ -37,28 +55,16 @@ def remove_surplus(state: SceneState) -> int:
     # rest on nothing counted, so they take no part (their hulls are captures' hulls: seconds a scene)
     kept = state.kept("counted") if state.placed_after_physics else state.kept()
     if not kept:
-        return 0
-    lo = np.zeros((len(kept), 3))
-    hi = np.zeros((len(kept), 3))
-    for row, i in enumerate(kept):
-        o = state.objects[i]
-        lo[row], hi[row] = D.world_bounds(state.cache.columns[o.asset], np.asarray(o.matrix_world))
-    tol = np.array([CONTACT_TOLERANCE * float(state.objects[i].size_m) for i in kept])
+        return []
     classes = [int(state.objects[i].class_index) if state.objects[i].role == "counted" else -1 for i in kept]
-    mats = [np.asarray(state.objects[i].matrix_world, dtype=np.float64) for i in kept]
-    points = []
-    for row, i in enumerate(kept):  # the shape that collided: the proxy's points, else the mesh's
-        local = state.cache.collider_points(state.objects[i].asset)
-        points.append(np.asarray(local, dtype=np.float64) @ mats[row][:3, :3].T + mats[row][:3, 3])
-    eqs = [state.cache.hull(state.objects[i].asset) for i in kept]
-    resting = C.rests_on_hulls(points, mats, eqs, lo, hi, tol)
+    resting = resting_graph(state, kept)
     rng = np.random.default_rng([int(state.spec.seed), COUNT_TRIM_STREAM])
     removed, left = C.surplus_to_remove(classes, targets, resting, rng)
     for row in removed:
         state.drop(kept[row], C.COUNT_SURPLUS, "count_target")
     if left:
         state.diagnostics.append({"kind": "count_surplus_held", "per_class": {str(c): s for c, s in left.items()}})
-    return len(removed)
+    return [kept[row] for row in removed]
 
 
 def count_outcome(state: SceneState, removed: int, resolution: int, *, topped_up: int = 0, topup_rounds: int = 0,
