@@ -241,15 +241,18 @@ def id_pass_series(scene: Any) -> Iterator[None]:
     without this each one re-synced the whole heavy scene (docs/performance.md, "Container heaps: the
     time outside the render cut"). Single-user meshes get a twin beyond the far clip for the block
     (:func:`_instanced_twins`), so a change elsewhere does not rebuild them. The RGB render runs outside
-    the block, as before."""
+    the block, as before. Re-entrant: a series inside a series changes nothing (the outer one keeps
+    persistent data on, the world and lamps off and the twins until it ends)."""
     r = scene.render
     before = r.use_persistent_data
-    r.use_persistent_data = True
+    if not before:  # (turning it off frees Cycles' synced scene: an inner series leaves it alone)
+        r.use_persistent_data = True
     try:
         with _Unlit(scene), _instanced_twins(scene):
             yield
     finally:
-        r.use_persistent_data = before
+        if not before:
+            r.use_persistent_data = False
 
 
 def region_window(region: tuple[int, int, int, int], width: int, height: int) -> tuple[float, float, float, float]:

@@ -592,12 +592,16 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
     if state.spec.count_target is None:
         id_passes, renders = visibility_loop(state, masks, timer)
     else:  # a visible-count target (issue 37): take-out, rest check and top-up before the first re-render
+        from mixcount.engine import render_passes as P
         from mixcount.engine.count_topup import bring_to_target
 
         occluded: list[int] = []
-        id_passes, renders = visibility_loop(state, masks, timer, deferred=occluded)
-        masks, id_passes, more, count_verdict = bring_to_target(state, reserves, cameras, masks, id_passes,
-                                                                req.threads, timer, occluded=tuple(occluded))
+        # one id-pass series for all of it: each loop opening its own re-synced the whole scene (the world
+        # and lamps back, persistent data freed), 0.7-1.5 s a re-render on the capture-like pool
+        with P.id_pass_series(state.scene):
+            id_passes, renders = visibility_loop(state, masks, timer, deferred=occluded)
+            masks, id_passes, more, count_verdict = bring_to_target(state, reserves, cameras, masks, id_passes,
+                                                                    req.threads, timer, occluded=tuple(occluded))
         renders += more
     status = final_status(state)
     if status == STATUS_OK and count_verdict is not None:
