@@ -290,7 +290,7 @@ def _rest(state: SceneState, timer: Any, record: dict[str, Any]) -> list[int]:
 
 
 def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[PinholeCamera],
-                    masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]], threads: int,
+                    masks: list[dict[int, np.ndarray]], id_passes: list[dict[str, np.ndarray]],
                     timer: Any, occluded: tuple[int, ...] = ()
                     ) -> tuple[list[dict[int, np.ndarray]], list[dict[str, np.ndarray]], int, Optional[str]]:
     """Take-out, rest check, top-ups (module docstring); returns the masks and id passes to write, the

@@ -198,14 +198,16 @@ TWIN_SUFFIX = "~twin"  # the name suffix of :func:`_instanced_twins`' objects
 
 @contextlib.contextmanager
 def _instanced_twins(scene: Any) -> Iterator[None]:
-    """Every mesh that one rendered object alone uses gets a second user for the block: a twin object
+    """Every mesh that one labelled rendered object alone uses (a distractor's, the container's; the floor,
+    pass index 0, is a few faces and is left as it is) gets a second user for the block: a twin object
     beyond every camera's far clip (no camera ray reaches it, and an id pass traces camera rays only).
 
     Cycles bakes the transform of single-user geometry into its vertices and rebuilds that geometry's
     BVH whenever anything in the scene changes: with a few capture distractors (each its own mesh of
     200k-800k faces) every re-render after a drop or a move cost 0.5-1.5 s of the 128 px id pass, against
-    0.03 s once each had a twin (bpy 5.0.1, docs/blender.md). Instanced geometry keeps its BVH; the
-    passes are the same pixel for pixel."""
+    0.03 s once each had a twin (bpy 5.0.1, docs/blender.md). Instanced geometry keeps its BVH and is
+    intersected in object space: the ids are the same pixel for pixel, depth and normals to float
+    precision (a few normals of a bumpy capture differ where a ray meets a shared edge)."""
     import bpy
 
     users: dict[Any, int] = {}

@@ -601,7 +601,7 @@ def run_scene(req: SceneRequest, render: Optional[Callable[[SceneState], None]] 
         with P.id_pass_series(state.scene):
             id_passes, renders = visibility_loop(state, masks, timer, deferred=occluded)
             masks, id_passes, more, count_verdict = bring_to_target(state, reserves, cameras, masks, id_passes,
-                                                                    req.threads, timer, occluded=tuple(occluded))
+                                                                    timer, occluded=tuple(occluded))
         renders += more
     status = final_status(state)
     if status == STATUS_OK and count_verdict is not None:
