@@ -55,18 +55,21 @@ def test_compose_keeps_the_target_and_stats_report_it(demo_db, capsys, tmp_path,
 
 
 @pytest.mark.blender
-def test_a_short_scene_is_topped_up(demo_db, capsys, tmp_path):
+@pytest.mark.parametrize("reserve", ["[0.6, 3]", "[0, 0]"])  # the default reserve, or none at all
+def test_a_short_scene_is_topped_up(demo_db, capsys, tmp_path, reserve):
     """Spawned at the target itself (no margin): bodies lost to occlusion or the frame are made up from the
-    reserve dropped onto the settled pile; every object kept rests (the rest check after the take-out)."""
+    reserve dropped onto the settled pile, or with no reserve from the class's own bodies dropped so far
+    (dropped in again); every object kept rests (the rest check after the take-out)."""
     out = tmp_path / "out"
     rc = main(["--db", str(demo_db / "catalog.db"), "--config", "quick", "--set", "scene.physics_frames=60",
+               "--set", f"scene.count_reserve={reserve}",
                "--set", "scene.count_spawn_factor=[1.0, 1.0]", "--set", "scene.count_spawn_elevation=0.0",
                "--set", "scene.count_spawn_extra=0", "--set", "scene.count_spawn_sqrt=0.0",
                "--set", "scene.count_spawn_size_exponent=0.0", "--set", "compose.settle_ahead=false",
                "compose", "--n", "2", "--seed", "11", "--split", "train", "--resolution", "32", "--samples", "1",
                "--counts", "uniform:8-12", "--out", str(out), "--json"])
     assert rc == 0, capsys.readouterr().err
-    topped = 0
+    topped, again_in = 0, []
     for meta_path in sorted((out / "scenes").glob("scene_*/metadata.json")):
         meta = json.loads(meta_path.read_text())
         diag = next(d for d in meta["diagnostics"] if d["kind"] == "count_target")
@@ -75,13 +78,19 @@ def test_a_short_scene_is_topped_up(demo_db, capsys, tmp_path):
         ups = [d for d in meta["diagnostics"] if d["kind"] == "count_topup"]
         assert len(ups) == diag["topup_rounds"]
         ids = {o["instance_id"]: o for o in meta["objects"]}
+        for up in ups:
+            assert sum(up["dropped_per_class"].values()) >= len(up["dropped_again"])
+            if reserve == "[0, 0]":  # no reserve: every body dropped in was one dropped before
+                assert len(up["dropped_again"]) == sum(up["dropped_per_class"].values())
+            again_in += up["dropped_again"]
         for o in meta["objects"]:
             if o["status"] == "kept" and o["role"] == "counted":
                 assert o["matrix_world"] is not None and o["min_z"] > -0.01
         assert len(ids) == len(meta["objects"])
         rest = next(d for d in meta["diagnostics"] if d["kind"] == "count_rest")
-        assert rest["last_drop_x_size"] <= rest["tolerance_x_size"] or rest["checks"] >= 2
-    assert topped > 0  # the reserve was used
+        assert rest["last_drop_x_size"] <= rest["tolerance_x_size"] or rest["checks"] + rest.get("local_checks", 0) >= 2
+    assert topped > 0  # the reserve (or the bodies dropped before) was used
+    assert (len(again_in) == topped) if reserve == "[0, 0]" else (len(again_in) < topped)
     # the id passes were pieced together from region re-renders (the first round's drops, the take-out,
     # the fallen bodies, the top-up): a fresh render of the finished scenes gives the same maps
     again = tmp_path / "again"

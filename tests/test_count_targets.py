@@ -203,6 +203,39 @@ def test_topup_draw_and_short_classes() -> None:
     # ceil(1.5 x lacking) + 1, capped by the reserve; a class with no reserve left gets nothing
     assert C.topup_draw(short, {1: 20, 2: 2}, 1.5) == {1: 6, 2: 2}
     assert C.topup_draw(short, {1: 0}, 1.5) == {}
+    # per class: ceil(3 x 3) + 1 = 10 for class 1, class 2 at the default 1.5 is capped by its 2
+    assert C.topup_draw(short, {1: 20, 2: 2}, {1: 3.0, 2: 1.5}) == {1: 10, 2: 2}
+
+
+def test_topup_factors_follow_each_class_yield() -> None:
+    """A class that kept 1 of 4 bodies dropped for it gets 4 per lacking object; one that kept them all
+    still gets the floor factor; a class with no yield yet (or a zero yield) the cap."""
+    short = {0: 5, 1: 5, 2: 5, 3: 5}
+    f = C.topup_factors(short, {0: 0.25, 1: 1.0, 2: 0.0, 3: 0.5}, 1.5, 4.0)
+    assert f == {0: 4.0, 1: 1.5, 2: 4.0, 3: 2.0}
+    assert C.topup_factors(short, {}, 1.5, 4.0) == {c: 1.5 for c in short}  # unknown yield: the floor
+    assert C.topup_factors({0: 2}, {0: 0.1}, 1.5, 4.0) == {0: 4.0}  # capped
+
+
+def test_a_local_rest_check_wakes_the_bodies_near_what_changed() -> None:
+    """near_boxes: bodies whose AABB overlaps a changed body's box grown by its margin (beside it, under
+    it, on it) are woken; bodies farther than the margin are not."""
+    from types import SimpleNamespace
+
+    from mixcount.engine.count_topup import changed_boxes, near_boxes
+
+    def box(x, z=0.0):  # a unit cube at (x, 0, z)
+        return np.array([x - 0.5, -0.5, z - 0.5]), np.array([x + 0.5, 0.5, z + 0.5])
+
+    # 0 changed (at x=0); 1 beside it, touching; 2 on it; 3 a gap of 0.4 (< margin 0.5 x size 1); 4 far away
+    bounds = {0: box(0.0), 1: box(1.0), 2: box(0.0, 1.0), 3: box(1.4), 4: box(5.0)}
+    objects = [SimpleNamespace(size_m=1.0) for _ in range(5)]
+    state = SimpleNamespace(bounds=bounds, objects=objects)
+    boxes = changed_boxes(state, [0])
+    assert len(boxes) == 1 and boxes[0][2] == 0.5
+    assert near_boxes(state, [1, 2, 3, 4], boxes) == [1, 2, 3]
+    assert near_boxes(state, [1, 2, 3, 4], []) == []
+    assert changed_boxes(state, [7]) == []  # no box recorded: nothing to wake around
 
 
 def test_drop_spots_fall_onto_the_pile_without_overlap() -> None:

@@ -11,7 +11,7 @@ stay above v_t; the worker measures them again anyway.
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import NDArray
@@ -131,11 +131,30 @@ def short_classes(targets: Mapping[int, int], kept: Mapping[int, int]) -> dict[i
     return {c: int(t) - int(kept.get(c, 0)) for c, t in targets.items() if int(kept.get(c, 0)) < int(t)}
 
 
-def topup_draw(short: Mapping[int, int], available: Mapping[int, int], factor: float) -> dict[int, int]:
+def topup_draw(short: Mapping[int, int], available: Mapping[int, int],
+               factor: Union[float, Mapping[int, float]]) -> dict[int, int]:
     """Reserve bodies to drop per short class: ceil(factor x lacking) + 1 (some land occluded or roll out of
-    view; the surplus is taken out again), at most what the class holds in reserve."""
-    return {c: min(int(available.get(c, 0)), int(np.ceil(float(factor) * n - 1e-9)) + 1)
+    view; the surplus is taken out again), at most what the class holds in reserve. ``factor``: one for
+    every class, or per class (:func:`topup_factors`)."""
+    def f(c: int) -> float:
+        return float(factor.get(c, 1.0)) if isinstance(factor, Mapping) else float(factor)
+
+    return {c: min(int(available.get(c, 0)), int(np.ceil(f(c) * n - 1e-9)) + 1)
             for c, n in short.items() if available.get(c, 0) > 0}
+
+
+def topup_factors(short: Mapping[int, int], gained: Mapping[int, float], least: float, most: float
+                  ) -> dict[int, float]:
+    """Bodies to drop per lacking object, per short class: 1 / the class's yield so far (``gained``: objects
+    kept per body that entered the pile for it: the first settle's, then the last top-up's), within
+    [``least``, ``most``]. Small bodies dropped onto a pile of larger ones land in its gaps, occluded: a
+    class that kept 1 in 4 of its top-up bodies gets 4 per lacking object next time, not 1.5, and is made
+    up in a round or two instead of running out of rounds."""
+    out = {}
+    for c in short:
+        y = float(gained.get(c, 1.0 / least))
+        out[c] = float(min(most, max(least, 1.0 / y if y > 0 else most)))
+    return out
 
 
 def drop_spots(lo_xy: Array, hi_xy: Array, top_z: float, sizes: Sequence[float],

@@ -31,7 +31,9 @@ from mixcount.worker.contract import DROPPED, KEPT
 COUNT_TOPUP_STREAM = 43  # where reserve bodies drop: default_rng([scene seed, COUNT_TOPUP_STREAM, round])
 REST_CHECKS = 3  # rest checks in a row at most while bodies fall (60 scenes: 7 still fell at the 2nd)
 NOT_AT_REST = "count_not_at_rest"  # verdict: the last rest check still saw a body fall more than the tolerance
-TOPUP_FACTOR = 1.5  # reserve bodies dropped per missing object (+1): some land occluded or out of view
+REST_CHECK_WINDOW = 5  # frames per calm window of a rest check (the settle's: 10)
+TOPUP_FACTOR = 1.5  # reserve bodies dropped per missing object (+1) at least: some land occluded or out of view
+TOPUP_FACTOR_MOST = 4.0  # ... and at most, when the class's yield so far was lower (topup_factors)
 
 
 @dataclass
@@ -49,7 +51,10 @@ def set_reserves_aside(state: SceneState) -> Reserves:
 
     out = Reserves()
     target = state.spec.count_target
-    if target is None or not any(target.get("reserve") or ()):
+    if target is None:
+        return out
+    state.set_aside = {}  # bodies dropped later wait there too: a top-up may use them
+    if not any(target.get("reserve") or ()):
         return out
     counted = [i for i, o in enumerate(state.objects) if o.role == "counted"]
     ids = set(reserve_instances([state.objects[i].class_index for i in counted],
@@ -72,7 +77,8 @@ def set_reserves_aside(state: SceneState) -> Reserves:
     return out
 
 
-def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[int, ...] = ()) -> dict[int, np.ndarray]:
+def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[int, ...] = (),
+              rest_check: bool = False) -> dict[int, np.ndarray]:
     """The counted bodies ``indices`` (their current poses) simulated with the floor and the container for
     at most ``frames`` frames (the stage's physics, early stop when calm); returns each one's new pose.
     The counted bodies ``still`` take part as static colliders where they are (a top-up's bodies land on
@@ -80,7 +86,7 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
     import bpy
     import mathutils
 
-    from mixcount.engine.physics import Body, simulate
+    from mixcount.engine.physics import REST_WINDOW, Body, simulate
 
     ph = state.spec.physics
     bodies = [b for b in state.bodies if b.kind == "passive"]
@@ -106,7 +112,8 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
 
         waited_for = functools.partial(D.near_the_pile, np.zeros(2), state.spec.placement.view_radius)
     run = simulate(state.scene, bodies, frames=int(frames), substeps=ph.substeps, iterations=ph.solver_iterations,
-                   gravity=ph.gravity, rest_speed=ph.rest_speed, waited_for=waited_for)
+                   gravity=ph.gravity, rest_speed=ph.rest_speed, waited_for=waited_for,
+                   descent_only=rest_check, window=REST_CHECK_WINDOW if rest_check else REST_WINDOW)
     out: dict[int, np.ndarray] = {}
     for name, mat in run.matrices.items():
         i, scale = back[name]
@@ -127,20 +134,26 @@ def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
     return kept
 
 
-def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_no: int) -> list[int]:
+def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_no: int,
+           factors: Optional[dict[int, float]] = None) -> list[int]:
     """Drop reserve bodies of the ``short`` classes (lacking objects per class) from above onto the settled
     pile, which holds still (static colliders at its settled poses: the bodies landing on it are light
     and the rest check after the top-up simulates the whole pile again); returns the bodies dropped
-    (none: no reserve left for them)."""
+    (none: no reserve left for them). ``factors``: bodies per lacking object, per class (default
+    :data:`TOPUP_FACTOR`)."""
     from mixcount.annotate.count_decisions import drop_spots, topup_draw
 
     available: dict[int, list[int]] = {}
-    for i in sorted(reserves.objects):
+    # the reserve first, then the class's bodies dropped so far (occluded, out of view, taken out): a class
+    # whose reserve is used up (small bodies that land in the gaps) is not left short for want of bodies
+    aside = state.set_aside if state.set_aside is not None else {}
+    for i in [*sorted(reserves.objects), *sorted(aside)]:
         available.setdefault(int(state.objects[i].class_index), []).append(i)
-    draw = topup_draw(short, {c: len(v) for c, v in available.items()}, TOPUP_FACTOR)
+    draw = topup_draw(short, {c: len(v) for c, v in available.items()}, TOPUP_FACTOR if factors is None else factors)
     picks = [i for c in sorted(draw) for i in available[c][: draw[c]]]
     if not picks:
         return []
+    recycled = [i for i in picks if i not in reserves.objects]
     kept = state.kept("counted")
     boxes = [state.bounds.get(i) or D.world_bounds(state.cache.columns[state.objects[i].asset],
                                                     np.asarray(state.objects[i].matrix_world)) for i in kept]
@@ -152,7 +165,7 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
     rng = np.random.default_rng([int(state.spec.seed), COUNT_TOPUP_STREAM, int(round_no)])
     spots = drop_spots(lo[:2], hi[:2], float(hi[2]), [state.objects[i].size_m for i in picks], rng)
     for i, spot in zip(picks, spots):
-        obj = reserves.objects.pop(i)
+        obj = reserves.objects.pop(i) if i in reserves.objects else aside.pop(i)
         state.scene.collection.objects.link(obj)
         m = np.asarray(state.objects[i].spawn_matrix, dtype=np.float64).copy()
         m[:3, 3] = spot
@@ -164,27 +177,62 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
     _simulate(state, picks, int(state.spec.physics.frames), still=tuple(kept))
     state.diagnostics.append({"kind": "count_topup", "round": int(round_no),
                               "dropped_per_class": {str(c): n for c, n in sorted(draw.items())},
-                              "short_per_class": {str(c): n for c, n in sorted(short.items())}})
+                              "short_per_class": {str(c): n for c, n in sorted(short.items())},
+                              "dropped_again": [state.objects[i].instance_id for i in recycled],
+                              "factor_per_class": {str(c): round(f, 3) for c, f in sorted((factors or {}).items())}})
     return picks
 
 
-def rest_check(state: SceneState) -> tuple[float, float, list[int]]:
-    """The kept counted bodies simulated again (``rest_frames``): returns the largest displacement and the
-    largest drop (each x the body's size) and the bodies whose centre fell more than ``rest_tolerance`` x
-    their size (they were not held up: a body under them was taken out or dropped as occluded); those keep
-    the pose of that run, every other body goes back exactly to its settled pose. A body rolling on over
-    the floor (the settle's early stop lets up to 5 % of them roll on, as in every scene) moves without
-    falling and is not one."""
+Box = tuple[np.ndarray, np.ndarray, float]  # world AABB (lo, hi) and a margin (m) around it
+NEAR_MARGIN = 0.5  # x a changed body's size: a local rest check wakes the bodies within this of its boxes
+
+
+def changed_boxes(state: SceneState, indices: Any) -> list[Box]:
+    """The boxes (settle-check AABBs, :attr:`SceneState.bounds`) of bodies that changed: taken out,
+    dropped, fallen or dropped in; a local rest check (:func:`rest_check` ``near``) wakes what is near them."""
+    return [(*state.bounds[i], NEAR_MARGIN * float(state.objects[i].size_m)) for i in indices if i in state.bounds]
+
+
+def near_boxes(state: SceneState, indices: list[int], boxes: list[Box]) -> list[int]:
+    """The bodies of ``indices`` whose AABB (:attr:`SceneState.bounds`) overlaps one of ``boxes`` grown by
+    its margin: touching a changed body, leaning on it from beside or lying under or over it."""
+    rows = [i for i in indices if i in state.bounds]
+    if not rows or not boxes:
+        return []
+    lo = np.array([state.bounds[i][0] for i in rows])
+    hi = np.array([state.bounds[i][1] for i in rows])
+    hit = np.zeros(len(rows), dtype=bool)
+    for blo, bhi, margin in boxes:
+        hit |= np.all(lo <= np.asarray(bhi) + margin, axis=1) & np.all(hi >= np.asarray(blo) - margin, axis=1)
+    return [i for i, h in zip(rows, hit) if h]
+
+
+def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[float, float, list[int], list[Box]]:
+    """The kept counted bodies simulated again (``rest_frames``, early stop once nothing sinks): returns
+    the largest displacement and the largest drop (each x the body's size), the bodies whose centre fell
+    more than ``rest_tolerance`` x their size (they were not held up: a body under them was taken out or
+    dropped as occluded) and the boxes where those were and are; they keep the pose of that run, every
+    other body goes back exactly to its settled pose. A body rolling on over the floor (the settle's early
+    stop lets up to 5 % of them roll on, as in every scene) moves without falling and is not one.
+
+    ``near`` (boxes, None: every kept body): a local check after a few bodies changed (fell in the check
+    before, were taken out or dropped in): only the kept bodies near those boxes (:func:`near_boxes`) move,
+    the rest of the pile takes part as static colliders at its poses. The check before had the whole pile
+    move; what changed since is only at those boxes."""
     import mathutils
 
     target = state.spec.count_target
     assert target is not None
     kept = state.kept("counted")
     if not kept or int(target["rest_frames"]) <= 0:
-        return 0.0, 0.0, []
-    before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in kept}
-    after = _simulate(state, kept, int(target["rest_frames"]))
-    rows = [i for i in kept if i in after]
+        return 0.0, 0.0, [], []
+    awake = kept if near is None else near_boxes(state, kept, near)
+    if not awake:
+        return 0.0, 0.0, [], []
+    still = () if near is None else tuple(sorted(set(kept) - set(awake)))
+    before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in awake}
+    after = _simulate(state, awake, int(target["rest_frames"]), still=still, rest_check=True)
+    rows = [i for i in awake if i in after]
     b = np.array([before[i] for i in rows]).reshape(-1, 4, 4)
     a = np.array([after[i] for i in rows]).reshape(-1, 4, 4)
     size = np.array([max(state.objects[i].size_m, 1e-9) for i in rows])
@@ -193,7 +241,12 @@ def rest_check(state: SceneState) -> tuple[float, float, list[int]]:
     fell = [i for i, f in zip(rows, fell_by) if f > float(target["rest_tolerance"])]
     for i in set(rows) - set(fell):  # held up: exactly the settled pose
         state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
-    return (float(moved_by.max()) if len(rows) else 0.0), (float(max(fell_by.max(), 0.0)) if len(rows) else 0.0), fell
+    boxes = changed_boxes(state, fell)  # where they were ...
+    for i in fell:  # ... and where they are
+        state.bounds[i] = D.world_bounds(state.cache.columns[state.objects[i].asset], after[i])
+    boxes += changed_boxes(state, fell)
+    return ((float(moved_by.max()) if len(rows) else 0.0), (float(max(fell_by.max(), 0.0)) if len(rows) else 0.0),
+            fell, boxes)
 
 
 def _union(a: Optional[tuple[int, int, int, int]], b: Optional[tuple[int, int, int, int]]
@@ -270,15 +323,18 @@ def _check_moved(state: SceneState, moved: list[int], cameras: list[PinholeCamer
         check_frame(state, cameras, [i], "count_rest")
 
 
-def _rest(state: SceneState, timer: Any, record: dict[str, Any]) -> list[int]:
+def _rest(state: SceneState, timer: Any, record: dict[str, Any], near: Optional[list[Box]] = None) -> list[int]:
     """The rest check, three times at most (a body that fell may have held another up, or still slide);
-    returns the bodies that fell. ``record`` collects the checks, the largest displacement and drop and how
+    returns the bodies that fell. The first check wakes every kept body, or with ``near`` those near the
+    bodies that changed since the last check; each later one those near the bodies that fell in the one
+    before. ``record`` collects the checks (whole and local), the largest displacement and drop and how
     many fell."""
     fallen: list[int] = []
     for _ in range(REST_CHECKS):
         with timer.stage("count_rest"):
-            moved_by, fell_by, fell = rest_check(state)
-        record["checks"] = record.get("checks", 0) + 1
+            moved_by, fell_by, fell, boxes = rest_check(state, near)
+        key = "checks" if near is None else "local_checks"
+        record[key] = record.get(key, 0) + 1
         record["largest_displacement_x_size"] = round(max(record.get("largest_displacement_x_size", 0.0), moved_by), 4)
         record["largest_drop_x_size"] = round(max(record.get("largest_drop_x_size", 0.0), fell_by), 4)
         record["last_drop_x_size"] = round(fell_by, 4)
@@ -286,6 +342,7 @@ def _rest(state: SceneState, timer: Any, record: dict[str, Any]) -> list[int]:
         fallen.extend(i for i in fell if i not in fallen)
         if not fell:
             break
+        near = boxes
     return fallen
 
 
@@ -316,6 +373,15 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     rounds = 0
     record: dict[str, Any] = {"kind": "count_rest", "tolerance_x_size": float(target["rest_tolerance"])}
     pending = set(occluded)  # seen in id_passes, gone from the scene
+    checked: Optional[set[int]] = None  # the kept bodies at the last rest check (None: none yet)
+    # objects kept per body that entered the pile, per class: the first settle's, then each top-up's
+    entered = {c: 0 for c in targets}
+    for i, o in enumerate(state.objects):
+        if o.role == "counted" and i not in reserves.objects:
+            entered[int(o.class_index)] += 1
+    kept_now = _kept_per_class(state, len(targets))
+    gained = {c: kept_now[c] / max(entered[c], 1) for c in targets}
+    last: dict[int, tuple[int, int]] = {}  # class -> (lacking before the last top-up, bodies it dropped in)
     while True:
         before = {state.objects[i].instance_id for i in state.kept()} | pending
         pending = set()
@@ -323,7 +389,11 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
             removed += len(remove_surplus(state))
         for _ in range(2):
             out_ids = tuple(sorted(before - {state.objects[i].instance_id for i in state.kept()}))
-            fell = _rest(state, timer, record)
+            # the first check wakes the whole pile; later ones only what is near the bodies taken out,
+            # dropped or dropped in since the last (the pile around them passed that check)
+            near = None if checked is None else changed_boxes(state, sorted(checked ^ set(state.kept())))
+            fell = _rest(state, timer, record, near)
+            checked = set(state.kept())
             kept_before = len(state.kept())
             masks, id_passes, more = _measure_again(state, cameras, timer, masks, id_passes, fell, out_ids)
             renders += more
@@ -331,12 +401,17 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
             if len(state.kept()) == kept_before or not fell:  # nothing dropped after a fall: all rest
                 break
         short = C.short_classes(targets, _kept_per_class(state, len(targets)))
-        if not (short and rounds < int(target["topup_rounds"]) and reserves.objects):
+        for c, (lacking, n) in last.items():
+            gained[c] = max(0, lacking - short.get(c, 0)) / n
+        if not (short and rounds < int(target["topup_rounds"])):
             break
         with timer.stage("count_topup"):
-            picks = top_up(state, reserves, short, rounds)
+            picks = top_up(state, reserves, short, rounds,
+                           C.topup_factors(short, gained, TOPUP_FACTOR, TOPUP_FACTOR_MOST))
         if not picks:
             break
+        last = {c: (short[c], sum(1 for i in picks if int(state.objects[i].class_index) == c)) for c in short}
+        last = {c: v for c, v in last.items() if v[1]}
         dropped += len(picks)
         rounds += 1
         masks, id_passes, more = _measure_again(state, cameras, timer, masks, id_passes, picks)

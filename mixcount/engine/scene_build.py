@@ -375,6 +375,9 @@ class SceneState:
     proxy_scales: dict[str, np.ndarray] = field(default_factory=dict)  # render object name -> scale baked in its proxy
     views: dict[int, list[dict[str, Any]]] = field(default_factory=dict)  # object index -> per-camera records
     bounds: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # object index -> settled world AABB
+    # object index -> render object of a counted body dropped (unlinked, not removed): a count target's
+    # top-up may drop it in again once its class's reserve is used up (None: dropped bodies are removed)
+    set_aside: Optional[dict[int, Any]] = None
 
     @property
     def placed_after_physics(self) -> bool:
@@ -393,7 +396,8 @@ class SceneState:
         return views[k]
 
     def drop(self, i: int, reason: str, step: str, **extra: Any) -> None:
-        """Mark object ``i`` dropped (with a diagnostic) and remove it from the Blender scene."""
+        """Mark object ``i`` dropped (with a diagnostic) and remove it from the Blender scene (a counted
+        body only unlinked into :attr:`set_aside` when that is kept)."""
         import bpy
 
         o = self.objects[i]
@@ -401,7 +405,13 @@ class SceneState:
         self.diagnostics.append({"kind": "dropped", "object": o.name, "instance_id": o.instance_id,
                                  "role": o.role, "reason": reason, "stage": step, **extra})
         obj = self.blender_objects.pop(o.path, None)
-        if obj is not None:
+        if obj is None:
+            return
+        if self.set_aside is not None and o.role == "counted":
+            for coll in list(obj.users_collection):
+                coll.objects.unlink(obj)
+            self.set_aside[i] = obj
+        else:
             bpy.data.objects.remove(obj, do_unlink=True)
 
 
