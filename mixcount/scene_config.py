@@ -147,6 +147,7 @@ class SceneConfig:
     count_topup_rounds: int
     count_rest_frames: int  # the rest check after the take-out (frames at most)
     count_rest_tolerance: float  # x size: a body moving more in the rest check takes that pose
+    count_rest_verify: bool  # benches: one more whole-pile check by the settle's rule at the end, recorded only
     count_short_tolerance: tuple[float, float]  # kept when short by <= max(a, b x total)
     count_class_short_tolerance: int
     count_min_object_px: float

@@ -167,6 +167,9 @@ def test_stats_of_a_dataset(tmp_path: Path) -> None:
                                  "imbalance": 2.0},
                 "diagnostics": [{"kind": "count_target", "median_visible_px": 30.0,
                                  "too_small": {"min_object_px": 64.0, "resolution_needed": 188}}]}
+        if i:  # scenes 1 and 2 checked once more, whole (scene.count_rest_verify)
+            meta["diagnostics"].append({"kind": "count_rest_verify", "bodies": kept, "fell": i - 1,
+                                        "fell_over_half_size": 0, "largest_drop_x_size": 0.05 * i})
         (d / "metadata.json").write_text(json.dumps(meta))
     (scenes / ".rejected").mkdir()
     (scenes / ".rejected" / "scene_000009.json").write_text(json.dumps({
@@ -178,9 +181,13 @@ def test_stats_of_a_dataset(tmp_path: Path) -> None:
     assert stats["regenerated_scenes"][0]["why"] == "count_short: kept 80 of 95"
     assert stats["per_class"] == {"classes": 6, "within_one": 5, "exact": 5, "max_off": 2}
     assert stats["surplus_removed"] == 9 and len(stats["too_small"]) == 3
+    assert stats["rest_verified"] == {"scenes": 2, "scenes_with_a_fall": 1, "fell": 1, "fell_over_half_size": 0,
+                                      "largest_drop_x_size": 0.1}
+    assert "rest_verified" not in summarise_counts(stats["rows"][:1], [])  # no scene checked: no figure
     text = "\n".join(count_lines(stats))
     assert "2 of 3 scenes kept exactly their target" in text and "count_short: kept 80 of 95" in text
     assert "188 px per side" in text
+    assert "verified (the finished pile simulated again, whole): 1 of 2 scenes" in text
     png = plot_counts(stats, stats["rows"], tmp_path / "stats" / "count_target.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
     # KS: kept equal to a point mass target -> 0; half the mass off -> 0.5

@@ -249,6 +249,31 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[flo
             fell, boxes)
 
 
+def verify_rest(state: SceneState) -> dict[str, Any]:
+    """What a bench asks for (``count_target["rest_verify"]``): the whole kept pile simulated once more by
+    the settle's rule (every body awake, any motion counts, 10-frame windows) for ``rest_frames``, then
+    every body put back: nothing in the scene changes. Returns the ``count_rest_verify`` diagnostic: the
+    bodies whose centre would fall more than ``rest_tolerance`` x their size, and the largest drop, so the
+    shortcuts of the rest check (its early stop, the local checks) can be measured against the full one."""
+    import mathutils
+
+    target = state.spec.count_target
+    assert target is not None
+    kept = state.kept("counted")
+    record: dict[str, Any] = {"kind": "count_rest_verify", "bodies": len(kept), "fell": 0, "largest_drop_x_size": 0.0}
+    if not kept:
+        return record
+    before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in kept}
+    after = _simulate(state, kept, int(target["rest_frames"]) or 40)
+    for i in kept:
+        state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
+    drops = [(before[i][2, 3] - after[i][2, 3]) / max(state.objects[i].size_m, 1e-9) for i in kept if i in after]
+    tol = float(target["rest_tolerance"])
+    record.update(fell=sum(1 for d in drops if d > tol), largest_drop_x_size=round(max(max(drops, default=0.0), 0.0), 4),
+                  fell_over_half_size=sum(1 for d in drops if d > 0.5))
+    return record
+
+
 def _union(a: Optional[tuple[int, int, int, int]], b: Optional[tuple[int, int, int, int]]
            ) -> Optional[tuple[int, int, int, int]]:
     if a is None or b is None:
@@ -417,6 +442,9 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
         masks, id_passes, more = _measure_again(state, cameras, timer, masks, id_passes, picks)
         renders += more
     state.diagnostics.append(record)
+    if target.get("rest_verify"):
+        with timer.stage("count_rest_verify"):
+            state.diagnostics.append(verify_rest(state))
     verdict = count_outcome(state, removed, int(state.spec.render.resolution), topped_up=dropped,
                             topup_rounds=rounds, reserve_unused=len(reserves.objects))
     if verdict is None and float(record.get("last_drop_x_size", 0.0)) > float(target["rest_tolerance"]):

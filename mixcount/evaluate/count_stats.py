@@ -32,6 +32,7 @@ def scene_record(meta: Mapping[str, Any]) -> Optional[dict[str, Any]]:
     spawned = sum(1 for o in objects if o.get("role") == "counted" and o.get("reason") != "count_reserve")
     removed = sum(1 for o in objects if o.get("reason") == "count_surplus")
     rest: dict[str, Any] = next((d for d in meta.get("diagnostics", []) if d.get("kind") == "count_rest"), {})
+    verify = next((d for d in meta.get("diagnostics", []) if d.get("kind") == "count_rest_verify"), None)
     return {"scene_id": meta.get("scene_id"), "seed": meta.get("seed"), "target": int(target["total"]),
             "kept": sum(kept_per.get(c, 0) for c in per_t), "per_class_target": per_t,
             "per_class_kept": {c: kept_per.get(c, 0) for c in per_t}, "imbalance": target.get("imbalance"),
@@ -39,7 +40,9 @@ def scene_record(meta: Mapping[str, Any]) -> Optional[dict[str, Any]]:
             "topped_up": int(diag.get("topped_up", 0)), "topup_rounds": int(diag.get("topup_rounds", 0)),
             "rest_fell": int(rest.get("fell", 0)), "rest_largest_drop": rest.get("largest_drop_x_size"),
             "rest_largest_displacement": rest.get("largest_displacement_x_size"),
-            "median_visible_px": diag.get("median_visible_px"), "too_small": diag.get("too_small")}
+            "median_visible_px": diag.get("median_visible_px"), "too_small": diag.get("too_small"),
+            "rest_verify": None if verify is None else {k: verify.get(k) for k in
+                                                        ("fell", "fell_over_half_size", "largest_drop_x_size")}}
 
 
 def rejected_record(rec: Mapping[str, Any]) -> Optional[dict[str, Any]]:
@@ -137,7 +140,21 @@ def summarise_counts(rows: Sequence[Mapping[str, Any]], rejected: Sequence[Mappi
         "rest_largest_drop": max((r.get("rest_largest_drop") or 0.0 for r in rows), default=0.0),
         "rest_largest_displacement": max((r.get("rest_largest_displacement") or 0.0 for r in rows), default=0.0),
         "too_small": small,
+        **_rest_verified(rows),
     }
+
+
+def _rest_verified(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """With ``scene.count_rest_verify`` (a bench's): over the scenes checked once more, whole, by the
+    settle's rule: how many, in how many a body would still fall more than the tolerance, how many bodies,
+    how many more than half their size, the largest drop (x size). Empty when no scene was checked."""
+    checked = [r["rest_verify"] for r in rows if r.get("rest_verify")]
+    if not checked:
+        return {}
+    return {"rest_verified": {"scenes": len(checked), "scenes_with_a_fall": sum(1 for v in checked if v["fell"]),
+                              "fell": int(sum(v["fell"] for v in checked)),
+                              "fell_over_half_size": int(sum(v.get("fell_over_half_size") or 0 for v in checked)),
+                              "largest_drop_x_size": max(float(v["largest_drop_x_size"]) for v in checked)}}
 
 
 def plot_counts(summary: Mapping[str, Any], rows: Sequence[Mapping[str, Any]], out: Path) -> Path:
@@ -214,6 +231,11 @@ def count_lines(counts: Optional[Mapping[str, Any]], max_listed: int = 10) -> li
         f"  rest check: {counts.get('rest_fell', 0)} bodies fell when simulated again (took that pose); largest drop "
         f"{counts.get('rest_largest_drop', 0.0)} x size, largest displacement {counts.get('rest_largest_displacement', 0.0)} x size",
     ]
+    if counts.get("rest_verified"):
+        v = counts["rest_verified"]
+        lines.append(f"  verified (the finished pile simulated again, whole): {v['scenes_with_a_fall']} of {v['scenes']} "
+                     f"scenes with a body falling more than the tolerance ({v['fell']} bodies, "
+                     f"{v['fell_over_half_size']} more than half their size); largest drop {v['largest_drop_x_size']} x size")
     if counts["imbalance"]:
         kept = [r["kept"] for r in counts["imbalance"]]
         drawn = [r["drawn"] for r in counts["imbalance"]]

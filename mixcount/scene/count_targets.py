@@ -219,14 +219,16 @@ def reserve_instances(classes: Sequence[int], instance_ids: Sequence[int], reser
 def target_record(total: int, per_class: Sequence[int], ratio: Optional[float], dist: CountDistribution,
                   factor: float, short_tolerance: Sequence[float], class_short_tolerance: int,
                   min_object_px: float, *, reserve: Sequence[int], topup_rounds: int, rest_frames: int,
-                  rest_tolerance: float) -> dict[str, Any]:
+                  rest_tolerance: float, rest_verify: bool = False) -> dict[str, Any]:
     """What the spec records: the distribution's text, the drawn total, per class index, the drawn
     imbalance ratio, the spawn factor used and how short the worker may end (``short_total``: max(a, b x
     total) objects, ``short_class``) before the scene is regenerated, ``min_object_px`` (below it the
     worker records the image side its objects would need), the reserve bodies per class and the top-up
-    rounds allowed, and the rest check's frames and tolerance (x size)."""
+    rounds allowed, and the rest check's frames and tolerance (x size); ``rest_verify`` (recorded only when
+    true): the worker checks the finished pile once more, whole, and records what would fall."""
     short = max(float(short_tolerance[0]), float(short_tolerance[1]) * total)
-    return {"distribution": dist.text, "total": int(total), "per_class": [int(c) for c in per_class],
+    verify = {"rest_verify": True} if rest_verify else {}
+    return {**verify, "distribution": dist.text, "total": int(total), "per_class": [int(c) for c in per_class],
             "imbalance": None if ratio is None else round(ratio, 6), "spawn_factor": float(factor),
             "short_total": int(math.floor(short)), "short_class": int(class_short_tolerance),
             "min_object_px": float(min_object_px), "reserve": [int(r) for r in reserve],

@@ -600,7 +600,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         count_target = target_record(n, aims, ratio, target, factor, config.count_short_tolerance,
                                      config.count_class_short_tolerance, config.count_min_object_px,
                                      reserve=reserve, topup_rounds=config.count_topup_rounds,
-                                     rest_frames=config.count_rest_frames, rest_tolerance=config.count_rest_tolerance)
+                                     rest_frames=config.count_rest_frames, rest_tolerance=config.count_rest_tolerance,
+                                     rest_verify=config.count_rest_verify)
         n = sum(counts)
     classes = _build_object_classes(drafts, counts)
 
