@@ -6,11 +6,13 @@ of the first settle, the top-up of a short class and the rest check after the ta
   simulation; they wait, marked ``count_reserve``.
 - :func:`bring_to_target` (after the first visibility round, before its re-render): take out the surplus
   (:func:`mixcount.engine.count_trim.remove_surplus`), then the rest check (:func:`rest_check`): the kept
-  bodies simulated again for ``rest_frames``; a body that moved more than ``rest_tolerance`` x its size
-  (held up by a body taken out or dropped as occluded) takes that pose; then one re-render of the boxes
-  where anything changed. While a class is short and holds reserves, reserve bodies of the short classes
-  drop from above onto the settled pile (which holds still), are checked and measured, and the round
-  repeats (at most ``topup_rounds``). The largest displacement goes into the ``count_rest`` diagnostic.
+  bodies simulated again for ``rest_frames`` at most (early stop once nothing sinks); a body that fell more
+  than ``rest_tolerance`` x its size (held up by a body taken out or dropped as occluded) takes that pose;
+  later checks wake only the bodies near what changed (:func:`near_boxes`); then one re-render of the boxes
+  where anything changed. While a class is short, bodies of the short classes (the reserve, then the
+  class's bodies dropped so far) drop from above onto the settled pile (which holds still), are checked and
+  measured, and the round repeats (at most ``topup_rounds``). The largest displacement goes into the
+  ``count_rest`` diagnostic; :func:`verify_rest` (benches) checks the finished pile once more, whole.
 
 The decisions are :mod:`mixcount.annotate.count_decisions`'; this module moves objects and runs Bullet.
 """
@@ -136,10 +138,10 @@ def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
 
 def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_no: int,
            factors: Optional[dict[int, float]] = None) -> list[int]:
-    """Drop reserve bodies of the ``short`` classes (lacking objects per class) from above onto the settled
-    pile, which holds still (static colliders at its settled poses: the bodies landing on it are light
-    and the rest check after the top-up simulates the whole pile again); returns the bodies dropped
-    (none: no reserve left for them). ``factors``: bodies per lacking object, per class (default
+    """Drop bodies of the ``short`` classes (lacking objects per class: the class's reserve, then its bodies
+    dropped so far) from above onto the settled pile, which holds still (static colliders at its settled
+    poses: the bodies landing on it are light and the rest check after the top-up wakes the bodies near
+    them); returns the bodies dropped (none: no body of those classes left out of the scene). ``factors``: bodies per lacking object, per class (default
     :data:`TOPUP_FACTOR`)."""
     from mixcount.annotate.count_decisions import drop_spots, topup_draw
 
@@ -382,11 +384,13 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     dropped without re-rendering (``visibility_loop(deferred=...)``): their pixels join the first
     re-render's region, so one re-render covers the occluded, the surplus and the fallen bodies.
 
-    Each round: the surplus is taken out (bodies nothing rests on), then every kept body is simulated again
-    (the rest check: bodies dropped as occluded, taken out or still settling may have left one unsupported;
-    one that fell takes its new pose), then one visibility loop re-renders only the boxes where the bodies
-    taken out were seen and where the fallen ones were and are. If that loop drops a body (a fallen one now
-    occluded), the rest check runs again. Then a class still short is topped up: its bodies land on the
+    Each round: the surplus is taken out (bodies nothing rests on), then the rest check (bodies dropped as
+    occluded, taken out or still settling may have left one unsupported; one that fell takes its new pose:
+    the first check simulates every kept body again, each later one only those near what changed since),
+    then one visibility loop re-renders only the boxes where the bodies taken out were seen and where the
+    fallen ones were and are. If that loop drops a body (a fallen one now occluded), the rest check runs
+    again. Then a class still short is topped up (its reserve, then its bodies dropped so far, at a factor
+    from its yield so far: :func:`mixcount.annotate.count_decisions.topup_factors`): its bodies land on the
     pile, only they are measured (their silhouettes, the boxes where they are) and the round repeats, at
     most ``topup_rounds`` times."""
     from mixcount.engine.count_trim import count_outcome, remove_surplus
