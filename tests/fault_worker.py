@@ -111,25 +111,18 @@ def rest_stop(req: dict[str, Any]) -> dict[str, Any]:
     from mixcount.engine.physics import Body, simulate
 
     out: dict[str, Any] = {"ok": True}
-    # mode -> falling cubes, the rest check's rule (descent only, 5-frame windows)
-    modes = {"all": (3, False), "near": (3, False), "one_falling": (1, False), "one_falling_descent": (1, True),
-             "calm_descent": (0, True)}
-    for mode, (n_falling, descent) in modes.items():
+    for mode in ("all", "near"):
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
-        # "all": more falling bodies than the rolling allowance (REST_ROLLING_MIN) lets move
+        # more falling bodies than the rolling allowance (REST_ROLLING_MIN) lets move
         bodies = [Body(_cube(scene, "floor", (0.0, 0.0, -1.0), 2.0 * 20), "passive", "BOX")]
         bodies += [Body(_cube(scene, f"resting{i}", (-2.0 * i, 0.0, 0.55), 1.0), "active", "CONVEX_HULL")
                    for i in range(2)]
         bodies += [Body(_cube(scene, f"falling{i}", (10.0 + 2 * i, 0.0, 30.0), 1.0), "active", "CONVEX_HULL")
-                   for i in range(n_falling)]
+                   for i in range(3)]
         bodies[0].obj.scale = (1.0, 1.0, 0.05)
         run = simulate(scene, bodies, frames=200, substeps=8, iterations=4, gravity=9.81, rest_speed=0.05,
-                       waited_for=(lambda c: np.asarray(c[:, 0] < 5.0)) if mode == "near" else None,
-                       descent_only=descent, window=5 if descent else 10)
-        if not n_falling:
-            out[mode] = {"frames_run": run.frames_run, "waited_for": run.waited_for}
-            continue
+                       waited_for=(lambda c: np.asarray(c[:, 0] < 5.0)) if mode == "near" else None)
         out[mode] = {"frames_run": run.frames_run, "waited_for": run.waited_for,
                      "falling_z": float(bpy.data.objects["falling0"].matrix_world.translation.z)}
     return out

@@ -465,8 +465,7 @@ def test_mesh_cache_gives_the_same_scene_and_survives_a_broken_file(composed, li
 
 def test_rest_stop_waits_only_for_bodies_that_can_be_kept(fault_worker) -> None:
     """The early stop ends once the waited-for bodies are calm: a body the scene job would drop anyway
-    (here: one still falling far away) no longer keeps the simulation going. A count target's rest check
-    (``descent_only``) waits for every sinking body instead, and a calm pile stops it after 10 frames."""
+    (here: one still falling far away) no longer keeps the simulation going."""
     r = fault_worker.request({"op": "rest_stop"}, timeout=300)  # a fault_worker op
     assert r["ok"], r
     every, near = r["all"], r["near"]
@@ -475,12 +474,6 @@ def test_rest_stop_waits_only_for_bodies_that_can_be_kept(fault_worker) -> None:
     assert every["frames_run"] > 59 and every["falling_z"] < 1.0, every
     # waiting for the resting ones alone: two calm windows of 10 frames
     assert near["frames_run"] <= 30 and near["falling_z"] > 10.0, near
-    # one falling cube is within the rolling allowance: the settle's rule stops with it in mid-air ...
-    assert r["one_falling"]["frames_run"] <= 30 and r["one_falling"]["falling_z"] > 10.0, r["one_falling"]
-    # ... a rest check's rule (descent only, no allowance) waits until it has landed
-    assert r["one_falling_descent"]["frames_run"] > 59 and r["one_falling_descent"]["falling_z"] < 1.0, r
-    # and a calm pile costs a rest check two windows of 5 frames
-    assert r["calm_descent"]["frames_run"] == 10, r["calm_descent"]
 
 
 def test_large_scale_body_rests_on_the_floor(fault_worker) -> None:

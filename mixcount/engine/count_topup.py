@@ -6,7 +6,7 @@ of the first settle, the top-up of a short class and the rest check after the ta
   simulation; they wait, marked ``count_reserve``.
 - :func:`bring_to_target` (after the first visibility round, before its re-render): take out the surplus
   (:func:`mixcount.engine.count_trim.remove_surplus`), then the rest check (:func:`rest_check`): the kept
-  bodies simulated again for ``rest_frames`` at most (early stop once nothing sinks); a body that fell more
+  bodies simulated again for ``rest_frames`` at most (the settle's early stop); a body that fell more
   than ``rest_tolerance`` x its size (held up by a body taken out or dropped as occluded) takes that pose;
   later checks wake only the bodies near what changed (:func:`near_boxes`); then one re-render of the boxes
   where anything changed. While a class is short, bodies of the short classes (the reserve, then the
@@ -33,7 +33,6 @@ from mixcount.worker.contract import DROPPED, KEPT
 COUNT_TOPUP_STREAM = 43  # where reserve bodies drop: default_rng([scene seed, COUNT_TOPUP_STREAM, round])
 REST_CHECKS = 3  # rest checks in a row at most while bodies fall (60 scenes: 7 still fell at the 2nd)
 NOT_AT_REST = "count_not_at_rest"  # verdict: the last rest check still saw a body fall more than the tolerance
-REST_CHECK_WINDOW = 5  # frames per calm window of a rest check (the settle's: 10)
 TOPUP_FACTOR = 1.5  # reserve bodies dropped per missing object (+1) at least: some land occluded or out of view
 TOPUP_FACTOR_MOST = 4.0  # ... and at most, when the class's yield so far was lower (topup_factors)
 
@@ -79,8 +78,7 @@ def set_reserves_aside(state: SceneState) -> Reserves:
     return out
 
 
-def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[int, ...] = (),
-              rest_check: bool = False) -> dict[int, np.ndarray]:
+def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[int, ...] = ()) -> dict[int, np.ndarray]:
     """The counted bodies ``indices`` (their current poses) simulated with the floor and the container for
     at most ``frames`` frames (the stage's physics, early stop when calm); returns each one's new pose.
     The counted bodies ``still`` take part as static colliders where they are (a top-up's bodies land on
@@ -88,7 +86,7 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
     import bpy
     import mathutils
 
-    from mixcount.engine.physics import REST_WINDOW, Body, simulate
+    from mixcount.engine.physics import Body, simulate
 
     ph = state.spec.physics
     bodies = [b for b in state.bodies if b.kind == "passive"]
@@ -114,8 +112,7 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
 
         waited_for = functools.partial(D.near_the_pile, np.zeros(2), state.spec.placement.view_radius)
     run = simulate(state.scene, bodies, frames=int(frames), substeps=ph.substeps, iterations=ph.solver_iterations,
-                   gravity=ph.gravity, rest_speed=ph.rest_speed, waited_for=waited_for,
-                   descent_only=rest_check, window=REST_CHECK_WINDOW if rest_check else REST_WINDOW)
+                   gravity=ph.gravity, rest_speed=ph.rest_speed, waited_for=waited_for)
     out: dict[int, np.ndarray] = {}
     for name, mat in run.matrices.items():
         i, scale = back[name]
@@ -210,7 +207,7 @@ def near_boxes(state: SceneState, indices: list[int], boxes: list[Box]) -> list[
 
 
 def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[float, float, list[int], list[Box]]:
-    """The kept counted bodies simulated again (``rest_frames``, early stop once nothing sinks): returns
+    """The kept counted bodies simulated again (``rest_frames`` at most, the settle's early stop): returns
     the largest displacement and the largest drop (each x the body's size), the bodies whose centre fell
     more than ``rest_tolerance`` x their size (they were not held up: a body under them was taken out or
     dropped as occluded) and the boxes where those were and are; they keep the pose of that run, every
@@ -233,7 +230,7 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[flo
         return 0.0, 0.0, [], []
     still = () if near is None else tuple(sorted(set(kept) - set(awake)))
     before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in awake}
-    after = _simulate(state, awake, int(target["rest_frames"]), still=still, rest_check=True)
+    after = _simulate(state, awake, int(target["rest_frames"]), still=still)
     rows = [i for i in awake if i in after]
     b = np.array([before[i] for i in rows]).reshape(-1, 4, 4)
     a = np.array([after[i] for i in rows]).reshape(-1, 4, 4)
@@ -252,11 +249,11 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[flo
 
 
 def verify_rest(state: SceneState) -> dict[str, Any]:
-    """What a bench asks for (``count_target["rest_verify"]``): the whole kept pile simulated once more by
-    the settle's rule (every body awake, any motion counts, 10-frame windows) for ``rest_frames``, then
-    every body put back: nothing in the scene changes. Returns the ``count_rest_verify`` diagnostic: the
-    bodies whose centre would fall more than ``rest_tolerance`` x their size, and the largest drop, so the
-    shortcuts of the rest check (its early stop, the local checks) can be measured against the full one."""
+    """What a bench asks for (``count_target["rest_verify"]``): the whole kept pile simulated once more
+    (every body awake) for ``rest_frames`` at most, then every body put back: nothing in the scene changes.
+    Returns the ``count_rest_verify`` diagnostic: the bodies whose centre would fall more than
+    ``rest_tolerance`` x their size, and the largest drop, so the rest check's shortcut (local checks after
+    the first) can be measured against a whole one."""
     import mathutils
 
     target = state.spec.count_target

@@ -147,8 +147,7 @@ def _freeze(scene: Any, bodies: list[Body], held_objs: list[Any]) -> dict[str, n
 def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iterations: int,
              gravity: float, rest_speed: float,
              waited_for: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-             releases: Optional[dict[str, int]] = None, descent_only: bool = False,
-             window: int = REST_WINDOW) -> Settled:
+             releases: Optional[dict[str, int]] = None) -> Settled:
     """Run the simulation for at most ``frames`` frames; returns the settled 4x4 world matrix per active
     body and how the run went (:class:`Settled`).
 
@@ -161,13 +160,7 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     in the camera frame" (the scene job's). ``releases`` (active body name -> frame > 1) holds bodies
     out until their frame (:func:`_hold_until_release`, spawn waves); ``frames`` then counts from the
     last release, and the run does not stop before every held body has been let go and has slowed
-    below ``rest_speed`` once (or stopped being waited for).
-
-    ``descent_only`` (a count target's rest check): a window is calm when no waited body *sinks* faster
-    than ``rest_speed`` (the downward speed of its centre), with no rolling allowance: a body that lost
-    its support falls within a few frames and is waited for until it lands, while a body rolling or
-    sliding level over the floor, which the check does not judge, no longer keeps the run going.
-    ``window``: frames per rest window (the early stop comes after :data:`REST_WINDOWS` calm ones)."""
+    below ``rest_speed`` once (or stopped being waited for)."""
     import bpy
 
     held = {name: int(f) for name, f in (releases or {}).items() if int(f) > 1}
@@ -192,21 +185,17 @@ def simulate(scene: Any, bodies: list[Body], *, frames: int, substeps: int, iter
     window_speed = waited = np.zeros(len(active))
     for f in range(2, frames + 2):
         scene.frame_set(f)
-        if (f - 1) % window and f != frames + 1:
+        if (f - 1) % REST_WINDOW and f != frames + 1:
             continue
         now = positions()
         window_speed = np.linalg.norm(now - last, axis=1) * fps / max(1, f - last_f)
-        sinking = np.maximum(last[:, 2] - now[:, 2], 0.0) * fps / max(1, f - last_f)
         last, last_f = now, f
         # a body whose centre fell under the floor's top (z = 0) is dropped as below_floor anyway and
         # may fall forever: it does not hold the rest of the pile up
         waiting = np.asarray(waited_for(now) if waited_for is not None else now[:, 2] >= 0.0, dtype=bool)
         waited = window_speed[waiting]
-        if descent_only:
-            moving, allowed = int((sinking[waiting] >= rest_speed).sum()), 0.0
-        else:
-            moving, allowed = int((waited >= rest_speed).sum()), max(REST_ROLLING_MIN, REST_ROLLING * len(waited))
-        calm = calm + 1 if rest_speed > 0 and moving <= allowed else 0
+        moving = int((waited >= rest_speed).sum())
+        calm = calm + 1 if rest_speed > 0 and moving <= max(REST_ROLLING_MIN, REST_ROLLING * len(waited)) else 0
         # a held body counts as landed once, after its release, it is slower than rest_speed or no longer
         # waited for (fallen off the floor, rolling on outside the view); until every one has, the run
         # goes on (the rolling allowance must not freeze a late body in mid-air)
