@@ -138,8 +138,8 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
     """Drop bodies of the ``short`` classes (lacking objects per class: the class's reserve, then its bodies
     dropped so far) from above onto the settled pile, which holds still (static colliders at its settled
     poses: the bodies landing on it are light and the rest check after the top-up wakes the bodies near
-    them); returns the bodies dropped (none: no body of those classes left out of the scene). ``factors``: bodies per lacking object, per class (default
-    :data:`TOPUP_FACTOR`)."""
+    them); returns the bodies dropped (none: no body of those classes left out of the scene).
+    ``factors``: bodies per lacking object, per class (default :data:`TOPUP_FACTOR`)."""
     from mixcount.annotate.count_decisions import drop_spots, topup_draw
 
     available: dict[int, list[int]] = {}
