@@ -19,6 +19,7 @@ The decisions are :mod:`mixcount.annotate.count_decisions`'; this module moves o
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -206,6 +207,33 @@ def near_boxes(state: SceneState, indices: list[int], boxes: list[Box]) -> list[
     return [i for i, h in zip(rows, hit) if h]
 
 
+@dataclass
+class _Rerun:
+    """The bodies ``rows`` simulated again: their poses after, and how far each moved and fell (centre
+    drop), both x the body's size."""
+
+    rows: list[int]
+    after: dict[int, np.ndarray]
+    moved_by: np.ndarray
+    fell_by: np.ndarray
+
+
+def _rerun(state: SceneState, awake: list[int], still: tuple[int, ...], frames: int) -> _Rerun:
+    """``awake`` simulated again (``still`` static) and every one of them put back at its pose before: the
+    caller decides which keep the new pose (:func:`rest_check`) or none (:func:`verify_rest`)."""
+    import mathutils
+
+    before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in awake}
+    after = _simulate(state, awake, frames, still=still)
+    for i in awake:
+        state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
+    rows = [i for i in awake if i in after]
+    b = np.array([before[i] for i in rows]).reshape(-1, 4, 4)
+    a = np.array([after[i] for i in rows]).reshape(-1, 4, 4)
+    size = np.array([max(state.objects[i].size_m, 1e-9) for i in rows])
+    return _Rerun(rows, after, C.displacements(b, a) / size, (b[:, 2, 3] - a[:, 2, 3]) / size)
+
+
 def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[float, float, list[int], list[Box]]:
     """The kept counted bodies simulated again (``rest_frames`` at most, the settle's early stop): returns
     the largest displacement and the largest drop (each x the body's size), the bodies whose centre fell
@@ -229,23 +257,16 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[flo
     if not awake:
         return 0.0, 0.0, [], []
     still = () if near is None else tuple(sorted(set(kept) - set(awake)))
-    before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in awake}
-    after = _simulate(state, awake, int(target["rest_frames"]), still=still)
-    rows = [i for i in awake if i in after]
-    b = np.array([before[i] for i in rows]).reshape(-1, 4, 4)
-    a = np.array([after[i] for i in rows]).reshape(-1, 4, 4)
-    size = np.array([max(state.objects[i].size_m, 1e-9) for i in rows])
-    moved_by = C.displacements(b, a) / size
-    fell_by = (b[:, 2, 3] - a[:, 2, 3]) / size
-    fell = [i for i, f in zip(rows, fell_by) if f > float(target["rest_tolerance"])]
-    for i in set(rows) - set(fell):  # held up: exactly the settled pose
-        state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
+    run = _rerun(state, awake, still, int(target["rest_frames"]))
+    fell = [i for i, f in zip(run.rows, run.fell_by) if f > float(target["rest_tolerance"])]
     boxes = changed_boxes(state, fell)  # where they were ...
-    for i in fell:  # ... and where they are
-        state.bounds[i] = D.world_bounds(state.cache.columns[state.objects[i].asset], after[i])
+    for i in fell:  # ... and where they are: the pose of that run
+        state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(run.after[i].tolist())
+        state.bounds[i] = D.world_bounds(state.cache.columns[state.objects[i].asset], run.after[i])
     boxes += changed_boxes(state, fell)
-    return ((float(moved_by.max()) if len(rows) else 0.0), (float(max(fell_by.max(), 0.0)) if len(rows) else 0.0),
-            fell, boxes)
+    if not run.rows:
+        return 0.0, 0.0, fell, boxes
+    return float(run.moved_by.max()), float(max(run.fell_by.max(), 0.0)), fell, boxes
 
 
 def verify_rest(state: SceneState) -> dict[str, Any]:
@@ -254,22 +275,16 @@ def verify_rest(state: SceneState) -> dict[str, Any]:
     Returns the ``count_rest_verify`` diagnostic: the bodies whose centre would fall more than
     ``rest_tolerance`` x their size, and the largest drop, so the rest check's shortcut (local checks after
     the first) can be measured against a whole one."""
-    import mathutils
-
     target = state.spec.count_target
     assert target is not None
     kept = state.kept("counted")
     record: dict[str, Any] = {"kind": "count_rest_verify", "bodies": len(kept), "fell": 0, "largest_drop_x_size": 0.0}
     if not kept:
         return record
-    before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in kept}
-    after = _simulate(state, kept, int(target["rest_frames"]) or 40)
-    for i in kept:
-        state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
-    drops = [(before[i][2, 3] - after[i][2, 3]) / max(state.objects[i].size_m, 1e-9) for i in kept if i in after]
-    tol = float(target["rest_tolerance"])
-    record.update(fell=sum(1 for d in drops if d > tol), largest_drop_x_size=round(max(max(drops, default=0.0), 0.0), 4),
-                  fell_over_half_size=sum(1 for d in drops if d > 0.5))
+    drops = _rerun(state, kept, (), int(target["rest_frames"]) or 40).fell_by
+    record.update(fell=int((drops > float(target["rest_tolerance"])).sum()),
+                  largest_drop_x_size=round(float(max(drops.max(initial=0.0), 0.0)), 4),
+                  fell_over_half_size=int((drops > 0.5).sum()))
     return record
 
 
@@ -436,8 +451,8 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
                            C.topup_factors(short, gained, TOPUP_FACTOR, TOPUP_FACTOR_MOST))
         if not picks:
             break
-        last = {c: (short[c], sum(1 for i in picks if int(state.objects[i].class_index) == c)) for c in short}
-        last = {c: v for c, v in last.items() if v[1]}
+        per_class = Counter(int(state.objects[i].class_index) for i in picks)
+        last = {c: (short[c], n) for c, n in per_class.items()}
         dropped += len(picks)
         rounds += 1
         masks, id_passes, more = _measure_again(state, cameras, timer, masks, id_passes, picks)
