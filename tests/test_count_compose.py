@@ -25,7 +25,7 @@ def test_compose_keeps_the_target_and_stats_report_it(demo_db, capsys, tmp_path,
     out = tmp_path / "out"
     db = str(demo_db / "catalog.db")
     rc = main(["--db", db, "--config", "quick", "--set", "scene.physics_frames=60",
-               "--set", f"compose.settle_ahead={settle_ahead}",
+               "--set", f"compose.settle_ahead={settle_ahead}", "--set", "scene.count_rest_verify=true",
                "compose", "--n", "2", "--seed", "3", "--split", "train", "--resolution", "32", "--samples", "1",
                "--counts", "uniform:3-7,imbalance:1-2", "--out", str(out), "--json"])
     assert rc == 0, capsys.readouterr().err
@@ -44,6 +44,10 @@ def test_compose_keeps_the_target_and_stats_report_it(demo_db, capsys, tmp_path,
         assert diag["verdict"] == "ok" and diag["kept"] == target["total"]
         rest = next(d for d in meta["diagnostics"] if d["kind"] == "count_rest")
         assert rest["checks"] >= 1 and rest["largest_displacement_x_size"] >= rest["largest_drop_x_size"] >= 0
+        assert 1 <= rest["frames"] and rest["frames"] <= rest["body_frames"]  # the checks' work, frames x bodies
+        # measured against a whole re-simulation of the finished pile (count_rest_verify): nothing floats
+        verify = next(d for d in meta["diagnostics"] if d["kind"] == "count_rest_verify")
+        assert verify["bodies"] == target["total"] and verify["fell_over_half_size"] == 0
         reserve = [o for o in meta["objects"] if o.get("reason") == "count_reserve"]
         assert len(reserve) == diag["reserve_unused"] and all(o.get("matrix_world") is None for o in reserve)
     assert removed > 0  # spawned above the target, brought down to it

@@ -79,11 +79,12 @@ def set_reserves_aside(state: SceneState) -> Reserves:
     return out
 
 
-def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[int, ...] = ()) -> dict[int, np.ndarray]:
+def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[int, ...] = ()
+              ) -> tuple[dict[int, np.ndarray], int]:
     """The counted bodies ``indices`` (their current poses) simulated with the floor and the container for
     at most ``frames`` frames (the stage's physics, early stop when calm); returns each one's new pose.
     The counted bodies ``still`` take part as static colliders where they are (a top-up's bodies land on
-    the settled pile, which keeps its poses)."""
+    the settled pile, which keeps its poses). Also returns the frames run."""
     import bpy
     import mathutils
 
@@ -124,7 +125,7 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
         bpy.data.meshes.remove(data)
     for i, mat in out.items():
         state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(np.asarray(mat).tolist())
-    return out
+    return out, int(run.frames_run)
 
 
 def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
@@ -174,7 +175,7 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
         obj.matrix_world = mathutils.Matrix(m.tolist())
         state.blender_objects[state.objects[i].path] = obj
         state.update(i, status=KEPT, reason=None, matrix_world=tuple(tuple(float(v) for v in r) for r in m))
-    _simulate(state, picks, int(state.spec.physics.frames), still=tuple(kept))
+    _simulate(state, picks, int(state.spec.physics.frames), still=tuple(kept))  # (poses set on the objects)
     state.diagnostics.append({"kind": "count_topup", "round": int(round_no),
                               "dropped_per_class": {str(c): n for c, n in sorted(draw.items())},
                               "short_per_class": {str(c): n for c, n in sorted(short.items())},
@@ -185,6 +186,8 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
 
 Box = tuple[np.ndarray, np.ndarray, float]  # world AABB (lo, hi) and a margin (m) around it
 NEAR_MARGIN = 0.5  # x a changed body's size: a local rest check wakes the bodies within this of its boxes
+VERIFY_FRAMES = 40  # verify_rest's whole re-simulation: frames at most (the settle's early stop), whatever
+                   # rest_frames is, so checks of different lengths are measured by one rule
 
 
 def changed_boxes(state: SceneState, indices: Any) -> list[Box]:
@@ -210,12 +213,13 @@ def near_boxes(state: SceneState, indices: list[int], boxes: list[Box]) -> list[
 @dataclass
 class _Rerun:
     """The bodies ``rows`` simulated again: their poses after, and how far each moved and fell (centre
-    drop), both x the body's size."""
+    drop), both x the body's size; the frames run (the work: frames x bodies awake)."""
 
     rows: list[int]
     after: dict[int, np.ndarray]
     moved_by: np.ndarray
     fell_by: np.ndarray
+    frames: int
 
 
 def _rerun(state: SceneState, awake: list[int], still: tuple[int, ...], frames: int) -> _Rerun:
@@ -224,17 +228,18 @@ def _rerun(state: SceneState, awake: list[int], still: tuple[int, ...], frames: 
     import mathutils
 
     before = {i: np.array(state.blender_objects[state.objects[i].path].matrix_world) for i in awake}
-    after = _simulate(state, awake, frames, still=still)
+    after, ran = _simulate(state, awake, frames, still=still)
     for i in awake:
         state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(before[i].tolist())
     rows = [i for i in awake if i in after]
     b = np.array([before[i] for i in rows]).reshape(-1, 4, 4)
     a = np.array([after[i] for i in rows]).reshape(-1, 4, 4)
     size = np.array([max(state.objects[i].size_m, 1e-9) for i in rows])
-    return _Rerun(rows, after, C.displacements(b, a) / size, (b[:, 2, 3] - a[:, 2, 3]) / size)
+    return _Rerun(rows, after, C.displacements(b, a) / size, (b[:, 2, 3] - a[:, 2, 3]) / size, ran)
 
 
-def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[float, float, list[int], list[Box]]:
+def rest_check(state: SceneState, near: Optional[list[Box]] = None, work: Optional[dict[str, Any]] = None
+               ) -> tuple[float, float, list[int], list[Box]]:
     """The kept counted bodies simulated again (``rest_frames`` at most, the settle's early stop): returns
     the largest displacement and the largest drop (each x the body's size), the bodies whose centre fell
     more than ``rest_tolerance`` x their size (they were not held up: a body under them was taken out or
@@ -245,7 +250,8 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[flo
     ``near`` (boxes, None: every kept body): a local check after a few bodies changed (fell in the check
     before, were taken out or dropped in): only the kept bodies near those boxes (:func:`near_boxes`) move,
     the rest of the pile takes part as static colliders at its poses. The check before had the whole pile
-    move; what changed since is only at those boxes."""
+    move; what changed since is only at those boxes. ``work`` (a record) adds up the frames run and the
+    body-frames (bodies awake x frames): the checks' cost, free of the machine's load."""
     import mathutils
 
     target = state.spec.count_target
@@ -258,6 +264,9 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[flo
         return 0.0, 0.0, [], []
     still = () if near is None else tuple(sorted(set(kept) - set(awake)))
     run = _rerun(state, awake, still, int(target["rest_frames"]))
+    if work is not None:
+        work["frames"] = work.get("frames", 0) + run.frames
+        work["body_frames"] = work.get("body_frames", 0) + run.frames * len(awake)
     fell = [i for i, f in zip(run.rows, run.fell_by) if f > float(target["rest_tolerance"])]
     boxes = changed_boxes(state, fell)  # where they were ...
     for i in fell:  # ... and where they are: the pose of that run
@@ -271,7 +280,7 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None) -> tuple[flo
 
 def verify_rest(state: SceneState) -> dict[str, Any]:
     """What a bench asks for (``count_target["rest_verify"]``): the whole kept pile simulated once more
-    (every body awake) for ``rest_frames`` at most, then every body put back: nothing in the scene changes.
+    (every body awake) for :data:`VERIFY_FRAMES` at most, then every body put back: nothing in the scene changes.
     Returns the ``count_rest_verify`` diagnostic: the bodies whose centre would fall more than
     ``rest_tolerance`` x their size, and the largest drop, so the rest check's shortcut (local checks after
     the first) can be measured against a whole one."""
@@ -281,7 +290,7 @@ def verify_rest(state: SceneState) -> dict[str, Any]:
     record: dict[str, Any] = {"kind": "count_rest_verify", "bodies": len(kept), "fell": 0, "largest_drop_x_size": 0.0}
     if not kept:
         return record
-    drops = _rerun(state, kept, (), int(target["rest_frames"]) or 40).fell_by
+    drops = _rerun(state, kept, (), VERIFY_FRAMES).fell_by
     record.update(fell=int((drops > float(target["rest_tolerance"])).sum()),
                   largest_drop_x_size=round(float(max(drops.max(initial=0.0), 0.0)), 4),
                   fell_over_half_size=int((drops > 0.5).sum()))
@@ -366,12 +375,12 @@ def _rest(state: SceneState, timer: Any, record: dict[str, Any], near: Optional[
     """The rest check, three times at most (a body that fell may have held another up, or still slide);
     returns the bodies that fell. The first check wakes every kept body, or with ``near`` those near the
     bodies that changed since the last check; each later one those near the bodies that fell in the one
-    before. ``record`` collects the checks (whole and local), the largest displacement and drop and how
-    many fell."""
+    before. ``record`` collects the checks (whole and local), their frames and body-frames, the largest
+    displacement and drop and how many fell."""
     fallen: list[int] = []
     for _ in range(REST_CHECKS):
         with timer.stage("count_rest"):
-            moved_by, fell_by, fell, boxes = rest_check(state, near)
+            moved_by, fell_by, fell, boxes = rest_check(state, near, record)
         key = "checks" if near is None else "local_checks"
         record[key] = record.get(key, 0) + 1
         record["largest_displacement_x_size"] = round(max(record.get("largest_displacement_x_size", 0.0), moved_by), 4)

@@ -23,12 +23,17 @@ SHAPES = {"convexHull": "CONVEX_HULL", "none": "MESH", "boundingCube": "BOX", "b
           "convexDecomposition": "CONVEX_HULL"}
 
 
+# Bullet's collision margin of a convex body (m, absolute; Blender's default): Bullet grows the hull by it,
+# so two hulls at rest on each other lie up to twice this apart (count_trim's contact tolerance)
+HULL_MARGIN = 0.04
+
+
 @dataclass
 class Body:
     obj: Any
     kind: str  # "active" | "passive"
     shape: str  # Blender collision shape
-    # collision margin (m); None: 0.04 for convex shapes (Blender's default), 0 for triangle meshes. A
+    # collision margin (m); None: HULL_MARGIN for convex shapes (Blender's default), 0 for triangle meshes. A
     # container's convex parts take 0: static, and a margin would lift the pile off the container's floor
     collision_margin: Optional[float] = None
 
@@ -59,7 +64,7 @@ def _add_bodies(scene: Any, bodies: list[Body]) -> None:
         rb.restitution = 0.0
         rb.use_margin = True
         rb.collision_margin = (body.collision_margin if body.collision_margin is not None
-                               else 0.0 if body.shape == "MESH" else 0.04)
+                               else 0.0 if body.shape == "MESH" else HULL_MARGIN)
         if body.kind == "active":
             rb.mass = 1.0
             rb.linear_damping = 0.1
