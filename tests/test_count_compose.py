@@ -44,7 +44,7 @@ def test_compose_keeps_the_target_and_stats_report_it(demo_db, capsys, tmp_path,
         assert diag["verdict"] == "ok" and diag["kept"] == target["total"]
         rest = next(d for d in meta["diagnostics"] if d["kind"] == "count_rest")
         assert rest["checks"] >= 1 and rest["largest_displacement_x_size"] >= rest["largest_drop_x_size"] >= 0
-        assert 1 <= rest["frames"] and rest["frames"] <= rest["body_frames"]  # the checks' work, frames x bodies
+        assert 1 <= rest["check_frames"] <= rest["body_frames"]  # the checks' work, frames x bodies
         # measured against a whole re-simulation of the finished pile (count_rest_verify): nothing floats
         verify = next(d for d in meta["diagnostics"] if d["kind"] == "count_rest_verify")
         assert verify["bodies"] == target["total"] and verify["fell_over_half_size"] == 0

@@ -265,7 +265,7 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None, work: Option
     still = () if near is None else tuple(sorted(set(kept) - set(awake)))
     run = _rerun(state, awake, still, int(target["rest_frames"]))
     if work is not None:
-        work["frames"] = work.get("frames", 0) + run.frames
+        work["check_frames"] = work.get("check_frames", 0) + run.frames
         work["body_frames"] = work.get("body_frames", 0) + run.frames * len(awake)
     fell = [i for i, f in zip(run.rows, run.fell_by) if f > float(target["rest_tolerance"])]
     boxes = changed_boxes(state, fell)  # where they were ...
