@@ -14,8 +14,10 @@ from mixcount.annotate import count_decisions as C
 from mixcount.annotate import scene_decisions as D
 from mixcount.engine.scene_build import SceneState
 
-# two bodies whose collision hulls come this close (x the larger size) may touch: Bullet's contact margin
-# and the proxy / render-mesh difference stay under it
+# two bodies whose collision hulls come this close (x the larger size) may touch. Lax on purpose: bodies at
+# rest lie up to 2 x physics.HULL_MARGIN apart (Bullet grows each hull by it), so a surplus body holding a
+# neighbour up may go and the rest check lets that one fall; with the margins added, 2 of 12 scenes kept a
+# surplus body too many (docs/scene.md, "Count targets" step 3)
 CONTACT_TOLERANCE = 0.05
 COUNT_TRIM_STREAM = 41  # which free surplus body goes first: default_rng([scene seed, COUNT_TRIM_STREAM])
 

@@ -23,8 +23,8 @@ SHAPES = {"convexHull": "CONVEX_HULL", "none": "MESH", "boundingCube": "BOX", "b
           "convexDecomposition": "CONVEX_HULL"}
 
 
-# Bullet's collision margin of a convex body (m, absolute; Blender's default): Bullet grows the hull by it,
-# so two hulls at rest on each other lie up to twice this apart (count_trim's contact tolerance)
+# Bullet's collision margin of a convex body (m, absolute; Blender's default): with use_margin on, Bullet grows
+# the hull by it, so two hulls at rest on each other lie up to twice this apart (docs/blender.md)
 HULL_MARGIN = 0.04
 
 
