@@ -128,13 +128,6 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
     return out, int(run.frames_run)
 
 
-def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
-    kept = {c: 0 for c in range(n_classes)}
-    for i in state.kept("counted"):
-        kept[int(state.objects[i].class_index)] += 1
-    return kept
-
-
 def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_no: int,
            factors: Optional[dict[int, float]] = None) -> list[int]:
     """Drop bodies of the ``short`` classes (lacking objects per class: the class's reserve, then its bodies
@@ -273,9 +266,7 @@ def rest_check(state: SceneState, near: Optional[list[Box]] = None, work: Option
         state.blender_objects[state.objects[i].path].matrix_world = mathutils.Matrix(run.after[i].tolist())
         state.bounds[i] = D.world_bounds(state.cache.columns[state.objects[i].asset], run.after[i])
     boxes += changed_boxes(state, fell)
-    if not run.rows:
-        return 0.0, 0.0, fell, boxes
-    return float(run.moved_by.max()), float(max(run.fell_by.max(), 0.0)), fell, boxes
+    return float(run.moved_by.max(initial=0.0)), float(run.fell_by.max(initial=0.0)), fell, boxes
 
 
 def verify_rest(state: SceneState) -> dict[str, Any]:
@@ -292,7 +283,7 @@ def verify_rest(state: SceneState) -> dict[str, Any]:
         return record
     drops = _rerun(state, kept, (), VERIFY_FRAMES).fell_by
     record.update(fell=int((drops > float(target["rest_tolerance"])).sum()),
-                  largest_drop_x_size=round(float(max(drops.max(initial=0.0), 0.0)), 4),
+                  largest_drop_x_size=round(float(drops.max(initial=0.0)), 4),
                   fell_over_half_size=int((drops > 0.5).sum()))
     return record
 
@@ -414,7 +405,7 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     from its yield so far: :func:`mixcount.annotate.count_decisions.topup_factors`): its bodies land on the
     pile, only they are measured (their silhouettes, the boxes where they are) and the round repeats, at
     most ``topup_rounds`` times."""
-    from mixcount.engine.count_trim import count_outcome, remove_surplus
+    from mixcount.engine.count_trim import count_outcome, kept_per_class, remove_surplus
 
     target = state.spec.count_target
     assert target is not None
@@ -429,7 +420,7 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     for i, o in enumerate(state.objects):
         if o.role == "counted" and i not in reserves.objects:
             entered[int(o.class_index)] += 1
-    kept_now = _kept_per_class(state, len(targets))
+    kept_now = kept_per_class(state, len(targets))
     gained = {c: kept_now[c] / max(entered[c], 1) for c in targets}
     last: dict[int, tuple[int, int]] = {}  # class -> (lacking before the last top-up, bodies it dropped in)
     while True:
@@ -450,7 +441,7 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
             before = {state.objects[i].instance_id for i in state.kept()}
             if len(state.kept()) == kept_before or not fell:  # nothing dropped after a fall: all rest
                 break
-        short = C.short_classes(targets, _kept_per_class(state, len(targets)))
+        short = C.short_classes(targets, kept_per_class(state, len(targets)))
         for c, (lacking, n) in last.items():
             gained[c] = max(0, lacking - short.get(c, 0)) / n
         if not (short and rounds < int(target["topup_rounds"])):

@@ -22,7 +22,8 @@ CONTACT_TOLERANCE = 0.05
 COUNT_TRIM_STREAM = 41  # which free surplus body goes first: default_rng([scene seed, COUNT_TRIM_STREAM])
 
 
-def _kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
+def kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
+    """Kept counted objects per class index (every class of ``n_classes``, 0 when none is kept)."""
     kept = {c: 0 for c in range(n_classes)}
     for i in state.kept("counted"):
         kept[int(state.objects[i].class_index)] += 1
@@ -78,7 +79,7 @@ def count_outcome(state: SceneState, removed: int, resolution: int, *, topped_up
     target = state.spec.count_target
     assert target is not None
     targets = {ci: int(n) for ci, n in enumerate(target["per_class"])}
-    kept = _kept_per_class(state, len(targets))
+    kept = kept_per_class(state, len(targets))
     verdict = C.count_verdict(targets, kept, int(target["short_total"]), int(target["short_class"]))
     px = [float(state.objects[i].visible_px or 0) for i in state.kept("counted")]
     median_px = float(np.median(px)) if px else 0.0
