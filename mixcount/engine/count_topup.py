@@ -168,7 +168,8 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
         obj.matrix_world = mathutils.Matrix(m.tolist())
         state.blender_objects[state.objects[i].path] = obj
         state.update(i, status=KEPT, reason=None, matrix_world=tuple(tuple(float(v) for v in r) for r in m))
-    _simulate(state, picks, int(state.spec.physics.frames), still=tuple(kept))  # (poses set on the objects)
+    # _simulate leaves the new poses on the Blender objects; its returned poses and frames are not needed here
+    _simulate(state, picks, int(state.spec.physics.frames), still=tuple(kept))
     state.diagnostics.append({"kind": "count_topup", "round": int(round_no),
                               "dropped_per_class": {str(c): n for c, n in sorted(draw.items())},
                               "short_per_class": {str(c): n for c, n in sorted(short.items())},
