@@ -31,7 +31,7 @@ from mixcount.config import Config
 from mixcount.errors import AssetError, CompositionError, MixcountError, StorageError, os_error_line
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
-from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 from mixcount.worker.contract import MoreViews, SceneOutputs
 
 
@@ -282,8 +282,7 @@ class _ComposeRun:
             spec = sample_scene(seed, self.split, self.config, self.pool, environments=self.environments,
                                 materials=self.materials)
         except Exception as exc:  # noqa: BLE001 - a seed that cannot be sampled is a failed scene
-            self.summary.failed += 1
-            self.summary.failures.append({"scene_id": sid, "seed": seed, "error": f"sampling: {exc}"})
+            self.record_failure(SceneOutcome(sid, seed, FAILED, 0.0, error=f"sampling: {exc}"))
             return None
         problem = missing_inputs(spec, self.assets_dir)
         if problem:
@@ -328,7 +327,6 @@ class _ComposeRun:
     def record(self, outcome: SceneOutcome) -> None:
         """Count one outcome; a failure whose cause no seed can fix (a full disk, ...) stops the run."""
         from mixcount.dataset.manifest import recorded_size
-        from mixcount.run.faults import classify_failure, scene_bytes_needed
 
         summary = self.summary
         summary.outcomes.append(outcome.to_dict())
@@ -343,15 +341,31 @@ class _ComposeRun:
         elif outcome.status == REJECTED:
             summary.rejected += 1
         else:
-            summary.failed += 1
-            summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed, "error": outcome.error})
-            need = scene_bytes_needed(self.config.compose.resolution, self.largest_scene)
-            problem = classify_failure(outcome.error, out_dir=self.out_dir, assets_dir=self.assets_dir,
-                                       need_bytes=need)
-            if problem:
-                self.stop(StorageError(problem))
-            elif self.fatal is None:
-                self.bar.note(f"scene {outcome.scene_id} failed: {(outcome.error or '').splitlines()[0][:300]}")
+            self.record_failure(outcome)
+
+    def record_failure(self, outcome: SceneOutcome) -> None:
+        """A failed scene: counted, its line appended to ``OUT/logs/failures.jsonl`` (cause, exit signal,
+        kept log and its last lines, seed) and noted with those last lines; a cause no seed can fix stops
+        the run."""
+        from mixcount.run.failures import append_failure, failure_record
+        from mixcount.run.faults import classify_failure, failure_cause, scene_bytes_needed
+
+        summary = self.summary
+        summary.failed += 1
+        need = scene_bytes_needed(self.config.compose.resolution, self.largest_scene)
+        problem = classify_failure(outcome.error, out_dir=self.out_dir, assets_dir=self.assets_dir, need_bytes=need)
+        cause = "storage" if problem else failure_cause(outcome.error, outcome.exit_code)
+        rec = failure_record(outcome, split=self.split, cause=cause)
+        summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed, "error": outcome.error,
+                                 "cause": cause, "exit_code": outcome.exit_code, "log": outcome.log,
+                                 "log_tail": rec["log_tail"], "reproduce": rec["reproduce"]})
+        append_failure(self.out_dir, rec)
+        if problem:
+            self.stop(StorageError(problem))
+        elif self.fatal is None:
+            tail = "".join(f"\n    {ln[:200]}" for ln in rec["log_tail"].splitlines())  # the log's last lines
+            self.bar.note(f"scene {outcome.scene_id} (seed {outcome.seed}) failed [{cause}]: "
+                          f"{(outcome.error or '').splitlines()[0][:300] if outcome.error else ''}{tail}")
 
 
 def merge_is_stale(out_dir: Path) -> bool:

@@ -51,6 +51,10 @@ class SceneOutcome:
     n_counted: int = 0
     path: Optional[str] = None
     timings: dict[str, float] = field(default_factory=dict)
+    exit_code: Optional[int] = None  # a dead worker's exit (negative: the signal), mixcount.worker.client.WorkerDied
+    log: Optional[str] = None  # that worker's kept log
+    reason: Optional[dict[str, Any]] = None  # an empty / rejected scene: the rule and its figures (rejections.py)
+    device: Optional[dict[str, Any]] = None  # what Cycles rendered on (DevicesResult.to_dict())
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -167,7 +171,8 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
                             n_counted=int(meta["n_counted"]), path=str(final), timings=timings)
     except Exception as exc:  # noqa: BLE001 - the batch goes on; the error is reported
         return SceneOutcome(spec.scene_id, spec.seed, FAILED, time.perf_counter() - t0,
-                            error=f"{type(exc).__name__}: {exc}"[:4000], timings=timings)
+                            error=f"{type(exc).__name__}: {exc}"[:4000], timings=timings,
+                            exit_code=getattr(exc, "exit_code", None), log=getattr(exc, "log", None))
     finally:
         if tmp.exists() and not task.keep_failed:
             shutil.rmtree(tmp, ignore_errors=True)
