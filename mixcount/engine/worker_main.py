@@ -61,9 +61,14 @@ def _typed(request_type: Any, run: Callable[[Any], Any]) -> Handler:
 
 
 def _scene(req: Any) -> Any:
+    import dataclasses
+
+    from mixcount.engine import devices
     from mixcount.engine.scene_job import run_scene
 
-    return run_scene(req)
+    device = devices.use(req.device)  # applied where the render settings are made (configure_common)
+    result = run_scene(req)
+    return dataclasses.replace(result, diagnostics=(*result.diagnostics, {"kind": "device", **device.to_dict()}))
 
 
 def _canonical(req: Any) -> Any:
@@ -91,6 +96,10 @@ def _rerender(req: Any) -> Any:
 
 
 def _devices(req: Any) -> Any:
+    if req.setting is not None:  # compose's device check (mixcount.run.devices)
+        from mixcount.engine import devices
+
+        return devices.select(req.device, key=req.setting)
     from mixcount.engine.rerender_job import probe_devices
 
     return probe_devices(req)

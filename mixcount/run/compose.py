@@ -51,6 +51,7 @@ class ComposeSummary:
     warnings: list[str] = field(default_factory=list)
     damaged: list[dict[str, Any]] = field(default_factory=list)  # finished scenes set aside and redone
     stopped: Optional[str] = None  # the fault that stopped the run (no new seed drawn after it)
+    device: Optional[str] = None  # what the scenes rendered on: "cpu" or "gpu" (compose.device resolved)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -86,6 +87,7 @@ def compose_scenes(
         raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog "
                                "first; nothing was written")
     more_views = more_views_of(config)  # a refused pair stops here, before OUT is made
+    device = _run_device(config, executor)  # --device gpu without one stops here, before OUT is made
     _prepare_output(out_dir)
     # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
     # without them stops the run here with one clear error instead of failing every scene's sampling
@@ -107,7 +109,11 @@ def compose_scenes(
     bar = as_reporter(progress)
     run = _ComposeRun(config=config, pool=pool, out_dir=out_dir, assets_dir=Path(assets_dir), n=n,
                       environments=environments, materials=materials, oracle=oracle, outputs=outputs,
-                      summary=summary, bar=bar, more_views=more_views)
+                      summary=summary, bar=bar, more_views=more_views, device=device.device)
+    if device.note:  # once per run
+        summary.warnings.append(device.note)
+        bar.note(device.note)
+    summary.device = device.device
     warning = container_warning(pool, comp.split, config.scene)
     if warning:  # once per run, not once per scene
         summary.warnings.append(warning)
@@ -126,6 +132,14 @@ def compose_scenes(
     if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
         _merge(out_dir, config, summary, bar)
     return summary
+
+
+def _run_device(config: Config, executor: Optional[Executor]) -> Any:
+    """The run's :class:`~mixcount.run.devices.RunDevice`: the executor's own (Ray: from its cluster) or
+    ``compose.device`` resolved here with one bpy probe (none for ``cpu``)."""
+    from mixcount.run.devices import executor_device, resolve_device
+
+    return executor_device(executor) or resolve_device(config.compose.device)
 
 
 def more_views_of(config: Config) -> Optional[MoreViews]:
@@ -191,6 +205,7 @@ class _ComposeRun:
     summary: ComposeSummary
     bar: ProgressReporter
     more_views: Optional[MoreViews]  # compose --views: each task's new cameras (None: the scene's own only)
+    device: str  # "cpu" | "gpu": compose.device as resolved for this run (mixcount.run.devices)
     attempts: int = 0
     in_flight: int = 0
     fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
@@ -299,7 +314,7 @@ class _ComposeRun:
                          timeout_s=self.config.compose.scene_timeout_s, threads=self.threads, oracle=self.oracle,
                          captions={k: v for k, v in self.captions.items() if k in distractors},
                          external_exemplars={k: self.external[k] for k in sorted(used) if k in self.external},
-                         outputs=self.outputs, more_views=self.more_views)
+                         outputs=self.outputs, more_views=self.more_views, device=self.device)
 
     def info(self) -> str:
         return f"failed {self.summary.failed}  regenerated {self.summary.empty + self.summary.rejected}"

@@ -39,6 +39,7 @@ class SceneTask:
     external_exemplars: dict[int, str] = field(default_factory=dict)  # object id -> render copy, relative to OUT
     keep_failed: bool = False
     more_views: Optional[MoreViews] = None  # compose --views: new cameras rendered in the same worker request
+    device: Optional[str] = None  # compose.device as the run resolved it ("cpu" / "gpu"; None: the CPU)
 
 
 @dataclass
@@ -71,7 +72,8 @@ class StagedScene:
 
 def _request(task: SceneTask, tmp: Path) -> SceneRequest:
     return SceneRequest.for_outputs(task.outputs, stage=str(tmp / "scene.usda"), out_dir=str(tmp),
-                                    threads=task.threads, oracle=task.oracle, more_views=task.more_views)
+                                    threads=task.threads, oracle=task.oracle, more_views=task.more_views,
+                                    device=task.device)
 
 
 def _views_record(task: SceneTask, result: SceneResult) -> Optional[dict[str, Any]]:
@@ -82,6 +84,12 @@ def _views_record(task: SceneTask, result: SceneResult) -> Optional[dict[str, An
     own = next((d["own"] for d in result.diagnostics if d.get("kind") == "more_views"), len(result.views))
     return {"more_views": {"rule": task.more_views.rule, "views": len(result.views), "own_views": int(own),
                            "plan": task.more_views.plan.to_dict()}}
+
+
+def _device_record(result: SceneResult) -> Optional[dict[str, Any]]:
+    """What Cycles rendered the scene on (the worker's ``device`` diagnostic): used, backend, devices."""
+    found = next((d for d in result.diagnostics if d.get("kind") == "device"), None)
+    return None if found is None else {k: v for k, v in found.items() if k not in ("kind", "found", "error")}
 
 
 def stage_scene(task: SceneTask) -> Optional[StagedScene]:
@@ -158,9 +166,11 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
                                 time.perf_counter() - t0, error=f"scene {status}", timings=timings)
         t = time.perf_counter()
         timings["total"] = 0.0
+        device = _device_record(result)
+        extra = {**(_views_record(task, result) or {}), **({"render_device": device} if device else {})}
         meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings,
                               external_exemplars=task.external_exemplars, passes=task.outputs.passes,
-                              extra=_views_record(task, result))
+                              extra=extra or None)
         timings["annotate"] = round(time.perf_counter() - t, 4)
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])
@@ -168,7 +178,7 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         record_scene_files(tmp)  # size + hash of every file the folder holds (mixcount verify)
         move_into_place(tmp, final)
         return SceneOutcome(spec.scene_id, spec.seed, WRITTEN, time.perf_counter() - t0,
-                            n_counted=int(meta["n_counted"]), path=str(final), timings=timings)
+                            n_counted=int(meta["n_counted"]), path=str(final), timings=timings, device=device)
     except Exception as exc:  # noqa: BLE001 - the batch goes on; the error is reported
         return SceneOutcome(spec.scene_id, spec.seed, FAILED, time.perf_counter() - t0,
                             error=f"{type(exc).__name__}: {exc}"[:4000], timings=timings,
