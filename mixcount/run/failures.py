@@ -5,18 +5,19 @@ failure: scene id and seed (``mixcount compose --n 1 --seed S`` draws the same s
 (:func:`mixcount.run.faults.failure_cause`), a dead worker's exit code / signal and its kept log, the last
 lines of that log (faulthandler's report of a crash among them) and the first line of the error. A failed
 seed is not rejected: a rerun draws it again, and the line stays as history (``resolved`` in ``stats``
-when its scene now exists). ``mixcount stats`` counts the lines by cause (:func:`failures_by_cause`).
+when its scene now exists). ``mixcount stats`` counts the lines by cause (:func:`mixcount.evaluate.run_health.failures_by_cause`).
 """
 
 from __future__ import annotations
 
 import json
 import time
-from collections import Counter
 from pathlib import Path
 from typing import Any, Optional
 
-FAILURES_FILE = "failures.jsonl"
+from mixcount.evaluate.run_health import FAILURES_FILE, failures_by_cause, read_failures
+
+__all__ = ["FAILURES_FILE", "append_failure", "failure_record", "failures_by_cause", "read_failures"]
 
 
 def failure_record(outcome: Any, *, split: str, cause: str) -> dict[str, Any]:
@@ -45,30 +46,3 @@ def append_failure(out_dir: Path, record: dict[str, Any]) -> Optional[Path]:
     except OSError:
         return None
     return path
-
-
-def read_failures(out_dir: Path) -> list[dict[str, Any]]:
-    """Every readable line of ``OUT/logs/failures.jsonl`` (none when there is no such file)."""
-    path = Path(out_dir) / "logs" / FAILURES_FILE
-    try:
-        lines = path.read_text().splitlines()
-    except OSError:
-        return []
-    out = []
-    for line in lines:
-        try:
-            out.append(json.loads(line))
-        except ValueError:
-            continue  # a line cut by a killed run
-    return out
-
-
-def failures_by_cause(out_dir: Path) -> dict[str, Any]:
-    """``{"failures": N, "by_cause": {cause: n}, "resolved": n (their scene now finished), "scenes": [...]}``."""
-    from mixcount.dataset.scene_writer import is_complete
-
-    records = read_failures(out_dir)
-    resolved = sum(1 for r in records if is_complete(Path(out_dir) / "scenes" / str(r.get("scene_id"))))
-    return {"failures": len(records), "by_cause": dict(Counter(str(r.get("cause", "unknown")) for r in records).most_common()),
-            "resolved": resolved,
-            "scenes": [{k: r.get(k) for k in ("scene_id", "seed", "cause", "exit", "log", "reproduce")} for r in records]}

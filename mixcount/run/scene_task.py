@@ -132,6 +132,7 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         tmp_dir_for,
         write_metadata,
     )
+    from mixcount.run.rejections import object_lines, rejection_reason
     from mixcount.usd.stage import write_stage
 
     spec = task.spec
@@ -156,14 +157,17 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         result = worker.run_scene_job(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
         status = result.status
-        if status != STATUS_OK:
+        if status != STATUS_OK:  # thrown away: the record says which rule and its figures (rejections.py)
+            reason = rejection_reason(result)
             rej = out / "scenes" / REJECTED_DIR
             rej.mkdir(parents=True, exist_ok=True)
             (rej / f"{spec.scene_id}.json").write_text(json.dumps(
-                {"scene_id": spec.scene_id, "seed": spec.seed, "status": status,
+                {"scene_id": spec.scene_id, "seed": spec.seed, "status": status, **reason,
+                 "visibility_threshold": result.visibility_threshold, "objects": object_lines(result),
                  "diagnostics": list(result.diagnostics)}, indent=1))
             return SceneOutcome(spec.scene_id, spec.seed, EMPTY if status == STATUS_EMPTY else REJECTED,
-                                time.perf_counter() - t0, error=f"scene {status}", timings=timings)
+                                time.perf_counter() - t0, error=f"scene {status}: {reason['why']}", timings=timings,
+                                reason=reason)
         t = time.perf_counter()
         timings["total"] = 0.0
         device = _device_record(result)
