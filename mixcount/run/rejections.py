@@ -9,7 +9,8 @@ user guessing; :func:`rejection_reason` names the rule that decided and its numb
   its figures: ``occluded`` (visibility range against the 1 - v_t needed, and how many had no pixel in view
   at all with their silhouette's size: a silhouette of 0 px means out of frame or behind the camera, a
   silhouette with 0 visible px means something covers it all), ``below_floor`` / ``flung_out`` /
-  ``unstable`` (fell off or through: lowest settled heights), ``origin_outside_frame``;
+  ``unstable`` (fell off or through: lowest settled heights), ``origin_outside_frame`` (where the origins
+  projected in cam_0, against its frame);
 * ``rejected`` - the final visibility re-check (the objects under 1 - v_t, with their values) or a count
   target that could not be met (``count_target`` verdict, target and kept per class).
 
@@ -34,9 +35,25 @@ def _rng(values: Sequence[float], fmt: str = "{:.2f}") -> str:
     return fmt.format(lo) if lo == hi else f"{fmt.format(lo)}-{fmt.format(hi)}"
 
 
-def _figures(reason: str, objs: list[Any], need: float) -> tuple[str, dict[str, Any]]:
+def _outside(objs: list[Any], frame: tuple[int, int]) -> tuple[str, dict[str, Any]]:
+    """``origin_outside_frame``: where the origins projected in cam_0 against its ``frame`` (width, height)."""
+    n, (w, h) = len(objs), frame
+    pts = [o.origin_px for o in objs if o.origin_px is not None and all(v == v for v in o.origin_px)]  # not NaN
+    inside0 = sum(1 for x, y in pts if 0 <= x < w and 0 <= y < h)
+    text = f"{n} origin outside the frame of a camera"
+    if pts:
+        text += (f" (cam_0 {w}x{h} px: origins at x {_rng([p[0] for p in pts], '{:.0f}')}, y "
+                 f"{_rng([p[1] for p in pts], '{:.0f}')} px" + (f"; {inside0} inside cam_0, out of another camera's"
+                                                               if inside0 else "") + ")")
+    return text, {"objects": n, "frame_px": [w, h], "origin_px": [[round(x, 1), round(y, 1)] for x, y in pts],
+                  "inside_cam_0": inside0}
+
+
+def _figures(reason: str, objs: list[Any], need: float, frame: tuple[int, int]) -> tuple[str, dict[str, Any]]:
     """One reason's readable part and numbers over the counted objects it dropped."""
     n = len(objs)
+    if reason == "origin_outside_frame":
+        return _outside(objs, frame)
     if reason == "occluded":
         vis = [float(o.visibility or 0.0) for o in objs]
         unseen = [o for o in objs if not o.visible_px]
@@ -58,6 +75,7 @@ def _figures(reason: str, objs: list[Any], need: float) -> tuple[str, dict[str, 
 def rejection_reason(result: SceneResult) -> dict[str, Any]:
     """``{"rule", "why", "figures"}`` of an empty or rejected scene (see the module docstring)."""
     need = 1.0 - float(result.visibility_threshold)
+    frame = (int(result.camera.get("width") or 0), int(result.camera.get("height") or 0))
     counted = [o for o in result.objects if o.role == "counted"]
     if result.status == STATUS_EMPTY:
         dropped = [o for o in counted if not o.kept]
@@ -67,7 +85,7 @@ def rejection_reason(result: SceneResult) -> dict[str, Any]:
         order = sorted(by, key=lambda r: (-len(by[r]), r))
         parts, figures = [], {}
         for r in order:
-            text, fig = _figures(r, by[r], need)
+            text, fig = _figures(r, by[r], need, frame)
             parts.append(text)
             figures[r] = fig
         fell = sum(len(by[r]) for r in FELL if r in by)
@@ -94,5 +112,5 @@ def rejection_reason(result: SceneResult) -> dict[str, Any]:
 
 def object_lines(result: SceneResult) -> list[dict[str, Any]]:
     """Each counted object's fate and figures as the record keeps them."""
-    keys = ("name", "status", "reason", "visibility", "visible_px", "unoccluded_px", "amodal_px", "min_z")
+    keys = ("name", "status", "reason", "visibility", "visible_px", "unoccluded_px", "amodal_px", "min_z", "origin_px")
     return [{k: getattr(o, k) for k in keys} for o in result.objects if o.role == "counted"]
