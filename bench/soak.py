@@ -1,7 +1,8 @@
 """A soak of the compose run: N scenes with faults injected at random, as a run that lasts days meets them.
 
-    nice -n 10 .venv/bin/python bench/soak.py                      # 100 scenes, 64 px, 1 sample, ~12 faults
+    nice -n 10 .venv/bin/python bench/soak.py                      # 100 scenes, 64 px, 1 sample, 12 faults
     nice -n 10 .venv/bin/python bench/soak.py --n 20 --faults 4    # a quick look
+    .venv/bin/python bench/soak.py --smoke --work /tmp/soak        # 2 scenes at 32 px, 2 faults: the code path
 
 The compose run is a child process (``compose_scenes`` on a generated 8-object demo library,
 configs/quick.toml, ``--resolution`` px, ``--samples``, one worker, ``render_threads`` 1, no settle-ahead:
@@ -166,10 +167,11 @@ class Soak:
                 time.sleep(0.5)
             if killed:
                 print(f"round {rounds}: compose process killed; workers gone after {self.gone_s[-1]} s; resuming",
-                      flush=True)
+                      file=sys.stderr, flush=True)
                 continue
             stdout, stderr = proc.communicate()
-            print(f"round {rounds}: compose exited {proc.returncode}: {stdout.strip()[-300:]}", flush=True)
+            print(f"round {rounds}: compose exited {proc.returncode}: {stdout.strip()[-300:]}", file=sys.stderr,
+                  flush=True)
             if proc.returncode == 0 or rounds > args.n:
                 last = [ln for ln in stderr.splitlines() if ln.strip()][-1:] if proc.returncode else []
                 return {"rounds": rounds, "last_rc": proc.returncode, "last_error": last[0][:500] if last else None}
@@ -239,12 +241,18 @@ def main() -> int:
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--samples", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0, help="seed of the fault injector")
-    ap.add_argument("--keep", type=Path, default=None, help="keep the work folder here (default: a temp folder, removed)")
+    ap.add_argument("--work", type=Path, default=None,
+                    help="work folder, kept (its demo/ and assets/ are reused; default: a temp folder, removed)")
+    ap.add_argument("--smoke", action="store_true", help="2 scenes at 32 px, 2 faults 4 s apart: the code path only")
     args = ap.parse_args()
+    if args.smoke:
+        args.n, args.faults, args.every, args.resolution, args.samples = 2, 2, 4.0, 32, 1
     from mixcount.demo.library import generate_demo_library
 
-    work = args.keep or Path(tempfile.mkdtemp(prefix="mixcount-soak-"))
+    work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-soak-"))
     work.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(work / "out", ignore_errors=True)  # a fresh run (the library and converted assets are kept)
+    shutil.rmtree(work / "small", ignore_errors=True)
     try:
         if not (work / "demo").exists():
             generate_demo_library(work / "demo", seed=0, n_objects=8)
@@ -255,7 +263,7 @@ def main() -> int:
         figs = figures(soak.out, args.n)
         disk = soak.full_disk()
         rss = soak.rss
-        result = {"n": args.n, "resolution": args.resolution, "samples": args.samples, "wall_s": round(wall, 1),
+        result = {"bench": "soak", "smoke": bool(args.smoke), "n": args.n, "resolution": args.resolution, "samples": args.samples, "wall_s": round(wall, 1),
                   **run, "injected": soak.injected, "workers_gone_after_parent_kill_s": soak.gone_s,
                   "worker_rss_mb": {"first": round(rss[0], 1) if rss else None, "last": round(rss[-1], 1) if rss else None,
                                     "max": round(max(rss), 1) if rss else None, "samples": len(rss),
@@ -266,10 +274,10 @@ def main() -> int:
               f"{'ok' if figs['verify_ok'] else 'FAILED'}; injected {soak.injected}; workers gone after parent "
               f"kills {soak.gone_s} s; worker RSS first {result['worker_rss_mb']['first']} MB, last "
               f"{result['worker_rss_mb']['last']} MB, max {result['worker_rss_mb']['max']} MB; "
-              f"{figs['disk_per_scene_kb']} kB per scene; full disk {disk}")
+              f"{figs['disk_per_scene_kb']} kB per scene; full disk {disk}", file=sys.stderr)
         print(json.dumps(result))
     finally:
-        if args.keep is None:
+        if args.work is None:
             shutil.rmtree(work, ignore_errors=True)
     return 0
 
