@@ -681,5 +681,6 @@ def test_compose_passes_choose_the_written_files(library, tmp_path: Path) -> Non
         assert not (d / name).exists(), name
     meta = json.loads((d / "metadata.json").read_text())
     assert set(meta["passes"]) == {"depth"} and meta["files"]["depth"] == "depth.exr"
+    assert meta["render_device"] == {"used": "CPU", "backend": "NONE", "devices": []}  # compose.device = "cpu"
     depth = read_depth(d)
     assert depth.shape == (64, 64) and depth.dtype == np.float32 and (depth > 0).mean() > 0.5

@@ -2,7 +2,8 @@
 
 Real bpy: the device probe runs in a bpy worker subprocess. These tests are written for (and were run on)
 a machine without a usable GPU: ``--device gpu`` must stop with one line and exit 2 before OUT exists,
-``--device auto`` must render on the CPU and say so once, and each scene records its device. On a machine
+``--device auto`` must render on the CPU and say so once, and each scene records its device (the default
+``cpu`` is recorded too: tests/test_blender_worker.py::test_compose_passes_choose_the_written_files). On a machine
 where Cycles finds a GPU the no-GPU test skips (it says why). The Ray side's choice (cluster GPU resources,
 ``num_gpus`` per actor) is checked on its pure function.
 """
@@ -73,16 +74,6 @@ def test_device_auto_renders_on_the_cpu_said_once_and_each_scene_records_it(
     for d in scenes:
         meta = json.loads((d / "metadata.json").read_text())
         assert meta["render_device"]["used"] == "CPU" and meta["render_device"]["backend"] == "NONE"
-
-
-@pytest.mark.blender
-def test_device_cpu_is_the_default_and_recorded(tmp_path: Path, demo_catalog_copy: Callable[[Path, int], Path]) -> None:
-    root = demo_catalog_copy(tmp_path / "cat", 8)
-    out = tmp_path / "out"
-    assert _compose(root, out, "--n", "1") == 0
-    (d,) = sorted((out / "scenes").glob("scene_*"))
-    assert json.loads((d / "metadata.json").read_text())["render_device"] == {"used": "CPU", "backend": "NONE",
-                                                                              "devices": []}
 
 
 def test_a_bad_device_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
