@@ -46,3 +46,16 @@ def test_failure_line_keeps_the_tail_the_seed_and_how_to_reproduce(tmp_path: Pat
     assert [r["scene_id"] for r in read_failures(tmp_path)] == ["scene_000042"]
     counted = failures_by_cause(tmp_path)
     assert counted["by_cause"] == {"worker SIGSEGV": 1} and counted["resolved"] == 1
+
+
+def test_compose_summary_names_the_causes_and_the_failure_log(tmp_path: Path) -> None:
+    from mixcount.commands.compose import _compose_lines
+    from mixcount.run.compose import ComposeSummary
+
+    summary = ComposeSummary(requested=3, written=3, failed=3, failures=[
+        {"scene_id": "scene_000001", "cause": "worker SIGSEGV"}, {"scene_id": "scene_000002", "cause": "timeout"},
+        {"scene_id": "scene_000004", "cause": "worker SIGSEGV"}])
+    lines = _compose_lines(summary, tmp_path, merge=True)
+    assert lines[0].startswith("wrote 3 new scene(s) (0 already there, 3 failed")
+    assert lines[1] == ("failed scenes by cause: worker SIGSEGV 2, timeout 1 (seeds, signals and kept logs: "
+                        f"{tmp_path / 'logs' / 'failures.jsonl'})")

@@ -103,6 +103,12 @@ def _compose_lines(summary: Any, out_dir: Path, *, merge: bool) -> list[str]:
     repaired = f", {len(summary.damaged)} damaged set aside and rendered again" if summary.damaged else ""
     lines = [f"wrote {summary.written - summary.skipped} new scene(s) ({summary.skipped} already there, {summary.failed} failed, "
              f"{summary.empty + summary.rejected} regenerated{repaired}) in {summary.seconds:.0f} s into {out_dir}"]
+    if summary.failures:  # what failed and where each failure is explained
+        from collections import Counter
+
+        causes = Counter(str(f.get("cause", "unknown")) for f in summary.failures)
+        lines.append("failed scenes by cause: " + ", ".join(f"{c} {k}" for c, k in causes.most_common())
+                     + f" (seeds, signals and kept logs: {out_dir / 'logs' / 'failures.jsonl'})")
     outputs = summary.outputs or {}
     if outputs.get("preview"):
         lines.append(f"preview: {outputs['preview']}")
