@@ -521,6 +521,13 @@ def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPa
             w.run_scene_job(SceneRequest.from_config(load_config().compose, stage=str(tmp_path / "missing.usda"),
                                                     out_dir=str(tmp_path / "x"), threads=1, oracle=False), timeout=60)
         assert w.request({"op": "ping"}, timeout=60)["pid"] == second  # a failed scene keeps the worker
+        assert (tmp_path / f"mixcount-t-{os.getpid()}-{first}-timeout.log").is_file()  # the hung worker's log, kept
+        os.kill(second, signal.SIGSEGV)  # a crash between requests: its log is kept at the next start
+        w.proc.wait(timeout=30)
+        third = w.request({"op": "ping"}, timeout=120)["pid"]
+        kept = tmp_path / f"mixcount-t-{os.getpid()}-{second}-SIGSEGV.log"
+        assert third != second and "Fatal Python error: Segmentation fault" in kept.read_text()
+        assert w.idle_deaths == [f"SIGSEGV, exit code -11; log kept as {kept}"]
 
 
 def _kill_when_tmp_scene_appears(out: Path, kill, timeout: float = 120.0) -> threading.Thread:
