@@ -269,6 +269,8 @@ PASSES = ("instance", "class", "depth", "normal")
 # how the worker keeps imported asset meshes between scenes (mixcount.engine.mesh_cache): a compressed
 # or uncompressed .blend beside each converted asset, or no cache (every scene imports from USD)
 MESH_CACHE_MODES = ("zstd", "raw", "off")
+# where compose's Cycles renders (mixcount.engine.devices; `compose --device`)
+COMPOSE_DEVICES = ("cpu", "gpu", "auto")
 
 
 @dataclass(frozen=True)
@@ -286,7 +288,9 @@ class ComposeConfig:
     render_threads: int
     recycle_after: int
     settle_ahead: bool
+    device: str
     ray_cpus_per_worker: int
+    ray_gpus_per_worker: float
     scene_timeout_s: float
     max_attempts_factor: float
     preview_scenes: int
@@ -310,6 +314,10 @@ class ComposeConfig:
         unknown = [p for p in self.passes if p not in PASSES]
         if unknown:
             raise ConfigError(f"compose.passes: unknown pass(es) {', '.join(unknown)}; expected some of {', '.join(PASSES)}")
+        if self.device not in COMPOSE_DEVICES:
+            raise ConfigError(f"compose.device must be one of {', '.join(COMPOSE_DEVICES)}, got {self.device!r}")
+        if not self.ray_gpus_per_worker > 0:
+            raise ConfigError(f"compose.ray_gpus_per_worker must be > 0, got {self.ray_gpus_per_worker!r}")
 
 
 def _tuples(value: Any) -> Any:

@@ -211,6 +211,17 @@ def test_ingest_bench() -> None:
     assert doc["subdivide"] == 0 and doc["objects"] > 0 and doc["rerun_obj_per_s"] > doc["first_obj_per_s"]
 
 
+@pytest.mark.blender
+def test_soak_bench(bench_root: Path) -> None:
+    """Faults injected at random (issue 51): whatever they hit, no scene is lost or doubled and every
+    failure is explained."""
+    doc = run_smoke("soak", bench_root)[-1]
+    assert doc["bench"] == "soak" and doc["scenes_finished"] == doc["n"] == 2
+    check_figures(doc, ["wall_s", "scenes_lost", "duplicates", "failures_explained_pct", "disk_per_scene_kb"])
+    assert doc["scenes_lost"] == 0 and doc["duplicates"] == 0 and doc["verify_ok"]
+    assert doc["failures_explained_pct"] == 100.0 and doc["failures"] == doc["explained"]
+
+
 def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     """A bench added to bench/ without ``--smoke`` or without its test above fails here (bench/pools.py is
     the benches' shared helper, not a bench)."""

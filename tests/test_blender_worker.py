@@ -521,6 +521,13 @@ def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPa
             w.run_scene_job(SceneRequest.from_config(load_config().compose, stage=str(tmp_path / "missing.usda"),
                                                     out_dir=str(tmp_path / "x"), threads=1, oracle=False), timeout=60)
         assert w.request({"op": "ping"}, timeout=60)["pid"] == second  # a failed scene keeps the worker
+        assert (tmp_path / f"mixcount-t-{os.getpid()}-{first}-timeout.log").is_file()  # the hung worker's log, kept
+        os.kill(second, signal.SIGSEGV)  # a crash between requests: its log is kept at the next start
+        w.proc.wait(timeout=30)
+        third = w.request({"op": "ping"}, timeout=120)["pid"]
+        kept = tmp_path / f"mixcount-t-{os.getpid()}-{second}-SIGSEGV.log"
+        assert third != second and "Fatal Python error: Segmentation fault" in kept.read_text()
+        assert w.idle_deaths == [f"SIGSEGV, exit code -11; log kept as {kept}"]
 
 
 def _kill_when_tmp_scene_appears(out: Path, kill, timeout: float = 120.0) -> threading.Thread:
@@ -539,36 +546,88 @@ def _kill_when_tmp_scene_appears(out: Path, kill, timeout: float = 120.0) -> thr
     return th
 
 
-def test_worker_killed_mid_scene_fails_only_that_scene(library, tmp_path: Path) -> None:
+def test_worker_segfault_mid_scene_is_explained_and_the_next_scene_composed(library, tmp_path: Path) -> None:
+    """A worker killed with SIGSEGV mid-scene: the failure note quotes the last lines of that worker's log,
+    which is kept under its own name and holds faulthandler's report; the failure line in
+    OUT/logs/failures.jsonl names the signal, the seed and the log; the batch goes on with the next seed."""
+    from mixcount.progress import NullProgress
     from mixcount.run.compose import compose_scenes
+    from mixcount.run.failures import failures_by_cause, read_failures
     from mixcount.run.local import LocalExecutor
 
     pool, assets = library
     out = tmp_path / "out"
-    with LocalExecutor(1, log_dir=tmp_path, recycle_after=0, settle_ahead=False) as ex:
+    notes: list[str] = []
+
+    class Notes(NullProgress):  # the run's notes (what a user sees on the terminal)
+        def note(self, message: str) -> None:
+            notes.append(message)
+
+    with LocalExecutor(1, log_dir=out / "logs", recycle_after=0, settle_ahead=False) as ex:
         killed: list[int] = []
 
         def kill() -> None:
-            for _ in range(200):
-                pid = ex.workers[0].pid
-                if pid:
-                    os.kill(pid, signal.SIGKILL)
+            for _ in range(1200):
+                worker = ex.workers[0]
+                if worker.pid and worker.ready:  # started: the scene is in its hands now
+                    pid = worker.pid
+                    time.sleep(0.5)
+                    os.kill(pid, signal.SIGSEGV)
                     killed.append(pid)
                     return
                 time.sleep(0.05)
 
         th = _kill_when_tmp_scene_appears(out, kill)
         summary = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=1,
-                                 executor=ex, progress=False)
+                                 executor=ex, progress=Notes())
         th.join(5)
     assert killed
-    assert summary.failed == 1 and "worker died" in summary.failures[0]["error"]
+    failure = summary.failures[0]
+    assert summary.failed == 1 and "worker died (SIGSEGV, exit code -11)" in failure["error"]
+    assert failure["cause"] == "worker SIGSEGV" and failure["exit_code"] == -signal.SIGSEGV
+    kept = Path(failure["log"])
+    assert kept.name.endswith(f"-{killed[0]}-SIGSEGV.log") and kept.parent == out / "logs"
+    log = kept.read_text()
+    assert "Fatal Python error: Segmentation fault" in log and "most recent call first" in log
+    assert "Segmentation fault" in failure["log_tail"] and failure["log_tail"].splitlines()[-1] in log
+    note = next(n for n in notes if "failed [worker SIGSEGV]" in n)
+    assert "Segmentation fault" in note and "seed 1" in note
     assert summary.written == 1  # the batch went on with the next seed
     assert [d.name for d in _scenes(out)] == ["scene_000002"]
     assert not list((out / "scenes").glob(".tmp-*"))
+    lines = read_failures(out)
+    assert [(r["scene_id"], r["seed"], r["cause"], r["exit"]) for r in lines] == [
+        ("scene_000001", 1, "worker SIGSEGV", "SIGSEGV, exit code -11")]
+    assert lines[0]["reproduce"] == "mixcount compose --n 1 --seed 1 --split train"
+    assert failures_by_cause(out)["by_cause"] == {"worker SIGSEGV": 1}
 
 
-def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_path: Path) -> None:
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (from /proc)."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    found.append(int(d.name))
+            except (OSError, IndexError, ValueError):
+                continue
+    return found
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` exists and is not a zombie (a reparented worker nobody reaped yet is gone)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def test_killed_compose_process_takes_its_workers_and_the_rerun_completes(library, tmp_path: Path) -> None:
+    """``kill -9`` of the compose process alone (not its process group): its render and settle-ahead workers
+    are gone within 3 s, nothing half-written is a scene, the rerun completes and ``verify`` passes."""
+    from mixcount.cli import main
+
     pool, assets = library
     out = tmp_path / "out"
     script = (
@@ -582,10 +641,23 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
     )
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=PROJECT_ROOT, start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    th = _kill_when_tmp_scene_appears(out, lambda: os.killpg(proc.pid, signal.SIGKILL))
+    workers: list[int] = []
+
+    def kill() -> None:
+        workers.extend(_children(proc.pid))
+        os.kill(proc.pid, signal.SIGKILL)
+
+    th = _kill_when_tmp_scene_appears(out, kill)
     proc.wait(timeout=300)
     th.join(5)
-    assert proc.returncode == -signal.SIGKILL
+    assert proc.returncode == -signal.SIGKILL and workers
+    deadline = time.monotonic() + 3.0
+    while any(_running(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [p for p in workers if _running(p)]
+    for p in left:  # do not leave them to the next tests
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their compose process by 3 s"
     assert _scenes(out) == []  # nothing half-written is visible as a scene
     from mixcount.run.compose import compose_scenes
 
@@ -594,6 +666,7 @@ def test_killed_run_leaves_no_partial_scene_and_rerun_completes(library, tmp_pat
     assert summary.written == 2 and summary.failed == 0
     assert [d.name for d in _scenes(out)] == ["scene_000001", "scene_000002"]
     assert not list((out / "scenes").glob(".tmp-*"))
+    assert main(["verify", str(out)]) == 0
     again = compose_scenes(pool=pool, config=_config(), out_dir=out, assets_dir=assets, n=2,
                            progress=False)
     assert again.skipped == 2 and again.written == 2
@@ -615,5 +688,6 @@ def test_compose_passes_choose_the_written_files(library, tmp_path: Path) -> Non
         assert not (d / name).exists(), name
     meta = json.loads((d / "metadata.json").read_text())
     assert set(meta["passes"]) == {"depth"} and meta["files"]["depth"] == "depth.exr"
+    assert meta["render_device"] == {"used": "CPU", "backend": "NONE", "devices": []}  # compose.device = "cpu"
     depth = read_depth(d)
     assert depth.shape == (64, 64) and depth.dtype == np.float32 and (depth > 0).mean() > 0.5

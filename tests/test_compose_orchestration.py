@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -71,12 +72,25 @@ class FakeWorker:
         out = Path(request.out_dir)
         np.save(out / "ids.npy", ids)
         Image.fromarray(((ids % 7) * 36).astype(np.uint8)).convert("RGB").save(out / "rgb.png")
-        status = {"ok": STATUS_OK, "empty": STATUS_EMPTY, "rejected": STATUS_REJECTED}[what]
+        diagnostics: tuple = ()
+        if what in ("occluded", "fell"):  # every counted object dropped: out of frame / fallen off the floor
+            objects = [replace(o, status="dropped", reason="occluded", visibility=0.0, visible_px=0, unoccluded_px=0)
+                       if o.role == "counted" and what == "occluded" else
+                       replace(o, status="dropped", reason="below_floor", min_z=-1.25 - 0.01 * k)
+                       if o.role == "counted" else o for k, o in enumerate(objects)]
+        if what == "outside":  # every counted origin projected right of the frame
+            objects = [replace(o, status="dropped", reason="origin_outside_frame", origin_px=(SIDE + 10.0 + k, 5.0))
+                       if o.role == "counted" else o for k, o in enumerate(objects)]
+        if what == "rejected":
+            objects[0] = replace(objects[0], visibility=0.3)
+            diagnostics = ({"kind": "recheck_failed", "objects": [objects[0].name]},)
+        status = {"ok": STATUS_OK, "empty": STATUS_EMPTY, "rejected": STATUS_REJECTED, "occluded": STATUS_EMPTY,
+                  "fell": STATUS_EMPTY, "outside": STATUS_EMPTY}[what]
         view = CameraView(name="cam_0", suffix="", camera={}, framing={"framing": "fixed"}, passes={})
         return SceneResult(status=status, stage=request.stage, scene_id=spec.scene_id, seed=spec.seed,
                            visibility_threshold=spec.render.visibility_threshold, id_pass_rounds=1,
-                           physics=spec.physics.to_dict(), camera={}, lights={}, objects=tuple(objects),
-                           views=(view,), diagnostics=(), timings={})
+                           physics=spec.physics.to_dict(), camera={"width": SIDE, "height": SIDE} if what == "outside"
+                           else {}, lights={}, objects=tuple(objects), views=(view,), diagnostics=diagnostics, timings={})
 
 
 def _pool(root: Path) -> list[ObjectRecord]:
@@ -147,6 +161,40 @@ def test_empty_rejected_and_failed_seeds_are_replaced_and_finalized(setup) -> No
     assert scenes == ["scene_000102", "scene_000103", "scene_000104", "scene_000105"]
     merged = json.loads((out / "annotations" / "instances_train.json").read_text())
     assert len(merged["images"]) == len({img["file_name"] for img in merged["images"]}) == 4
+
+
+def test_every_thrown_away_scene_says_which_rule_with_its_figures(setup) -> None:
+    """scenes/.rejected/ records name the rule and its numbers (issue 52), and ``mixcount stats`` counts them
+    with the failure log's causes (issue 51)."""
+    from mixcount.evaluate.stats import compute_stats, summary_lines
+
+    plan = {100: "occluded", 101: "fell", 102: "rejected", 103: "crash", 104: "outside"}
+    summary = _run(setup, lambda s: plan.get(s, "ok"), 1, [])
+    out = setup[2]
+    assert (summary.written, summary.empty, summary.rejected, summary.failed) == (1, 3, 1, 1)
+    outside = json.loads((out / "scenes" / REJECTED_DIR / "scene_000104.json").read_text())
+    assert outside["rule"] == "empty: origin_outside_frame"
+    assert f"origin outside the frame of a camera (cam_0 {SIDE}x{SIDE} px: origins at x {SIDE + 10}-" in outside["why"]
+    assert outside["figures"]["origin_outside_frame"]["inside_cam_0"] == 0
+    rec = {s: json.loads((out / "scenes" / REJECTED_DIR / f"scene_000{s}.json").read_text()) for s in (100, 101, 102)}
+    occluded = rec[100]
+    n = occluded["figures"]["counted"]
+    assert occluded["rule"] == "empty: occluded" and n > 0
+    assert occluded["why"].startswith(f"no counted object kept: all {n} dropped: {n} occluded (visibility 0.00, "
+                                      "0.60 needed)")
+    assert f"{n} with no pixel in view ({n} with no silhouette in the frame: out of frame" in occluded["why"]
+    assert occluded["figures"]["occluded"]["no_silhouette_in_frame"] == n
+    assert [o["reason"] for o in occluded["objects"]] == ["occluded"] * n
+    fell = rec[101]
+    assert fell["rule"] == "empty: fell" and fell["why"].startswith("all ")
+    assert "below floor (lowest settled point -1." in fell["why"] and fell["figures"]["below_floor"]["min_z_m"][0] < -1.2
+    assert rec[102]["rule"] == "rejected: recheck" and "below 0.60 visible" in rec[102]["why"] and "0.30" in rec[102]["why"]
+    stats = compute_stats(out)
+    assert stats["thrown_away"]["regenerated"]["by_rule"] == {"empty: fell": 1, "empty: occluded": 1,
+                                                               "empty: origin_outside_frame": 1, "rejected: recheck": 1}
+    assert stats["thrown_away"]["failures"]["by_cause"] == {"error: RuntimeError": 1}
+    text = "\n".join(summary_lines(stats))
+    assert "scenes regenerated (scenes/.rejected): 4" in text and "scene failures (logs/failures.jsonl): 1" in text
 
 
 def test_max_attempts_bounds_a_split_that_never_yields_a_scene(setup) -> None:

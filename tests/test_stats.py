@@ -57,7 +57,10 @@ def test_stats_numbers(tmp_path: Path) -> None:
     assert list(s["splits"]) == ["train", "test"]
     assert s["splits"]["train"] == {"images": 2, "scenes": 2, "objects": 16, "distractors": 1, "categories": 3}
     assert s["splits"]["test"] == {"images": 2, "scenes": 1, "objects": 2, "distractors": 2, "categories": 1}
-    assert s["totals"] == {"images": 4, "scenes": 3, "objects": 18, "distractors": 3}
+    # one class count: category ids with a counted annotation (1, 2, 4 in train; 5 in test), not the 6 the
+    # COCO files list (3 and 6 are distractors only)
+    assert s["totals"] == {"images": 4, "scenes": 3, "objects": 18, "distractors": 3, "categories": 4}
+    assert s["distinct_categories"] == 6
     ops = s["objects_per_scene"]
     assert (ops["min"], ops["max"], ops["mean"], ops["count"]) == (1.0, 8.0, 4.5, 4)
     assert ops["histogram"] == {"values": list(range(1, 9)), "counts": [2, 0, 0, 0, 0, 0, 0, 2]}
@@ -214,8 +217,14 @@ def test_density_of_a_real_composed_dataset_agrees_with_its_coco(composed_datase
     spawned counts the spec's class counts, and a class is empty exactly when COCO has none of it."""
     from collections import Counter
 
-    d = compute_stats(composed_dataset)["density"]
+    stats = compute_stats(composed_dataset)
+    d = stats["density"]
     coco = json.loads((composed_dataset / "annotations" / "instances_train.json").read_text())
+    summary = json.loads((composed_dataset / "dataset.json").read_text())
+    # one class count: stats and dataset.json's summary say the same number of the same thing
+    assert {k: v["categories"] for k, v in stats["splits"].items()} == {
+        k: v["categories"] for k, v in summary["splits"].items()}
+    assert stats["totals"]["categories"] == len({a["category_id"] for a in coco["annotations"] if not a["is_distractor"]})
     scene_of = {img["id"]: img["scene_id"] for img in coco["images"]}
     counted = Counter(scene_of[a["image_id"]] for a in coco["annotations"] if not a["is_distractor"])
     dist = Counter(scene_of[a["image_id"]] for a in coco["annotations"] if a["is_distractor"])
@@ -232,3 +241,31 @@ def test_density_of_a_real_composed_dataset_agrees_with_its_coco(composed_datase
         empty = {c["class_index"] for c in row["classes_without_instances"]}
         assert empty == {ci for ci, cid in class_cat.items() if (row["scene_id"], cid) not in cats}
     assert d["summary"]["counted_kept"] == sum(counted.values())
+
+
+def test_cli_stats_counts_regenerated_scenes_by_rule_and_failures_by_cause(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    root = write_dataset(tmp_path / "ds")
+    rejected = root / "scenes" / ".rejected"
+    rejected.mkdir(parents=True)
+    why = "no counted object kept: all 12 dropped: 12 occluded (visibility 0.00, 0.60 needed)"
+    (rejected / "scene_000007.json").write_text(json.dumps({"scene_id": "scene_000007", "seed": 7, "status": "empty",
+                                                            "rule": "empty: occluded", "why": why}))
+    (rejected / "scene_000008.json").write_text(json.dumps({"scene_id": "scene_000008", "seed": 8, "status": "empty",
+                                                            "rule": "empty: occluded", "why": why}))
+    (rejected / "scene_000009.json").write_text(json.dumps({"scene_id": "scene_000009", "status": "rejected"}))  # old
+    (root / "logs").mkdir()
+    lines = [{"scene_id": "scene_000003", "seed": 3, "cause": "worker SIGSEGV"},
+             {"scene_id": "scene_000004", "seed": 4, "cause": "worker SIGSEGV"},
+             {"scene_id": "scene_000005", "seed": 5, "cause": "timeout"}]
+    (root / "logs" / "failures.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines) + '{"cut by a kill')
+    capsys.readouterr()
+    assert main(["stats", str(root), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "scenes regenerated (scenes/.rejected): 3 (empty: occluded 2, rejected: no reason recorded 1)" in out
+    assert f"scene_000007: {why}" in out
+    assert "scene failures (logs/failures.jsonl): 3 (worker SIGSEGV 2, timeout 1)" in out
+    assert "4 categories (category ids with a counted object; the COCO files list 6 category entries" in out
+    health = json.loads((root / "stats" / "stats.json").read_text())["thrown_away"]
+    assert health["failures"]["by_cause"] == {"worker SIGSEGV": 2, "timeout": 1}
+    assert health["regenerated"]["by_rule"] == {"empty: occluded": 2, "rejected: no reason recorded": 1}

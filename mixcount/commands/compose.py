@@ -103,6 +103,12 @@ def _compose_lines(summary: Any, out_dir: Path, *, merge: bool) -> list[str]:
     repaired = f", {len(summary.damaged)} damaged set aside and rendered again" if summary.damaged else ""
     lines = [f"wrote {summary.written - summary.skipped} new scene(s) ({summary.skipped} already there, {summary.failed} failed, "
              f"{summary.empty + summary.rejected} regenerated{repaired}) in {summary.seconds:.0f} s into {out_dir}"]
+    if summary.failures:  # what failed and where each failure is explained
+        from collections import Counter
+
+        causes = Counter(str(f.get("cause", "unknown")) for f in summary.failures)
+        lines.append("failed scenes by cause: " + ", ".join(f"{c} {k}" for c, k in causes.most_common())
+                     + f" (seeds, signals and kept logs: {out_dir / 'logs' / 'failures.jsonl'})")
     outputs = summary.outputs or {}
     if outputs.get("preview"):
         lines.append(f"preview: {outputs['preview']}")
@@ -168,6 +174,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         frames: Optional[int] = typer.Option(None, "--frames", min=1, help="Cameras along the orbit (rerender.frames)."),
         rule: Optional[str] = typer.Option(None, "--rule", help="How the views are annotated: all_cameras (the paper's) or per_view (rerender.annotation_rule)."),
         counts: Optional[str] = typer.Option(None, "--counts", help="Visible counted objects per image (scene.count_target): paper (spawned n ~ scene.n_objects, the default), uniform:A-B or histogram:PATH ('count weight' lines), optionally followed by ,imbalance:R1-R2 (largest / smallest class per scene); docs/scene.md."),
+        device: Optional[str] = typer.Option(None, "--device", help="Where Cycles renders: cpu (the default), gpu (CUDA / OptiX / HIP / oneAPI; exit 2 before anything is written when none is usable) or auto (a GPU when one works, else the CPU, said once); compose.device, docs/faults.md."),
         json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
     ) -> None:
         """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
@@ -180,7 +187,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
             "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()],
             "compose.merge": False if no_merge else None, "scene.count_target": absolute_counts(counts),
             "rerender.new_views": views, "rerender.trajectory": trajectory, "rerender.frames": frames,
-            "rerender.annotation_rule": rule})
+            "rerender.annotation_rule": rule, "compose.device": device})
         parse_count_target(cfg.scene.count_target)  # a bad target stops here, before anything is written
         catalog = st.catalog()
         if dry_run:

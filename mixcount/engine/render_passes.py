@@ -30,9 +30,12 @@ PASS_NORMAL = "Normal"
 
 
 def configure_common(scene: Any, *, threads: int) -> None:
-    """Cycles on the CPU with a fixed seed and a capped number of render threads."""
+    """Cycles on the worker's device (the CPU unless ``compose.device`` asked for a GPU,
+    :mod:`mixcount.engine.devices`) with a fixed seed and a capped number of render threads."""
+    from mixcount.engine import devices
+
     scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
+    devices.apply(scene)
     scene.cycles.seed = 0
     scene.cycles.use_animated_seed = False
     scene.cycles.use_adaptive_sampling = False

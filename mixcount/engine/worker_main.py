@@ -20,16 +20,33 @@ and two plain ones: ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``; ``{"op":
 A Python error in a handler answers ``{"ok": false, "error", "traceback"}`` and the worker stays up for
 the next request. The first line the worker writes is ``{"ready": true, "pid": ...}`` once bpy is imported.
 :func:`main` takes the handler table, so another entry module can serve more ops with the same loop.
+
+For a run that lasts days (docs/faults.md): ``faulthandler`` writes every thread's Python stack to the
+log (stderr) on SIGSEGV / SIGFPE / SIGABRT / SIGBUS / SIGILL, and C-level stdout (bpy, Cycles) is made
+unbuffered, so a crash's last output reaches the log. The worker dies with its parent
+(:func:`die_with_parent`): ``PR_SET_PDEATHSIG`` = SIGKILL on Linux (the kernel kills it the moment the
+parent's spawning thread, which lives as long as the parent, is gone), and everywhere a thread that
+exits the process when its parent pid changes; a request is never started once the parent is gone.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import faulthandler
 import json
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from typing import Any, Callable, Mapping, Optional
+
+PARENT_ENV = "MIXCOUNT_PARENT_PID"  # set by mixcount.worker.client.BlenderWorker
+PR_SET_PDEATHSIG = 1
+WATCH_S = 0.5  # how often the watch thread looks at the parent pid
+_IONBF = 2  # glibc's setvbuf mode "unbuffered"
 
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
 
@@ -44,9 +61,14 @@ def _typed(request_type: Any, run: Callable[[Any], Any]) -> Handler:
 
 
 def _scene(req: Any) -> Any:
+    import dataclasses
+
+    from mixcount.engine import devices
     from mixcount.engine.scene_job import run_scene
 
-    return run_scene(req)
+    device = devices.use(req.device)  # applied where the render settings are made (configure_common)
+    result = run_scene(req)
+    return dataclasses.replace(result, diagnostics=(*result.diagnostics, {"kind": "device", **device.to_dict()}))
 
 
 def _canonical(req: Any) -> Any:
@@ -74,6 +96,10 @@ def _rerender(req: Any) -> Any:
 
 
 def _devices(req: Any) -> Any:
+    if req.setting is not None:  # compose's device check (mixcount.run.devices)
+        from mixcount.engine import devices
+
+        return devices.select(req.device, key=req.setting)
     from mixcount.engine.rerender_job import probe_devices
 
     return probe_devices(req)
@@ -98,11 +124,65 @@ def _handlers() -> dict[str, Handler]:
 HANDLERS: dict[str, Handler] = _handlers()
 
 
+def _libc() -> Any:
+    name = ctypes.util.find_library("c")
+    try:
+        return ctypes.CDLL(name, use_errno=True) if name else None
+    except OSError:  # pragma: no cover - no C library to load
+        return None
+
+
+def parent_gone(parent: Optional[int]) -> bool:
+    """Whether the process that started this worker has died (this one was reparented)."""
+    return parent is not None and os.getppid() != parent
+
+
+def die_with_parent() -> Optional[int]:
+    """Tie this process's life to its parent's (``MIXCOUNT_PARENT_PID``; None when unset, nothing is done):
+    PR_SET_PDEATHSIG where the C library has prctl (Linux), then a daemon thread that ``os._exit`` s when the
+    parent pid changes (every system; it needs the GIL, which a long C call may hold: PDEATHSIG does not).
+    Exits at once when the parent is already gone. Returns the parent pid watched."""
+    raw = os.environ.get(PARENT_ENV)
+    if not raw:
+        return None
+    parent = int(raw)
+    libc = _libc()
+    if sys.platform.startswith("linux") and libc is not None:
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    if parent_gone(parent):  # died before prctl took effect
+        os._exit(3)
+
+    def watch() -> None:
+        while not parent_gone(parent):
+            time.sleep(WATCH_S)
+        sys.stderr.write(f"mixcount worker {os.getpid()}: parent {parent} is gone, exiting\n")
+        os._exit(3)
+
+    threading.Thread(target=watch, name="mixcount-parent-watch", daemon=True).start()
+    return parent
+
+
+def crash_reports_to_log() -> None:
+    """faulthandler on stderr (the worker's log), every thread; C stdio's stdout (fd 1, redirected to the
+    log) unbuffered, so what bpy / Cycles printed last before a crash is in the log."""
+    faulthandler.enable(file=sys.stderr, all_threads=True)
+    libc = _libc()
+    if libc is None:
+        return
+    try:
+        c_stdout = ctypes.c_void_p.in_dll(libc, "stdout")
+        libc.setvbuf(c_stdout, None, _IONBF, 0)
+    except (ValueError, AttributeError):  # pragma: no cover - a C library without a "stdout" symbol
+        pass
+
+
 def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
     handlers = HANDLERS if handlers is None else handlers
+    parent = die_with_parent()
     proto = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # bpy and Cycles print to fd 1: keep the protocol channel clean
     sys.stdout = sys.stderr
+    crash_reports_to_log()
 
     def reply(obj: dict) -> None:
         proto.write(json.dumps(obj) + "\n")
@@ -112,6 +192,7 @@ def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
     from pxr import Usd, UsdGeom, UsdLux, UsdPhysics, UsdShade  # noqa: F401
 
     Usd.Stage.CreateInMemory()  # USD's plugin registry loads here, once, not inside the first scene
+    faulthandler.enable(file=sys.stderr, all_threads=True)  # again: in case an import installed its own handler
 
     reply({"ready": True, "pid": os.getpid()})
     for line in sys.stdin:
@@ -124,6 +205,8 @@ def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
             reply({"ok": False, "error": f"bad request: {exc}"})
             continue
         op = req.get("op")
+        if parent_gone(parent):  # the run that asked is gone: write nothing into its folder
+            break
         if op == "exit":
             reply({"ok": True})
             break

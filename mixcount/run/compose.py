@@ -31,7 +31,7 @@ from mixcount.config import Config
 from mixcount.errors import AssetError, CompositionError, MixcountError, StorageError, os_error_line
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
-from mixcount.run.scene_task import EMPTY, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 from mixcount.worker.contract import MoreViews, SceneOutputs
 
 
@@ -51,6 +51,7 @@ class ComposeSummary:
     warnings: list[str] = field(default_factory=list)
     damaged: list[dict[str, Any]] = field(default_factory=list)  # finished scenes set aside and redone
     stopped: Optional[str] = None  # the fault that stopped the run (no new seed drawn after it)
+    device: Optional[str] = None  # what the scenes rendered on: "cpu" or "gpu" (compose.device resolved)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -86,6 +87,7 @@ def compose_scenes(
         raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog "
                                "first; nothing was written")
     more_views = more_views_of(config)  # a refused pair stops here, before OUT is made
+    device = _run_device(config, executor)  # --device gpu without one stops here, before OUT is made
     _prepare_output(out_dir)
     # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
     # without them stops the run here with one clear error instead of failing every scene's sampling
@@ -107,7 +109,11 @@ def compose_scenes(
     bar = as_reporter(progress)
     run = _ComposeRun(config=config, pool=pool, out_dir=out_dir, assets_dir=Path(assets_dir), n=n,
                       environments=environments, materials=materials, oracle=oracle, outputs=outputs,
-                      summary=summary, bar=bar, more_views=more_views)
+                      summary=summary, bar=bar, more_views=more_views, device=device.device)
+    if device.note:  # once per run
+        summary.warnings.append(device.note)
+        bar.note(device.note)
+    summary.device = device.device
     warning = container_warning(pool, comp.split, config.scene)
     if warning:  # once per run, not once per scene
         summary.warnings.append(warning)
@@ -126,6 +132,14 @@ def compose_scenes(
     if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
         _merge(out_dir, config, summary, bar)
     return summary
+
+
+def _run_device(config: Config, executor: Optional[Executor]) -> Any:
+    """The run's :class:`~mixcount.run.devices.RunDevice`: the executor's own (Ray: from its cluster) or
+    ``compose.device`` resolved here with one bpy probe (none for ``cpu``)."""
+    from mixcount.run.devices import executor_device, resolve_device
+
+    return executor_device(executor) or resolve_device(config.compose.device)
 
 
 def more_views_of(config: Config) -> Optional[MoreViews]:
@@ -191,6 +205,7 @@ class _ComposeRun:
     summary: ComposeSummary
     bar: ProgressReporter
     more_views: Optional[MoreViews]  # compose --views: each task's new cameras (None: the scene's own only)
+    device: str  # "cpu" | "gpu": compose.device as resolved for this run (mixcount.run.devices)
     attempts: int = 0
     in_flight: int = 0
     fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
@@ -282,8 +297,7 @@ class _ComposeRun:
             spec = sample_scene(seed, self.split, self.config, self.pool, environments=self.environments,
                                 materials=self.materials)
         except Exception as exc:  # noqa: BLE001 - a seed that cannot be sampled is a failed scene
-            self.summary.failed += 1
-            self.summary.failures.append({"scene_id": sid, "seed": seed, "error": f"sampling: {exc}"})
+            self.record_failure(SceneOutcome(sid, seed, FAILED, 0.0, error=f"sampling: {exc}"))
             return None
         problem = missing_inputs(spec, self.assets_dir)
         if problem:
@@ -300,7 +314,7 @@ class _ComposeRun:
                          timeout_s=self.config.compose.scene_timeout_s, threads=self.threads, oracle=self.oracle,
                          captions={k: v for k, v in self.captions.items() if k in distractors},
                          external_exemplars={k: self.external[k] for k in sorted(used) if k in self.external},
-                         outputs=self.outputs, more_views=self.more_views)
+                         outputs=self.outputs, more_views=self.more_views, device=self.device)
 
     def info(self) -> str:
         return f"failed {self.summary.failed}  regenerated {self.summary.empty + self.summary.rejected}"
@@ -328,7 +342,6 @@ class _ComposeRun:
     def record(self, outcome: SceneOutcome) -> None:
         """Count one outcome; a failure whose cause no seed can fix (a full disk, ...) stops the run."""
         from mixcount.dataset.manifest import recorded_size
-        from mixcount.run.faults import classify_failure, scene_bytes_needed
 
         summary = self.summary
         summary.outcomes.append(outcome.to_dict())
@@ -343,15 +356,31 @@ class _ComposeRun:
         elif outcome.status == REJECTED:
             summary.rejected += 1
         else:
-            summary.failed += 1
-            summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed, "error": outcome.error})
-            need = scene_bytes_needed(self.config.compose.resolution, self.largest_scene)
-            problem = classify_failure(outcome.error, out_dir=self.out_dir, assets_dir=self.assets_dir,
-                                       need_bytes=need)
-            if problem:
-                self.stop(StorageError(problem))
-            elif self.fatal is None:
-                self.bar.note(f"scene {outcome.scene_id} failed: {(outcome.error or '').splitlines()[0][:300]}")
+            self.record_failure(outcome)
+
+    def record_failure(self, outcome: SceneOutcome) -> None:
+        """A failed scene: counted, its line appended to ``OUT/logs/failures.jsonl`` (cause, exit signal,
+        kept log and its last lines, seed) and noted with those last lines; a cause no seed can fix stops
+        the run."""
+        from mixcount.run.failures import append_failure, failure_record
+        from mixcount.run.faults import classify_failure, failure_cause, scene_bytes_needed
+
+        summary = self.summary
+        summary.failed += 1
+        need = scene_bytes_needed(self.config.compose.resolution, self.largest_scene)
+        problem = classify_failure(outcome.error, out_dir=self.out_dir, assets_dir=self.assets_dir, need_bytes=need)
+        cause = "storage" if problem else failure_cause(outcome.error, outcome.exit_code)
+        rec = failure_record(outcome, split=self.split, cause=cause)
+        summary.failures.append({"scene_id": outcome.scene_id, "seed": outcome.seed, "error": outcome.error,
+                                 "cause": cause, "exit_code": outcome.exit_code, "log": outcome.log,
+                                 "log_tail": rec["log_tail"], "reproduce": rec["reproduce"]})
+        append_failure(self.out_dir, rec)
+        if problem:
+            self.stop(StorageError(problem))
+        elif self.fatal is None:
+            tail = "".join(f"\n    {ln[:200]}" for ln in rec["log_tail"].splitlines())  # the log's last lines
+            self.bar.note(f"scene {outcome.scene_id} (seed {outcome.seed}) failed [{cause}]: "
+                          f"{(outcome.error or '').splitlines()[0][:300] if outcome.error else ''}{tail}")
 
 
 def merge_is_stale(out_dir: Path) -> bool:

@@ -3,7 +3,8 @@
 Both kinds take the same ``[compose]`` keys: ``workers`` (slots), ``render_threads`` (Cycles threads per
 worker; 0 = CPUs / workers locally, the actor's CPU share on Ray) and ``recycle_after`` (restart a bpy
 worker after that many scenes; 0 = never). The local one also reads ``settle_ahead`` (a companion bpy
-process per worker settles the next scene during the current render), Ray ``ray_cpus_per_worker``.
+process per worker settles the next scene during the current render), Ray ``ray_cpus_per_worker`` and, with
+``device`` gpu or auto, ``ray_gpus_per_worker`` (without ``--workers``: one actor per that many GPUs).
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ def make_executor(kind: str = "local", workers: Optional[int] = None, address: O
         cpus = float(comp.ray_cpus_per_worker)
         threads = comp.render_threads or max(1, int(round(cpus)))
         slots = workers if workers else (None if address else comp.workers)
+        if comp.device != "cpu" and not workers:
+            slots = None  # one actor per GPU share of the cluster (compose.ray_gpus_per_worker)
         return RayExecutor(address=address, slots=slots, cpus_per_slot=cpus, threads=threads,
-                           recycle_after=recycle, log_dir=log_dir, **extra)
+                           recycle_after=recycle, log_dir=log_dir, device=comp.device,
+                           gpus_per_slot=float(comp.ray_gpus_per_worker), **extra)
     raise MixcountError(f"unknown executor {kind!r}: choose one of {', '.join(EXECUTORS)}")

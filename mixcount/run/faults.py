@@ -176,3 +176,30 @@ def missing_inputs(spec: Any, assets_dir: Path) -> Optional[str]:
         if why:
             return f"environment map is {why}: {env.path}"
     return None
+
+
+def failure_cause(error: Optional[str], exit_code: Optional[int] = None) -> str:
+    """A failed scene's cause in a few words, for counting (``mixcount stats``): ``worker SIGSEGV`` (a worker
+    killed by a signal), ``worker exit 3``, ``timeout``, ``storage`` (a full / read-only disk), ``sampling``,
+    ``scene error: <ExceptionType>`` (a Python error in the worker, which lived on) or ``error: <Type>``."""
+    import signal as _signal
+
+    text = error or ""
+    if exit_code is not None and exit_code < 0:
+        try:
+            return f"worker {_signal.Signals(-exit_code).name}"
+        except ValueError:
+            return f"worker signal {-exit_code}"
+    if exit_code is not None:
+        return f"worker exit {exit_code}"
+    if "timed out after" in text:
+        return "timeout"
+    if any(code in STORAGE_ERRNOS for code, _ in errors_in_text(text)) or any(t in text for t in _TEXT_ERRNOS):
+        return "storage"
+    if text.startswith("sampling:"):
+        return "sampling"
+    m = re.search(r"scene failed: (\w+):", text)
+    if m:
+        return f"scene error: {m.group(1)}"
+    m = re.match(r"(\w+):", text)
+    return f"error: {m.group(1)}" if m else "unknown"

@@ -99,6 +99,27 @@ class SceneActor:
         return True
 
 
+def cluster_device(device: Optional[str], cluster_gpus: float, gpus_per_slot: float) -> Any:
+    """``compose.device`` on a Ray cluster with ``cluster_gpus`` GPU resources: a
+    :class:`~mixcount.run.devices.RunDevice` ("gpu": each actor reserves ``gpus_per_slot``; Ray sets its
+    CUDA_VISIBLE_DEVICES, which its bpy worker inherits). ``gpu`` on a cluster without a GPU resource is an
+    ExecutorError (one line, before any scene is sent); ``auto`` then renders on the CPU, said once."""
+    from mixcount.run.devices import RunDevice
+
+    if device in (None, "cpu"):
+        return RunDevice("cpu", None, None)
+    if cluster_gpus >= gpus_per_slot > 0:
+        return RunDevice("gpu", None, f"rendering on the Ray cluster's GPUs: {cluster_gpus:g} GPU(s), "
+                                      f"{gpus_per_slot:g} per scene actor")
+    if device == "gpu":
+        raise RayExecutorError(f"compose.device = \"gpu\" but the Ray cluster has {cluster_gpus:g} GPU(s) and each "
+                               f"scene actor asks for {gpus_per_slot:g} (compose.ray_gpus_per_worker); start the "
+                               "nodes with GPUs (`ray start --num-gpus N`) or use --device cpu or auto; nothing "
+                               "was written")
+    return RunDevice("cpu", None, "compose.device = \"auto\": the Ray cluster has no GPU resource: rendering on "
+                                  "the CPU")
+
+
 def _probe(address: str, timeout: float) -> None:
     """Fail fast on a ``host:port`` nobody listens on (ray.init would retry for minutes)."""
     host, sep, port = address.rpartition(":")
@@ -131,7 +152,8 @@ class RayExecutor:
                  threads: Optional[int] = None, recycle_after: int, log_dir: Optional[Path] = None,
                  runner: SceneRunner = run_scene_task,
                  worker_factory: Callable[[str, Optional[str]], Any] = default_worker_factory,
-                 object_store_mb: int = 200, connect_timeout_s: float = 120.0) -> None:
+                 object_store_mb: int = 200, connect_timeout_s: float = 120.0, device: Optional[str] = None,
+                 gpus_per_slot: float = 1.0) -> None:
         try:
             import ray
         except ImportError as exc:  # pragma: no cover - ray is a pinned dependency
@@ -151,18 +173,31 @@ class RayExecutor:
                 if address:
                     ray.init(address=address, **kwargs)
                 else:
-                    n = max(1, int(slots or 1))
+                    if slots or device in (None, "cpu"):
+                        n = max(1, int(slots or 1))
+                    else:  # GPU actors, as many as GPUs: CPUs for all of them
+                        n = max(1, (os.cpu_count() or 1) // max(1, int(cpus_per_slot)))
                     ray.init(num_cpus=max(1, int(round(n * cpus_per_slot))), _node_ip_address="127.0.0.1",
                              object_store_memory=int(object_store_mb) * 1024 * 1024, **kwargs)
             except Exception as exc:  # noqa: BLE001 - ConnectionError, RuntimeError, ...: one clear message
                 raise RayExecutorError(f"cannot {'reach the Ray cluster at ' + address if address else 'start a local Ray cluster'}: "
                                        f"{type(exc).__name__}: {exc}") from exc
             self._own_init = True
+        try:
+            self.device = cluster_device(device, float(ray.cluster_resources().get("GPU", 0.0)), gpus_per_slot)
+        except RayExecutorError:
+            if self._own_init:
+                ray.shutdown()
+            raise
+        gpus = gpus_per_slot if self.device.device == "gpu" else 0.0
         if slots is None:
             cpus = float(ray.cluster_resources().get("CPU", 1.0))
             slots = max(1, int(cpus // cpus_per_slot))
+            if gpus:  # one actor per GPU share (compose.ray_gpus_per_worker), as CPUs allow
+                slots = max(1, min(slots, int(float(ray.cluster_resources().get("GPU", 0.0)) // gpus)))
         self.slots = max(1, int(slots))
-        remote_cls = ray.remote(num_cpus=cpus_per_slot, max_restarts=-1, max_task_retries=0)(SceneActor)
+        remote_cls = ray.remote(num_cpus=cpus_per_slot, num_gpus=gpus, max_restarts=-1,
+                                max_task_retries=0)(SceneActor)
         self._actors = [remote_cls.remote(f"ray{k}", recycle_after=recycle_after,
                                           log_dir=str(log_dir) if log_dir else None, runner=runner,
                                           worker_factory=worker_factory)
@@ -178,6 +213,7 @@ class RayExecutor:
     def submit(self, task: SceneTask) -> None:
         if self.threads:
             task = dataclasses.replace(task, threads=int(self.threads))
+        task = dataclasses.replace(task, device=self.device.device)
         self._pending.append(task)
         self._dispatch()
 

@@ -39,6 +39,7 @@ class SceneTask:
     external_exemplars: dict[int, str] = field(default_factory=dict)  # object id -> render copy, relative to OUT
     keep_failed: bool = False
     more_views: Optional[MoreViews] = None  # compose --views: new cameras rendered in the same worker request
+    device: Optional[str] = None  # compose.device as the run resolved it ("cpu" / "gpu"; None: the CPU)
 
 
 @dataclass
@@ -51,6 +52,10 @@ class SceneOutcome:
     n_counted: int = 0
     path: Optional[str] = None
     timings: dict[str, float] = field(default_factory=dict)
+    exit_code: Optional[int] = None  # a dead worker's exit (negative: the signal), mixcount.worker.client.WorkerDied
+    log: Optional[str] = None  # that worker's kept log
+    reason: Optional[dict[str, Any]] = None  # an empty / rejected scene: the rule and its figures (rejections.py)
+    device: Optional[dict[str, Any]] = None  # what Cycles rendered on (DevicesResult.to_dict())
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -67,7 +72,8 @@ class StagedScene:
 
 def _request(task: SceneTask, tmp: Path) -> SceneRequest:
     return SceneRequest.for_outputs(task.outputs, stage=str(tmp / "scene.usda"), out_dir=str(tmp),
-                                    threads=task.threads, oracle=task.oracle, more_views=task.more_views)
+                                    threads=task.threads, oracle=task.oracle, more_views=task.more_views,
+                                    device=task.device)
 
 
 def _views_record(task: SceneTask, result: SceneResult) -> Optional[dict[str, Any]]:
@@ -78,6 +84,12 @@ def _views_record(task: SceneTask, result: SceneResult) -> Optional[dict[str, An
     own = next((d["own"] for d in result.diagnostics if d.get("kind") == "more_views"), len(result.views))
     return {"more_views": {"rule": task.more_views.rule, "views": len(result.views), "own_views": int(own),
                            "plan": task.more_views.plan.to_dict()}}
+
+
+def _device_record(result: SceneResult) -> Optional[dict[str, Any]]:
+    """What Cycles rendered the scene on (the worker's ``device`` diagnostic): used, backend, devices."""
+    found = next((d for d in result.diagnostics if d.get("kind") == "device"), None)
+    return None if found is None else {k: v for k, v in found.items() if k not in ("kind", "found", "error")}
 
 
 def stage_scene(task: SceneTask) -> Optional[StagedScene]:
@@ -120,6 +132,7 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         tmp_dir_for,
         write_metadata,
     )
+    from mixcount.run.rejections import object_lines, rejection_reason
     from mixcount.usd.stage import write_stage
 
     spec = task.spec
@@ -144,19 +157,24 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         result = worker.run_scene_job(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)
         status = result.status
-        if status != STATUS_OK:
+        if status != STATUS_OK:  # thrown away: the record says which rule and its figures (rejections.py)
+            reason = rejection_reason(result)
             rej = out / "scenes" / REJECTED_DIR
             rej.mkdir(parents=True, exist_ok=True)
             (rej / f"{spec.scene_id}.json").write_text(json.dumps(
-                {"scene_id": spec.scene_id, "seed": spec.seed, "status": status,
+                {"scene_id": spec.scene_id, "seed": spec.seed, "status": status, **reason,
+                 "visibility_threshold": result.visibility_threshold, "objects": object_lines(result),
                  "diagnostics": list(result.diagnostics)}, indent=1))
             return SceneOutcome(spec.scene_id, spec.seed, EMPTY if status == STATUS_EMPTY else REJECTED,
-                                time.perf_counter() - t0, error=f"scene {status}", timings=timings)
+                                time.perf_counter() - t0, error=f"scene {status}: {reason['why']}", timings=timings,
+                                reason=reason)
         t = time.perf_counter()
         timings["total"] = 0.0
+        device = _device_record(result)
+        extra = {**(_views_record(task, result) or {}), **({"render_device": device} if device else {})}
         meta = finalize_scene(tmp, spec, result, captions=task.captions, timings=timings,
                               external_exemplars=task.external_exemplars, passes=task.outputs.passes,
-                              extra=_views_record(task, result))
+                              extra=extra or None)
         timings["annotate"] = round(time.perf_counter() - t, 4)
         timings["total"] = round(time.perf_counter() - t0, 4)
         meta["timings"].update(annotate=timings["annotate"], total=timings["total"])
@@ -164,10 +182,11 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         record_scene_files(tmp)  # size + hash of every file the folder holds (mixcount verify)
         move_into_place(tmp, final)
         return SceneOutcome(spec.scene_id, spec.seed, WRITTEN, time.perf_counter() - t0,
-                            n_counted=int(meta["n_counted"]), path=str(final), timings=timings)
+                            n_counted=int(meta["n_counted"]), path=str(final), timings=timings, device=device)
     except Exception as exc:  # noqa: BLE001 - the batch goes on; the error is reported
         return SceneOutcome(spec.scene_id, spec.seed, FAILED, time.perf_counter() - t0,
-                            error=f"{type(exc).__name__}: {exc}"[:4000], timings=timings)
+                            error=f"{type(exc).__name__}: {exc}"[:4000], timings=timings,
+                            exit_code=getattr(exc, "exit_code", None), log=getattr(exc, "log", None))
     finally:
         if tmp.exists() and not task.keep_failed:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -4,7 +4,15 @@
 per line and waits for the answer with a deadline. A worker that dies mid-scene (crash, OOM kill) or
 overruns the per-scene timeout is killed (its whole process group) and the request raises
 :class:`~mixcount.errors.RenderError`; the next request starts a fresh worker. The worker's stderr
-(bpy and Cycles logging) goes to a log file whose tail is quoted in errors.
+(bpy and Cycles logging, and faulthandler's report of a crash) goes to a log file whose last lines are quoted
+in errors: :class:`WorkerDied` carries the exit code (a signal as its negative number) and the log, which
+is kept under its own name (``mixcount-<name>-<parent pid>-<worker pid>-<SIGNAL|exit N|timeout>.log``) so
+that the next worker's log cannot wipe it.
+
+Workers die with their run (docs/faults.md): each is started from one long-lived spawner thread of this
+process, with ``MIXCOUNT_PARENT_PID`` set, so the worker's ``PR_SET_PDEATHSIG`` (Linux; set in
+:mod:`mixcount.engine.worker_main`, which also watches its parent's pid) fires when this process dies,
+not when the pool thread that asked for the worker ends.
 """
 
 from __future__ import annotations
@@ -32,6 +40,73 @@ from mixcount.worker.contract import (
 
 STARTUP_TIMEOUT_S = 180.0
 WORKER_MODULE = "mixcount.engine.worker_main"  # the entry module the worker process runs
+PARENT_ENV = "MIXCOUNT_PARENT_PID"  # the pid the worker watches (it exits when that process is gone)
+TAIL_LINES = 20  # log lines a crash's error quotes
+TAIL_CHARS = 3000
+
+
+class WorkerDied(RenderError):
+    """A worker that died or was killed during a request: ``exit_code`` (negative: the signal; None: a
+    timeout kill) and ``log``, the kept log of that worker's life (faulthandler's report included)."""
+
+    def __init__(self, message: str, *, exit_code: Optional[int], log: Optional[Path]) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+        self.log = str(log) if log is not None else None
+
+
+def exit_words(code: Optional[int]) -> str:
+    """``SIGSEGV, exit code -11`` / ``exit code 3`` / ``exit code unknown``."""
+    if code is None:
+        return "exit code unknown"
+    if code < 0:
+        try:
+            return f"{signal.Signals(-code).name}, exit code {code}"
+        except ValueError:
+            return f"signal {-code}, exit code {code}"
+    return f"exit code {code}"
+
+
+def last_lines(text: str, n: int = TAIL_LINES, chars: int = TAIL_CHARS) -> str:
+    """The last ``n`` non-empty lines of ``text``, at most ``chars`` characters."""
+    lines = [ln.rstrip() for ln in text.splitlines() if ln.strip()]
+    return "\n".join(lines[-n:])[-chars:]
+
+
+class _Spawner:
+    """One daemon thread that starts every worker process: ``PR_SET_PDEATHSIG`` signals a child when the
+    THREAD that forked it ends, so the fork must come from a thread that lives as long as this process
+    (a pool's or a look-ahead's thread ends long before its worker should)."""
+
+    def __init__(self) -> None:
+        self._jobs: "queue.Queue[tuple[Any, queue.Queue[Any]]]" = queue.Queue()
+        self._lock = threading.Lock()
+        self._thread: Optional[threading.Thread] = None
+        self._pid = 0
+
+    def _serve(self) -> None:
+        while True:
+            make, box = self._jobs.get()
+            try:
+                box.put((True, make()))
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller
+                box.put((False, exc))
+
+    def popen(self, make: Any) -> Any:
+        with self._lock:
+            if self._thread is None or not self._thread.is_alive() or self._pid != os.getpid():  # after a fork
+                self._jobs, self._pid = queue.Queue(), os.getpid()
+                self._thread = threading.Thread(target=self._serve, name="mixcount-worker-spawner", daemon=True)
+                self._thread.start()
+        box: "queue.Queue[Any]" = queue.Queue()
+        self._jobs.put((make, box))
+        ok, value = box.get()
+        if not ok:
+            raise value
+        return value
+
+
+_SPAWNER = _Spawner()
 
 
 class BlenderWorker:
@@ -48,6 +123,9 @@ class BlenderWorker:
         self._lines: "queue.Queue[Optional[str]]" = queue.Queue()
         self.restarts = 0
         self.starts = 0
+        self.ready = False  # the worker answered its first line and serves requests
+        self._log_kept = False  # this start's log was renamed (its worker died in a request)
+        self.idle_deaths: list[str] = []  # workers that died between requests (exit, kept log)
 
     # -------------------------------------------------------------------------------- lifecycle
 
@@ -63,15 +141,24 @@ class BlenderWorker:
             return
         if self.proc is not None:
             self.restarts += 1
+            code = self.proc.poll()
+            if code and not self._log_kept:  # died between requests: its log is kept all the same
+                self.idle_deaths.append(f"{exit_words(code)}; log kept as {self._keep_log(exit_words(code).split(',')[0])}")
+        self._log_kept = False
+        self.ready = False
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        log = open(self.log_path, "ab")
+        log = open(self.log_path, "ab")  # O_APPEND: post() may truncate it under the running child
+        log.truncate(0)  # this start's log (a crashed worker's was renamed and kept)
         env = dict(os.environ)
-        env.setdefault("PYTHONUNBUFFERED", "1")
-        self.proc = subprocess.Popen(
-            [self.python, "-m", WORKER_MODULE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=log, env=env, start_new_session=True,
-        )
-        log.close()
+        env["PYTHONUNBUFFERED"] = "1"
+        env["PYTHONFAULTHANDLER"] = "1"  # faulthandler from the interpreter's start (worker_main: all threads)
+        env[PARENT_ENV] = str(os.getpid())
+        args = [self.python, "-m", WORKER_MODULE]
+        try:
+            self.proc = _SPAWNER.popen(lambda: subprocess.Popen(
+                args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env, start_new_session=True))
+        finally:
+            log.close()
         self.starts += 1
         self._lines = queue.Queue()
         threading.Thread(target=self._pump, args=(self.proc, self._lines), daemon=True).start()
@@ -79,6 +166,7 @@ class BlenderWorker:
         if not hello.get("ready"):
             self.kill()
             raise RenderError(f"{self.name}: unexpected first line from worker: {hello}")
+        self.ready = True
 
     @staticmethod
     def _pump(proc: subprocess.Popen[bytes], lines: "queue.Queue[Optional[str]]") -> None:
@@ -123,33 +211,68 @@ class BlenderWorker:
 
     # -------------------------------------------------------------------------------- requests
 
-    def log_tail(self, n: int = 2000) -> str:
+    def log_tail(self, n: int = TAIL_CHARS, path: Optional[Path] = None) -> str:
+        """The last lines of the worker's log (``path``: a kept one)."""
         try:
-            data = self.log_path.read_bytes()
+            with open(path or self.log_path, "rb") as f:
+                f.seek(0, os.SEEK_END)
+                f.seek(max(0, f.tell() - 4 * n))
+                data = f.read()
         except OSError:
             return ""
-        return data[-n:].decode("utf-8", "replace")
+        return last_lines(data.decode("utf-8", "replace"), chars=n)
 
-    def _send(self, obj: dict[str, Any]) -> None:
+    def _keep_log(self, why: str) -> Optional[Path]:
+        """The dead worker's log renamed to ``<log>-<worker pid>-<why>.log`` (the next start writes a new
+        one); the path it now has (the old one when the rename fails)."""
+        pid = self.proc.pid if self.proc is not None else 0
+        kept = self.log_path.with_name(f"{self.log_path.stem}-{pid}-{why.replace(' ', '')}.log")
+        try:
+            os.replace(self.log_path, kept)
+        except OSError:
+            return self.log_path if self.log_path.exists() else None
+        return kept
+
+    def _died(self, what: str, *, timeout: Optional[float] = None) -> WorkerDied:
+        """The error of a worker gone during ``what`` (killed after ``timeout`` s, or died): its exit, the
+        kept log and that log's last lines."""
+        if timeout is not None:
+            self.kill()
+        code = None
+        if self.proc is not None:
+            try:
+                code = self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:  # pragma: no cover
+                self.kill()
+        if timeout is not None:
+            head, why = f"timed out after {timeout:.0f} s while {what}; worker killed", "timeout"
+        else:
+            head = f"worker died ({exit_words(code)}) while {what}"
+            why = signal.Signals(-code).name if code is not None and code < 0 and -code in signal.valid_signals() \
+                else f"exit{code}"
+        log = self._keep_log(why)
+        self._log_kept = True
+        tail = self.log_tail(path=log) if log is not None else ""
+        where = f"; its log is kept as {log}" if log is not None else ""
+        return WorkerDied(f"{self.name}: {head}{where}; last lines:\n{tail or '(the log is empty)'}",
+                          exit_code=None if timeout is not None else code, log=log)
+
+    def _send(self, obj: dict[str, Any], what: str = "sending a request") -> None:
         assert self.proc is not None and self.proc.stdin is not None
         try:
             self.proc.stdin.write((json.dumps(obj) + "\n").encode())
             self.proc.stdin.flush()
-        except (BrokenPipeError, OSError) as exc:
-            self.kill()
-            raise RenderError(f"{self.name}: worker pipe closed ({exc}); log tail:\n{self.log_tail()}") from None
+        except (BrokenPipeError, OSError):  # the worker died between requests: say how
+            raise self._died(what) from None
 
     def _read(self, timeout: float, what: str) -> dict[str, Any]:
         while True:
             try:
                 line = self._lines.get(timeout=timeout)
             except queue.Empty:
-                self.kill()
-                raise RenderError(f"{self.name}: timed out after {timeout:.0f} s while {what}; worker killed") from None
+                raise self._died(what, timeout=timeout) from None
             if line is None:
-                code = self.proc.wait() if self.proc is not None else None
-                raise RenderError(f"{self.name}: worker died (exit code {code}) while {what}; log tail:\n"
-                                  f"{self.log_tail()}")
+                raise self._died(what)
             line = line.strip()
             if not line:
                 continue
@@ -162,11 +285,11 @@ class BlenderWorker:
         """Send one request without waiting (the worker started first); :meth:`answer` collects its answer.
         RenderError when the pipe is closed (the worker is killed)."""
         self.start()
-        try:
-            self.log_path.write_bytes(b"")  # O_APPEND in the child: truncating is safe
+        try:  # the log holds this worker's start and its last request (a crashed worker's is kept apart)
+            self.log_path.write_bytes(b"")  # the child writes at its offset: truncating is safe
         except OSError:
             pass
-        self._send(payload)
+        self._send(payload, f"handling {payload.get('op')!r}")
 
     def answer(self, timeout: float, what: str) -> dict[str, Any]:
         """The answer to the request :meth:`post` sent, within ``timeout`` seconds (RenderError naming

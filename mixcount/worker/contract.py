@@ -113,6 +113,8 @@ class SceneRequest:
     settled_poses_file: str
     # new cameras rendered after the scene's own, in this request (``compose --views``; None: none)
     more_views: Optional["MoreViews"]
+    # where Cycles renders: "cpu" | "gpu" | "auto" (``compose.device`` as the run resolved it; None: the CPU)
+    device: Optional[str] = None
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -122,12 +124,13 @@ class SceneRequest:
 
     @classmethod
     def for_outputs(cls, outputs: SceneOutputs, *, stage: str, out_dir: str, threads: int, oracle: bool,
-                    settled_poses_file: str = "", more_views: Optional["MoreViews"] = None) -> "SceneRequest":
+                    settled_poses_file: str = "", more_views: Optional["MoreViews"] = None,
+                    device: Optional[str] = None) -> "SceneRequest":
         """The request that renders ``stage`` into ``out_dir`` writing ``outputs`` (and ``more_views``)."""
         return cls(stage=stage, out_dir=out_dir, threads=threads, oracle=oracle, passes=tuple(outputs.passes),
                    depth_format=outputs.depth_format, normal_format=outputs.normal_format,
                    mesh_cache=outputs.mesh_cache, settled_poses_file=settled_poses_file,
-                   more_views=more_views)
+                   more_views=more_views, device=device)
 
     @classmethod
     def from_config(cls, compose: ComposeConfig, *, stage: str, out_dir: str, threads: int,
@@ -143,7 +146,8 @@ class SceneRequest:
                    oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
                    depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
                    mesh_cache=str(v["mesh_cache"]), settled_poses_file=str(v["settled_poses_file"]),
-                   more_views=None if v["more_views"] is None else MoreViews.from_dict(v["more_views"]))
+                   more_views=None if v["more_views"] is None else MoreViews.from_dict(v["more_views"]),
+                   device=None if v.get("device") is None else str(v["device"]))
 
 
 @dataclass(frozen=True)
@@ -548,13 +552,17 @@ class DevicesRequest:
     OP: ClassVar[str] = "devices"
 
     device: str
+    # the setting asked about, named in the error line ("compose.device": answered by
+    # mixcount.engine.devices; None: ``mixcount render``'s rerender.device, mixcount.engine.rerender_job)
+    setting: Optional[str] = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"device": self.device}
+        return {"device": self.device, "setting": self.setting}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "DevicesRequest":
-        return cls(device=str(_known(cls, d)["device"]))
+        v = _known(cls, d)
+        return cls(device=str(v["device"]), setting=None if v.get("setting") is None else str(v["setting"]))
 
 
 @dataclass(frozen=True)
