@@ -41,9 +41,12 @@ from mixcount.catalog.models import (
     STATUS_BROKEN,
     STATUS_EXCLUDED,
     CatalogObject,
+    Flag,
     IngestRun,
     utcnow,
 )
+from mixcount.catalog.orientation import choose_up_axis, folder_axes, forget_inside, remember_up_axis
+from mixcount.catalog.stale import Before, invalidate
 from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
@@ -71,6 +74,9 @@ class IngestSummary:
     layouts: dict[str, int] = field(default_factory=dict)  # objects found per layout
     containers: int = 0  # objects of the catalog that are containers after this run
     container_warnings: list[str] = field(default_factory=list)  # containers whose opening does not face up
+    warnings: list[tuple[str, str]] = field(default_factory=list)  # (name, what was tolerated: a missing .mtl)
+    reoriented: list[tuple[str, str, str, str]] = field(default_factory=list)  # (name, old up, new up, reason)
+    invalidated: list[tuple[str, list[str]]] = field(default_factory=list)  # (name, changed columns)
 
     @property
     def total(self) -> int:
@@ -82,6 +88,10 @@ class IngestSummary:
             "updated": self.updated, "broken": self.broken, "layouts": dict(sorted(self.layouts.items())),
             "containers": self.containers, "container_warnings": list(self.container_warnings),
             "broken_objects": [{"name": n, "reason": r} for n, r in self.broken_objects],
+            "warnings": [{"name": n, "warning": w} for n, w in self.warnings],
+            "reoriented": [{"name": n, "old_up_axis": a, "new_up_axis": b, "reason": r}
+                           for n, a, b, r in self.reoriented],
+            "invalidated": [{"name": n, "changed": c} for n, c in self.invalidated],
         }
 
 
@@ -130,9 +140,12 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> P
         if size == 0:
             prep.error = "empty file (0 bytes)"
             return prep
-        resources = model_resources(cand.model_path)
+        tolerated: list[str] = []
+        resources = model_resources(cand.model_path, tolerated)
+        cand.warnings.extend(w for w in tolerated if w not in cand.warnings)
         files = {"model" + cand.model_path.suffix.lower(): cand.model_path}
         files.update({f"res:{k}": v for k, v in resources.items()})
+        files.update({f"companion:{k}": v for k, v in cand.companions.items()})
         prep.content_hash = hashing.files_hash(files)
         sidecar_hash = hashing.files_hash({f"side:{k}": v for k, v in cand.sidecars.items()})
         identity_hash = hashing.json_hash([cand.layout, cand.name, cand.category, cand.license, cand.metadata])
@@ -199,10 +212,47 @@ def _apply_identity(obj: CatalogObject, prep: Prepared, run_id: int | None, inge
     obj.updated_at = utcnow()
 
 
+@dataclass
+class StoreContext:
+    """Where :func:`_store` reports changes and finds the files derived from an object."""
+
+    summary: IngestSummary
+    renders_dir: Path
+    descriptors_dir: Path
+
+
+# flags ingest writes itself: what it tolerated in a model's files (filter keeps them; a change rewrites them)
+INGEST_FLAG_KINDS = ("missing_material", "missing_texture", "ingest_note")
+
+
+def _warning_kind(warning: str) -> str:
+    if warning.startswith("missing material file"):
+        return "missing_material"
+    if warning.startswith("missing texture file"):
+        return "missing_texture"
+    return "ingest_note"
+
+
+def _write_warning_flags(session: Session, obj: CatalogObject, warnings: list[str]) -> None:
+    """The object's ingest flags, one per tolerated problem (a mesh_quality-like warning: it stays active)."""
+    for flag in session.scalars(select(Flag).where(Flag.object_id == obj.id, Flag.kind.in_(INGEST_FLAG_KINDS))):
+        session.delete(flag)
+    for warning in warnings:
+        kind = _warning_kind(warning)
+        session.add(Flag(object_id=obj.id, kind=kind, score=0.5 if kind == "ingest_note" else 1.0, reason=warning))
+
+
+def _same_identity(obj: CatalogObject, cand: Candidate) -> bool:
+    return obj.name == cand.name and obj.category == cand.category
+
+
 def _store(
-    session: Session, prep: Prepared, facts: dict[str, Any] | None, error: str | None, run_id: int | None
+    session: Session, prep: Prepared, facts: dict[str, Any] | None, error: str | None, run_id: int | None,
+    ctx: StoreContext | None = None,
 ) -> str:
-    """Insert or update one object and commit; returns new | updated | unchanged | broken."""
+    """Insert or update one object and commit; returns new | updated | unchanged | broken. An update that
+    changes what later steps derived from the object removes those (:mod:`mixcount.catalog.stale`) and
+    a changed up axis is reported in ``ctx.summary``."""
     cand = prep.cand
     for attempt in range(2):
         obj = _get(session, cand)
@@ -210,8 +260,10 @@ def _store(
         if obj is None:
             obj = CatalogObject(source=cand.source, source_id=cand.source_id)
             session.add(obj)
+        before = Before.of(obj)
+        was_active = not is_new and obj.status != STATUS_BROKEN
         if error:
-            if not is_new and obj.status == STATUS_BROKEN and obj.error == error:
+            if not is_new and obj.status == STATUS_BROKEN and obj.error == error and _same_identity(obj, cand):
                 session.rollback()
                 return "broken"
             ingest = {"ingest_hash": prep.ingest_hash, "layout": cand.layout}
@@ -229,6 +281,9 @@ def _store(
                 "appearance": facts.get("appearance"),
                 "n_parts": facts.get("n_parts"),
                 "sidecars": sorted(cand.sidecars),
+                "up_axis_reason": cand.up_reason,
+                "warnings": list(cand.warnings),
+                "collision_source": facts.get("collision_source"),
             }
             _apply_identity(obj, prep, run_id, ingest)
             obj.content_hash = prep.content_hash
@@ -237,6 +292,18 @@ def _store(
             obj.status = STATUS_EXCLUDED if obj.status == STATUS_EXCLUDED else STATUS_ACTIVE
             obj.error = None
             outcome = "new" if is_new else "updated"
+        if was_active and ctx is not None:
+            changed = before.changed(obj)
+            if changed:
+                session.flush()
+                invalidate(session, obj, before, renders_dir=ctx.renders_dir, descriptors_dir=ctx.descriptors_dir)
+                ctx.summary.invalidated.append((obj.name, changed))
+            old_up, new_up = before.get("source_up_axis"), obj.source_up_axis
+            if not error and old_up and new_up and old_up != new_up:
+                ctx.summary.reoriented.append((obj.name, str(old_up), str(new_up), cand.up_reason or ""))
+        if not error:
+            session.flush()
+            _write_warning_flags(session, obj, cand.warnings)
         try:
             session.commit()
             return outcome
@@ -270,6 +337,7 @@ def _facts_of(obj: CatalogObject) -> dict[str, Any]:
     info = _ingest_info(obj)
     facts["appearance"] = info.get("appearance")
     facts["n_parts"] = info.get("n_parts")
+    facts["collision_source"] = info.get("collision_source")
     return facts
 
 
@@ -295,6 +363,7 @@ def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict
         "up_axis": (cand.up_axis or (GLTF_UP_AXIS if Path(str(cand.model_path)).suffix.lower() in GLTF_EXTENSIONS
                                      else settings["assume_up_axis"])),
         "proxy_max_vertices": settings["proxy_max_vertices"],
+        "collision_source": str(cand.collision_source) if cand.collision_source else None,
     }
 
 
@@ -335,12 +404,19 @@ def ingest_paths(
     paths = list(paths)
     candidates = discover(paths, layout=layout, metadata_files=metadata_files)
     ing = config.ingest
+    folders = [Path(p).expanduser().resolve() for p in paths]
+    with catalog.session() as session:
+        if stated_up:
+            remember_up_axis(session, [f if f.is_dir() else f.parent for f in folders], stated_up)
+        elif up_axis is not None:  # "auto": forget what was stated for these folders
+            forget_inside(session, [f if f.is_dir() else f.parent for f in folders])
+        axes = folder_axes(session)
     for cand in candidates:
-        if stated_up and not cand.up_axis:
-            cand.up_axis = stated_up
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units
-            cand.up_axis = cand.up_axis or ing.omniobject3d_up_axis
+            if not cand.up_axis:
+                cand.up_axis, cand.up_reason = ing.omniobject3d_up_axis, "ingest.omniobject3d_up_axis"
+        choose_up_axis(cand, stated_now=stated_up, axes=axes, assume=ing.assume_up_axis)
         layouts.stage(cand, catalog.staged_dir)
     settings = settings_of(ing)
     max_vertices = proxy_budget(ing)
@@ -350,6 +426,7 @@ def ingest_paths(
     for cand in candidates:
         summary.layouts[cand.layout] = summary.layouts.get(cand.layout, 0) + 1
     collision_dir = catalog.collision_dir
+    ctx = StoreContext(summary, catalog.renders_dir, catalog.data_dir / "descriptors")
 
     with catalog.session() as session:
         run = IngestRun(paths=json.dumps([str(p) for p in paths]), status="running")
@@ -361,6 +438,8 @@ def ingest_paths(
         setattr(summary, outcome, getattr(summary, outcome) + 1)
         if outcome == "broken":
             summary.broken_objects.append((prep.cand.name, error or prep.error or ""))
+        else:
+            summary.warnings.extend((prep.cand.name, w) for w in prep.cand.warnings)
 
     bar = as_reporter(progress)
     pending: list[Prepared] = []
@@ -373,10 +452,11 @@ def ingest_paths(
                 prep = prepare(cand, settings=settings, max_bytes=max_bytes)
                 existing = known.get((cand.source, cand.source_id))
                 if prep.error:
-                    if existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error:
-                        count("broken", prep)  # still broken the same way: nothing to write
+                    if (existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error
+                            and _same_identity(existing, cand)):
+                        count("broken", prep)  # still broken the same way, same name: nothing to write
                     else:
-                        count(_store(session, prep, None, prep.error, summary.run_id), prep)
+                        count(_store(session, prep, None, prep.error, summary.run_id, ctx), prep)
                     bar.advance()
                     continue
                 if existing is not None and existing.status != STATUS_BROKEN:
@@ -395,13 +475,13 @@ def ingest_paths(
                     ):
                         # only sidecars or the location changed: keep the measured facts
                         refresh_proxy(session, existing, collision_dir, max_vertices)
-                        count(_store(session, prep, _facts_of(existing), None, summary.run_id), prep)
+                        count(_store(session, prep, _facts_of(existing), None, summary.run_id, ctx), prep)
                         bar.advance()
                         continue
                 pending.append(prep)
             if pending:
                 _analyse_all(session, pending, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
-                             n_workers, summary, count, bar)
+                             n_workers, ctx, count, bar)
             summary.containers = refresh_containers(session, config).containers
             summary.container_warnings = opening_warnings(session)
         status = "done"
@@ -418,11 +498,11 @@ def ingest_paths(
     return summary
 
 
-def _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar):  # type: ignore[no-untyped-def]
+def _analyse_all(session, pending, collision_dir, settings, n_workers, ctx, count, bar):  # type: ignore[no-untyped-def]
     """Run mesh analysis for ``pending`` (process pool when > 1 worker), storing each as it finishes."""
 
     def finish(prep: Prepared, facts: dict[str, Any] | None, error: str | None) -> None:
-        outcome = _store(session, prep, facts, error, summary.run_id)
+        outcome = _store(session, prep, facts, error, ctx.summary.run_id, ctx)
         count(outcome, prep, error)
         bar.advance(info=prep.cand.name[:40])
 

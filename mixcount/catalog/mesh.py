@@ -31,7 +31,7 @@ import numpy as np
 
 from mixcount.atomic import atomic_path
 from mixcount.errors import IngestError
-from mixcount.frame import UNIT_SCALE, to_metres_z_up, walk_geometry
+from mixcount.frame import UNIT_SCALE, to_metres_z_up, unit_scale, walk_geometry
 
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".usd", ".usda", ".usdc", ".usdz")
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
@@ -114,12 +114,34 @@ def _gltf_resources(path: Path, doc: dict[str, Any]) -> dict[str, Path]:
 _MTL_MAP = re.compile(r"^\s*(map_\w+|bump|disp|decal|norm)\s+(.+?)\s*$", re.IGNORECASE)
 
 
-def _obj_resources(path: Path) -> dict[str, Path]:
+def _texture_file(tex: str, mtl: Path, model: Path) -> tuple[Path | None, bool]:
+    """(file, found where the reference points) of an MTL texture reference: first where it points
+    (relative to the MTL, ``../cube.png`` included), then by its file name in the model's folder (a
+    Windows path such as ``E:\\data\\table.png`` too)."""
+    ref = mtl.parent / tex
+    if ref.is_file():
+        return ref, True
+    name = re.split(r"[\\/]", tex)[-1]
+    for folder in dict.fromkeys((model.parent, mtl.parent)):
+        if name and (folder / name).is_file():
+            return folder / name, False
+    return None, False
+
+
+def _obj_resources(path: Path, warnings: list[str] | None) -> dict[str, Path]:
+    """An OBJ's material files and textures. A missing one is no error: the model loads with a default
+    material, as any viewer opens it; each miss is appended to ``warnings`` (or raises without a list)."""
     out: dict[str, Path] = {}
     try:
         text = path.read_text(errors="replace")
     except OSError as exc:
         raise IngestError(f"cannot read model file: {exc.strerror}") from None
+
+    def miss(message: str) -> None:
+        if warnings is None:
+            raise IngestError(message)
+        warnings.append(message)
+
     for line in text.splitlines():
         if not line.startswith("mtllib"):
             continue
@@ -128,24 +150,31 @@ def _obj_resources(path: Path) -> dict[str, Path]:
             continue
         mtl = path.parent / name
         if not mtl.is_file():
-            raise IngestError(f"missing material file: {name}")
+            miss(f"missing material file: {name} (a default material is used)")
+            continue
         out[name] = mtl
         for mline in mtl.read_text(errors="replace").splitlines():
             match = _MTL_MAP.match(mline)
             if not match:
                 continue
             tex = match.group(2).split()[-1]  # options such as "-bm 1" come first; the file is last
-            ref = mtl.parent / tex
-            if not ref.is_file():
-                raise IngestError(f"missing texture file: {tex}")
+            ref, where = _texture_file(tex, mtl, path)
+            if ref is None:
+                miss(f"missing texture file: {tex} (not where {name} points, nor by name in the folder; "
+                     "a default material is used)")
+                continue
+            if not where:
+                miss(f"texture {tex} found by name in the folder, not where {name} points")
             out[tex] = ref
     return out
 
 
-def model_resources(path: Path) -> dict[str, Path]:
+def model_resources(path: Path, warnings: list[str] | None = None) -> dict[str, Path]:
     """Files a model pulls in besides itself (buffers, textures, materials), by their reference name.
 
-    Also the cheap pre-checks that must happen before hashing: GLB header sanity and missing files.
+    Also the cheap pre-checks that must happen before hashing: GLB header sanity and missing files. A
+    glTF buffer or image that is missing is an error; an OBJ's missing material or texture is appended
+    to ``warnings`` when a list is given (ingest records it as a flag), an error otherwise.
     """
     suffix = path.suffix.lower()
     if suffix == ".glb":
@@ -159,7 +188,7 @@ def model_resources(path: Path) -> dict[str, Path]:
             raise IngestError("not a glTF JSON file: no 'asset' object")
         return _gltf_resources(path, doc)
     if suffix == ".obj":
-        return _obj_resources(path)
+        return _obj_resources(path, warnings)
     return {}
 
 
@@ -303,10 +332,12 @@ def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> Norm
         parts = _load_trimesh(path)
         scale, units, up = 1.0, "m", up_axis.upper()
     elif suffix in (".obj", ".ply", ".stl"):
-        if units not in UNIT_SCALE:
-            raise IngestError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)})")
+        try:
+            scale = unit_scale(units)
+        except ValueError as exc:
+            raise IngestError(str(exc)) from None
         parts = _load_trimesh(path)
-        scale, up = UNIT_SCALE[units], up_axis.upper()
+        up = up_axis.upper()
     else:
         raise IngestError(f"unsupported model format {suffix or '(no extension)'}")
     if not parts.faces:
@@ -400,8 +431,13 @@ def analyse_model(
     units: str,
     up_axis: str,
     proxy_max_vertices: int,
+    collision_source: str | None = None,
 ) -> dict[str, Any]:
-    """Worker entry point: all facts of one model as a plain dict (raises IngestError)."""
+    """Worker entry point: all facts of one model as a plain dict (raises IngestError).
+
+    ``collision_source``: a collision mesh shipped beside the model (``mug_col.obj``, ``duck_vhacd.obj``),
+    read in the model's frame; the collision mesh and proxy are built from it instead of the visual mesh
+    when its box agrees with the model's (:func:`_companion_collision`)."""
     path = Path(model_path)
     norm = load_normalised(path, units=units, up_axis=up_axis)
     mesh = norm.mesh
@@ -409,11 +445,17 @@ def analyse_model(
     dims = mesh.extents
     watertight = bool(mesh.is_watertight)
     volume = float(abs(mesh.volume)) if watertight else None
-    collision = Path(collision_dir) / f"{ghash[:32]}_{int(face_budget)}.ply"
-    collision_faces = build_collision_mesh(mesh, collision, int(face_budget))
+    source_mesh, used, key = mesh, None, ghash
+    if collision_source:
+        companion = _companion_collision(mesh, Path(collision_source), units=units, up_axis=up_axis)
+        if companion is not None:
+            source_mesh, used = companion, str(Path(collision_source).resolve())
+            key = hashlib.sha256(f"{ghash}|{geometry_hash(companion)}".encode()).hexdigest()
+    collision = Path(collision_dir) / f"{key[:32]}_{int(face_budget)}.ply"
+    collision_faces = build_collision_mesh(source_mesh, collision, int(face_budget))
     from mixcount.catalog.proxies import proxy_from_collision
 
-    proxy = proxy_from_collision(collision, ghash, Path(collision_dir), int(proxy_max_vertices))
+    proxy = proxy_from_collision(collision, key, Path(collision_dir), int(proxy_max_vertices))
     facts = MeshFacts(
         source_units=norm.source_units,
         source_up_axis=norm.source_up_axis,
@@ -434,4 +476,17 @@ def analyse_model(
         proxy_path=proxy.path,
         proxy_vertex_count=proxy.vertex_count,
     )
-    return facts.as_dict()
+    return {**facts.as_dict(), "collision_source": used}
+
+
+def _companion_collision(mesh: Any, path: Path, *, units: str, up_axis: str) -> Any | None:
+    """The collision companion in the model's frame, or None when it does not load or its box is not
+    the model's (within 25 % of the largest extent: a companion of another scale or pose is not used)."""
+    try:
+        companion = load_normalised(path, units=units, up_axis=up_axis).mesh
+    except IngestError:
+        return None
+    size = float(max(mesh.extents.max(), 1e-12))
+    if np.abs(np.asarray(companion.bounds) - np.asarray(mesh.bounds)).max() > 0.25 * size:
+        return None
+    return companion

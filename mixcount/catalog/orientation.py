@@ -1,0 +1,99 @@
+"""Which way is up, and why: the up axis of every ingested object with the reason it was chosen.
+
+Formats that carry an up axis keep it (glTF's Y by the specification, USD's ``upAxis``). For the rest
+(OBJ/PLY/STL) the evidence is taken in this order, the first that speaks decides:
+
+1. ``up_axis`` in the object's ``metadata.json`` (or a layout's convention: OmniObject3D, GSO);
+2. ``catalog ingest --up-axis`` for the folders given, kept in the catalog (table ``source_folders``):
+   a later ingest of the folder, or of a folder inside it, without the option keeps it; ``--up-axis
+   auto`` forgets it;
+3. a URDF/SDF beside the mesh (robot and simulator bodies are Z-up; the visual's ``rpy`` says which mesh
+   axis it turns up: :mod:`mixcount.catalog.layouts.companions`);
+4. an STL is Z-up (CAD and 3D-printing tools write Z-up);
+5. ``ingest.assume_up_axis``.
+
+glTF files use rule 1 and 2 only (their specification is rule 6). The chosen axis and its reason are
+recorded in the object's ingest info (``up_axis_reason``, ``catalog show``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from mixcount.catalog.layouts import Candidate
+from mixcount.catalog.models import SourceFolder, utcnow
+from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
+
+
+def remember_up_axis(session: Session, paths: list[Path], up_axis: str | None) -> None:
+    """Record (or with None forget) the up axis stated for these folders; commits."""
+    for path in paths:
+        key = os.path.abspath(path)
+        row = session.scalars(select(SourceFolder).where(SourceFolder.path == key)).one_or_none()
+        if up_axis is None:
+            if row is not None:
+                session.delete(row)
+            continue
+        if row is None:
+            row = SourceFolder(path=key)
+            session.add(row)
+        row.up_axis, row.updated_at = up_axis, utcnow()
+    session.commit()
+
+
+def forget_inside(session: Session, paths: list[Path]) -> None:
+    """``--up-axis auto``: forget the stated axis of these folders and of every folder inside them."""
+    keys = [os.path.abspath(p) for p in paths]
+    for row in session.scalars(select(SourceFolder)).all():
+        if any(row.path == k or row.path.startswith(k.rstrip(os.sep) + os.sep) for k in keys):
+            session.delete(row)
+    session.commit()
+
+
+def folder_axes(session: Session) -> list[tuple[str, str]]:
+    """(folder, up axis) of every remembered folder, the deepest first."""
+    rows = session.scalars(select(SourceFolder).where(SourceFolder.up_axis.is_not(None))).all()
+    return sorted(((r.path, str(r.up_axis)) for r in rows), key=lambda t: -len(t[0]))
+
+
+def _stated_for(model: Path, axes: list[tuple[str, str]]) -> tuple[str, str] | None:
+    where = os.path.abspath(model)
+    for folder, axis in axes:
+        if where.startswith(folder.rstrip(os.sep) + os.sep):
+            return folder, axis
+    return None
+
+
+def choose_up_axis(cand: Candidate, *, stated_now: str | None, axes: list[tuple[str, str]],
+                   assume: str) -> None:
+    """Set ``cand.up_axis`` and ``cand.up_reason`` by the rules of the module docstring."""
+    if cand.model_path is None or cand.error:
+        return
+    model = Path(cand.metadata.get("source_model_path") or cand.model_path)
+    suffix = model.suffix.lower()
+    described = cand.up_reason is not None  # set by the layout from a URDF/SDF (rule 3)
+    if cand.up_axis and not described:
+        cand.up_reason = cand.up_reason or "stated in the object's metadata"
+        return
+    folder = _stated_for(model, axes)
+    if stated_now:
+        cand.up_axis, cand.up_reason = stated_now, "catalog ingest --up-axis"
+        return
+    if folder is not None:
+        cand.up_axis = folder[1]
+        cand.up_reason = f"--up-axis {folder[1]} stated earlier for {folder[0]}"
+        return
+    if described:
+        return
+    if suffix in GLTF_EXTENSIONS:
+        cand.up_axis, cand.up_reason = None, f"glTF specification ({GLTF_UP_AXIS}-up)"
+    elif suffix == ".stl":
+        cand.up_axis, cand.up_reason = "Z", "STL: CAD and 3D-printing tools write Z-up"
+    elif suffix in (".obj", ".ply"):
+        cand.up_axis, cand.up_reason = None, f"ingest.assume_up_axis ({assume})"
+    else:
+        cand.up_reason = "stated by the file"
