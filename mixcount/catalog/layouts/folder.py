@@ -2,8 +2,8 @@
 aside: ``mug_col.obj``, ``duck_vhacd.obj``, ``chair_lod1.obj``, :mod:`.companions`), or a ``metadata.json``
 describing one object, or a URDF/SDF naming one of its meshes, is one object: ``metadata.json`` gives
 name, category, licence, units and up axis; without it the object takes the folder's name (the name a
-person wrote: ``red_mug/mug.obj`` is "red_mug", category mug), except in the folder given to ingest itself,
-and in folders whose name sorts files (``models/``, ``meshes/``: ``GENERIC_FOLDERS``), where only a
+person wrote: ``red_mug/mug.obj`` is "red_mug", category mug), except in the folder given to ingest itself
+when it holds neither companions nor a URDF/SDF, and in folders whose name sorts files (``models/``, ``meshes/``: ``GENERIC_FOLDERS``), where only a
 generic file name (``model.glb``) takes the folder's name. A URDF/SDF beside the model gives
 its scale (units) and up axis. Otherwise each model file is an object of its own (:func:`read_file`),
 after the Objaverse reading had its turn."""
@@ -119,7 +119,10 @@ def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], r
         cand.error = meta_error
         return cand
     generic = re.sub(r"[\d_\-\s]+$", "", model.stem).lower() in GENERIC_STEMS
-    if generic or (folder != ctx.root and folder.name.strip().lower() not in GENERIC_FOLDERS):
+    # the folder given to ingest names its model only when it is clearly one object's folder (it holds
+    # companions or a URDF/SDF): a folder of loose files keeps its files' names
+    named_folder = folder != ctx.root or bool(companions) or desc is not None
+    if generic or (named_folder and folder.name.strip().lower() not in GENERIC_FOLDERS):
         cand.name = safe_text(folder.name)
         cand.category = category_from_name(folder.name, category_from_stem(folder.name, folder.parent.name))
     elif desc is not None and desc.name:
