@@ -57,11 +57,12 @@ class RobotDescription:
 
     def units(self) -> str | None:
         """The units the scale amounts to (metres per mesh unit, as :func:`mixcount.frame.unit_scale`
-        reads it): ``m`` for 1, else the factor; the mean of a non-uniform scale."""
-        mean = float(np.mean(self.scale))
-        if not math.isfinite(mean) or mean <= 0:
+        reads it): ``m`` for 1, else the factor; None for an uneven or unusable scale (a model has one
+        scale in the catalog: an uneven one is reported, not applied)."""
+        lo, hi = min(self.scale), max(self.scale)
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0 or hi - lo > 1e-9 * hi:
             return None
-        return "m" if abs(mean - 1.0) < 1e-9 else f"{mean:g}"
+        return "m" if abs(hi - 1.0) < 1e-9 else f"{hi:g}"
 
 
 def _floats(text: str | None, n: int) -> tuple[float, ...] | None:
@@ -135,7 +136,7 @@ def read_description(path: Path) -> RobotDescription | None:
         desc.scale = (scale[0], scale[1], scale[2])
         if max(scale) - min(scale) > 1e-9 * max(abs(max(scale)), 1.0):
             desc.warnings.append(f"{path.name} scales the mesh unevenly ({scale_text.strip()}): "  # type: ignore[union-attr]
-                                 "the mean is used")
+                                 "not applied (state the units in a metadata.json beside it)")
     rpy = _floats(rpy_text, 3) or (0.0, 0.0, 0.0)
     desc.up_axis = up_axis_of_rpy(rpy)
     if desc.up_axis is None:
