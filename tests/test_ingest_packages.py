@@ -58,6 +58,10 @@ def test_package_folders_ingest_named_upright_and_whole(package_library, catalog
     assert "URDF" in json.loads(objs["red_mug"].metadata_json)["ingest"]["up_axis_reason"]
     assert "STL" in json.loads(objs["Gripper finger"].metadata_json)["ingest"]["up_axis_reason"]
     assert objs["Sugar cube"].source_units == "0.02"  # the URDF's scale
+    # textures found by name (../cube.png, a Windows path) are used: the model is staged with its .mtl
+    # rewritten to name them, so the loaders see the image; a missing one leaves a default material
+    assert objs["Dice"].textured and objs["red_mug"].textured and objs["Rubber duck"].textured
+    assert not objs["Jenga block"].textured and not objs["Sugar cube"].textured
     assert "cube.mtl" in " ".join(w for n, w in summary.warnings if n == "Sugar cube")
 
     # a second ingest changes nothing

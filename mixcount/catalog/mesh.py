@@ -169,6 +169,54 @@ def _obj_resources(path: Path, warnings: list[str] | None) -> dict[str, Path]:
     return out
 
 
+@dataclass
+class Relinked:
+    """An OBJ whose material names textures that are not where it points but are found by name: the
+    rewritten material files (by name) and the texture files they now name (by file name)."""
+
+    materials: dict[str, str]
+    textures: dict[str, Path]
+    notes: list[str]
+
+
+def relink_textures(path: Path) -> Relinked | None:
+    """For an OBJ whose textures are found only by name (``../cube.png``, ``E:\\data\\table.png``):
+    its materials rewritten to name them by file name, so that every loader (trimesh, Blender's importer)
+    finds them when the model is staged beside them; None when nothing needs it."""
+    if path.suffix.lower() != ".obj":
+        return None
+    try:
+        text = path.read_text(errors="replace")
+    except OSError:
+        return None
+    out = Relinked({}, {}, [])
+    moved = False
+    for line in text.splitlines():
+        if not line.startswith("mtllib"):
+            continue
+        name = line[len("mtllib"):].strip()
+        mtl = path.parent / name
+        if not name or not mtl.is_file():
+            continue
+        lines = []
+        for mline in mtl.read_text(errors="replace").splitlines():
+            match = _MTL_MAP.match(mline)
+            if match:
+                tex = match.group(2).split()[-1]
+                ref, where = _texture_file(tex, mtl, path)
+                if ref is not None:
+                    if not where:
+                        moved = True
+                        out.notes.append(f"texture {tex} found by name in the folder, not where {name} points "
+                                         "(used from the folder)")
+                    out.textures[ref.name] = ref  # every texture by its file name, beside the rewritten .mtl
+                    cut = mline.rindex(tex)
+                    mline = mline[:cut] + ref.name + mline[cut + len(tex):]
+            lines.append(mline)
+        out.materials[name] = "\n".join(lines) + "\n"
+    return out if moved else None
+
+
 def model_resources(path: Path, warnings: list[str] | None = None) -> dict[str, Path]:
     """Files a model pulls in besides itself (buffers, textures, materials), by their reference name.
 

@@ -51,7 +51,7 @@ class RobotDescription:
     name: str | None
     visual: str | None  # mesh file name of the first visual, as written
     collision: str | None  # mesh file name of the first collision mesh
-    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    mesh_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     up_axis: str | None = None  # the mesh axis the description turns to +Z (X, Y or Z), None if none is
     warnings: list[str] = field(default_factory=list)
 
@@ -59,7 +59,7 @@ class RobotDescription:
         """The units the scale amounts to (metres per mesh unit, as :func:`mixcount.frame.unit_scale`
         reads it): ``m`` for 1, else the factor; None for an uneven or unusable scale (a model has one
         scale in the catalog: an uneven one is reported, not applied)."""
-        lo, hi = min(self.scale), max(self.scale)
+        lo, hi = min(self.mesh_scale), max(self.mesh_scale)
         if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0 or hi - lo > 1e-9 * hi:
             return None
         return "m" if abs(hi - 1.0) < 1e-9 else f"{hi:g}"
@@ -133,7 +133,7 @@ def read_description(path: Path) -> RobotDescription | None:
     desc = RobotDescription(path, name, _file_name(visual_uri), _file_name(collision_uri))
     scale = _floats(scale_text, 3)
     if scale is not None:
-        desc.scale = (scale[0], scale[1], scale[2])
+        desc.mesh_scale = (scale[0], scale[1], scale[2])
         if max(scale) - min(scale) > 1e-9 * max(abs(max(scale)), 1.0):
             desc.warnings.append(f"{path.name} scales the mesh unevenly ({scale_text.strip()}): "  # type: ignore[union-attr]
                                  "not applied (state the units in a metadata.json beside it)")

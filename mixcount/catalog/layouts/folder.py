@@ -98,7 +98,7 @@ def _attach(cand: Candidate, companions: dict[str, Path], desc: RobotDescription
     if desc is None:
         return
     cand.sidecars[f"description:{desc.path.name}"] = desc.path
-    cand.metadata["description"] = {"file": desc.path.name, "name": desc.name, "scale": list(desc.scale)}
+    cand.metadata["description"] = {"file": desc.path.name, "name": desc.name, "scale": list(desc.mesh_scale)}
     cand.warnings.extend(desc.warnings)
     units = desc.units()
     if units is not None and not cand.units:
