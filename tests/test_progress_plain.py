@@ -1,0 +1,41 @@
+"""Progress where stderr is not a terminal (issue 52): plain lines at the first step, at most every
+interval (a clock given by the test, no timing), and at the end; the CLI's reporter uses them when its
+console is not a terminal (``catalog render`` into a log file showed nothing for minutes)."""
+
+from __future__ import annotations
+
+import io
+
+from rich.console import Console
+
+from mixcount.commands.common import RichProgress
+from mixcount.progress import PlainProgress
+
+
+def test_plain_lines_first_periodic_and_last():
+    now = [100.0]
+    out = io.StringIO()
+    bar = PlainProgress(out, interval_s=10.0, clock=lambda: now[0])
+    bar.start("render", 5)
+    for step in range(5):
+        now[0] += 4.0  # 4 s a step: lines at steps 1 and 4 (12 s after the first), then the end
+        bar.advance(info=f"obj {step}")
+    bar.note("one failed")
+    bar.stop()
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "render: 1/5 (20 %), elapsed 0:00:04, ETA 0:00:16 obj 0"
+    assert lines[1].startswith("render: 4/5 (80 %), elapsed 0:00:16, ETA 0:00:04")
+    assert lines[2] == "one failed"
+    assert lines[3] == "render: 5/5 (100 %), elapsed 0:00:20 obj 4"
+    assert len(lines) == 4
+
+
+def test_cli_reporter_prints_plain_lines_when_not_a_terminal():
+    out = io.StringIO()
+    bar = RichProgress(Console(file=out, force_terminal=False))
+    bar.start("ingest", 2)
+    bar.advance()
+    bar.advance()
+    bar.stop()
+    text = out.getvalue()
+    assert "ingest: 1/2 (50 %)" in text and "ingest: 2/2 (100 %)" in text
