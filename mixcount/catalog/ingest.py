@@ -45,9 +45,9 @@ from mixcount.catalog.models import (
     IngestRun,
     utcnow,
 )
+from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
 from mixcount.catalog.orientation import choose_up_axis, folder_axes, forget_inside, remember_up_axis
 from mixcount.catalog.stale import Before, invalidate
-from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
 from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS, UP_AXES

@@ -17,6 +17,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Iterable, Iterator
 
+from mixcount.atomic import write_text_atomic
 from mixcount.catalog.layouts import folder as folder_layout
 from mixcount.catalog.layouts import objaverse
 from mixcount.catalog.layouts.walker import (
@@ -27,7 +28,6 @@ from mixcount.catalog.layouts.walker import (
     _scan,
     broken_path_candidate,
 )
-from mixcount.atomic import write_text_atomic
 from mixcount.catalog.mesh import MESH_EXTENSIONS, relink_textures
 from mixcount.catalog.naming import DTC_NAME, odd_name_reason, safe_text
 from mixcount.errors import CatalogError
