@@ -64,6 +64,14 @@ def test_package_folders_ingest_named_upright_and_whole(package_library, catalog
     assert not objs["Jenga block"].textured and not objs["Sugar cube"].textured
     assert "cube.mtl" in " ".join(w for n, w in summary.warnings if n == "Sugar cube")
 
+    # catalog show --json / list --json carry the reason, the warnings and the collision companion
+    from mixcount.catalog.records import object_record
+
+    with catalog.session() as s:
+        record = object_record(s, s.get(CatalogObject, objs["red_mug"].id), caption_warnings=None)
+    assert "URDF mug.urdf" in record["up_axis_reason"] and record["collision_source"].endswith("mug_col.obj")
+    assert any("found by name" in w for w in record["ingest_warnings"])
+
     # a second ingest changes nothing
     again = ingest_paths(catalog, [package_library], config=config)
     assert (again.new, again.updated, again.broken, again.unchanged) == (0, 0, 0, len(EXPECTED))

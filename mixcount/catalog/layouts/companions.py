@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 # collision companions: mug_col, duck_vhacd, teddy2_VHACD_CHs, l_finger_collision, cube_collisionfilter
-_COLLISION = re.compile(r"(^|[_\-\s.])(col|coll|collider|collision\w*|vhacd\w*|convex|hull|phys|physics)$"
+_COLLISION = re.compile(r"[_\-\s.](col|coll|collider|collision\w*|vhacd\w*|convex|hull|phys|physics)$"
                         r"|vhacd|collision", re.IGNORECASE)
 # levels of detail other than the first: chair_lod1, chair_LOD2, chair-lod_3 (lod0 is the model itself)
 _LOD = re.compile(r"[_\-\s.]lod[_\-]?([1-9]\d*)$", re.IGNORECASE)
