@@ -76,7 +76,8 @@ PYBULLET_FOLDERS = {
     "Torus": ["torus/torus_textured.obj", "torus/torus_textured.mtl", "cube.png"],  # its .mtl says ../cube.png
     "Toy box": ["toys/concave_box.obj", "toys/concave_box.mtl", "toys/concave_box.urdf", "checker_grid.jpg"],
     "Random shape": ["random_urdfs/000/000.obj", "random_urdfs/000/000.mtl", "random_urdfs/000/000.urdf"],
-    "Odd block": ["random_urdfs/001/001.obj", "random_urdfs/001/001.mtl", "random_urdfs/001/001.urdf"],
+    # its .mtl names E:\\develop\\bullet3\\data\\table\\table.png; the user copied table.png beside it
+    "Shape sorter": ["toys/shape_sorter.obj", "toys/shape_sorter.mtl", "table/table.png"],
     "Square table": ["table_square/table.obj", "table_square/table.mtl", "table_square/checker_grid.jpg",
                      "table_square/table_square.urdf"],
 }
@@ -148,7 +149,8 @@ def run_pybullet(args: argparse.Namespace) -> int:
                                  "file": Path(o.model_path).name, "up_axis": o.source_up_axis,
                                  "up_axis_reason": info.get("up_axis_reason"), "units": o.source_units,
                                  "dims_m": [round(d, 4) for d in o.dims] if o.dim_x is not None else None,
-                                 "flags": kinds, "collision_companion": bool(info.get("collision_source"))})
+                                 "flags": kinds, "warnings": info.get("warnings") or [],
+                                 "collision_companion": bool(info.get("collision_source"))})
         finally:
             catalog.close()
     result = {
