@@ -114,6 +114,7 @@ def test_cli_reports_warnings_and_reorientation(tmp_path):
     res = cli(str(lib / "Sugar cube"), str(lib / "Kitchen chair"), "--up-axis", "Y")
     assert res.returncode == 0, res.stderr
     assert "warning: Sugar cube: missing material file: cube.mtl" in res.stderr
+    assert "ingest: 2/2 (100 %)" in res.stderr  # progress as plain lines: stderr is not a terminal here
     res = cli(str(lib / "Sugar cube"), str(lib / "Kitchen chair"), "--up-axis", "auto", "--json")
     assert res.returncode == 0, res.stderr
     assert "re-oriented Kitchen chair: up axis Y -> Z" in res.stderr
