@@ -41,16 +41,16 @@ from mixcount.catalog.models import (
     STATUS_BROKEN,
     STATUS_EXCLUDED,
     CatalogObject,
-    Flag,
     IngestRun,
     utcnow,
 )
 from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
-from mixcount.catalog.orientation import choose_up_axis, folder_axes, forget_inside, remember_up_axis
-from mixcount.catalog.stale import Before, invalidate
+from mixcount.catalog.orientation import check_up_axis, orient  # noqa: F401  (check_up_axis re-exported)
+from mixcount.catalog.stale import Before, StoreContext, invalidate
+from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  # noqa: F401  (re-exported)
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
-from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS, UP_AXES
+from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
 from mixcount.progress import ProgressReporter, as_reporter
 
 # Fact columns copied from the analysis dict onto the row.
@@ -212,36 +212,6 @@ def _apply_identity(obj: CatalogObject, prep: Prepared, run_id: int | None, inge
     obj.updated_at = utcnow()
 
 
-@dataclass
-class StoreContext:
-    """Where :func:`_store` reports changes and finds the files derived from an object."""
-
-    summary: IngestSummary
-    renders_dir: Path
-    descriptors_dir: Path
-
-
-# flags ingest writes itself: what it tolerated in a model's files (filter keeps them; a change rewrites them)
-INGEST_FLAG_KINDS = ("missing_material", "missing_texture", "ingest_note")
-
-
-def _warning_kind(warning: str) -> str:
-    if warning.startswith("missing material file"):
-        return "missing_material"
-    if warning.startswith("missing texture file"):
-        return "missing_texture"
-    return "ingest_note"
-
-
-def _write_warning_flags(session: Session, obj: CatalogObject, warnings: list[str]) -> None:
-    """The object's ingest flags, one per tolerated problem (a mesh_quality-like warning: it stays active)."""
-    for flag in session.scalars(select(Flag).where(Flag.object_id == obj.id, Flag.kind.in_(INGEST_FLAG_KINDS))):
-        session.delete(flag)
-    for warning in warnings:
-        kind = _warning_kind(warning)
-        session.add(Flag(object_id=obj.id, kind=kind, score=0.5 if kind == "ingest_note" else 1.0, reason=warning))
-
-
 def _same_identity(obj: CatalogObject, cand: Candidate) -> bool:
     return obj.name == cand.name and obj.category == cand.category
 
@@ -303,7 +273,7 @@ def _store(
                 ctx.summary.reoriented.append((obj.name, str(old_up), str(new_up), cand.up_reason or ""))
         if not error:
             session.flush()
-            _write_warning_flags(session, obj, cand.warnings)
+            write_warning_flags(session, obj, cand.warnings)
         try:
             session.commit()
             return outcome
@@ -342,16 +312,6 @@ def _facts_of(obj: CatalogObject) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- the run
-
-
-def check_up_axis(value: str | None) -> str | None:
-    """``--up-axis`` checked: X, Y or Z (upper case), None for ``auto`` or nothing; IngestError otherwise."""
-    if value is None or value.strip().lower() == "auto":
-        return None
-    up = value.strip().upper()
-    if up not in UP_AXES:
-        raise IngestError(f"unknown up axis {value!r}: give X, Y, Z or auto")
-    return up
 
 
 def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict[str, Any]) -> dict[str, Any]:
@@ -400,23 +360,17 @@ def ingest_paths(
     ``auto``: each file's own rule) is the up axis of every object whose metadata or layout states none,
     glTF included (docs/ingest.md, "Units and up axis").
     """
-    stated_up = check_up_axis(up_axis)
     paths = list(paths)
     candidates = discover(paths, layout=layout, metadata_files=metadata_files)
     ing = config.ingest
-    folders = [Path(p).expanduser().resolve() for p in paths]
-    with catalog.session() as session:
-        if stated_up:
-            remember_up_axis(session, [f if f.is_dir() else f.parent for f in folders], stated_up)
-        elif up_axis is not None:  # "auto": forget what was stated for these folders
-            forget_inside(session, [f if f.is_dir() else f.parent for f in folders])
-        axes = folder_axes(session)
     for cand in candidates:
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units
             if not cand.up_axis:
                 cand.up_axis, cand.up_reason = ing.omniobject3d_up_axis, "ingest.omniobject3d_up_axis"
-        choose_up_axis(cand, stated_now=stated_up, axes=axes, assume=ing.assume_up_axis)
+    with catalog.session() as session:
+        orient(session, candidates, paths, up_axis, assume=ing.assume_up_axis)
+    for cand in candidates:
         layouts.stage(cand, catalog.staged_dir)
     settings = settings_of(ing)
     max_vertices = proxy_budget(ing)

@@ -26,11 +26,36 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog.layouts import Candidate
 from mixcount.catalog.models import SourceFolder, utcnow
-from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
+from mixcount.errors import IngestError
+from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS, UP_AXES
+
+
+def check_up_axis(value: str | None) -> str | None:
+    """``--up-axis`` checked: X, Y or Z (upper case), None for ``auto`` or nothing; IngestError otherwise."""
+    if value is None or value.strip().lower() == "auto":
+        return None
+    up = value.strip().upper()
+    if up not in UP_AXES:
+        raise IngestError(f"unknown up axis {value!r}: give X, Y, Z or auto")
+    return up
+
+
+def orient(session: Session, candidates: list[Candidate], paths: list, up_axis: str | None, *, assume: str) -> None:
+    """Remember (``--up-axis X|Y|Z``) or forget (``auto``) the stated axis for ``paths``, then choose every
+    candidate's up axis and reason (:func:`choose_up_axis`); commits."""
+    stated = check_up_axis(up_axis)
+    given = [Path(p).expanduser().resolve() for p in paths]
+    if stated:
+        remember_up_axis(session, given, stated)
+    elif up_axis is not None:  # "auto": forget what was stated for these paths
+        forget_inside(session, given)
+    axes = folder_axes(session)
+    for cand in candidates:
+        choose_up_axis(cand, stated_now=stated, axes=axes, assume=assume)
 
 
 def remember_up_axis(session: Session, paths: list[Path], up_axis: str | None) -> None:
-    """Record (or with None forget) the up axis stated for these folders; commits."""
+    """Record (or with None forget) the up axis stated for these paths (folders or model files); commits."""
     for path in paths:
         key = os.path.abspath(path)
         row = session.scalars(select(SourceFolder).where(SourceFolder.path == key)).one_or_none()
@@ -61,9 +86,10 @@ def folder_axes(session: Session) -> list[tuple[str, str]]:
 
 
 def _stated_for(model: Path, axes: list[tuple[str, str]]) -> tuple[str, str] | None:
+    """The remembered (path, axis) that covers ``model``: the model file itself or a folder above it."""
     where = os.path.abspath(model)
     for folder, axis in axes:
-        if where.startswith(folder.rstrip(os.sep) + os.sep):
+        if where == folder or where.startswith(folder.rstrip(os.sep) + os.sep):
             return folder, axis
     return None
 

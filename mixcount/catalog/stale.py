@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
@@ -23,6 +24,16 @@ from mixcount.catalog.models import CaptionFailure, CaptionSet, CatalogObject, F
 
 # what a change is made of: the columns whose old value derived data was computed from
 WATCHED = ("content_hash", "geometry_hash", "source_units", "source_up_axis", "name", "category")
+
+
+@dataclass
+class StoreContext:
+    """Where ingest's store step reports changes (``summary``: its ``IngestSummary``, whose ``invalidated``
+    and ``reoriented`` lists it appends to) and finds the files derived from an object."""
+
+    summary: Any
+    renders_dir: Path
+    descriptors_dir: Path
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,8 @@ from mixcount.catalog.layouts.walker import (
     _scan,
     broken_path_candidate,
 )
-from mixcount.catalog.mesh import MESH_EXTENSIONS, relink_textures
+from mixcount.catalog.mesh import MESH_EXTENSIONS
+from mixcount.catalog.model_files import relink_textures
 from mixcount.catalog.naming import DTC_NAME, odd_name_reason, safe_text
 from mixcount.errors import CatalogError
 
@@ -202,7 +203,7 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
 
 def _relink(cand: Candidate) -> None:
     """An OBJ whose textures are found only by name is staged with its materials rewritten to name them
-    (:func:`mixcount.catalog.mesh.relink_textures`), so that analysis, renders and USD all see them."""
+    (:func:`mixcount.catalog.model_files.relink_textures`), so that analysis, renders and USD all see them."""
     assert cand.model_path is not None
     relinked = relink_textures(cand.model_path)
     if relinked is None:
