@@ -120,3 +120,29 @@ def test_cli_reports_warnings_and_reorientation(tmp_path):
     assert "re-oriented Kitchen chair: up axis Y -> Z" in res.stderr
     summary = json.loads(res.stdout)
     assert {r["name"] for r in summary["reoriented"]} == {"Kitchen chair", "Sugar cube"}
+
+
+def test_a_container_read_lying_is_stood_up_by_its_opening(tmp_path, catalog):
+    """An OBJ bowl modelled Z-up with nothing beside it is read Y-up (ingest.assume_up_axis) and so lies on
+    its side; its opening faces +Z of the file, so ingest measures it again Z-up, says why, and a rerun
+    keeps it (unchanged). A closed box is left as the rule reads it."""
+    import trimesh
+
+    cyl = trimesh.creation.cylinder(radius=0.08, height=0.06, sections=48)
+    bowl = trimesh.Trimesh(cyl.vertices, cyl.faces[cyl.face_normals[:, 2] < 0.9])  # open towards +Z
+    (tmp_path / "lib" / "Salad bowl").mkdir(parents=True)
+    bowl.export(tmp_path / "lib" / "Salad bowl" / "bowl.obj")
+    (tmp_path / "lib" / "Shoe box").mkdir()
+    trimesh.creation.box(extents=(0.3, 0.2, 0.1)).export(tmp_path / "lib" / "Shoe box" / "box.obj")
+    config = load_config([], ["ingest.workers=1", "ingest.assume_up_axis=Y"])
+    summary = ingest_paths(catalog, [tmp_path / "lib"], config=config)
+    assert (summary.new, summary.broken) == (2, 0)
+    objs, _ = _objects(catalog)
+    stood = objs["Salad bowl"]
+    assert stood.container and stood.source_up_axis == "Z"
+    assert stood.dims == pytest.approx((0.16, 0.16, 0.06), abs=1e-3)
+    assert json.loads(stood.metadata_json)["ingest"]["up_axis_reason"].startswith("its opening faces +Z")
+    assert summary.container_warnings == [] and not summary.invalidated
+    assert objs["Shoe box"].source_up_axis == "Y"
+    again = ingest_paths(catalog, [tmp_path / "lib"], config=config)
+    assert (again.unchanged, again.updated, again.reoriented) == (2, 0, [])

@@ -45,7 +45,13 @@ from mixcount.catalog.models import (
     utcnow,
 )
 from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
-from mixcount.catalog.orientation import check_up_axis, orient  # noqa: F401  (check_up_axis re-exported)
+from mixcount.catalog.orientation import (  # noqa: F401  (check_up_axis re-exported)
+    check_up_axis,
+    kept_evidence,
+    orient,
+    turn_by_openings,
+)
+from mixcount.catalog.proxies import refresh_proxy
 from mixcount.catalog.stale import Before, StoreContext, invalidate
 from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  # noqa: F401  (re-exported)
 from mixcount.config import Config, IngestConfig
@@ -284,24 +290,6 @@ def _store(
     raise AssertionError("unreachable")
 
 
-def refresh_proxy(session: Session, obj: CatalogObject, collision_dir: Path, max_vertices: int) -> bool:
-    """Build the collision proxy of an already-ingested object from its stored collision mesh when it has
-    none (a catalog from before proxies) or one of another budget; updates the row in place (same id,
-    no re-analysis). Returns whether it wrote. A failure leaves the row without proxy: the compositor
-    then collides through the full mesh's hull, as before proxies existed."""
-    from mixcount.catalog.proxies import is_current, proxy_from_collision
-
-    if is_current(obj.proxy_path, max_vertices) or not obj.collision_path or not obj.geometry_hash:
-        return False
-    try:
-        facts = proxy_from_collision(obj.collision_path, obj.geometry_hash, collision_dir, max_vertices)
-    except IngestError:
-        return False
-    obj.proxy_path, obj.proxy_vertex_count = facts.path, facts.vertex_count
-    session.commit()
-    return True
-
-
 def _facts_of(obj: CatalogObject) -> dict[str, Any]:
     facts = {key: getattr(obj, key) for key in FACT_FIELDS}
     info = _ingest_info(obj)
@@ -403,8 +391,10 @@ def ingest_paths(
         with catalog.session() as session:
             known = _existing_rows(session, candidates)
             for cand in candidates:
-                prep = prepare(cand, settings=settings, max_bytes=max_bytes)
                 existing = known.get((cand.source, cand.source_id))
+                if existing is not None:
+                    kept_evidence(cand, existing.source_up_axis, _ingest_info(existing).get("up_axis_reason"))
+                prep = prepare(cand, settings=settings, max_bytes=max_bytes)
                 if prep.error:
                     if (existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error
                             and _same_identity(existing, cand)):
@@ -437,6 +427,15 @@ def ingest_paths(
                 _analyse_all(session, pending, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
                              n_workers, ctx, count, bar)
             summary.containers = refresh_containers(session, config).containers
+            turned = turn_by_openings(session, candidates, assume=ing.assume_up_axis)
+            if turned:  # containers read by ingest.assume_up_axis whose opening faces another axis of the file
+                fresh = {c.name for c in turned if (c.source, c.source_id) not in known}
+                mark = len(summary.invalidated)
+                again = [prepare(c, settings=settings, max_bytes=max_bytes) for c in turned]
+                _analyse_all(session, again, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
+                             1, ctx, lambda *_a, **_k: None, as_reporter(None))
+                summary.invalidated[mark:] = [e for e in summary.invalidated[mark:] if e[0] not in fresh]
+                summary.containers = refresh_containers(session, config).containers
             summary.container_warnings = opening_warnings(session)
         status = "done"
     finally:

@@ -10,7 +10,9 @@ Formats that carry an up axis keep it (glTF's Y by the specification, USD's ``up
 3. a URDF/SDF beside the mesh (robot and simulator bodies are Z-up; the visual's ``rpy`` says which mesh
    axis it turns up: :mod:`mixcount.catalog.layouts.companions`);
 4. an STL is Z-up (CAD and 3D-printing tools write Z-up);
-5. ``ingest.assume_up_axis``.
+5. ``ingest.assume_up_axis``; then, for an OBJ/PLY container (tray, bowl) read by that rule whose opening
+   faces another positive axis of the file (:func:`opening_up_axis`), that axis: a container opens
+   upward. Ingest measures it again in that frame, and a later ingest keeps it (:func:`kept_evidence`).
 
 glTF files use rule 1 and 2 only (their specification is rule 6). The chosen axis and its reason are
 recorded in the object's ingest info (``up_axis_reason``, ``catalog show``).
@@ -25,7 +27,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from mixcount.catalog.layouts import Candidate
-from mixcount.catalog.models import SourceFolder, utcnow
+from mixcount.catalog.models import STATUS_ACTIVE, CatalogObject, SourceFolder, utcnow
 from mixcount.errors import IngestError
 from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS, UP_AXES
 
@@ -38,6 +40,58 @@ def check_up_axis(value: str | None) -> str | None:
     if up not in UP_AXES:
         raise IngestError(f"unknown up axis {value!r}: give X, Y, Z or auto")
     return up
+
+
+OPENING_REASON = "its opening faces +{axis} of the file (a container opens upward)"
+
+
+def opening_up_axis(collision_path: str, up: str) -> str | None:
+    """The file axis (X, Y, Z) a container's opening faces, when it is a positive axis other than ``up``
+    (the axis the collision mesh was read with), else None. The collision mesh is in the catalog's Z-up
+    frame: the opening's direction is turned back into the file's frame."""
+    import numpy as np
+
+    from mixcount.catalog.containers import OPENING_UP_MIN_Z, opening_direction
+    from mixcount.frame import up_axis_rotation
+
+    try:
+        vec = opening_direction(collision_path)
+    except Exception:  # an unreadable collision mesh: no evidence (reported elsewhere)
+        return None
+    if vec is None or vec[2] >= OPENING_UP_MIN_Z:
+        return None
+    in_file = up_axis_rotation(up).T @ np.asarray(vec)
+    k = int(np.argmax(np.abs(in_file)))
+    if in_file[k] < OPENING_UP_MIN_Z or "XYZ"[k] == up.upper():
+        return None  # a negative axis (the frame rule has only X, Y, Z) or no clear one
+    return "XYZ"[k]
+
+
+def turn_by_openings(session: Session, candidates: list[Candidate], *, assume: str) -> list[Candidate]:
+    """The candidates of this run left to ``ingest.assume_up_axis`` (OBJ/PLY) that are active containers
+    whose opening faces another positive axis of the file, with that axis and its reason set."""
+    out = []
+    for cand in candidates:
+        if cand.error or cand.model_path is None or cand.up_axis is not None:
+            continue
+        if Path(cand.metadata.get("source_model_path") or cand.model_path).suffix.lower() not in (".obj", ".ply"):
+            continue
+        row = session.scalars(select(CatalogObject).where(CatalogObject.source == cand.source,
+                                                          CatalogObject.source_id == cand.source_id)).one_or_none()
+        if row is None or not row.container or row.status != STATUS_ACTIVE or not row.collision_path:
+            continue
+        axis = opening_up_axis(row.collision_path, row.source_up_axis or assume)
+        if axis is not None:
+            cand.up_axis, cand.up_reason = axis, OPENING_REASON.format(axis=axis)
+            out.append(cand)
+    return out
+
+
+def kept_evidence(cand: Candidate, stored_up: str | None, stored_reason: str | None) -> None:
+    """A candidate left to ``ingest.assume_up_axis`` whose stored row was turned by its opening keeps that
+    axis (so that a rerun finds it unchanged instead of measuring it twice)."""
+    if cand.up_axis is None and stored_up and (stored_reason or "").startswith("its opening faces"):
+        cand.up_axis, cand.up_reason = stored_up, stored_reason
 
 
 def orient(session: Session, candidates: list[Candidate], paths: list, up_axis: str | None, *, assume: str) -> None:
