@@ -5,11 +5,19 @@ console is not a terminal (``catalog render`` into a log file showed nothing for
 from __future__ import annotations
 
 import io
+import os
+import subprocess
+import sys
+from pathlib import Path
 
+import pytest
 from rich.console import Console
 
 from mixcount.commands.common import RichProgress
 from mixcount.progress import PlainProgress
+from tests.package_folders import build_package_folders
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_plain_lines_first_periodic_and_last():
@@ -39,3 +47,20 @@ def test_cli_reporter_prints_plain_lines_when_not_a_terminal():
     bar.stop()
     text = out.getvalue()
     assert "ingest: 1/2 (50 %)" in text and "ingest: 2/2 (100 %)" in text
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_catalog_render_into_a_pipe_shows_progress(tmp_path):
+    """The issue's case: ``catalog render`` with stderr not a terminal (here a pipe) prints progress lines."""
+    lib = build_package_folders(tmp_path / "lib")
+    db = str(tmp_path / "c.db")
+    env = {**os.environ, "COLUMNS": "400"}
+    run = [sys.executable, "-m", "mixcount", "--db", db]
+    done = subprocess.run([*run, "catalog", "ingest", str(lib / "Sugar cube")], capture_output=True, text=True,
+                          timeout=300, env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    done = subprocess.run([*run, "--set", "canonical_render.resolution=32", "--set", "canonical_render.samples=1",
+                           "catalog", "render"], capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    assert "render: 1/1 (100 %)" in done.stderr, done.stderr
