@@ -62,6 +62,14 @@ def test_changed_units_name_and_texture_invalidate_derived_data(tmp_path, catalo
     assert _state(catalog, oid) == (1, ["size_outlier"], 1) and all(f.exists() for f in files)
     assert _caption(catalog).skipped == 1
 
+    # another object carries a pair flag about it (a near duplicate of its old shape)
+    ingest_paths(catalog, [lib / "Dice"], config=config)
+    with catalog.session() as s:
+        dice = s.scalars(select(CatalogObject).where(CatalogObject.name == "Dice")).one()
+        s.add(Flag(object_id=dice.id, kind="near_duplicate_geometry", score=0.9, reason="old", pair_object_id=oid))
+        s.commit()
+        dice_id = dice.id
+
     # the units are corrected (a metadata.json beside the model): the old size's products go
     (duck / "metadata.json").write_text(json.dumps({"units": "cm"}))
     summary = ingest_paths(catalog, [duck], config=config)
@@ -69,8 +77,9 @@ def test_changed_units_name_and_texture_invalidate_derived_data(tmp_path, catalo
     assert summary.invalidated and "source_units" in summary.invalidated[0][1]
     assert _state(catalog, oid) == (0, [], 0)
     assert not any(f.exists() for f in files)
+    assert _state(catalog, dice_id)[1] == ["ingest_note"]  # the pair flag about the old duck is gone
     again = _caption(catalog)
-    assert (again.captioned, again.skipped) == (1, 0)
+    assert (again.captioned, again.skipped) == (2, 0)  # the duck again, and the dice for the first time
 
     # the name changes: the captions (which use it) go again
     (duck / "metadata.json").write_text(json.dumps({"units": "cm", "name": "Yellow rubber duck"}))

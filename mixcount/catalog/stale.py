@@ -5,8 +5,8 @@ descriptors cached under ``<data_dir>/descriptors`` (``catalog filter``), flags 
 collision check) and caption sets (``catalog caption``). Each step skips work it finds done, so when
 ingest updates an object whose geometry, units, up axis, textures (its content), name or category
 changed, it removes what was derived from the old one at that point: the render rows and their files,
-the descriptor cache files of the old geometry and content, the object's flags (ingest writes its own
-warning flags again) and its caption sets and caption failures. The next ``catalog render``, ``filter``
+the descriptor cache files of the old geometry and content, the object's flags and the pair flags others
+carry about it (ingest writes its own warning flags again) and its caption sets and caption failures. The next ``catalog render``, ``filter``
 and ``caption`` then do them again for this object without ``--force``. A person's review decisions are
 kept: they are about the object, not about one measurement of it.
 """
@@ -80,6 +80,8 @@ def invalidate(session: Session, obj: CatalogObject, before: Before, *, renders_
         if isinstance(key, str) and key and descriptors_dir.is_dir():
             for p in descriptors_dir.glob(f"{key[:32]}_*"):
                 _unlink(p)
-    session.execute(delete(Flag).where(Flag.object_id == obj.id))
+    # its flags, and the pair flags other objects carry about it (a duplicate of the old shape, a caption
+    # collision with the old name): filter and caption find the pairs again
+    session.execute(delete(Flag).where((Flag.object_id == obj.id) | (Flag.pair_object_id == obj.id)))
     session.execute(delete(CaptionSet).where(CaptionSet.object_id == obj.id))
     session.execute(delete(CaptionFailure).where(CaptionFailure.object_id == obj.id))
