@@ -52,15 +52,25 @@ def test_cli_reporter_prints_plain_lines_when_not_a_terminal():
 @pytest.mark.blender
 @pytest.mark.slow
 def test_catalog_render_into_a_pipe_shows_progress(tmp_path):
-    """The issue's case: ``catalog render`` with stderr not a terminal (here a pipe) prints progress lines."""
+    """The issue's case: ``catalog render`` with stderr not a terminal (here a pipe) prints progress lines.
+    The object is the Jenga block whose texture is missing: it renders in its material's colour (tan), not
+    in the magenta Blender paints a missing image with."""
     lib = build_package_folders(tmp_path / "lib")
     db = str(tmp_path / "c.db")
     env = {**os.environ, "COLUMNS": "400"}
     run = [sys.executable, "-m", "mixcount", "--db", db]
-    done = subprocess.run([*run, "catalog", "ingest", str(lib / "Sugar cube")], capture_output=True, text=True,
+    done = subprocess.run([*run, "catalog", "ingest", str(lib / "Jenga block")], capture_output=True, text=True,
                           timeout=300, env=env, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     done = subprocess.run([*run, "--set", "canonical_render.resolution=32", "--set", "canonical_render.samples=1",
                            "catalog", "render"], capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     assert "render: 1/1 (100 %)" in done.stderr, done.stderr
+    import numpy as np
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(tmp_path / "renders" / "c" / "obj_000001.png").convert("RGB"), dtype=float)
+    body = rgb[(rgb < 245).any(axis=2)]  # the object's pixels (the background is white)
+    assert len(body) > 50
+    red, green, _blue = body.mean(axis=0)
+    assert green > 0.5 * red, (red, green)  # tan (Kd 0.9 0.7 0.5), not magenta (1 0 1)

@@ -85,6 +85,12 @@ def _texture_file(tex: str, mtl: Path, model: Path) -> tuple[Path | None, bool]:
     return None, False
 
 
+def missing_texture(tex: str, mtl_name: str) -> str:
+    """The warning of a texture found neither where its material points nor by name."""
+    return (f"missing texture file: {tex} (not where {mtl_name} points, nor by name in the folder; "
+            "a default material is used)")
+
+
 def _obj_resources(path: Path, warnings: list[str] | None) -> dict[str, Path]:
     """An OBJ's material files and textures. A missing one is no error: the model loads with a default
     material, as any viewer opens it; each miss is appended to ``warnings`` (or raises without a list)."""
@@ -117,8 +123,7 @@ def _obj_resources(path: Path, warnings: list[str] | None) -> dict[str, Path]:
             tex = match.group(2).split()[-1]  # options such as "-bm 1" come first; the file is last
             ref, where = _texture_file(tex, mtl, path)
             if ref is None:
-                miss(f"missing texture file: {tex} (not where {name} points, nor by name in the folder; "
-                     "a default material is used)")
+                miss(missing_texture(tex, name))
                 continue
             if not where:
                 miss(f"texture {tex} found by name in the folder, not where {name} points")
@@ -128,7 +133,7 @@ def _obj_resources(path: Path, warnings: list[str] | None) -> dict[str, Path]:
 
 @dataclass
 class Relinked:
-    """An OBJ whose material names textures that are not where it points but are found by name: the
+    """An OBJ whose material names textures that are not where it points (found by name, or missing): the
     rewritten material files (by name) and the texture files they now name (by file name)."""
 
     materials: dict[str, str]
@@ -137,9 +142,10 @@ class Relinked:
 
 
 def relink_textures(path: Path) -> Relinked | None:
-    """For an OBJ whose textures are found only by name (``../cube.png``, ``E:\\data\\table.png``):
-    its materials rewritten to name them by file name, so that every loader (trimesh, Blender's importer)
-    finds them when the model is staged beside them; None when nothing needs it."""
+    """For an OBJ whose textures are found only by name (``../cube.png``, ``E:\\data\\table.png``) or not at
+    all: its materials rewritten to name them by file name (a missing one left out, so that the model has
+    its material's plain colour: Blender paints a missing image magenta), so that every loader (trimesh,
+    Blender's importer) finds them when the model is staged beside them; None when nothing needs it."""
     if path.suffix.lower() != ".obj":
         return None
     try:
@@ -161,14 +167,17 @@ def relink_textures(path: Path) -> Relinked | None:
             if match:
                 tex = match.group(2).split()[-1]
                 ref, where = _texture_file(tex, mtl, path)
-                if ref is not None:
-                    if not where:
-                        moved = True
-                        out.notes.append(f"texture {tex} found by name in the folder, not where {name} points "
-                                         "(used from the folder)")
-                    out.textures[ref.name] = ref  # every texture by its file name, beside the rewritten .mtl
-                    cut = mline.rindex(tex)
-                    mline = mline[:cut] + ref.name + mline[cut + len(tex):]
+                if ref is None:  # dropped: Blender would paint a missing image magenta, not a default material
+                    moved = True
+                    out.notes.append(missing_texture(tex, name))
+                    continue
+                if not where:
+                    moved = True
+                    out.notes.append(f"texture {tex} found by name in the folder, not where {name} points "
+                                     "(used from the folder)")
+                out.textures[ref.name] = ref  # every texture by its file name, beside the rewritten .mtl
+                cut = mline.rindex(tex)
+                mline = mline[:cut] + ref.name + mline[cut + len(tex):]
             lines.append(mline)
         out.materials[name] = "\n".join(lines) + "\n"
     return out if moved else None
