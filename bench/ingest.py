@@ -1,6 +1,7 @@
 """Ingest throughput: first ingest vs unchanged rerun of ~200 generated objects.
 
 Usage: .venv/bin/python bench/ingest.py [--objects 200] [--workers 2] [--subdivide 2] [--smoke]
+       .venv/bin/python bench/ingest.py --pybullet [--pybullet-data DIR] [--workers 2]
 Prints human lines to stderr and one JSON line to stdout at the end:
 {"objects": N, "first_s": ..., "first_obj_per_s": ..., "rerun_s": ..., "rerun_obj_per_s": ..., "ratio": ...}
 The rerun only hashes files and compares with the catalog (no mesh work), so the ratio should be >= 10.
@@ -9,6 +10,16 @@ The demo library's meshes are deliberately light (~100-2,500 faces); real captur
 ``--subdivide K`` (default 2: x16 faces, ~20k for a ball) makes the bench set capture-like by
 subdividing every part K times (UVs and textures kept); ``--subdivide 0`` measures the demo meshes as
 generated. Both figures are honest measurements; they answer different questions.
+
+``--pybullet``: real folders as they come (issue 52). 20 models of pybullet's own ``pybullet_data`` are
+copied into folders named by a person (``Rubber duck/``, ``red_mug/``, ``blue_mug/``), each with what the
+package ships beside the model (.mtl or none, textures, the URDF, collision companions), then ingested
+twice. Prints one JSON line: objects, broken, named by their folder, companions taken for objects, the
+up axis and its reason per object, dims, flags, and the second run's figures. ``pybullet_data`` is found
+(:func:`find_pybullet_data`) from ``--pybullet-data``, ``MIXCOUNT_PYBULLET_DATA``, an installed
+``pybullet_data`` package, or a pybullet wheel in ``MIXCOUNT_WHEELS`` / ``~/.cache/mixcount/wheels`` /
+``/work/cache/wheels`` (``pip download --no-deps pybullet==3.2.7 -d DIR`` fetches one); without it the bench
+prints ``{"skipped": reason}`` and exits 0.
 """
 
 from __future__ import annotations
@@ -44,14 +55,134 @@ def densify(lib: Path, times: int) -> None:
         glb.write_bytes(scene.export(file_type="glb"))
 
 
+# person-named folder -> files copied from pybullet_data (the model, what ships beside it)
+PYBULLET_FOLDERS = {
+    "Rubber duck": ["duck.obj", "duck.mtl", "duckCM.png", "duck_vhacd.obj", "duck_vhacd.urdf"],
+    "Serving tray": ["tray/tray_textured4.obj", "tray/tray_textured4.mtl", "tray/tray.jpg", "tray/tray.urdf"],
+    "Sugar cube": ["cube.obj", "cube.urdf", "cube.png"],  # cube.obj names a cube.mtl the package lacks
+    "Jenga block": ["jenga/jenga.obj", "jenga/jenga.mtl", "jenga/jenga.png", "jenga/jenga.urdf"],
+    "red_mug": ["objects/mug.obj", "objects/mug_col.obj", "objects/mug.urdf"],
+    "blue_mug": ["urdf/mug.obj", "urdf/mug_col.obj", "urdf/mug.urdf"],
+    "Teddy bear": ["teddy2_VHACD_CHs.obj", "teddy_vhacd.urdf"],
+    "Soccer ball": ["soccerball.obj", "soccerball.mtl", "colors16.png", "soccerball.urdf"],
+    "Bunny": ["bunny.obj"],
+    "Table": ["table/table.obj", "table/table.mtl", "table/table.png", "table/table.urdf"],
+    "Small sphere": ["textured_sphere_smooth.obj", "textured_sphere_smooth.mtl", "checker_huge.gif",
+                     "sphere_small.urdf"],
+    "Gripper finger": ["l_finger.stl", "l_finger_collision.stl"],
+    "Stone": ["stone.obj", "stone.mtl"],
+    "Domino": ["domino/domino.obj", "domino/domino.mtl", "domino/domino.jpg", "domino/domino.urdf"],
+    "Lego brick": ["lego/lego.obj", "lego/lego_vhacd.obj", "lego/lego.urdf"],
+    "Torus": ["torus/torus_textured.obj", "torus/torus_textured.mtl", "cube.png"],  # its .mtl says ../cube.png
+    "Toy box": ["toys/concave_box.obj", "toys/concave_box.mtl", "toys/concave_box.urdf", "checker_grid.jpg"],
+    "Random shape": ["random_urdfs/000/000.obj", "random_urdfs/000/000.mtl", "random_urdfs/000/000.urdf"],
+    # its .mtl names E:\\develop\\bullet3\\data\\table\\table.png; the user copied table.png beside it
+    "Shape sorter": ["toys/shape_sorter.obj", "toys/shape_sorter.mtl", "table/table.png"],
+    "Square table": ["table_square/table.obj", "table_square/table.mtl", "table_square/checker_grid.jpg",
+                     "table_square/table_square.urdf"],
+}
+PYBULLET_COMPANIONS = ("duck_vhacd.obj", "mug_col.obj", "l_finger_collision.stl", "lego_vhacd.obj")
+
+
+def find_pybullet_data(given: str | None, unpack_to: Path) -> tuple[Path | None, str]:
+    """(the pybullet_data folder, where it came from) or (None, why not)."""
+    import os
+    import zipfile
+
+    for where in (given, os.environ.get("MIXCOUNT_PYBULLET_DATA")):
+        if where:
+            path = Path(where).expanduser()
+            return (path, str(path)) if (path / "duck.obj").is_file() else (None, f"{path} holds no duck.obj")
+    try:
+        import pybullet_data  # type: ignore[import-not-found]
+
+        return Path(pybullet_data.getDataPath()), "installed pybullet_data"
+    except ImportError:
+        pass
+    dirs = [os.environ.get("MIXCOUNT_WHEELS"), str(Path.home() / ".cache" / "mixcount" / "wheels"), "/work/cache/wheels"]
+    for d in filter(None, dirs):
+        for wheel in sorted(Path(d).glob("pybullet-*.whl")):
+            with zipfile.ZipFile(wheel) as zf:
+                zf.extractall(unpack_to, [n for n in zf.namelist() if n.startswith("pybullet_data/")])
+            return unpack_to / "pybullet_data", str(wheel)
+    return None, ("no pybullet_data: give --pybullet-data DIR or MIXCOUNT_PYBULLET_DATA, or put a pybullet wheel "
+                  "in MIXCOUNT_WHEELS (pip download --no-deps pybullet==3.2.7 -d DIR)")
+
+
+def build_pybullet_folders(data: Path, root: Path) -> Path:
+    """Copy :data:`PYBULLET_FOLDERS` out of ``data`` the way a user would: one folder per object."""
+    import shutil
+
+    for folder, files in PYBULLET_FOLDERS.items():
+        (root / folder).mkdir(parents=True, exist_ok=True)
+        for rel in files:
+            shutil.copy2(data / rel, root / folder / Path(rel).name)
+    return root
+
+
+def run_pybullet(args: argparse.Namespace) -> int:
+    from sqlalchemy import select
+
+    from mixcount.catalog.models import CatalogObject, Flag
+
+    config = load_config(values={"ingest.workers": args.workers})
+    with tempfile.TemporaryDirectory(prefix="mixcount-pybullet-") as tmp:
+        root = Path(tmp)
+        data, origin = find_pybullet_data(args.pybullet_data, root / "unpacked")
+        if data is None:
+            print(json.dumps({"skipped": origin}))
+            return 0
+        lib = build_pybullet_folders(data, root / "My models")
+        catalog = open_catalog(str(root / "bench.db"), data_dir="")
+        try:
+            t0 = time.perf_counter()
+            first = ingest_paths(catalog, [lib], config=config)
+            first_s = time.perf_counter() - t0
+            second = ingest_paths(catalog, [lib], config=config)
+            with catalog.session() as s:
+                objs = s.scalars(select(CatalogObject).order_by(CatalogObject.name)).all()
+                rows = []
+                for o in objs:
+                    info = json.loads(o.metadata_json or "{}").get("ingest", {})
+                    kinds = sorted(f.kind for f in s.scalars(select(Flag).where(Flag.object_id == o.id)))
+                    rows.append({"name": o.name, "category": o.category, "status": o.status, "error": o.error,
+                                 "file": Path(o.model_path).name, "up_axis": o.source_up_axis,
+                                 "up_axis_reason": info.get("up_axis_reason"), "units": o.source_units,
+                                 "dims_m": [round(d, 4) for d in o.dims] if o.dim_x is not None else None,
+                                 "flags": kinds, "warnings": info.get("warnings") or [],
+                                 "collision_companion": bool(info.get("collision_source"))})
+        finally:
+            catalog.close()
+    result = {
+        "source": origin, "folders": len(PYBULLET_FOLDERS), "objects": len(rows), "broken": first.broken,
+        "named_by_folder": sum(r["name"] in PYBULLET_FOLDERS for r in rows),
+        "companions_as_objects": sum(r["file"] in PYBULLET_COMPANIONS for r in rows),
+        "collision_companions_used": sum(r["collision_companion"] for r in rows),
+        "up_axis": {a: sum(r["up_axis"] == a for r in rows) for a in ("X", "Y", "Z")},
+        "warnings": len(first.warnings), "first_s": round(first_s, 2),
+        "second": {"new": second.new, "updated": second.updated, "unchanged": second.unchanged,
+                   "broken": second.broken, "reoriented": len(second.reoriented)},
+        "objects_detail": rows,
+    }
+    for r in rows:
+        print(f"{r['name']:<14} {r['category']:<8} up {r['up_axis']} ({r['up_axis_reason']}) dims {r['dims_m']} "
+              f"units {r['units']} flags {r['flags']}", file=sys.stderr)
+    print(json.dumps(result))
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--pybullet", action="store_true", help="ingest 20 pybullet_data models in person-named folders")
+    parser.add_argument("--pybullet-data", default=None, help="an unpacked pybullet_data folder")
     parser.add_argument("--objects", type=int, default=200, help="about this many objects (whole demo libraries of 79)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--subdivide", type=int, default=2, help="subdivide every part K times (x4^K faces)")
     parser.add_argument("--smoke", action="store_true",
                         help="seconds: one demo library as generated; exit 0 whatever the ratio (the suite runs it)")
     args = parser.parse_args()
+    if args.pybullet:
+        return run_pybullet(args)
     if args.smoke:
         args.objects, args.subdivide = 1, 0
     config = load_config(values={"ingest.workers": args.workers})

@@ -37,11 +37,20 @@ def up_axis_rotation(up: str) -> np.ndarray:
 
 
 def unit_scale(units: str) -> float:
-    """Metres per unit for a unit name; raises ValueError for an unknown name."""
+    """Metres per unit for a unit name, or for a positive number written as text (``"0.05"``: the scale a
+    URDF/SDF beside the model gives its mesh); raises ValueError for anything else."""
     try:
         return UNIT_SCALE[units.lower()]
     except KeyError:
-        raise ValueError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)})") from None
+        pass
+    try:
+        value = float(units)
+    except ValueError:
+        value = float("nan")
+    if value > 0 and value < float("inf"):
+        return value
+    raise ValueError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)}, or metres per unit "
+                     "as a positive number)") from None
 
 
 GLTF_UP_AXIS = "Y"  # the glTF specification's up axis

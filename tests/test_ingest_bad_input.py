@@ -17,7 +17,7 @@ from PIL import Image
 from sqlalchemy import select
 
 from mixcount.catalog.ingest import discover, ingest_paths
-from mixcount.catalog.models import CatalogObject
+from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.config import load_config
 from mixcount.errors import CatalogError
 
@@ -82,9 +82,10 @@ def bad_library(tmp_path: Path) -> tuple[Path, dict[str, str]]:
         (lib / "plain" / "gl" / name).write_bytes(data)
     (lib / "plain" / "gl" / "model.gltf").write_text(json.dumps(doc))
     expect["gl/model.gltf"] = "missing texture file: albedo_missing.png"
-    (lib / "plain" / "mug.obj").write_text("mtllib mug.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    # an OBJ whose material names a missing texture is no broken file: a default material, a flag
+    obj_text = trimesh.creation.box(extents=(0.02, 0.02, 0.02)).export(file_type="obj")
+    (lib / "plain" / "mug.obj").write_text("mtllib mug.mtl\nusemtl m\n" + obj_text)
     (lib / "plain" / "mug.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd textures/mug_albedo.jpg\n")
-    expect["mug.obj"] = "missing texture file: textures/mug_albedo.jpg"
 
     # an unreadable folder: permissions when we are not root, a symlink loop when we are
     if os.geteuid() != 0:
@@ -119,19 +120,24 @@ def test_every_bad_input_is_broken_with_a_specific_reason(bad_library, catalog):
     with catalog.session() as s:
         objs = s.scalars(select(CatalogObject)).all()
     by_id = {o.source_id: o for o in objs}
-    assert summary.new == 2  # the two good objects went through despite everything else
-    assert summary.broken == len(expect) == len(objs) - 2
+    assert summary.new == 3  # the three good objects went through despite everything else
+    assert summary.broken == len(expect) == len(objs) - 3
     for suffix, reason in expect.items():
         matches = [o for sid, o in by_id.items() if sid == suffix or sid.endswith("/" + suffix)]
         assert len(matches) == 1, (suffix, sorted(by_id))
         obj = matches[0]
         assert obj.status == "broken"
         assert reason in obj.error, (suffix, obj.error)
+    mug = next(o for sid, o in by_id.items() if sid.endswith("/mug.obj"))
+    with catalog.session() as s:
+        flags = s.scalars(select(Flag).where(Flag.object_id == mug.id)).all()
+    assert mug.status == "active" and [f.kind for f in flags] == ["missing_texture"]
+    assert "textures/mug_albedo.jpg" in flags[0].reason
     good = by_id["Ball_B0GOOD0001_Red"]
     assert good.status == "active" and good.dims == pytest.approx((0.05, 0.05, 0.05))
     # a second run changes nothing and reports the same broken count
     again = ingest_paths(catalog, [lib], config=config)
-    assert (again.new, again.updated, again.unchanged, again.broken) == (0, 0, 2, summary.broken)
+    assert (again.new, again.updated, again.unchanged, again.broken) == (0, 0, 3, summary.broken)
 
 
 def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -148,7 +154,7 @@ def test_cli_exit_codes_for_bad_inputs(bad_library, tmp_path):
     res = run_cli("--db", db, "catalog", "ingest", str(lib), "--json")
     assert res.returncode == 0, res.stderr
     summary = json.loads(res.stdout)
-    assert summary["broken"] == len(expect) and summary["new"] == 2
+    assert summary["broken"] == len(expect) and summary["new"] == 3
     assert "broken Toy_B0NOMODEL1_Missing: DTC folder has no 3d-asset.glb" in res.stderr
     strict = run_cli("--db", db, "catalog", "ingest", str(lib), "--strict")
     assert strict.returncode != 0

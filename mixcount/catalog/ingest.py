@@ -45,9 +45,18 @@ from mixcount.catalog.models import (
     utcnow,
 )
 from mixcount.catalog.naming import DTC_NAME, safe_text, singular  # noqa: F401  (re-exported)
+from mixcount.catalog.orientation import (  # noqa: F401  (check_up_axis re-exported)
+    check_up_axis,
+    kept_evidence,
+    orient,
+    turn_by_openings,
+)
+from mixcount.catalog.proxies import refresh_proxy
+from mixcount.catalog.stale import Before, StoreContext, invalidate
+from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  # noqa: F401  (re-exported)
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
-from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS, UP_AXES
+from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
 from mixcount.progress import ProgressReporter, as_reporter
 
 # Fact columns copied from the analysis dict onto the row.
@@ -71,6 +80,9 @@ class IngestSummary:
     layouts: dict[str, int] = field(default_factory=dict)  # objects found per layout
     containers: int = 0  # objects of the catalog that are containers after this run
     container_warnings: list[str] = field(default_factory=list)  # containers whose opening does not face up
+    warnings: list[tuple[str, str]] = field(default_factory=list)  # (name, what was tolerated: a missing .mtl)
+    reoriented: list[tuple[str, str, str, str]] = field(default_factory=list)  # (name, old up, new up, reason)
+    invalidated: list[tuple[str, list[str]]] = field(default_factory=list)  # (name, changed columns)
 
     @property
     def total(self) -> int:
@@ -82,6 +94,10 @@ class IngestSummary:
             "updated": self.updated, "broken": self.broken, "layouts": dict(sorted(self.layouts.items())),
             "containers": self.containers, "container_warnings": list(self.container_warnings),
             "broken_objects": [{"name": n, "reason": r} for n, r in self.broken_objects],
+            "warnings": [{"name": n, "warning": w} for n, w in self.warnings],
+            "reoriented": [{"name": n, "old_up_axis": a, "new_up_axis": b, "reason": r}
+                           for n, a, b, r in self.reoriented],
+            "invalidated": [{"name": n, "changed": c} for n, c in self.invalidated],
         }
 
 
@@ -130,9 +146,12 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> P
         if size == 0:
             prep.error = "empty file (0 bytes)"
             return prep
-        resources = model_resources(cand.model_path)
+        tolerated: list[str] = []
+        resources = model_resources(cand.model_path, tolerated)
+        cand.warnings.extend(w for w in tolerated if w not in cand.warnings)
         files = {"model" + cand.model_path.suffix.lower(): cand.model_path}
         files.update({f"res:{k}": v for k, v in resources.items()})
+        files.update({f"companion:{k}": v for k, v in cand.companions.items()})
         prep.content_hash = hashing.files_hash(files)
         sidecar_hash = hashing.files_hash({f"side:{k}": v for k, v in cand.sidecars.items()})
         identity_hash = hashing.json_hash([cand.layout, cand.name, cand.category, cand.license, cand.metadata])
@@ -199,10 +218,17 @@ def _apply_identity(obj: CatalogObject, prep: Prepared, run_id: int | None, inge
     obj.updated_at = utcnow()
 
 
+def _same_identity(obj: CatalogObject, cand: Candidate) -> bool:
+    return obj.name == cand.name and obj.category == cand.category
+
+
 def _store(
-    session: Session, prep: Prepared, facts: dict[str, Any] | None, error: str | None, run_id: int | None
+    session: Session, prep: Prepared, facts: dict[str, Any] | None, error: str | None, run_id: int | None,
+    ctx: StoreContext | None = None,
 ) -> str:
-    """Insert or update one object and commit; returns new | updated | unchanged | broken."""
+    """Insert or update one object and commit; returns new | updated | unchanged | broken. An update that
+    changes what later steps derived from the object removes those (:mod:`mixcount.catalog.stale`) and
+    a changed up axis is reported in ``ctx.summary``."""
     cand = prep.cand
     for attempt in range(2):
         obj = _get(session, cand)
@@ -210,8 +236,10 @@ def _store(
         if obj is None:
             obj = CatalogObject(source=cand.source, source_id=cand.source_id)
             session.add(obj)
+        before = Before.of(obj)
+        was_active = not is_new and obj.status != STATUS_BROKEN
         if error:
-            if not is_new and obj.status == STATUS_BROKEN and obj.error == error:
+            if not is_new and obj.status == STATUS_BROKEN and obj.error == error and _same_identity(obj, cand):
                 session.rollback()
                 return "broken"
             ingest = {"ingest_hash": prep.ingest_hash, "layout": cand.layout}
@@ -229,6 +257,9 @@ def _store(
                 "appearance": facts.get("appearance"),
                 "n_parts": facts.get("n_parts"),
                 "sidecars": sorted(cand.sidecars),
+                "up_axis_reason": cand.up_reason,
+                "warnings": list(cand.warnings),
+                "collision_source": facts.get("collision_source"),
             }
             _apply_identity(obj, prep, run_id, ingest)
             obj.content_hash = prep.content_hash
@@ -237,6 +268,18 @@ def _store(
             obj.status = STATUS_EXCLUDED if obj.status == STATUS_EXCLUDED else STATUS_ACTIVE
             obj.error = None
             outcome = "new" if is_new else "updated"
+        if was_active and ctx is not None:
+            changed = before.changed(obj)
+            if changed:
+                session.flush()
+                invalidate(session, obj, before, renders_dir=ctx.renders_dir, descriptors_dir=ctx.descriptors_dir)
+                ctx.summary.invalidated.append((obj.name, changed))
+            old_up, new_up = before.get("source_up_axis"), obj.source_up_axis
+            if not error and old_up and new_up and old_up != new_up:
+                ctx.summary.reoriented.append((obj.name, str(old_up), str(new_up), cand.up_reason or ""))
+        if not error:
+            session.flush()
+            write_warning_flags(session, obj, cand.warnings)
         try:
             session.commit()
             return outcome
@@ -247,43 +290,16 @@ def _store(
     raise AssertionError("unreachable")
 
 
-def refresh_proxy(session: Session, obj: CatalogObject, collision_dir: Path, max_vertices: int) -> bool:
-    """Build the collision proxy of an already-ingested object from its stored collision mesh when it has
-    none (a catalog from before proxies) or one of another budget; updates the row in place (same id,
-    no re-analysis). Returns whether it wrote. A failure leaves the row without proxy: the compositor
-    then collides through the full mesh's hull, as before proxies existed."""
-    from mixcount.catalog.proxies import is_current, proxy_from_collision
-
-    if is_current(obj.proxy_path, max_vertices) or not obj.collision_path or not obj.geometry_hash:
-        return False
-    try:
-        facts = proxy_from_collision(obj.collision_path, obj.geometry_hash, collision_dir, max_vertices)
-    except IngestError:
-        return False
-    obj.proxy_path, obj.proxy_vertex_count = facts.path, facts.vertex_count
-    session.commit()
-    return True
-
-
 def _facts_of(obj: CatalogObject) -> dict[str, Any]:
     facts = {key: getattr(obj, key) for key in FACT_FIELDS}
     info = _ingest_info(obj)
     facts["appearance"] = info.get("appearance")
     facts["n_parts"] = info.get("n_parts")
+    facts["collision_source"] = info.get("collision_source")
     return facts
 
 
 # --------------------------------------------------------------------------- the run
-
-
-def check_up_axis(value: str | None) -> str | None:
-    """``--up-axis`` checked: X, Y or Z (upper case), None for ``auto`` or nothing; IngestError otherwise."""
-    if value is None or value.strip().lower() == "auto":
-        return None
-    up = value.strip().upper()
-    if up not in UP_AXES:
-        raise IngestError(f"unknown up axis {value!r}: give X, Y, Z or auto")
-    return up
 
 
 def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict[str, Any]) -> dict[str, Any]:
@@ -295,6 +311,7 @@ def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict
         "up_axis": (cand.up_axis or (GLTF_UP_AXIS if Path(str(cand.model_path)).suffix.lower() in GLTF_EXTENSIONS
                                      else settings["assume_up_axis"])),
         "proxy_max_vertices": settings["proxy_max_vertices"],
+        "collision_source": str(cand.collision_source) if cand.collision_source else None,
     }
 
 
@@ -331,16 +348,17 @@ def ingest_paths(
     ``auto``: each file's own rule) is the up axis of every object whose metadata or layout states none,
     glTF included (docs/ingest.md, "Units and up axis").
     """
-    stated_up = check_up_axis(up_axis)
     paths = list(paths)
     candidates = discover(paths, layout=layout, metadata_files=metadata_files)
     ing = config.ingest
     for cand in candidates:
-        if stated_up and not cand.up_axis:
-            cand.up_axis = stated_up
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units
-            cand.up_axis = cand.up_axis or ing.omniobject3d_up_axis
+            if not cand.up_axis:
+                cand.up_axis, cand.up_reason = ing.omniobject3d_up_axis, "ingest.omniobject3d_up_axis"
+    with catalog.session() as session:
+        orient(session, candidates, paths, up_axis, assume=ing.assume_up_axis)
+    for cand in candidates:
         layouts.stage(cand, catalog.staged_dir)
     settings = settings_of(ing)
     max_vertices = proxy_budget(ing)
@@ -350,6 +368,7 @@ def ingest_paths(
     for cand in candidates:
         summary.layouts[cand.layout] = summary.layouts.get(cand.layout, 0) + 1
     collision_dir = catalog.collision_dir
+    ctx = StoreContext(summary, catalog.renders_dir, catalog.data_dir / "descriptors")
 
     with catalog.session() as session:
         run = IngestRun(paths=json.dumps([str(p) for p in paths]), status="running")
@@ -361,6 +380,8 @@ def ingest_paths(
         setattr(summary, outcome, getattr(summary, outcome) + 1)
         if outcome == "broken":
             summary.broken_objects.append((prep.cand.name, error or prep.error or ""))
+        else:
+            summary.warnings.extend((prep.cand.name, w) for w in prep.cand.warnings)
 
     bar = as_reporter(progress)
     pending: list[Prepared] = []
@@ -370,13 +391,16 @@ def ingest_paths(
         with catalog.session() as session:
             known = _existing_rows(session, candidates)
             for cand in candidates:
-                prep = prepare(cand, settings=settings, max_bytes=max_bytes)
                 existing = known.get((cand.source, cand.source_id))
+                if existing is not None:
+                    kept_evidence(cand, existing.source_up_axis, _ingest_info(existing).get("up_axis_reason"))
+                prep = prepare(cand, settings=settings, max_bytes=max_bytes)
                 if prep.error:
-                    if existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error:
-                        count("broken", prep)  # still broken the same way: nothing to write
+                    if (existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error
+                            and _same_identity(existing, cand)):
+                        count("broken", prep)  # still broken the same way, same name: nothing to write
                     else:
-                        count(_store(session, prep, None, prep.error, summary.run_id), prep)
+                        count(_store(session, prep, None, prep.error, summary.run_id, ctx), prep)
                     bar.advance()
                     continue
                 if existing is not None and existing.status != STATUS_BROKEN:
@@ -395,14 +419,23 @@ def ingest_paths(
                     ):
                         # only sidecars or the location changed: keep the measured facts
                         refresh_proxy(session, existing, collision_dir, max_vertices)
-                        count(_store(session, prep, _facts_of(existing), None, summary.run_id), prep)
+                        count(_store(session, prep, _facts_of(existing), None, summary.run_id, ctx), prep)
                         bar.advance()
                         continue
                 pending.append(prep)
             if pending:
                 _analyse_all(session, pending, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
-                             n_workers, summary, count, bar)
+                             n_workers, ctx, count, bar)
             summary.containers = refresh_containers(session, config).containers
+            turned = turn_by_openings(session, candidates, assume=ing.assume_up_axis)
+            if turned:  # containers read by ingest.assume_up_axis whose opening faces another axis of the file
+                fresh = {c.name for c in turned if (c.source, c.source_id) not in known}
+                mark = len(summary.invalidated)
+                again = [prepare(c, settings=settings, max_bytes=max_bytes) for c in turned]
+                _analyse_all(session, again, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
+                             1, ctx, lambda *_a, **_k: None, as_reporter(None))
+                summary.invalidated[mark:] = [e for e in summary.invalidated[mark:] if e[0] not in fresh]
+                summary.containers = refresh_containers(session, config).containers
             summary.container_warnings = opening_warnings(session)
         status = "done"
     finally:
@@ -418,11 +451,11 @@ def ingest_paths(
     return summary
 
 
-def _analyse_all(session, pending, collision_dir, settings, n_workers, summary, count, bar):  # type: ignore[no-untyped-def]
+def _analyse_all(session, pending, collision_dir, settings, n_workers, ctx, count, bar):  # type: ignore[no-untyped-def]
     """Run mesh analysis for ``pending`` (process pool when > 1 worker), storing each as it finishes."""
 
     def finish(prep: Prepared, facts: dict[str, Any] | None, error: str | None) -> None:
-        outcome = _store(session, prep, facts, error, summary.run_id)
+        outcome = _store(session, prep, facts, error, ctx.summary.run_id, ctx)
         count(outcome, prep, error)
         bar.advance(info=prep.cand.name[:40])
 

@@ -19,23 +19,19 @@ Conventions (see docs/ingest.md):
 from __future__ import annotations
 
 import hashlib
-import json
-import re
-import struct
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
-from urllib.parse import unquote
 
 import numpy as np
 
 from mixcount.atomic import atomic_path
+from mixcount.catalog.model_files import GLB_MAGIC, Relinked, model_resources, relink_textures  # noqa: F401  (re-exported)
 from mixcount.errors import IngestError
-from mixcount.frame import UNIT_SCALE, to_metres_z_up, walk_geometry
+from mixcount.frame import UNIT_SCALE, to_metres_z_up, unit_scale, walk_geometry
 
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".usd", ".usda", ".usdc", ".usdz")
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
-GLB_MAGIC = b"glTF"
 
 
 @dataclass(frozen=True)
@@ -63,104 +59,6 @@ class MeshFacts:
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
-
-
-# --------------------------------------------------------------------------- resources / pre-checks
-
-
-def _is_external_uri(uri: str) -> bool:
-    return bool(uri) and not uri.startswith("data:") and "://" not in uri
-
-
-def _glb_json(path: Path) -> dict[str, Any]:
-    """Parse a GLB header and its JSON chunk; raise a specific IngestError for a bad or short file."""
-    size = path.stat().st_size
-    with open(path, "rb") as fh:
-        head = fh.read(20)
-        if len(head) < 12 or head[:4] != GLB_MAGIC:
-            raise IngestError("not a GLB file: the first bytes are not the 'glTF' magic")
-        version, declared = struct.unpack("<II", head[4:12])
-        if version != 2:
-            raise IngestError(f"unsupported GLB version {version} (only glTF 2.0)")
-        if declared > size:
-            raise IngestError(f"truncated GLB: header declares {declared} bytes, file has {size}")
-        if len(head) < 20:
-            raise IngestError("truncated GLB: no JSON chunk")
-        chunk_len, chunk_type = struct.unpack("<II", head[12:20])
-        if chunk_type != 0x4E4F534A:  # "JSON"
-            raise IngestError("corrupt GLB: first chunk is not JSON")
-        if 20 + chunk_len > size:
-            raise IngestError(f"truncated GLB: JSON chunk of {chunk_len} bytes runs past the end of the file")
-        try:
-            return json.loads(fh.read(chunk_len))
-        except ValueError as exc:
-            raise IngestError(f"corrupt GLB: JSON chunk does not parse ({exc})") from None
-
-
-def _gltf_resources(path: Path, doc: dict[str, Any]) -> dict[str, Path]:
-    out: dict[str, Path] = {}
-    for kind, key in (("buffer", "buffers"), ("texture", "images")):
-        for item in doc.get(key, []) or []:
-            uri = item.get("uri", "") if isinstance(item, dict) else ""
-            if not _is_external_uri(uri):
-                continue
-            ref = (path.parent / unquote(uri)).resolve()
-            if not ref.is_file():
-                raise IngestError(f"missing {kind} file: {uri}")
-            out[unquote(uri)] = ref
-    return out
-
-
-_MTL_MAP = re.compile(r"^\s*(map_\w+|bump|disp|decal|norm)\s+(.+?)\s*$", re.IGNORECASE)
-
-
-def _obj_resources(path: Path) -> dict[str, Path]:
-    out: dict[str, Path] = {}
-    try:
-        text = path.read_text(errors="replace")
-    except OSError as exc:
-        raise IngestError(f"cannot read model file: {exc.strerror}") from None
-    for line in text.splitlines():
-        if not line.startswith("mtllib"):
-            continue
-        name = line[len("mtllib"):].strip()
-        if not name:
-            continue
-        mtl = path.parent / name
-        if not mtl.is_file():
-            raise IngestError(f"missing material file: {name}")
-        out[name] = mtl
-        for mline in mtl.read_text(errors="replace").splitlines():
-            match = _MTL_MAP.match(mline)
-            if not match:
-                continue
-            tex = match.group(2).split()[-1]  # options such as "-bm 1" come first; the file is last
-            ref = mtl.parent / tex
-            if not ref.is_file():
-                raise IngestError(f"missing texture file: {tex}")
-            out[tex] = ref
-    return out
-
-
-def model_resources(path: Path) -> dict[str, Path]:
-    """Files a model pulls in besides itself (buffers, textures, materials), by their reference name.
-
-    Also the cheap pre-checks that must happen before hashing: GLB header sanity and missing files.
-    """
-    suffix = path.suffix.lower()
-    if suffix == ".glb":
-        return _gltf_resources(path, _glb_json(path))
-    if suffix == ".gltf":
-        try:
-            doc = json.loads(path.read_text())
-        except (ValueError, UnicodeDecodeError) as exc:
-            raise IngestError(f"not a glTF JSON file: {exc}") from None
-        if not isinstance(doc, dict) or "asset" not in doc:
-            raise IngestError("not a glTF JSON file: no 'asset' object")
-        return _gltf_resources(path, doc)
-    if suffix == ".obj":
-        return _obj_resources(path)
-    return {}
 
 
 # --------------------------------------------------------------------------- loading
@@ -303,10 +201,12 @@ def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> Norm
         parts = _load_trimesh(path)
         scale, units, up = 1.0, "m", up_axis.upper()
     elif suffix in (".obj", ".ply", ".stl"):
-        if units not in UNIT_SCALE:
-            raise IngestError(f"unknown units {units!r} (expected one of {', '.join(UNIT_SCALE)})")
+        try:
+            scale = unit_scale(units)
+        except ValueError as exc:
+            raise IngestError(str(exc)) from None
         parts = _load_trimesh(path)
-        scale, up = UNIT_SCALE[units], up_axis.upper()
+        up = up_axis.upper()
     else:
         raise IngestError(f"unsupported model format {suffix or '(no extension)'}")
     if not parts.faces:
@@ -400,8 +300,13 @@ def analyse_model(
     units: str,
     up_axis: str,
     proxy_max_vertices: int,
+    collision_source: str | None = None,
 ) -> dict[str, Any]:
-    """Worker entry point: all facts of one model as a plain dict (raises IngestError)."""
+    """Worker entry point: all facts of one model as a plain dict (raises IngestError).
+
+    ``collision_source``: a collision mesh shipped beside the model (``mug_col.obj``, ``duck_vhacd.obj``),
+    read in the model's frame; the collision mesh and proxy are built from it instead of the visual mesh
+    when its box agrees with the model's (:func:`_companion_collision`)."""
     path = Path(model_path)
     norm = load_normalised(path, units=units, up_axis=up_axis)
     mesh = norm.mesh
@@ -409,11 +314,17 @@ def analyse_model(
     dims = mesh.extents
     watertight = bool(mesh.is_watertight)
     volume = float(abs(mesh.volume)) if watertight else None
-    collision = Path(collision_dir) / f"{ghash[:32]}_{int(face_budget)}.ply"
-    collision_faces = build_collision_mesh(mesh, collision, int(face_budget))
+    source_mesh, used, key = mesh, None, ghash
+    if collision_source:
+        companion = _companion_collision(mesh, Path(collision_source), units=units, up_axis=up_axis)
+        if companion is not None:
+            source_mesh, used = companion, str(Path(collision_source).resolve())
+            key = hashlib.sha256(f"{ghash}|{geometry_hash(companion)}".encode()).hexdigest()
+    collision = Path(collision_dir) / f"{key[:32]}_{int(face_budget)}.ply"
+    collision_faces = build_collision_mesh(source_mesh, collision, int(face_budget))
     from mixcount.catalog.proxies import proxy_from_collision
 
-    proxy = proxy_from_collision(collision, ghash, Path(collision_dir), int(proxy_max_vertices))
+    proxy = proxy_from_collision(collision, key, Path(collision_dir), int(proxy_max_vertices))
     facts = MeshFacts(
         source_units=norm.source_units,
         source_up_axis=norm.source_up_axis,
@@ -434,4 +345,17 @@ def analyse_model(
         proxy_path=proxy.path,
         proxy_vertex_count=proxy.vertex_count,
     )
-    return facts.as_dict()
+    return {**facts.as_dict(), "collision_source": used}
+
+
+def _companion_collision(mesh: Any, path: Path, *, units: str, up_axis: str) -> Any | None:
+    """The collision companion in the model's frame, or None when it does not load or its box is not
+    the model's (within 25 % of the largest extent: a companion of another scale or pose is not used)."""
+    try:
+        companion = load_normalised(path, units=units, up_axis=up_axis).mesh
+    except IngestError:
+        return None
+    size = float(max(mesh.extents.max(), 1e-12))
+    if np.abs(np.asarray(companion.bounds) - np.asarray(mesh.bounds)).max() > 0.25 * size:
+        return None
+    return companion

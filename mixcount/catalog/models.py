@@ -61,6 +61,19 @@ class IngestRun(Base):
     n_broken: Mapped[int] = mapped_column(Integer, default=0)
 
 
+class SourceFolder(Base):
+    """A folder given to ``catalog ingest`` with a setting a person stated for it once (``--up-axis``):
+    a later ingest of the folder, or of a folder inside it, without the option keeps it."""
+
+    __tablename__ = "source_folders"
+    __table_args__ = (UniqueConstraint("path"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    path: Mapped[str] = mapped_column(Text)  # absolute, resolved
+    up_axis: Mapped[Optional[str]] = mapped_column(String(4))
+    updated_at: Mapped[Optional[datetime]] = mapped_column(DateTime, default=utcnow)
+
+
 class CatalogObject(Base):
     """One 3D object capture and the facts measured from its mesh (metres, Z-up)."""
 

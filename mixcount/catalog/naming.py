@@ -20,6 +20,11 @@ from mixcount.scene.words import words_of
 DTC_NAME = re.compile(r"^(?P<category>[A-Za-z][A-Za-z0-9-]*)_(?P<id>(?=[A-Za-z]*\d)[A-Za-z0-9]{6,})_(?P<variant>.+)$")
 GENERIC_STEMS = {"model", "mesh", "scene", "object", "asset", "untitled", "export", "3d", "textured", "scan",
                  "3d-asset", "visual", "geometry", "final", "lod0", "lowpoly", "highpoly", "raw"}
+# folder names that sort files rather than name an object: such a folder does not name its one model
+GENERIC_FOLDERS = {"sub", "subfolder", "models", "model", "meshes", "mesh", "assets", "asset", "files", "file",
+                   "data", "objects", "object", "obj", "stl", "ply", "glb", "gltf", "usd", "export", "exports",
+                   "new folder", "untitled folder", "misc", "other", "others", "tmp", "temp", "downloads", "3d",
+                   "urdf", "sdf", "visual", "visuals", "collision", "geometry", "source", "src", "output", "out"}
 COLOUR_WORDS = {"black", "white", "grey", "gray", "red", "orange", "yellow", "green", "blue", "purple", "pink",
                 "brown", "tan", "beige", "gold", "golden", "silver", "navy", "teal", "lime", "olive", "maroon",
                 "magenta", "cyan", "violet", "cream", "clear", "multicolor", "multicolour", "dark", "light"}

@@ -21,12 +21,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mixcount.atomic import atomic_path
 from mixcount.errors import IngestError
+
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from mixcount.catalog.models import CatalogObject
 
 # extreme points along the 3 axes, 6 face diagonals' halves and 4 body diagonals seed the selection
 _SEED_DIRECTIONS = np.array(
@@ -174,3 +179,19 @@ def is_current(proxy_path: str | None, max_vertices: int) -> bool:
         return False
     p = Path(proxy_path)
     return p.is_file() and p.name.endswith(f"_hull{int(max_vertices)}.ply")
+
+
+def refresh_proxy(session: "Session", obj: "CatalogObject", collision_dir: Path, max_vertices: int) -> bool:
+    """Build the collision proxy of an already-ingested object from its stored collision mesh when it has
+    none (a catalog from before proxies) or one of another budget; updates the row in place (same id,
+    no re-analysis). Returns whether it wrote. A failure leaves the row without proxy: the compositor
+    then collides through the full mesh's hull, as before proxies existed."""
+    if is_current(obj.proxy_path, max_vertices) or not obj.collision_path or not obj.geometry_hash:
+        return False
+    try:
+        facts = proxy_from_collision(obj.collision_path, obj.geometry_hash, collision_dir, max_vertices)
+    except IngestError:
+        return False
+    obj.proxy_path, obj.proxy_vertex_count = facts.path, facts.vertex_count
+    session.commit()
+    return True

@@ -17,6 +17,7 @@ from rich.console import Console
 
 from mixcount.config import Config, load_config
 from mixcount.errors import MixcountError
+from mixcount.progress import PlainProgress
 
 console = Console(stderr=True, soft_wrap=True)  # progress, warnings and messages
 out = Console(highlight=False, soft_wrap=True)  # results: the readable summary, or JSON with --json
@@ -49,8 +50,12 @@ class RichProgress:
         self.console = con or console
         self._bar: Any = None
         self._task: Any = None
+        # not a terminal (a pipe, a log file): a live bar draws nothing until the end, so plain lines instead
+        self._plain = None if self.console.is_terminal else PlainProgress(self.console.file)
 
     def start(self, label: str, total: int) -> None:
+        if self._plain is not None:
+            return self._plain.start(label, total)
         from rich.progress import (
             BarColumn,
             MofNCompleteColumn,
@@ -67,10 +72,14 @@ class RichProgress:
         self._bar.start()
 
     def advance(self, n: int = 1, *, info: str | None = None) -> None:
+        if self._plain is not None:
+            return self._plain.advance(n, info=info)
         if self._bar is not None:
             self._bar.update(self._task, advance=n, **({"info": info} if info is not None else {}))
 
     def update(self, *, completed: int | None = None, info: str | None = None) -> None:
+        if self._plain is not None:
+            return self._plain.update(completed=completed, info=info)
         if self._bar is not None:
             fields: dict[str, Any] = {} if info is None else {"info": info}
             if completed is not None:
@@ -81,6 +90,8 @@ class RichProgress:
         self.console.print(message, highlight=False, soft_wrap=True)
 
     def stop(self) -> None:
+        if self._plain is not None:
+            return self._plain.stop()
         if self._bar is not None:
             self._bar.stop()
             self._bar = None

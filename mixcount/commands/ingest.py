@@ -27,8 +27,9 @@ def ingest_cmd(
     up_axis: Optional[str] = typer.Option(
         None, "--up-axis",
         help="Up axis (X, Y, Z or auto) of every object whose metadata or layout states none, glTF/GLB "
-             "included (Z-up geometry saved as GLB). auto or absent: glTF Y, USD its own, "
-             "OBJ/PLY/STL ingest.assume_up_axis."),
+             "included (Z-up geometry saved as GLB). Kept in the catalog for these folders: a later ingest "
+             "without the option keeps it; auto forgets it. Absent: what was stated before, else a URDF/SDF "
+             "beside the mesh, STL Z, glTF Y, USD its own, OBJ/PLY ingest.assume_up_axis (docs/ingest.md)."),
     metadata: list[Path] = typer.Option(
         [], "--metadata",
         help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
@@ -58,10 +59,21 @@ def ingest_cmd(
         console.print(f"[yellow]warning:[/] {escape(line)}", highlight=False, soft_wrap=True)
     for name, reason in summary.broken_objects:
         console.print(f"[yellow]broken[/] {escape(name)}: {escape(reason)}", highlight=False, soft_wrap=True)
+    for name, warning in summary.warnings:
+        console.print(f"[yellow]warning:[/] {escape(name)}: {escape(warning)} (kept, flagged)", highlight=False,
+                      soft_wrap=True)
+    for name, old, new, why in summary.reoriented:
+        console.print(f"[yellow]re-oriented[/] {escape(name)}: up axis {old} -> {new} ({escape(why)}); "
+                      "give --up-axis to choose", highlight=False, soft_wrap=True)
+    if summary.invalidated:
+        console.print(f"{len(summary.invalidated)} changed object(s): their renders, descriptors, flags and captions "
+                      "were removed; catalog render / filter / caption redo them", highlight=False, soft_wrap=True)
     found = ", ".join(f"{n} {kind}" for kind, n in sorted(summary.layouts.items()))
     result(
         f"ingested {summary.total} objects: {summary.new} new, {summary.unchanged} unchanged, "
         f"{summary.updated} updated, {summary.broken} broken" + (f" (layouts: {found})" if found else "")
+        + (f"; {len(summary.reoriented)} re-oriented" if summary.reoriented else "")
+        + (f"; {len(summary.warnings)} warning(s)" if summary.warnings else "")
         + (f"; skipped {len(skipped)} file(s) in formats not read" if skipped else ""),
         {**summary.as_dict(), "skipped": [{"path": str(p), "reason": r} for p, r in skipped]},
         json_out,

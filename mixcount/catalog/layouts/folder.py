@@ -1,7 +1,12 @@
-"""Plain folders (``folder``): any other model file. A folder with exactly one model file (or a
-``metadata.json`` describing one object) is one object: ``metadata.json`` gives name, category, licence,
-units and up axis; without it a generic file name (``model.glb``) takes the folder's name. Otherwise each
-model file is an object of its own (:func:`read_file`), after the Objaverse reading had its turn."""
+"""Plain folders (``folder``): any other model file. A folder with exactly one model file (companions
+aside: ``mug_col.obj``, ``duck_vhacd.obj``, ``chair_lod1.obj``, :mod:`.companions`), or a ``metadata.json``
+describing one object, or a URDF/SDF naming one of its meshes, is one object: ``metadata.json`` gives
+name, category, licence, units and up axis; without it the object takes the folder's name (the name a
+person wrote: ``red_mug/mug.obj`` is "red_mug", category mug), except in the folder given to ingest itself
+when it holds neither companions nor a URDF/SDF, and in folders whose name sorts files (``models/``, ``meshes/``: ``GENERIC_FOLDERS``), where only a
+generic file name (``model.glb``) takes the folder's name. A URDF/SDF beside the model gives
+its scale (units) and up axis. Otherwise each model file is an object of its own (:func:`read_file`),
+after the Objaverse reading had its turn."""
 
 from __future__ import annotations
 
@@ -11,6 +16,7 @@ import re
 from pathlib import Path
 from typing import Any, Iterator
 
+from mixcount.catalog.layouts.companions import RobotDescription, companion_base, companion_kind, descriptions_in
 from mixcount.catalog.layouts.walker import (
     SOURCE_FOLDER,
     Candidate,
@@ -19,7 +25,7 @@ from mixcount.catalog.layouts.walker import (
     apply_identity,
     record_identity,
 )
-from mixcount.catalog.naming import GENERIC_STEMS, category_from_name, category_from_stem, safe_text
+from mixcount.catalog.naming import GENERIC_FOLDERS, GENERIC_STEMS, category_from_name, category_from_stem, safe_text
 
 NAME = SOURCE_FOLDER
 
@@ -45,16 +51,67 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
             meta_error = "metadata.json is not a JSON object"
         elif isinstance(data, dict) and not (data and all(isinstance(v, dict) for v in data.values())):
             record = data  # one object's record (a mapping of many records is side metadata)
-    single = models and ctx.layout != "objaverse" and (len(models) == 1 or record is not None or meta_error)
-    if single:
-        yield _folder_object(ctx, folder, _preferred(models), models, record, meta_error, meta_path)
+    if ctx.layout == "objaverse":
+        for path in models:
+            yield ctx.file_object(path)
         return
-    for path in models:
-        yield ctx.file_object(path)
+    files = [Path(e.path) for e in entries]
+    descriptions = descriptions_in(files)
+    main, companions = split_companions(models, descriptions)
+    described = [d for d in descriptions if d.visual and any(m.name == d.visual for m in main)]
+    if len(main) > 1 and len(described) == 1 and record is None:
+        main = [m for m in main if m.name == described[0].visual]  # the URDF names the model
+    if len(main) == 1 or record is not None or meta_error:
+        model = main[0] if len(main) == 1 else _preferred(main)
+        desc = next((d for d in described if d.visual == model.name), None)
+        yield _folder_object(ctx, folder, model, models, record, meta_error, meta_path, companions, desc)
+        return
+    for path in main:
+        cand = ctx.file_object(path)
+        own = {k: v for k, v in companions.items() if companion_base(v.stem) == path.stem}
+        _attach(cand, own, next((d for d in described if d.visual == path.name), None))
+        yield cand
+
+
+def split_companions(models: list[Path], descriptions: list[RobotDescription]) -> tuple[list[Path], dict[str, Path]]:
+    """(model files, companions by ``kind:file name``) of one folder: a file is a companion when its stem
+    says so (or a URDF/SDF uses it as collision mesh only) and another model file is left as the object."""
+    collision_only = {d.collision for d in descriptions if d.collision} - {d.visual for d in descriptions}
+    kinds = {m: ("collision" if m.name in collision_only else companion_kind(m.stem)) for m in models}
+    main = [m for m in models if kinds[m] is None]
+    if not main:
+        return list(models), {}
+    return main, {f"{kinds[m]}:{m.name}": m for m in models if kinds[m] is not None}
+
+
+def _attach(cand: Candidate, companions: dict[str, Path], desc: RobotDescription | None) -> None:
+    """Companions and what a URDF/SDF says, onto a candidate (its units/up axis unless stated)."""
+    if cand.source != SOURCE_FOLDER or cand.error:
+        return
+    cand.companions.update(companions)
+    collision = sorted(p for k, p in companions.items() if k.startswith("collision:"))
+    if desc is not None and desc.collision:
+        named = [p for p in collision if p.name == desc.collision]
+        collision = named or collision
+    if collision:
+        cand.collision_source = collision[0]
+    if desc is None:
+        return
+    cand.sidecars[f"description:{desc.path.name}"] = desc.path
+    cand.metadata["description"] = {"file": desc.path.name, "name": desc.name, "scale": list(desc.mesh_scale)}
+    cand.warnings.extend(desc.warnings)
+    units = desc.units()
+    if units is not None and not cand.units:
+        cand.units = units
+    if desc.up_axis and not cand.up_axis:
+        cand.up_axis = desc.up_axis
+        cand.up_reason = f"{desc.path.suffix.lstrip('.').upper()} {desc.path.name} beside the model (Z-up body" + (
+            ")" if desc.up_axis == "Z" else f", mesh turned so that its {desc.up_axis} points up)")
 
 
 def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], record: dict[str, Any] | None,
-                   meta_error: str | None, meta_path: Path) -> Candidate:
+                   meta_error: str | None, meta_path: Path, companions: dict[str, Path],
+                   desc: RobotDescription | None) -> Candidate:
     cand = ctx.file_object(model)
     if cand.source != SOURCE_FOLDER or cand.error:
         return cand
@@ -62,11 +119,20 @@ def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], r
         cand.error = meta_error
         return cand
     generic = re.sub(r"[\d_\-\s]+$", "", model.stem).lower() in GENERIC_STEMS
-    if generic:
+    # the folder given to ingest names its model only when it is clearly one object's folder (it holds
+    # companions or a URDF/SDF): a folder of loose files keeps its files' names
+    named_folder = folder != ctx.root or bool(companions) or desc is not None
+    if generic or (named_folder and folder.name.strip().lower() not in GENERIC_FOLDERS):
         cand.name = safe_text(folder.name)
         cand.category = category_from_name(folder.name, category_from_stem(folder.name, folder.parent.name))
-    if len(models) > 1:
-        cand.metadata["other_model_files"] = sorted(p.name for p in models if p != model)
+    elif desc is not None and desc.name:
+        cand.name = safe_text(desc.name)
+        cand.category = category_from_stem(desc.name, cand.category)
+    others = [p for p in models if p != model and p not in companions.values()]
+    if others:
+        cand.metadata["other_model_files"] = sorted(p.name for p in others)
+    if companions:
+        cand.metadata["companions"] = sorted(companions)
     if record is not None:
         cand.sidecars["metadata.json"] = meta_path
         cand.metadata.update(record)
@@ -74,5 +140,6 @@ def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], r
         apply_identity(cand, ident)
         if ident["license"]:
             cand.license = ident["license"]
+    _attach(cand, companions, desc)
     ctx.apply_licence(cand, folder)
     return cand

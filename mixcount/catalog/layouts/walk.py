@@ -17,6 +17,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Iterable, Iterator
 
+from mixcount.atomic import write_text_atomic
 from mixcount.catalog.layouts import folder as folder_layout
 from mixcount.catalog.layouts import objaverse
 from mixcount.catalog.layouts.walker import (
@@ -28,6 +29,7 @@ from mixcount.catalog.layouts.walker import (
     broken_path_candidate,
 )
 from mixcount.catalog.mesh import MESH_EXTENSIONS
+from mixcount.catalog.model_files import relink_textures
 from mixcount.catalog.naming import DTC_NAME, odd_name_reason, safe_text
 from mixcount.errors import CatalogError
 
@@ -199,11 +201,45 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
     return list(found.values())
 
 
+def _relink(cand: Candidate) -> None:
+    """An OBJ whose textures are found only by name is staged with its materials rewritten to name them
+    (:func:`mixcount.catalog.model_files.relink_textures`), so that analysis, renders and USD all see them."""
+    assert cand.model_path is not None
+    relinked = relink_textures(cand.model_path)
+    if relinked is None:
+        return
+    cand.staged = {cand.model_path.name: cand.model_path, **relinked.textures}
+    cand.staged_texts = dict(relinked.materials)
+    cand.warnings.extend(relinked.notes)
+
+
+def _place_file(real: Path, target: Path) -> None:
+    """``target`` the same file as ``real``: a hard link (a copy across file systems), renewed when
+    ``real`` was replaced or, for a copy, changed."""
+    if target.exists() and not target.is_symlink():
+        try:
+            if os.path.samefile(real, target):
+                return
+        except OSError:
+            pass
+        src, dst = real.stat(), target.stat()
+        if target.stat().st_nlink == 1 and (src.st_size, src.st_mtime_ns) == (dst.st_size, dst.st_mtime_ns):
+            return  # an up-to-date copy
+    if target.is_symlink() or target.exists():
+        target.unlink()
+    try:
+        os.link(real.resolve(), target)
+    except OSError:
+        shutil.copy2(real, target)
+
+
 def stage(cand: Candidate, staging_root: Path) -> None:
     """Link ``cand.staged`` side by side under ``staging_root`` and point ``model_path`` at the link.
 
     Symbolic links (a copy where links are not allowed); a stale link is replaced. The folder name is
     a hash of (source, source_id), so reruns reuse it."""
+    if cand.model_path is not None and not cand.staged and not cand.error:
+        _relink(cand)
     if not cand.staged or cand.model_path is None or cand.error:
         return
     key = hashlib.sha256(f"{cand.source}\0{cand.source_id}".encode()).hexdigest()[:20]
@@ -213,6 +249,9 @@ def stage(cand: Candidate, staging_root: Path) -> None:
         for name, real in cand.staged.items():
             link = folder / name
             link.parent.mkdir(parents=True, exist_ok=True)
+            if cand.staged_texts:
+                _place_file(real, link)  # trimesh refuses links that lead out of the model's folder
+                continue
             if link.is_symlink() or link.exists():
                 if link.is_symlink() and Path(os.readlink(link)) == real.resolve():
                     continue
@@ -221,6 +260,12 @@ def stage(cand: Candidate, staging_root: Path) -> None:
                 link.symlink_to(real.resolve())
             except OSError:
                 shutil.copyfile(real, link)
+        for name, text in cand.staged_texts.items():
+            target = folder / name
+            if target.is_symlink():
+                target.unlink()
+            if not target.is_file() or target.read_text(errors="replace") != text:
+                write_text_atomic(target, text)
     except OSError as exc:
         cand.error = f"cannot stage the model's files under {folder}: {exc.strerror or exc}"
         return

@@ -52,6 +52,12 @@ class Candidate:
     # files a model loader must find side by side (reference name -> real file); ingest links them
     # into one folder under the catalog's data folder and analyses, renders and converts that copy
     staged: dict[str, Path] = field(default_factory=dict)
+    staged_texts: dict[str, str] = field(default_factory=dict)  # files written there instead (a rewritten .mtl)
+    # companion meshes of the model (collision meshes, LODs: not objects), by kind and file name
+    companions: dict[str, Path] = field(default_factory=dict)
+    collision_source: Path | None = None  # a collision companion: the physics proxy is built from it
+    up_reason: str | None = None  # why the object has its up axis (recorded with it)
+    warnings: list[str] = field(default_factory=list)  # what ingest tolerated (reported, not broken)
 
 
 class Walker(Protocol):
