@@ -17,6 +17,7 @@ from __future__ import annotations
 import colorsys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
@@ -181,6 +182,23 @@ def colours_from_render(path: Path) -> ColourSummary:
     return summarise(render_pixels(path), source="render")
 
 
+def rendered_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The base-colour factor the renderer applies (RGB in [0, 1]).
+
+    A glTF ``baseColorFactor`` (trimesh's ``PBRMaterial``) multiplies the texture in Blender's glTF importer
+    and in the USD asset. An .mtl material (trimesh's ``SimpleMaterial``) with a ``map_Kd`` texture is
+    rendered with the texture alone: Blender's OBJ importer links the image to the base colour and leaves
+    ``Kd`` out, so the canonical render of pybullet's duck (texture (255, 216, 0), ``Kd`` 0.64) shows a
+    yellow, not a gold, duck; ``Kd`` counts only for an .mtl material without a texture.
+    """
+    from trimesh.visual.material import PBRMaterial
+
+    material = getattr(visual, "material", None)
+    if not isinstance(material, PBRMaterial) and base_colour_texture(visual) is not None:
+        return np.ones(3)
+    return base_colour_factor(visual)
+
+
 def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarray:  # type: ignore[no-untyped-def]
     """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8)."""
     import trimesh
@@ -194,7 +212,7 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     if isinstance(visual, trimesh.visual.TextureVisuals):
         # glTF base colour = baseColorFactor x texture(uv) x COLOR_0; trimesh keeps COLOR_0 of a
         # primitive that also has a material in visual.vertex_attributes["color"].
-        colour = np.tile(base_colour_factor(visual) * 255.0, (count, 1))
+        colour = np.tile(rendered_factor(visual) * 255.0, (count, 1))
         vcol = material_vertex_colours(visual, len(mesh.vertices))
         if vcol is not None:
             colour *= vcol[mesh.faces[faces]].mean(axis=1)
@@ -257,3 +275,54 @@ def count_parts(path: Path) -> int | None:
         plain.merge_vertices(merge_tex=True, merge_norm=True)
         total += int(plain.body_count)
     return total or None
+
+
+# Colour families: names a reader takes for one colour ("light grey" beside "grey", "maroon" beside "red").
+# A caption's colour agrees with a render's dominant colour when their families meet.
+FAMILIES: dict[str, str] = {
+    "black": "black", "dark grey": "grey", "grey": "grey", "light grey": "grey", "white": "white",
+    "red": "red", "maroon": "red", "orange": "orange", "brown": "brown", "tan": "brown", "beige": "beige",
+    "yellow": "yellow", "gold": "yellow", "olive": "green", "lime": "green", "green": "green",
+    "dark green": "green", "teal": "teal", "blue": "blue", "navy": "blue", "light blue": "blue",
+    "purple": "purple", "magenta": "pink", "pink": "pink",
+    # colour words of names (shops, DTC variants)
+    "gray": "grey", "golden": "yellow", "silver": "grey", "cyan": "teal", "violet": "purple", "cream": "beige",
+    "ivory": "white", "peach": "orange", "coral": "orange", "crimson": "red", "scarlet": "red",
+    "turquoise": "teal", "lavender": "purple", "mint": "green", "charcoal": "grey", "khaki": "beige",
+    "burgundy": "red", "aqua": "teal", "indigo": "blue", "rose": "pink", "salmon": "pink", "amber": "orange",
+    "bronze": "brown", "copper": "brown",
+}
+# Neighbouring families a reader does not contradict ("white" for a white object that renders light grey,
+# "beige" for a tan one): a caption colour in one of these agrees too.
+NEAR: dict[str, frozenset[str]] = {
+    "white": frozenset({"grey", "beige"}), "grey": frozenset({"white", "black"}), "black": frozenset({"grey"}),
+    "beige": frozenset({"white", "brown", "yellow"}), "brown": frozenset({"beige", "orange"}),
+    "orange": frozenset({"brown", "red"}), "yellow": frozenset({"beige"}), "teal": frozenset({"green", "blue"}),
+    "pink": frozenset({"red", "purple"}), "purple": frozenset({"pink", "blue"}), "red": frozenset({"pink"}),
+    "green": frozenset({"teal"}), "blue": frozenset({"teal", "purple"}),
+}
+
+
+def family(name: str) -> str | None:
+    """The family of a colour name or a name's colour word (None for a word that is no colour)."""
+    return FAMILIES.get(name.lower())
+
+
+def colours_agree(caption_colours: "Iterable[str]", dominant: str) -> bool:
+    """Whether a caption's colour words agree with a render's dominant colour name (same or near family)."""
+    want = family(dominant)
+    if want is None:
+        return False
+    got = {family(c) for c in caption_colours} - {None}
+    return want in got or bool(got & NEAR.get(want, frozenset()))
+
+
+def colour_words_in(text: str) -> list[str]:
+    """The colour names and name colour words of a caption, longest first ("light grey" before "grey")."""
+    low = " " + " ".join(text.lower().replace(",", " ").split()) + " "
+    found = []
+    for name in sorted(FAMILIES, key=len, reverse=True):
+        if f" {name} " in low:
+            found.append(name)
+            low = low.replace(f" {name} ", " ")
+    return found
