@@ -182,6 +182,17 @@ def colours_from_render(path: Path) -> ColourSummary:
     return summarise(render_pixels(path), source="render")
 
 
+def lit_colours_from_render(path: Path) -> ColourSummary:
+    """Dominant colours of a render's lit side: the object's pixels at or above its median brightness (max
+    channel). The shaded side is named by its shadow (a gold ball's reads "brown", a white one's "grey");
+    the lit side is where a reader takes the object's colour from."""
+    px = render_pixels(path)
+    if px.size == 0:
+        return EMPTY
+    value = px.max(axis=1)
+    return summarise(px[value >= np.median(value)], source="render")
+
+
 def rendered_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
     """The base-colour factor the renderer applies (RGB in [0, 1]).
 
@@ -292,14 +303,16 @@ FAMILIES: dict[str, str] = {
     "burgundy": "red", "aqua": "teal", "indigo": "blue", "rose": "pink", "salmon": "pink", "amber": "orange",
     "bronze": "brown", "copper": "brown",
 }
-# Neighbouring families a reader does not contradict ("white" for a white object that renders light grey,
-# "beige" for a tan one): a caption colour in one of these agrees too.
+# Caption colour families that agree with a render's dominant family besides its own. Shading only darkens:
+# a render's "brown" may be a shaded orange or gold, its "grey" a shaded white; a caption darker than the
+# render is not excused (an orange cone captioned "brown", a white one "grey": the .mtl Kd bug). Neighbours
+# on the hue wheel agree both ways (the bins' borders, e.g. orange / yellow at 42 degrees, are arbitrary).
 NEAR: dict[str, frozenset[str]] = {
-    "white": frozenset({"grey", "beige"}), "grey": frozenset({"white", "black"}), "black": frozenset({"grey"}),
-    "beige": frozenset({"white", "brown", "yellow"}), "brown": frozenset({"beige", "orange"}),
-    "orange": frozenset({"brown", "red"}), "yellow": frozenset({"beige"}), "teal": frozenset({"green", "blue"}),
-    "pink": frozenset({"red", "purple"}), "purple": frozenset({"pink", "blue"}), "red": frozenset({"pink"}),
-    "green": frozenset({"teal"}), "blue": frozenset({"teal", "purple"}),
+    "white": frozenset({"beige"}), "grey": frozenset({"white", "black"}), "black": frozenset({"grey"}),
+    "beige": frozenset({"white", "yellow", "brown"}), "brown": frozenset({"beige", "orange", "yellow", "red"}),
+    "orange": frozenset({"yellow", "red"}), "yellow": frozenset({"orange", "beige"}),
+    "teal": frozenset({"green", "blue"}), "pink": frozenset({"red", "purple"}), "purple": frozenset({"pink", "blue"}),
+    "red": frozenset({"pink", "orange"}), "green": frozenset({"teal"}), "blue": frozenset({"teal", "purple"}),
 }
 
 
@@ -309,7 +322,8 @@ def family(name: str) -> str | None:
 
 
 def colours_agree(caption_colours: "Iterable[str]", dominant: str) -> bool:
-    """Whether a caption's colour words agree with a render's dominant colour name (same or near family)."""
+    """Whether a caption's colour words agree with a render's dominant colour name (its family, or one
+    :data:`NEAR` lists for it)."""
     want = family(dominant)
     if want is None:
         return False

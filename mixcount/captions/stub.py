@@ -141,7 +141,7 @@ class StubCaptioner:
         concise = _upper_first(" ".join(concise_words[:12]))
 
         # --- detailed: one or two sentences of appearance
-        body = " ".join(tone + (finish if not (named and extra) else [])
+        body = " ".join(tone + shape_words + (finish if not (named and extra) else [])
                         + (lead + words if named else _listing(measured[:3]).split() + words))
         first = _upper_first(body) if plural else f"{_article(body).capitalize()} {body}"
         withs = [" ".join(detail)] if detail else []
@@ -155,9 +155,6 @@ class StubCaptioner:
             second = f"It is mostly {measured[0]}, with {rest} {'in a pattern' if patterned else 'areas'}."
         elif plain and measured:
             second = f"It is plain {measured[0]} all over."
-        if shape:
-            shape_text = f"It has a {shape} shape." if not second else ""
-            second = second or shape_text
         detailed = f"{first}. {second}".strip() if second else f"{first}."
         raw = json.dumps(
             {
