@@ -2,6 +2,7 @@
 
 Usage: .venv/bin/python bench/captions.py [--layouts folder,dtc,obj] [--resolution 64] [--samples 2]
                                          [--no-render] [--sheet docs/images/captions_sheet.png --sheet-n 20]
+                                         [--work DIR] [--smoke]
 
 For each layout, tests/named_library.py's library (59 objects: person-written names with source tags, ids
 and broad categories, textured and vertex-coloured meshes, recolour pairs, the issue's cases: "Orange juice
@@ -67,9 +68,14 @@ def _render_paths(db: Path) -> dict[int, Path]:
         catalog.close()
 
 
-def run_layout(layout: str, work: Path, *, render: bool, resolution: int, samples: int) -> tuple[dict, list[dict]]:
+SMOKE = {"red_coffee_mug", "juice_carton", "black_bowl", "white_bowl", "ice_cream_dispenser", "duck_obj",
+         "block_cube", "block_plank", "traffic_cone", "stanford_bunny_hr"}
+
+
+def run_layout(layout: str, work: Path, *, render: bool, resolution: int, samples: int,
+               only: set[str] | None = None) -> tuple[dict, list[dict]]:
     start = time.perf_counter()
-    truth = build_named_library(work / "lib", layout)
+    truth = build_named_library(work / "lib", layout, only)
     db = work / "catalog.db"
     _cli(db, "catalog", "ingest", str(work / "lib"), "--json")
     _cli(db, "catalog", "filter")
@@ -122,7 +128,12 @@ def draw_sheet(entries: list[dict], path: Path, *, n: int, seed: int, thumb: int
     """A PNG of ``n`` seeded-random captions beside their renders (three tiers under each image)."""
     from PIL import Image, ImageDraw, ImageFont
 
-    pick = random.Random(seed).sample([e for e in entries if e["render"] is not None], n)
+    rng = random.Random(seed)
+    by_slug: dict[str, list[dict]] = {}
+    for e in entries:
+        if e["render"] is not None:
+            by_slug.setdefault(e["slug"], []).append(e)
+    pick = [rng.choice(by_slug[slug]) for slug in rng.sample(sorted(by_slug), n)]  # n objects, each in one layout
     cols, cell_w, text_h = 5, 250, 150
     rows = (n + cols - 1) // cols
     sheet = Image.new("RGB", (cols * cell_w, rows * (thumb + text_h)), "white")
@@ -157,13 +168,18 @@ def main() -> int:
     parser.add_argument("--sheet-n", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--work", type=Path, default=None, help="keep the libraries and catalogs here")
+    parser.add_argument("--smoke", action="store_true",
+                        help="seconds: ten of the objects (the issue's cases), the obj layout, 32 px renders")
     args = parser.parse_args()
+    only = SMOKE if args.smoke else None
+    if args.smoke:
+        args.layouts, args.resolution, args.samples = "obj", 32, 1
     shown: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="mixcount-captions-") as scratch:
         tmp = args.work or Path(scratch)
         for layout in args.layouts.split(","):
             figures, entries = run_layout(layout, tmp / layout, render=not args.no_render,
-                                          resolution=args.resolution, samples=args.samples)
+                                          resolution=args.resolution, samples=args.samples, only=only)
             shown += entries
             print(f"{layout}: {figures['active']} active; mesh facts {figures['mesh_facts']}, absolute sizes "
                   f"{figures['absolute_sizes']}; name colours kept {figures['name_colour_share']} of "

@@ -595,18 +595,21 @@ def _write_obj(mesh: trimesh.Trimesh, path: Path) -> None:
         (path.parent / "model.mtl").write_text(mtl)
 
 
-def build_named_library(root: Path, layout: str = "folder") -> dict[str, dict]:
+def build_named_library(root: Path, layout: str = "folder", only: set[str] | None = None) -> dict[str, dict]:
     """Write the library under ``root`` in ``layout`` ("folder": ``<slug>/model.glb``; "dtc":
     ``<Category>_<ID>_<Variant>/3d-asset.glb``; "obj": ``<slug>/model.obj`` + ``model.mtl``, textures and
     vertex colours as scans ship them), each named entry with ``metadata.json`` {name, category}.
     Unnamed entries are DTC folders in both trees. Returns slug -> truth (folder, name, category, noun,
-    recolour_of); also written to ``root/truth.json``."""
+    recolour_of, textured, compound, colours); also written to ``root/truth.json``. ``only``: these slugs
+    alone (a bench's smoke run)."""
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
     root.mkdir(parents=True, exist_ok=True)
     y_up = trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0))  # our Z-up -> glTF's Y-up
     truth: dict[str, dict] = {}
     for e in ENTRIES:
+        if only is not None and e.slug not in only:
+            continue
         if e.dtc_folder is not None:
             folder, model = e.dtc_folder, "3d-asset.glb"
         elif layout == "dtc":

@@ -211,6 +211,16 @@ def test_ingest_bench() -> None:
     assert doc["subdivide"] == 0 and doc["objects"] > 0 and doc["rerun_obj_per_s"] > doc["first_obj_per_s"]
 
 
+@pytest.mark.slow
+@pytest.mark.blender
+def test_captions_bench(tmp_path: Path) -> None:
+    doc = run_smoke("captions", tmp_path)[-1]
+    check_figures(doc, ["active", "mesh_facts", "absolute_sizes", "name_colour_share", "compound_share",
+                        "noun_share", "excluded_by_collision", "textured", "textured_agree"])
+    assert doc["mesh_facts"] == doc["absolute_sizes"] == doc["excluded_by_collision"] == 0
+    assert doc["textured"] >= 3 and doc["textured_agree"] == doc["textured"]
+
+
 def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     """A bench added to bench/ without ``--smoke`` or without its test above fails here (bench/pools.py is
     the benches' shared helper, not a bench)."""

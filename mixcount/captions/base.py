@@ -2,7 +2,7 @@
 
 A captioner turns one :class:`CaptionInput` (the facts the catalog knows about an object, plus the path
 of its canonical render when there is one) into a :class:`CaptionResult` with three tiers of text:
-``short`` (2-5 words), ``concise`` (5-10 words) and ``detailed`` (1-2 sentences), and the raw answer it
+``short`` (2-5 words), ``concise`` (the phrase that picks it out) and ``detailed`` (1-2 sentences), and the raw answer it
 was built from (hashed into the caption set, never stored whole).
 
 ``name`` is the captioner kind stored in ``caption_sets.captioner`` (``stub`` | ``http``); together with

@@ -15,7 +15,7 @@ naming a k-means centre) keeps e.g. a red-and-white ball "red and white" rather 
 from __future__ import annotations
 
 import colorsys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable
 
@@ -112,6 +112,9 @@ class ColourSummary:
     variation: float  # std of luminance over object pixels, 0..1: high = patterned/textured
     source: str  # "render" | "model" | "none"
     luminance: float = 0.0  # mean luminance over the object's pixels, 0..1 (tells two shades of one name apart)
+    # whether the colours come from an image texture (a print or pattern) rather than flat or vertex colours;
+    # None when not known (a render's pixels)
+    textured: bool | None = None
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -120,6 +123,7 @@ class ColourSummary:
             "variation": round(self.variation, 3),
             "source": self.source,
             "luminance": round(self.luminance, 3),
+            "textured": self.textured,
         }
 
 
@@ -265,7 +269,9 @@ def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> Col
     shares = areas / areas.sum() if areas.sum() > 0 else np.full(len(meshes), 1.0 / len(meshes))
     parts = [mesh_colour_samples(m, rng, int(round(samples * s))) for m, s in zip(meshes, shares)]
     pixels = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3), dtype=np.uint8)])
-    return summarise(pixels, source="model")
+    textured = any(base_colour_texture(m.visual) is not None and getattr(m.visual, "uv", None) is not None
+                   for m in meshes)
+    return replace(summarise(pixels, source="model"), textured=textured)
 
 
 def count_parts(path: Path) -> int | None:

@@ -92,8 +92,12 @@ class StubCaptioner:
         named_fams = {family(c) or c for c in named}
         measured = _distinct(item.colours.names, set())
         extra = _distinct(item.colours.names, named_fams)  # what the name's colours do not say
-        textured = bool(item.textured) or item.colours.source == "render"
-        patterned = len(measured) >= 2 and (textured and (item.colours.variation >= 0.12 or len(measured) >= 3))
+        # a print or pattern: an image texture on the model (a render's pixels: a varied surface)
+        textured = item.colours.textured if item.colours.textured is not None else item.colours.variation >= 0.12
+        # a textured object of several colours; with a name's colour, a texture whose measured colours are
+        # other than the name's ("Black bowl" printed black on white)
+        patterned = textured and (len(measured) >= 3 or (len(measured) >= 2 and item.colours.variation >= 0.12)
+                                  or (bool(named) and bool(extra) and item.colours.variation >= 0.12))
         plain = len(measured) == 1 and item.colours.variation < 0.08
         shape = proportion_word(item.dims)
         tone = [item.tone] if item.tone else []
