@@ -194,6 +194,14 @@ class NamePhrase:
         return " ".join(self.words)
 
 
+def _is_colour(word: str) -> bool:
+    """A name word that names a colour (a family of :mod:`mixcount.captions.colours`): "red", "gray",
+    "ivory"; not "dark", "clear", "natural" (they describe, they name no colour)."""
+    from mixcount.captions.colours import family
+
+    return family(word) is not None
+
+
 def _case(word: str, *, first: bool, title_case: bool) -> str:
     """A name word as a caption writes it: ALLCAPS, camelCase and possessive/proper adjectives kept, a
     capital inside a sentence-case name kept, everything else lower case."""
@@ -219,7 +227,7 @@ def name_phrase(name: str, category: str, *, max_words: int = 4) -> NamePhrase:
     text = name
     for inner in _PAREN.findall(text):  # a qualifier in brackets: its colour words count, the rest is a tag
         dropped.append(f"({inner})")
-        colours += [w for w in _split_words(inner) if w in COLOUR_WORDS and w not in ("dark", "light")]
+        colours += [w for w in _split_words(inner) if _is_colour(w)]
     text = _PAREN.sub(" ", text)
     text = re.sub(r"(?<=[a-z])(?=[A-Z][a-z])", " ", text) if " " not in text.strip() and "_" not in text else text
     text = text.replace("_", " ")
@@ -253,7 +261,7 @@ def name_phrase(name: str, category: str, *, max_words: int = 4) -> NamePhrase:
     if len(kept) > max_words:
         dropped += kept[:-max_words]
         kept = kept[-max_words:]
-    colours = [w.lower() for w in kept if w.lower() in COLOUR_WORDS and w.lower() not in ("dark", "light")] + colours
+    colours = [w.lower() for w in kept if _is_colour(w.lower())] + colours
     return NamePhrase(tuple(kept), tuple(dict.fromkeys(colours)), "name",
                       tuple(w.lower() for w in detail), tuple(dropped))
 

@@ -47,12 +47,13 @@ def proportion_word(dims: tuple[float, float, float]) -> str | None:
 
 
 def _distinct(names: tuple[str, ...] | list[str], taken: set[str]) -> list[str]:
-    """Colour names whose family is not taken yet, one per family, in order."""
+    """Colour names whose family is not taken yet, one per family and none sharing a word with one kept
+    ("light grey" after "light blue" would repeat "light"), in order."""
     out: list[str] = []
     seen = set(taken)
     for n in names:
         fam = family(n) or n
-        if fam not in seen:
+        if fam not in seen and not any(set(n.split()) & set(k.split()) for k in out):  # "light blue", "light grey"
             seen.add(fam)
             out.append(n)
     return out
