@@ -310,3 +310,31 @@ def test_colour_source_order(tmp_path: Path):
     assert no_model.with_measured_colours("model").colours.source == "render"
     with pytest.raises(ValueError):
         item.with_measured_colours("guess")
+
+
+class _MeasuringStub(StubCaptioner):
+    """The stub plus the mesh facts and size stub-v2 wrote: what the shared check must reject."""
+
+    def caption(self, item: CaptionInput):  # type: ignore[no-untyped-def]
+        r = super().caption(item)
+        return type(r)(short=r.short, concise=r.concise + " with an open surface",
+                       detailed=r.detailed + " It measures about 12 cm across.", raw=r.raw)
+
+
+def test_a_caption_breaking_the_rules_is_rejected_with_the_reason(catalog, tmp_path: Path):
+    """The shared caption check runs on every captioner's output in `caption_catalog`: a caption with mesh
+    facts or a size is not stored; a caption_failures row says which rule it broke, tier by tier."""
+    from mixcount.catalog.models import CaptionFailure
+
+    ids = _library(catalog, tmp_path)
+    summary = caption_catalog(catalog, _MeasuringStub("stub-bad"), concurrency=1, colour_source="model",
+                              dedupe=False)
+    assert (summary.captioned, summary.failed) == (0, len(ids))
+    with catalog.session() as s:
+        failures = s.scalars(select(CaptionFailure)).all()
+        assert s.scalars(select(CaptionSet)).all() == []
+    assert len(failures) == len(ids)
+    for f in failures:
+        assert f.error.startswith("caption check: ")
+        assert "concise mesh_fact (mesh fact 'open surface')" in f.error
+        assert "detailed absolute_size" in f.error
