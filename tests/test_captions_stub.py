@@ -338,3 +338,25 @@ def test_a_caption_breaking_the_rules_is_rejected_with_the_reason(catalog, tmp_p
         assert f.error.startswith("caption check: ")
         assert "concise mesh_fact (mesh fact 'open surface')" in f.error
         assert "detailed absolute_size" in f.error
+
+
+@pytest.mark.parametrize("name,words,colours", [
+    ("Ice-cream dispenser", ("ice-cream", "dispenser"), ()),
+    ("Stanford bunny (high-res)", ("Stanford", "bunny"), ()),
+    ("Siamese cat", ("Siamese", "cat"), ()),
+    ("Cheese box", ("cheese", "box"), ()),
+    ("Red Ceramic Mug", ("red", "ceramic", "mug"), ("red",)),
+    ("Orange juice carton", ("orange", "juice", "carton"), ("orange",)),
+    ("Ketchup bottle (blue recolour)", ("ketchup", "bottle"), ("blue",)),
+    ("Teddy bear convex-hull approximation", ("teddy", "bear"), ()),
+    ("Large white mug", ("white", "mug"), ("white",)),
+    ("Clear glass jar", ("clear", "glass", "jar"), ()),
+    ("LEGO brick 2x4", ("LEGO", "brick"), ()),
+    ("Teddy2_VHACD_CHs", ("teddy",), ()),
+    ("Ball_B01_Volleyball", ("volleyball",), ()),
+])
+def test_name_phrase_keeps_what_the_name_says(name, words, colours):
+    from mixcount.captions.nouns import name_phrase
+
+    phrase = name_phrase(name, "misc")
+    assert (phrase.words, phrase.colours) == (words, colours)

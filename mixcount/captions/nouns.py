@@ -46,7 +46,7 @@ SOURCE_TAGS = (
     "recolored", "copy", "duplicate", "variant", "version", "decimated", "simplified", "remeshed", "remesh",
     "scanned", "scan", "photogrammetry", "textured", "untextured", "watertight", "model", "mesh", "asset",
     "object", "shapenet", "objaverse", "sketchfab", "google scanned objects", "gso", "abo", "ycb", "lod",
-    "final", "export", "untitled", "default", "new", "test", "sample",
+    "final", "export", "untitled", "default", "new", "test", "sample", "vhacd", "chs",
 )
 GENERIC_CATEGORIES = frozenset({"misc", "miscellaneous", "other", "others", "unknown", "uncategorized",
                                 "uncategorised", "general", "none", "object", "objects", "item", "items", ""})
@@ -101,13 +101,14 @@ def clean_name_words(name: str) -> tuple[list[str], list[str]]:
     text = name
     for inner in _PAREN.findall(text):  # parenthesised parts are qualifiers or tags: keep only real words
         dropped.append(f"({inner})")
-    text = _PAREN.sub(" ", text)
+    text = _PAREN.sub(" ", text).replace("_", " ")  # "_" is a word character: tags between them would hide
     spaced = re.sub(r"(?<=[a-z])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", " ", text).lower()
     for tag in _TAG_RE.findall(spaced):
         dropped.append(tag)
     spaced = _TAG_RE.sub(" ", spaced)
     kept: list[str] = []
     for word in _split_words(spaced):
+        word = _VERSIONED.sub(r"\1", word)
         if _is_id(word) or len(word) < 2 or word in COLOUR_WORDS or word in SIZE_WORDS or word in GENERIC_STEMS:
             dropped.append(word)
             continue
@@ -159,6 +160,7 @@ PROPER_WORDS = frozenset({"stanford", "utah", "suzanne", "rubik", "lego", "duplo
                           "playstation", "nintendo", "pikachu", "mario", "darth", "vader", "yoda", "christmas",
                           "easter", "halloween", "eiffel", "big", "ben", "statue", "liberty"} - {"big", "statue"})
 _PROPER_SUFFIX = re.compile(r"^(?:[A-Z][a-z]{3,}(?:ese|ian|ish)|[A-Z][a-z]+'s)$")  # Siamese, Persian, Rubik's
+_VERSIONED = re.compile(r"^([A-Za-z]{3,})\d{1,3}$")  # a word with a version or copy number glued on
 _TOKEN_KEEP = re.compile(r"[A-Za-z0-9]+(?:['-][A-Za-z0-9]+)*")
 
 
@@ -236,7 +238,7 @@ def name_phrase(name: str, category: str, *, max_words: int = 4) -> NamePhrase:
         dropped.append(m.group(0))
         text = text[:m.start()] + " " + text[m.end():]
         low = text.lower()
-    raw = _TOKEN_KEEP.findall(text)
+    raw = [_VERSIONED.sub(r"\1", t) for t in _TOKEN_KEEP.findall(text)]  # "teddy2" -> "teddy"
     alpha = [t for t in raw if t[:1].isalpha()]
     title_case = len(alpha) > 1 and all(t[:1].isupper() for t in alpha)
     kept: list[str] = []
