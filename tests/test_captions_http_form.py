@@ -32,6 +32,10 @@ MESHY = {"short": "brown juice carton", "concise": "Brown juice carton with an o
          "detailed": "A brown juice carton in 3 separate parts, 69 % brown. It measures about 20 cm by 7 cm."}
 CARTON = {"short": "orange juice carton", "concise": "Orange juice carton with a brown and gold print",
           "detailed": "An orange juice carton printed in brown and gold, with a white screw cap."}
+TWIN = {"short": "red toy block", "concise": "Plain red toy block with rounded edges",
+        "detailed": "A plain red toy block with rounded edges."}
+TOLD = {"short": "red striped toy block", "concise": "Red toy block with white stripes",
+        "detailed": "A red toy block with two white stripes around its middle."}
 LEAKY = {"short": "white high-res bunny", "concise": "White bunny 3763 with long ears and a tail",
          "detailed": "A white bunny figure with long ears."}
 
@@ -41,6 +45,8 @@ def _plan(category: str, n: int, provider: str) -> tuple[int, dict[str, str], An
         return 200, {}, (TACKED if n == 0 else GOOD), 0.0
     if category == "food":  # mesh facts, a size in units and the name's colour lost first, then in form
         return 200, {}, (MESHY if n == 0 else CARTON), 0.0
+    if category == "twins":  # two different objects answered alike; asked to tell apart, the second differs
+        return 200, {}, (TOLD if n == 2 else TWIN), 0.0
     if category == "animal":  # leaks a source tag and an id twice: fails after the repair
         return 200, {}, LEAKY, 0.0
     return Behaviour.plan(category, n, provider)
@@ -154,3 +160,34 @@ def test_cli_fails_when_every_object_failed_and_names_the_url(server, catalog, d
     with catalog.session() as s:
         errors = [f.error for f in s.scalars(select(CaptionFailure))]
     assert sum(f"{url}/v1/chat/completions" in e for e in errors) == 2
+
+
+@pytest.mark.parametrize("provider", ["openai", "gemini"])
+def test_different_objects_with_equal_answers_are_asked_to_tell_apart(provider, server, catalog, tmp_path,  # noqa: F811
+                                                                        monkeypatch):
+    """Two different objects (different files) the model captioned alike: before any collision is flagged,
+    the second is asked again with the first's captions to differ from; its new answer passes the same check
+    and nothing is excluded."""
+    monkeypatch.setattr(Behaviour, "plan", staticmethod(_plan))
+    monkeypatch.setenv(KEY_ENV, API_KEY)
+    _objects(catalog, tmp_path, [("Toy block", "twins"), ("Toy block", "twins")])
+    with catalog.session() as s:  # two files, not one file twice
+        objs = s.scalars(select(CatalogObject).order_by(CatalogObject.id)).all()
+        for i, obj in enumerate(objs):
+            obj.content_hash = f"hash{i}"
+        s.commit()
+        first_id, second_id = objs[0].id, objs[1].id
+    conf = http_conf(provider=provider, endpoint=server.base, model="vision-test-1", api_key_env=KEY_ENV,
+                     timeout_s=2.0, concurrency=1, max_retries=0)
+    with httpx.Client() as client:
+        cap = HttpCaptioner(conf, client, sleep=lambda s: None, rng=np.random.default_rng(0))
+        summary = caption_catalog(catalog, cap, concurrency=1, colour_source="model")
+    assert server.attempts(provider, "twins") == 3 and summary.variants_toned == 1
+    asked = json.dumps([r["body"] for r in server.requests if r["category"] == "twins"][2])
+    assert "already have exactly these captions" in asked and TWIN["concise"] in asked
+    assert (summary.collision_pairs, summary.excluded) == (0, 0)
+    with catalog.session() as s:
+        sets = {cs.object_id: cs for cs in s.scalars(select(CaptionSet).where(CaptionSet.active.is_(True)))}
+        statuses = {o.id: o.status for o in s.scalars(select(CatalogObject))}
+    assert sets[first_id].short == TWIN["short"] and sets[second_id].short == TOLD["short"]
+    assert set(statuses.values()) == {"active"}

@@ -208,10 +208,10 @@ def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: 
     for a pair, ``tone`` = "darker" / "lighter" from the measured mean luminance, at least
     :data:`TONE_MIN_DIFFERENCE` apart; ``tell`` 2: the proportion word), until the group's captions differ. Objects nothing seen tells apart (same content hash, or the same
     name words, colours, shade and proportions) stay equal: true duplicates, flagged and excluded as before.
-    For the stub only (an LLM saw the image and chose its words). Returns the objects re-captioned (colour
-    variants and other objects alike)."""
+    An http captioner is asked again instead (``HttpCaptioner.tell_apart``: told the captions to differ
+    from). Returns the objects re-captioned (colour variants and other objects alike)."""
     if captioner.name != "stub":
-        return 0
+        return _tell_apart_by_asking(catalog, captioner)
     changed: set[int] = set()
     with catalog.session() as session:
         captions = {oid: cs for oid, cs in active_captions(session).items() if _same_key(cs, captioner)}
@@ -255,6 +255,34 @@ def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: 
 
 
 separate_collisions = separate_variants
+
+
+def _tell_apart_by_asking(catalog: Catalog, captioner: Captioner) -> int:
+    """For a captioner that can be asked again (``tell_apart``: the http one): in each group of different
+    objects (different content hashes) with equal captions, every member after the first is captioned
+    again, told the captions it must differ from; an answer that is invalid or still equal leaves the
+    collision to the flags. Returns the objects re-captioned."""
+    ask = getattr(captioner, "tell_apart", None)
+    if ask is None:
+        return 0
+    changed = 0
+    with catalog.session() as session:
+        captions = {oid: cs for oid, cs in active_captions(session).items() if _same_key(cs, captioner)}
+        for group in _colliding_groups(captions):
+            if len({session.get(CatalogObject, oid).content_hash or f"#{oid}" for oid in group}) == 1:
+                continue  # one file twice: a true duplicate
+            for oid in group[1:]:
+                others = [{t: getattr(captions[o], t) for t in TIERS} for o in group if o != oid]
+                item = CaptionInput.from_object(session.get(CatalogObject, oid), render_path=render_path_for(session, oid))
+                result = ask(item, others)
+                if result is None:
+                    continue
+                cs = captions[oid]
+                cs.short, cs.concise, cs.detailed = result.short, result.concise, result.detailed
+                cs.response_hash = response_hash(result.raw)
+                changed += 1
+            session.commit()
+    return changed
 
 
 def run_caption_check(catalog: Catalog, summary: CaptionSummary) -> None:

@@ -47,7 +47,7 @@ import numpy as np
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
 from mixcount.captions.check import blocking, reasons
 from mixcount.config import CaptionsConfig
-from mixcount.errors import CaptionRequestError, ConfigError, UnusableAnswerError
+from mixcount.errors import CaptionError, CaptionRequestError, ConfigError, UnusableAnswerError
 
 log = logging.getLogger("mixcount.captions.http")
 
@@ -410,6 +410,33 @@ class HttpCaptioner:
         if found:
             raise ValueError("caption check: " + reasons(found))
         return tiers
+
+    def tell_apart(self, item: CaptionInput, others: list[dict[str, str]]) -> CaptionResult | None:
+        """Captions of ``item`` again, asked to differ from ``others`` (the equal captions of different
+        objects) by what its image shows; None when the answer is invalid or still equal to one of them
+        (then the collision stays for the flags). One request, no repair: the first answer was valid."""
+        from mixcount.scene.caption_text import normalise_caption
+
+        body = self.build_body(item)
+        note = (
+            "Other, different objects of this catalog already have exactly these captions: "
+            f"{json.dumps(others)}. Write this object's three captions again so that each tier differs from "
+            "theirs, with what the image shows that tells this object apart (the colour of a part, a print or "
+            "pattern, a material, a shape word); the same rules as before."
+        )
+        if self.provider == "openai":
+            body["messages"].append({"role": "user", "content": note})
+        else:
+            body["contents"].append({"role": "user", "parts": [{"text": note}]})
+        try:
+            content, made = self._send(body, item.object_id, 0)
+            tiers = self.checked(content, item)
+        except (CaptionError, ValueError) as exc:
+            log.info("object %d: no telling captions (%s)", item.object_id, self.redact(str(exc)))
+            return None
+        if any(normalise_caption(tiers[t]) == normalise_caption(o.get(t, "")) for o in others for t in TIERS):
+            return None
+        return CaptionResult(raw=content, attempts=made, **tiers)
 
     def caption(self, item: CaptionInput) -> CaptionResult:
         body = self.build_body(item)
