@@ -50,6 +50,7 @@ class Entry:
     dtc_folder: str | None = None  # for unnamed DTC entries: the folder name
     recolour_of: str | None = None
     tags: dict[str, str] = field(default_factory=dict)
+    fmt: str = "glb"  # "obj": model.obj + model.mtl (+ texture.png) whatever the layout, as scans ship
 
 
 # --- mesh helpers -----------------------------------------------------------------------------------------
@@ -124,7 +125,7 @@ def _textured(mesh: trimesh.Trimesh, image: Image.Image) -> trimesh.Trimesh:
     p = mesh.vertices - mesh.bounds.mean(axis=0)
     u = np.arctan2(p[:, 1], p[:, 0]) / (2 * np.pi) + 0.5
     span = np.ptp(p[:, 2]) or 1.0
-    v = (p[:, 2] - p[:, 2].min()) / span
+    v = 0.02 + 0.96 * (p[:, 2] - p[:, 2].min()) / span  # off the texture's edge rows (no wrap blend at a pole)
     material = trimesh.visual.material.PBRMaterial(baseColorTexture=image, baseColorFactor=[255, 255, 255, 255])
     mesh.visual = trimesh.visual.TextureVisuals(uv=np.column_stack([u, v]), material=material)
     return mesh
@@ -431,6 +432,40 @@ def _recoloured(builder: Callable[[], trimesh.Trimesh], colour: RGB | None = Non
     return build
 
 
+def _juice_carton() -> trimesh.Trimesh:
+    """An orange juice carton whose print is mostly brown and gold: its texture's mean is not orange."""
+    return _textured(trimesh.creation.box((0.07, 0.07, 0.2)), _texture("checker", [(150, 90, 40), (205, 160, 45),
+                                                                                    ORANGE]))
+
+
+def _patterned_bowl(colours: list[RGB]) -> Callable[[], trimesh.Trimesh]:
+    def build() -> trimesh.Trimesh:
+        return _textured(_frustum(0.045, 0.075, 0.055, 64), _texture("dots", colours))
+    return build
+
+
+def _dispenser() -> trimesh.Trimesh:
+    body = _coloured(trimesh.creation.box((0.12, 0.1, 0.2)), WHITE)
+    nozzle = _coloured(_at(trimesh.creation.cylinder(0.012, 0.05), x=0.07, z=0.02), PINK)
+    return _join(body, nozzle)
+
+
+def _worm() -> trimesh.Trimesh:
+    return _coloured(_rot(trimesh.creation.capsule(0.4, 0.01, count=[16, 16]), (0, 1, 0), 90), PINK)
+
+
+def _sauce() -> trimesh.Trimesh:
+    body = trimesh.creation.cylinder(0.022, 0.11, sections=6)
+    neck = _at(_frustum(0.022, 0.008, 0.04, 6), z=0.075)
+    return _join(body, neck)
+
+
+def _obj_duck() -> trimesh.Trimesh:
+    """pybullet's duck, in short: an OBJ whose .mtl says Kd 0.64 beside a texture of (255, 216, 0)."""
+    body = _join(_ellipsoid(0.05, 0.04, 0.035), _at(_ellipsoid(0.025, 0.025, 0.025), x=0.035, z=0.045))
+    return _textured(body, Image.new("RGB", (64, 64), (255, 216, 0)))
+
+
 ENTRIES: list[Entry] = [
     Entry("red_coffee_mug", "Red coffee mug", "kitchenware", "mug", _mug),
     Entry("soccer_ball", "Soccer ball", "sports", "ball", _ball(1.0, 3, "patches", [WHITE, BLACK])),
@@ -482,6 +517,20 @@ ENTRIES: list[Entry] = [
     Entry("headphones", "Headphones", "electronics", "headphones", _headphones),
     Entry("umbrella", "Umbrella", "accessory", "umbrella", _umbrella),
     Entry("toy_guitar", "Toy guitar", "toy", "guitar", _guitar),
+    # the issue's cases: the name's colour beats a texture's mean, compounds and proper nouns, an OBJ + .mtl
+    Entry("juice_carton", "Orange juice carton", "food", "carton", _juice_carton),
+    Entry("black_bowl", "Black bowl", "kitchenware", "bowl", _patterned_bowl([WHITE, BLACK])),
+    Entry("white_bowl", "White bowl", "kitchenware", "bowl", lambda: _coloured(_frustum(0.04, 0.085, 0.045, 64), WHITE)),
+    Entry("ice_cream_dispenser", "Ice-cream dispenser", "kitchenware", "dispenser", _dispenser),
+    Entry("earthworm", "Earthworm (scan, 5 m export)", "animal", "earthworm", _worm),
+    Entry("duck_obj", "Duck", "toy", "duck", _obj_duck, fmt="obj"),
+    # different objects whose plain captions would be equal: told apart by what is seen (proportions, shade)
+    Entry("block_cube", "Wooden block", "toy", "block", lambda: _coloured(trimesh.creation.box((0.05,) * 3), TAN)),
+    Entry("block_plank", "Wooden block", "toy", "block",
+          lambda: _coloured(trimesh.creation.box((0.2, 0.05, 0.05)), TAN)),
+    Entry("hot_sauce", "Hot sauce bottle", "food", "bottle", _recoloured(_sauce, (235, 40, 45))),
+    Entry("hot_sauce_dark", "Hot sauce bottle", "food", "bottle", _recoloured(_sauce, (150, 20, 25)),
+          recolour_of="hot_sauce"),
     # DTC folders without a person-written name: the category (from the folder name) is the noun
     Entry("dtc_marker_peach", None, "marker", "marker", _marker((250, 180, 140), 0.13), dtc_folder="Markers_B07Z5P84J2_Peach"),
     Entry("dtc_marker_teal", None, "marker", "marker", _marker(TEAL, 0.1), dtc_folder="Markers_B07Z5Q11K8_Teal"),
@@ -493,6 +542,28 @@ ENTRIES: list[Entry] = [
 ]
 
 
+LAYOUTS = ("folder", "dtc", "obj")
+# Written by hand per named entry: the compound noun a caption must keep as the name says it (the case of
+# a proper noun included) and the colour words of the name (they win over a texture's mean).
+COMPOUNDS = {
+    "red_coffee_mug": "coffee mug", "soccer_ball": "soccer ball", "ketchup_bottle": "ketchup bottle",
+    "ketchup_bottle_blue": "ketchup bottle", "stanford_bunny_hr": "Stanford bunny", "teddy_hull": "teddy bear",
+    "desk_lamp": "desk lamp", "fire_hydrant": "fire hydrant", "siamese_cat": "Siamese cat",
+    "cheese_box": "cheese box", "alphabet_soup": "alphabet soup can", "alphabet_soup_red": "alphabet soup can",
+    "rubber_duck": "rubber duck", "tennis_racket": "tennis racket", "wooden_spoon": "wooden spoon",
+    "cereal_box": "cereal box", "toy_car": "toy car", "alarm_clock": "alarm clock",
+    "computer_mouse": "computer mouse", "water_bottle_copy": "water bottle", "flower_pot": "flower pot",
+    "traffic_cone": "traffic cone", "baseball_cap": "baseball cap", "tt_paddle": "table tennis paddle",
+    "chess_pawn": "chess pawn", "remote_control": "remote control", "paint_brush": "paint brush",
+    "wine_glass": "wine glass", "wooden_chair": "wooden chair", "toy_guitar": "toy guitar",
+    "juice_carton": "orange juice carton", "ice_cream_dispenser": "ice-cream dispenser",
+    "block_cube": "wooden block", "block_plank": "wooden block", "hot_sauce": "hot sauce bottle",
+    "hot_sauce_dark": "hot sauce bottle",
+}
+NAME_COLOURS = {"red_coffee_mug": ["red"], "ketchup_bottle_blue": ["blue"], "alphabet_soup_red": ["red"],
+                "juice_carton": ["orange"], "black_bowl": ["black"], "white_bowl": ["white"]}
+
+
 def _dtc_id(slug: str) -> str:
     return "B0" + hashlib.sha256(slug.encode()).hexdigest()[:8].upper().replace("A", "K")
 
@@ -501,17 +572,44 @@ def _camel(slug: str) -> str:
     return "".join(w.capitalize() for w in re.split(r"[_\W]+", slug) if w and not w.isdigit())
 
 
-def build_named_library(root: Path, layout: str = "folder") -> dict[str, dict]:
+def _write_obj(mesh: trimesh.Trimesh, path: Path) -> None:
+    """``mesh`` as a scan ships it: ``model.obj`` + ``model.mtl`` (``Kd 0.64``, as pybullet's and many
+    exporters' .mtl files say) + ``texture.png`` for a textured mesh; vertex colours on the ``v`` lines (no
+    .mtl) for the others."""
+    visual = mesh.visual
+    image = getattr(getattr(visual, "material", None), "baseColorTexture", None)
+    lines = ["mtllib model.mtl", "usemtl material0"]
+    if image is not None:
+        lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices]
+        lines += [f"vt {u:.6f} {v:.6f}" for u, v in visual.uv]
+        lines += [f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}" for a, b, c in mesh.faces]
+        image.save(path.parent / "texture.png")
+        mtl = "newmtl material0\nKa 0 0 0\nKd 0.64 0.64 0.64\nKs 0.5 0.5 0.5\nmap_Kd texture.png\n"
+    else:  # vertex colours on the v lines and no material (a material's Kd would be rendered instead)
+        cols = np.asarray(visual.vertex_colors)[:, :3] / 255.0
+        lines = [f"v {x:.6f} {y:.6f} {z:.6f} {r:.4f} {g:.4f} {b:.4f}" for (x, y, z), (r, g, b) in zip(mesh.vertices, cols)]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces]
+        mtl = ""
+    path.write_text("\n".join(lines) + "\n")
+    if mtl:
+        (path.parent / "model.mtl").write_text(mtl)
+
+
+def build_named_library(root: Path, layout: str = "folder", only: set[str] | None = None) -> dict[str, dict]:
     """Write the library under ``root`` in ``layout`` ("folder": ``<slug>/model.glb``; "dtc":
-    ``<Category>_<ID>_<Variant>/3d-asset.glb``), each named entry with ``metadata.json`` {name, category}.
+    ``<Category>_<ID>_<Variant>/3d-asset.glb``; "obj": ``<slug>/model.obj`` + ``model.mtl``, textures and
+    vertex colours as scans ship them), each named entry with ``metadata.json`` {name, category}.
     Unnamed entries are DTC folders in both trees. Returns slug -> truth (folder, name, category, noun,
-    recolour_of); also written to ``root/truth.json``."""
-    if layout not in ("folder", "dtc"):
-        raise ValueError(f"layout must be folder or dtc, got {layout!r}")
+    recolour_of, textured, compound, colours); also written to ``root/truth.json``. ``only``: these slugs
+    alone (a bench's smoke run)."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
     root.mkdir(parents=True, exist_ok=True)
     y_up = trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0))  # our Z-up -> glTF's Y-up
     truth: dict[str, dict] = {}
     for e in ENTRIES:
+        if only is not None and e.slug not in only:
+            continue
         if e.dtc_folder is not None:
             folder, model = e.dtc_folder, "3d-asset.glb"
         elif layout == "dtc":
@@ -522,11 +620,17 @@ def build_named_library(root: Path, layout: str = "folder") -> dict[str, dict]:
         target.mkdir(parents=True, exist_ok=True)
         mesh = e.build()
         mesh.apply_transform(y_up)
-        mesh.export(target / model)
+        if e.fmt == "obj" or (layout == "obj" and e.dtc_folder is None):
+            model = "model.obj"
+            _write_obj(mesh, target / model)
+        else:
+            mesh.export(target / model)
         if e.name is not None:
             (target / "metadata.json").write_text(json.dumps({"name": e.name, "category": e.category}))
         truth[e.slug] = {"folder": folder, "name": e.name, "category": e.category, "noun": e.noun,
-                         "recolour_of": e.recolour_of, "faces": int(len(mesh.faces))}
+                         "recolour_of": e.recolour_of, "faces": int(len(mesh.faces)),
+                         "textured": getattr(getattr(mesh.visual, "material", None), "baseColorTexture", None)
+                         is not None, "compound": COMPOUNDS.get(e.slug), "colours": NAME_COLOURS.get(e.slug, [])}
     (root / "truth.json").write_text(json.dumps(truth, indent=1, sort_keys=True))
     return truth
 
@@ -586,6 +690,7 @@ def caption_figures(rows: list[dict], truth: dict[str, dict]) -> dict:
             fragments += 1
             details["fragments"].append(f"{slug}: {sorted(set(bad))}")
     shared = {tier: sorted(ss for ss in groups.values() if len(ss) > 1) for tier, groups in texts.items()}
+    person = person_figures(active, by_folder)
     return {
         "active": len(active),
         "with_noun": with_noun,
@@ -597,6 +702,57 @@ def caption_figures(rows: list[dict], truth: dict[str, dict]) -> dict:
         "shared_captions": {tier: len(v) for tier, v in shared.items()},
         "shared_detail": shared,
         "details": details,
+        **person,
+    }
+
+
+# what no tier may say (independent of the caption check's own patterns): numbers (sizes, shares, counts)
+# and words about the mesh or its size
+MESH_WORDS = {"surface", "watertight", "non-watertight", "parts", "part", "percent", "vertices", "faces",
+              "triangles", "mesh", "irregular", "compact"}
+SIZE_UNITS = {"cm", "mm", "m", "measures", "measuring", "inches", "inch", "metres", "meters"}
+
+
+def person_figures(active: list[dict], by_folder: dict[str, tuple[str, dict]]) -> dict:
+    """Figures of issue 50 over captioned active rows: mesh facts and absolute sizes in any tier, the name's
+    colour words, compound nouns (proper nouns case-sensitive) and head nouns kept in short and concise."""
+    mesh = sizes = colour_total = colour_kept = compound_total = compound_kept = 0
+    misses: dict[str, list[str]] = {"mesh_facts": [], "sizes": [], "colour_lost": [], "compound_lost": []}
+    for r in active:
+        slug, t = by_folder[r["folder"]]
+        caps = r.get("captions")
+        if not caps:
+            continue
+        words = [w for tier in ("short", "concise", "detailed") for w in _words(caps[tier])]
+        if set(words) & MESH_WORDS or "%" in " ".join(caps.values()):
+            mesh += 1
+            misses["mesh_facts"].append(f"{slug}: {caps['detailed']!r}")
+        if set(words) & SIZE_UNITS or any(w.isdigit() for w in words):
+            sizes += 1
+            misses["sizes"].append(f"{slug}: {caps['detailed']!r}")
+        pair = caps["short"] + " | " + caps["concise"]
+        for colour in t.get("colours") or []:
+            colour_total += 1
+            if all(colour in _words(caps[tier]) for tier in ("short", "concise")):
+                colour_kept += 1
+            else:
+                misses["colour_lost"].append(f"{slug}: {pair!r}")
+        compound = t.get("compound")
+        if compound:
+            compound_total += 1
+            proper = compound != compound.lower()
+            if all((compound in caps[tier]) if proper else (compound in caps[tier].lower())
+                   for tier in ("short", "concise")):
+                compound_kept += 1
+            else:
+                misses["compound_lost"].append(f"{slug}: {pair!r}")
+    return {
+        "mesh_facts": mesh, "absolute_sizes": sizes,
+        "name_colours": colour_total, "name_colours_kept": colour_kept,
+        "name_colour_share": round(colour_kept / colour_total, 3) if colour_total else None,
+        "compounds": compound_total, "compounds_kept": compound_kept,
+        "compound_share": round(compound_kept / compound_total, 3) if compound_total else None,
+        "person_misses": misses,
     }
 
 

@@ -222,6 +222,16 @@ def test_soak_bench(bench_root: Path) -> None:
     assert doc["failures_explained_pct"] == 100.0 and doc["failures"] == doc["explained"]
 
 
+@pytest.mark.slow
+@pytest.mark.blender
+def test_captions_bench(tmp_path: Path) -> None:
+    doc = run_smoke("captions", tmp_path)[-1]
+    check_figures(doc, ["active", "mesh_facts", "absolute_sizes", "name_colour_share", "compound_share",
+                        "noun_share", "excluded_by_collision", "textured", "textured_agree"])
+    assert doc["mesh_facts"] == doc["absolute_sizes"] == doc["excluded_by_collision"] == 0
+    assert doc["textured"] >= 3 and doc["textured_agree"] == doc["textured"]
+
+
 def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     """A bench added to bench/ without ``--smoke`` or without its test above fails here (bench/pools.py is
     the benches' shared helper, not a bench)."""

@@ -15,7 +15,7 @@ from sqlalchemy import select
 from mixcount.captions.base import STUB_WORD_BOUNDS, CaptionInput, name_tokens
 from mixcount.captions.captioning import caption_catalog, normalise_caption
 from mixcount.captions.colours import colours_from_model, colours_from_render, name_rgb
-from mixcount.captions.stub import StubCaptioner, size_class
+from mixcount.captions.stub import StubCaptioner, proportion_word
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, Render
 from mixcount.cli import main
 
@@ -103,18 +103,42 @@ def test_stub_is_grounded_deterministic_and_within_bounds(tmp_path: Path):
     r = stub.caption(item)
     assert r == stub.caption(item)
     assert_bounds(r.short, r.concise, r.detailed)
-    assert "yellow" in r.short and r.short.endswith("volleyball")
-    assert "round" in r.concise.lower()
-    assert "20 cm by 20 cm" in r.detailed and "20 cm tall" in r.detailed
-    # every word of the short caption comes from a fact: colour, a shape cue or the name/category
-    allowed = {"yellow", "round", "compact", "volleyball", "patterned", "plain"}
-    assert set(r.short.split()) <= allowed
+    assert r.short == "yellow volleyball"
+    # every word of the short caption comes from a fact: a measured colour and the name's noun
+    assert r.concise == "Plain yellow volleyball" and r.detailed == "A plain yellow volleyball. It is plain yellow all over."
+    for text in (r.short, r.concise, r.detailed):  # no mesh facts, no sizes: scenes rescale every class
+        assert not any(w in text for w in ("cm", "mm", "measures", "surface", "watertight", "parts", "%", "shape with"))
 
     marker = stub.caption(_item(name="Marker_X1_Sharpie", category="marker", dims=(0.014, 0.014, 0.14),
                                 volume=0.014**2 * 0.785 * 0.14))
     assert_bounds(marker.short, marker.concise, marker.detailed)
-    assert "slender" in marker.concise and "cylindrical" in marker.concise and "marker" in marker.short
-    assert size_class(0.02) == "tiny" and size_class(0.3) == "large"
+    assert marker.concise.startswith("Slender") and "marker" in marker.short  # a shape word a person uses
+    assert proportion_word((0.1, 0.1, 0.1)) is None and proportion_word((0.3, 0.05, 0.05)) == "slender"
+    assert proportion_word((0.3, 0.2, 0.02)) == "flat"
+
+
+def test_the_name_wins_colour_compound_and_proper_nouns(tmp_path: Path):
+    """The name's colour words beat the texture's mean (a dark print on white still is a "Black bowl"), its
+    compound noun and the capitals of a proper noun stay, and its filler and tags go."""
+    stub = StubCaptioner("stub-v1")
+    sphere = trimesh.creation.icosphere(2, 0.05)
+    tex = Image.new("RGB", (32, 32), (245, 245, 245))
+    tex.paste((15, 15, 15), (0, 0, 32, 8))  # a black band on a white bowl
+    uv = np.random.default_rng(0).random((len(sphere.vertices), 2))
+    sphere.visual = trimesh.visual.TextureVisuals(
+        uv=uv, material=trimesh.visual.material.PBRMaterial(baseColorTexture=tex, baseColorFactor=[255] * 4))
+    sphere.export(tmp_path / "bowl.glb")
+    bowl = stub.caption(_item(name="Black bowl", category="kitchenware", textured=True, dims=(0.15, 0.15, 0.06),
+                              model_path=str(tmp_path / "bowl.glb")).with_measured_colours("model"))
+    assert bowl.short == "black bowl" and "white" in bowl.concise  # the name's colour, then what it leaves out
+    ice = stub.caption(_item(name="Ice-cream dispenser (high-res)", category="kitchenware",
+                             model_path=str(_coloured_glb(tmp_path / "i.glb", trimesh.creation.box((0.1,) * 3),
+                                                          (200, 30, 30)))).with_measured_colours("model"))
+    assert ice.short == "red ice-cream dispenser" and "high" not in ice.detailed
+    bunny = stub.caption(_item(name="Stanford bunny", category="animal",
+                               model_path=str(_coloured_glb(tmp_path / "s.glb", trimesh.creation.box((0.1,) * 3),
+                                                            (240, 240, 240)))).with_measured_colours("model"))
+    assert bunny.short == "white Stanford bunny" and "Stanford bunny" in bunny.detailed
 
 
 @pytest.mark.parametrize(
@@ -174,7 +198,7 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
         flags = s.scalars(select(Flag).where(Flag.kind == "caption_collision")).all()
     assert "red" in sets[ids["b"]].short  # colour_source=render: from the render, not the blue model
     assert {(f.object_id, f.pair_object_id) for f in flags} == {(ids["a"], ids["e"]), (ids["e"], ids["a"])}
-    assert all(cs.prompt_version == "stub-v2" and cs.active for cs in sets.values())
+    assert all(cs.prompt_version == "stub-v3" and cs.active for cs in sets.values())
     texts = [normalise_caption(cs.short) for k, cs in sets.items() if k not in (ids["e"],)]
     assert len(texts) == len(set(texts))
 
@@ -185,7 +209,7 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
         assert s.get(CatalogObject, ids["e"]).status == "active"
 
     # the default resolves the collision (the paper's rule)
-    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v3", "catalog", "caption", "--json"]) == 0
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v4", "catalog", "caption", "--json"]) == 0
     third = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (third["captioned"], third["excluded"]) == (5, 1)
     with catalog.session() as s:
@@ -193,11 +217,11 @@ def test_caption_command_resumes_flags_collisions_and_dedupes(catalog, db_url, t
         active = s.scalars(select(CaptionSet).where(CaptionSet.active.is_(True))).all()
         total = len(s.scalars(select(CaptionSet)).all())
     assert statuses[ids["e"]] == "excluded" and statuses[ids["a"]] == "active"
-    assert total == 10 and len(active) == 5 and {cs.prompt_version for cs in active} == {"stub-v3"}
+    assert total == 10 and len(active) == 5 and {cs.prompt_version for cs in active} == {"stub-v4"}
 
     # a later run keeps the excluded copy's flag (the reason it was dropped) but has nothing left to resolve;
     # --dedupe is still accepted (it names the default)
-    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v3", "catalog", "caption", "--dedupe"]) == 0
+    assert main(["--db", db, "--set", "captions.stub_prompt_version=stub-v4", "catalog", "caption", "--dedupe"]) == 0
     readable = capsys.readouterr()  # without --json: a readable summary on stdout, no JSON, no Python dict
     assert readable.out.startswith("captioned 0, skipped 4, failed 0 of 4 active objects")  # e was excluded
     assert "by tier: short" in readable.out and "{" not in readable.out
@@ -286,3 +310,53 @@ def test_colour_source_order(tmp_path: Path):
     assert no_model.with_measured_colours("model").colours.source == "render"
     with pytest.raises(ValueError):
         item.with_measured_colours("guess")
+
+
+class _MeasuringStub(StubCaptioner):
+    """The stub plus the mesh facts and size stub-v2 wrote: what the shared check must reject."""
+
+    def caption(self, item: CaptionInput):  # type: ignore[no-untyped-def]
+        r = super().caption(item)
+        return type(r)(short=r.short, concise=r.concise + " with an open surface",
+                       detailed=r.detailed + " It measures about 12 cm across.", raw=r.raw)
+
+
+def test_a_caption_breaking_the_rules_is_rejected_with_the_reason(catalog, tmp_path: Path):
+    """The shared caption check runs on every captioner's output in `caption_catalog`: a caption with mesh
+    facts or a size is not stored; a caption_failures row says which rule it broke, tier by tier."""
+    from mixcount.catalog.models import CaptionFailure
+
+    ids = _library(catalog, tmp_path)
+    summary = caption_catalog(catalog, _MeasuringStub("stub-bad"), concurrency=1, colour_source="model",
+                              dedupe=False)
+    assert (summary.captioned, summary.failed) == (0, len(ids))
+    with catalog.session() as s:
+        failures = s.scalars(select(CaptionFailure)).all()
+        assert s.scalars(select(CaptionSet)).all() == []
+    assert len(failures) == len(ids)
+    for f in failures:
+        assert f.error.startswith("caption check: ")
+        assert "concise mesh_fact (mesh fact 'open surface')" in f.error
+        assert "detailed absolute_size" in f.error
+
+
+@pytest.mark.parametrize("name,words,colours", [
+    ("Ice-cream dispenser", ("ice-cream", "dispenser"), ()),
+    ("Stanford bunny (high-res)", ("Stanford", "bunny"), ()),
+    ("Siamese cat", ("Siamese", "cat"), ()),
+    ("Cheese box", ("cheese", "box"), ()),
+    ("Red Ceramic Mug", ("red", "ceramic", "mug"), ("red",)),
+    ("Orange juice carton", ("orange", "juice", "carton"), ("orange",)),
+    ("Ketchup bottle (blue recolour)", ("ketchup", "bottle"), ("blue",)),
+    ("Teddy bear convex-hull approximation", ("teddy", "bear"), ()),
+    ("Large white mug", ("white", "mug"), ("white",)),
+    ("Clear glass jar", ("clear", "glass", "jar"), ()),
+    ("LEGO brick 2x4", ("LEGO", "brick"), ()),
+    ("Teddy2_VHACD_CHs", ("teddy",), ()),
+    ("Ball_B01_Volleyball", ("volleyball",), ()),
+])
+def test_name_phrase_keeps_what_the_name_says(name, words, colours):
+    from mixcount.captions.nouns import name_phrase
+
+    phrase = name_phrase(name, "misc")
+    assert (phrase.words, phrase.colours) == (words, colours)

@@ -1,6 +1,6 @@
-"""Colour variants whose colours share one name ("red" and a darker red) still get captions that differ at
-every tier: the stub says "darker"/"lighter" from the measured mean luminance of the pair; pairs that are
-not variants are left alone (their identical captions are a collision, flagged as before)."""
+"""Different objects whose colours share one name ("red" and a darker red) still get captions that differ at
+every tier, colour variants or not: the stub says "darker"/"lighter" from the measured mean luminance of the
+pair before any collision is flagged; only objects nothing seen tells apart (one file twice) collide."""
 
 from __future__ import annotations
 
@@ -43,17 +43,18 @@ def test_variants_with_one_colour_name_are_told_apart_by_measured_shade(catalog,
         s.commit()
     summary = caption_catalog(catalog, StubCaptioner("stub-test"), concurrency=1, colour_source="model",
                               dedupe=False)
-    assert summary.variants_toned == 2
+    assert summary.variants_toned == 4
     with catalog.session() as s:
         sets = {cs.object_id: cs for cs in s.scalars(select(CaptionSet).where(CaptionSet.active.is_(True)))}
-    for tier in ("short", "concise", "detailed"):
-        a, b = getattr(sets[light], tier), getattr(sets[dark], tier)
-        assert a.lower() != b.lower(), (tier, a, b)
+    for x, y in ((light, dark), (twin_a, twin_b)):
+        for tier in ("short", "concise", "detailed"):
+            a, b = getattr(sets[x], tier), getattr(sets[y], tier)
+            assert a.lower() != b.lower(), (tier, a, b)
     assert sets[dark].short == "darker red ketchup bottle" and sets[light].short == "lighter red ketchup bottle"
-    assert sets[dark].concise.startswith("Darker red ketchup bottle")
-    # not variants: the same words, reported as a caption collision (the rule that was there before)
-    assert sets[twin_a].short == sets[twin_b].short == "red hot sauce bottle"
-    assert summary.collision_pairs == 1
+    assert sets[dark].concise.startswith("Darker slender red ketchup bottle")
+    # not variants, but two different objects: told apart the same way, no collision left to flag
+    assert {sets[twin_a].short, sets[twin_b].short} == {"lighter red hot sauce bottle", "darker red hot sauce bottle"}
+    assert summary.collision_pairs == 0
     assert summary.caption_check["by_kind"]["same_as_variant"] == 0
 
     # a rerun (resumed: nothing captioned again) keeps the variants apart

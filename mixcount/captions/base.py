@@ -2,7 +2,7 @@
 
 A captioner turns one :class:`CaptionInput` (the facts the catalog knows about an object, plus the path
 of its canonical render when there is one) into a :class:`CaptionResult` with three tiers of text:
-``short`` (2-5 words), ``concise`` (5-10 words) and ``detailed`` (1-2 sentences), and the raw answer it
+``short`` (2-5 words), ``concise`` (the phrase that picks it out) and ``detailed`` (1-2 sentences), and the raw answer it
 was built from (hashed into the caption set, never stored whole).
 
 ``name`` is the captioner kind stored in ``caption_sets.captioner`` (``stub`` | ``http``); together with
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render, count_parts
+from mixcount.captions.colours import EMPTY, ColourSummary, colours_from_model, colours_from_render
 from mixcount.scene.spec import TIERS
 from mixcount.scene.words import words_of
 
@@ -25,7 +25,7 @@ COLOUR_SOURCES = ("model", "render")
 # Word bounds every captioner's answer is checked against (inclusive). The stub aims inside the
 # issue's bounds (2-5, 5-10, 1-2 sentences); answers from an LLM get a little slack before they count as
 # schema violations.
-STUB_WORD_BOUNDS = {"short": (2, 5), "concise": (5, 10), "detailed": (8, 60)}
+STUB_WORD_BOUNDS = {"short": (2, 5), "concise": (2, 12), "detailed": (2, 60)}
 LLM_WORD_BOUNDS = {"short": (1, 8), "concise": (3, 16), "detailed": (5, 80)}
 
 def words(text: str) -> list[str]:
@@ -57,9 +57,10 @@ def display_name(obj: Any) -> str:
 
 
 def _name_hint(name: str, category: str) -> str:
-    from mixcount.captions.nouns import noun_phrase
+    """The name as the captions should say it: its own words, colours and case; bookkeeping dropped."""
+    from mixcount.captions.nouns import name_phrase
 
-    return noun_phrase(name, category).text()
+    return name_phrase(name, category).text()
 
 
 @dataclass(frozen=True)
@@ -79,13 +80,17 @@ class CaptionInput:
     model_path: str | None = None
     render_path: Path | None = None
     colours: ColourSummary = field(default=EMPTY)
-    parts: int | None = None  # separate parts of the model (measured with the colours)
+    parts: int | None = None  # unused since stub-v3 (a part count is a mesh fact, not what a person sees)
     # "darker" / "lighter": set only for a colour variant whose captions came out the same as its pair's
     # (same colour names): the measured mean luminance of the two tells them apart
     tone: str | None = None
     # the model file's content hash: seeds the surface-colour sampling, so the same asset gets the same
     # colour shares whatever row id an ingest gave it ("" = seed by object_id)
     content_hash: str = ""
+    # how many telling words to add (0 = the plain prompt): set only when two different objects got equal
+    # captions (:func:`mixcount.captions.captioning.separate_collisions`); 1 = every measured colour and the
+    # pattern also beside the name's colours, 2 = also the proportion word ("long", "flat")
+    tell: int = 0
 
     @classmethod
     def from_object(cls, obj: Any, *, render_path: Path | None = None) -> "CaptionInput":
@@ -139,20 +144,18 @@ class CaptionInput:
                 colours = colours_from_model(Path(self.model_path), seed=self.colour_seed())
             if colours.names:
                 break
-        parts = count_parts(Path(self.model_path)) if self.model_path and Path(self.model_path).is_file() else None
-        return replace(self, colours=colours, parts=parts)
+        return replace(self, colours=colours)
 
-    def facts(self) -> dict[str, Any]:
-        """JSON-able facts (no paths): what an LLM prompt is told besides the image."""
-        return {
-            "category": self.category,
-            # what a person called it, bookkeeping (ids, source tags, colour and size words) dropped
-            "name": _name_hint(self.name, self.category),
-            "dimensions_cm": [round(d * 100.0, 1) for d in self.dims],
-            "watertight": self.watertight,
-            "textured": self.textured,
-            "dominant_colours": list(self.colours.names),
-        }
+    def facts(self, *, with_image: bool = True) -> dict[str, Any]:
+        """JSON-able facts (no paths, no mesh facts, no sizes): what an LLM prompt is told besides the image.
+
+        The name as the captions should say it (its colour words and proper nouns kept, ids, source tags
+        and size words dropped) and the category (a shelf label). Without an image, also the colours
+        measured the way the renderer shows the material (the only look there is to go by)."""
+        out: dict[str, Any] = {"name": _name_hint(self.name, self.category), "category": self.category}
+        if not with_image:
+            out["colours_seen"] = list(self.colours.names)
+        return out
 
 
 @dataclass(frozen=True)

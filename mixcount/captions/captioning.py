@@ -36,7 +36,7 @@ from mixcount.catalog.models import (
     CatalogObject,
     Flag,
 )
-from mixcount.errors import CaptionError
+from mixcount.errors import CaptionError, CaptionRequestError
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.scene.caption_text import normalise_caption
 
@@ -192,46 +192,96 @@ def caption_catalog(
 
 
 TONE_MIN_DIFFERENCE = 0.02  # mean luminance apart (0..1) before "darker"/"lighter" is a fact, not noise
+# (CaptionInput.tell, say the shade) tried in order on a group of equal captions until they differ
+TELL_STEPS = ((1, False), (0, True), (1, True), (2, False), (2, True))
+
+
+def _colliding_groups(captions: dict[int, CaptionSet]) -> list[list[int]]:
+    """Groups of objects whose active captions are identical at some tier (connected components)."""
+    return collision_groups(find_collisions(captions))
 
 
 def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: str) -> int:
-    """Colour variants (``colour_variant`` flags of ``catalog filter``) whose active captions by this
-    captioner are identical at some tier (one colour name for two shades: "red" and a darker red) are
-    captioned again with ``tone`` = "darker" / "lighter" from their measured mean luminance, for the stub
-    only (an LLM saw both images and chose its words). Returns the objects re-captioned; pairs whose shades
-    are within :data:`TONE_MIN_DIFFERENCE` stay as they are (the caption check reports them)."""
+    """Tell apart different objects whose captions by this captioner came out equal at some tier, before any
+    collision is flagged: each group is captioned again with more telling words, in the order of
+    :data:`TELL_STEPS` (``CaptionInput.tell`` 1: the measured colours and pattern beside the name's colours;
+    for a pair, ``tone`` = "darker" / "lighter" from the measured mean luminance, at least
+    :data:`TONE_MIN_DIFFERENCE` apart; ``tell`` 2: the proportion word), until the group's captions differ. Objects nothing seen tells apart (same content hash, or the same
+    name words, colours, shade and proportions) stay equal: true duplicates, flagged and excluded as before.
+    An http captioner is asked again instead (``HttpCaptioner.tell_apart``: told the captions to differ
+    from). Returns the objects re-captioned (colour variants and other objects alike)."""
     if captioner.name != "stub":
-        return 0
-    from mixcount.captions.check import VARIANT_KIND
-
-    changed = 0
+        return _tell_apart_by_asking(catalog, captioner)
+    changed: set[int] = set()
     with catalog.session() as session:
-        captions = active_captions(session)
-        pairs = {(min(f.object_id, f.pair_object_id), max(f.object_id, f.pair_object_id))
-                 for f in session.scalars(select(Flag).where(Flag.kind == VARIANT_KIND))
-                 if f.pair_object_id is not None}
-        for a, b in sorted(pairs):
-            ca, cb = captions.get(a), captions.get(b)
-            if ca is None or cb is None or not (_same_key(ca, captioner) and _same_key(cb, captioner)):
-                continue
-            if not any(normalise_caption(getattr(ca, t)) == normalise_caption(getattr(cb, t)) for t in TIERS):
-                continue
-            items = {}
-            for oid in (a, b):
+        captions = {oid: cs for oid, cs in active_captions(session).items() if _same_key(cs, captioner)}
+        items: dict[int, CaptionInput] = {}
+
+        def item_of(oid: int) -> CaptionInput:
+            if oid not in items:
                 obj = session.get(CatalogObject, oid)
                 items[oid] = CaptionInput.from_object(obj, render_path=render_path_for(session, oid)) \
                     .with_measured_colours(colour_source)
-            la, lb = items[a].colours.luminance, items[b].colours.luminance
-            if abs(la - lb) < TONE_MIN_DIFFERENCE:
-                continue
-            for oid, other, cs in ((a, b, ca), (b, a, cb)):
-                mine, theirs = items[oid].colours.luminance, items[other].colours.luminance
-                tone = "darker" if mine < theirs else "lighter"
-                result = captioner.caption(replace(items[oid], tone=tone))
+            return items[oid]
+
+        def write(oid: int, item: CaptionInput) -> None:
+            result = captioner.caption(item)
+            cs = captions[oid]
+            if (cs.short, cs.concise, cs.detailed) != (result.short, result.concise, result.detailed):
+                cs.short, cs.concise, cs.detailed = result.short, result.concise, result.detailed
+                cs.response_hash = response_hash(result.raw)
+                changed.add(oid)
+
+        for group in _colliding_groups(captions):
+            hashes = {oid: (session.get(CatalogObject, oid).content_hash or f"#{oid}") for oid in group}
+            if len(set(hashes.values())) == 1:
+                continue  # one file twice: a true duplicate
+            lum = {oid: item_of(oid).colours.luminance for oid in group}
+            toned = len(group) == 2 and abs(lum[group[0]] - lum[group[1]]) >= TONE_MIN_DIFFERENCE
+            for level, use_tone in TELL_STEPS:
+                if use_tone and not toned:
+                    continue
+                for oid in group:
+                    other = lum[group[1] if oid == group[0] else group[0]] if use_tone else 0.0
+                    tone = ("darker" if lum[oid] < other else "lighter") if use_tone else None
+                    write(oid, replace(item_of(oid), tell=level, tone=tone))
+                if not _colliding_groups({oid: captions[oid] for oid in group}):
+                    break
+            else:  # nothing seen tells them apart: a true duplicate, left with its plain captions
+                for oid in group:
+                    write(oid, item_of(oid))
+        session.commit()
+    return len(changed)
+
+
+separate_collisions = separate_variants
+
+
+def _tell_apart_by_asking(catalog: Catalog, captioner: Captioner) -> int:
+    """For a captioner that can be asked again (``tell_apart``: the http one): in each group of different
+    objects (different content hashes) with equal captions, every member after the first is captioned
+    again, told the captions it must differ from; an answer that is invalid or still equal leaves the
+    collision to the flags. Returns the objects re-captioned."""
+    ask = getattr(captioner, "tell_apart", None)
+    if ask is None:
+        return 0
+    changed = 0
+    with catalog.session() as session:
+        captions = {oid: cs for oid, cs in active_captions(session).items() if _same_key(cs, captioner)}
+        for group in _colliding_groups(captions):
+            if len({session.get(CatalogObject, oid).content_hash or f"#{oid}" for oid in group}) == 1:
+                continue  # one file twice: a true duplicate
+            for oid in group[1:]:
+                others = [{t: getattr(captions[o], t) for t in TIERS} for o in group if o != oid]
+                item = CaptionInput.from_object(session.get(CatalogObject, oid), render_path=render_path_for(session, oid))
+                result = ask(item, others)
+                if result is None:
+                    continue
+                cs = captions[oid]
                 cs.short, cs.concise, cs.detailed = result.short, result.concise, result.detailed
                 cs.response_hash = response_hash(result.raw)
                 changed += 1
-        session.commit()
+            session.commit()
     return changed
 
 
@@ -249,7 +299,20 @@ def run_caption_check(catalog: Catalog, summary: CaptionSummary) -> None:
 
 
 def _measure_and_caption(captioner: Captioner, item: CaptionInput, colour_source: str) -> CaptionResult:
-    return captioner.caption(item.with_measured_colours(colour_source))
+    result = captioner.caption(item.with_measured_colours(colour_source))
+    return checked_result(captioner, item, result)
+
+
+def checked_result(captioner: Captioner, item: CaptionInput, result: CaptionResult) -> CaptionResult:
+    """``result`` when it passes the caption check's blocking rules (:data:`mixcount.captions.check.
+    ANSWER_BLOCKING`: no mesh facts, no sizes, the name's colours kept, ...), else a CaptionError naming
+    each broken rule (recorded in ``caption_failures``). The same check the http captioner runs on answers."""
+    from mixcount.captions.check import blocking, reasons
+
+    found = blocking(result.tiers(), name=item.name, category=item.category, captioner=captioner.name)
+    if found:
+        raise CaptionRequestError(f"caption check: {reasons(found)}", attempts=result.attempts)
+    return result
 
 
 def _as_completed_in_order(futures: dict[Future[CaptionResult], CatalogObject]) -> Iterable[Future[CaptionResult]]:

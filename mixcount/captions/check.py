@@ -13,9 +13,17 @@ Every active caption set is checked after ``catalog caption`` (stub and http ali
 * ``id_fragment``: a token with a digit (an id, a version, a catalogue number such as ``B07Z5P84J2``) or a
   source tag (``PartNet``, ``high-res``, ``convex hull``, ``recolour``...); in the detailed tier a number
   followed by a unit ("24 cm", "70 %") is a measurement, not an id;
-* ``size_word``: an absolute size word in the short or concise tier ("large", "hand-sized", "mini"): scenes
-  rescale every object, so it describes nothing in the image (a resized pair gets "larger"/"smaller" at
-  scene time);
+* ``size_word``: an absolute size word in the short or concise tier, or before the first "with" / comma of
+  the detailed tier ("large", "hand-sized", "mini"): scenes rescale every object, so it describes nothing in
+  the image (a resized pair gets "larger"/"smaller" at scene time; "a small handle" describes a part);
+* ``mesh_fact``: something read off the mesh, not seen in the image: its surface ("open, non-watertight
+  surface", "closed surface"), a part count ("in 10 separate parts"), colour percentages ("69 % black"),
+  vertices / faces / polygons, or a shape word from the fill ratio ("with an irregular shape");
+* ``absolute_size``: a size in units ("24 cm", "about 5 inches", "It measures ..."), in any tier: scenes
+  rescale every class, so the caption would contradict its image (sizes stay in the catalog's fields);
+* ``name_colour_lost``: the short or concise tier lacks a colour word of the object's name ("Orange juice
+  carton" captioned "brown carton"): the name knows the colour better than a texture's mean; a word of the
+  same colour family counts ("grey" for "gray");
 * ``word_bounds``: a tier outside the word bounds of its captioner (``STUB_WORD_BOUNDS`` for the stub,
   ``LLM_WORD_BOUNDS`` for answers of an LLM);
 * ``same_as_variant``: a tier identical (``normalise_caption``) to that of a colour variant of the object
@@ -31,16 +39,28 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from mixcount.captions.base import LLM_WORD_BOUNDS, STUB_WORD_BOUNDS, TIERS, display_name
-from mixcount.captions.nouns import LEAK_RE, category_noun, is_folder_name, name_noun
+from mixcount.captions.colours import colour_words_in, family
+from mixcount.captions.nouns import LEAK_RE, category_noun, is_folder_name, name_noun, name_phrase
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Flag
 from mixcount.catalog.naming import singular
 from mixcount.scene.caption_text import normalise_caption
 
 VARIANT_KIND = "colour_variant"
-WARNING_KINDS = ("missing_noun", "category_appended", "repeated_word", "id_fragment", "size_word", "word_bounds",
-                 "same_as_variant")
-# What an answer of an LLM must not carry (it gets one repair request naming them): the form the prompt asks.
-ANSWER_BLOCKING = frozenset({"category_appended", "repeated_word", "id_fragment", "size_word"})
+WARNING_KINDS = ("missing_noun", "category_appended", "repeated_word", "id_fragment", "size_word", "mesh_fact",
+                 "absolute_size", "name_colour_lost", "word_bounds", "same_as_variant")
+# What no caption may carry, from any captioner: an LLM's answer gets one repair request naming them, then
+# fails; a stub caption that carries one fails at once (both recorded in caption_failures with the reason).
+ANSWER_BLOCKING = frozenset({"category_appended", "repeated_word", "id_fragment", "size_word", "mesh_fact",
+                             "absolute_size", "name_colour_lost"})
+_MESH_FACT = re.compile(
+    r"(?:\b(?:non-?)?watertight\b|\b(?:open|closed|scanned|manifold)(?:,\s*[\w-]+)?\s+surface\b|"
+    r"\b\d+\s+(?:separate\s+)?(?:parts|pieces|components)\b|\bseparate\s+parts\b|\d\s*%|\bper\s*cent\b|\bpercent\b|"
+    r"\b\d[\d,]*\s+(?:faces|vertices|triangles|polygons)\b|\bvertices\b|\b(?:vertex|polygon|face)\s+count\b|"
+    r"\b(?:triangle|polygon)\s+mesh\b|\bnon-manifold\b|\btessellat\w+\b|"
+    r"\bwith\s+an?\s+(?:irregular|compact|boxy|rounded|faceted)\s+shape\b|\bfill\s+ratio\b)", re.IGNORECASE)
+_ABS_SIZE = re.compile(
+    r"(?:\b\d+(?:[.,]\d+)?\s*(?:mm|cm|m|km|in|inch|inches|ft|feet|foot|yd|meters?|metres?|centimet(?:er|re)s?|"
+    r"millimet(?:er|re)s?)\b|\b\d+(?:[.,]\d+)?\s*(?:\"|'')|\bmeasures?\b|\bmeasuring\b)", re.IGNORECASE)
 _SIZE_WORD = re.compile(
     r"(?<![\w-])(?:tiny|small|large|big|huge|giant|mini|miniature|medium|oversized|jumbo|massive|enormous|little|"
     r"[a-z]+-siz(?:e|ed))(?![\w-])", re.IGNORECASE)
@@ -54,6 +74,24 @@ _TOKEN = re.compile(r"\d+(?:\.\d+)?%?|[A-Za-z0-9%]+(?:[-'][A-Za-z0-9]+)*")
 
 def _tokens(text: str) -> list[str]:
     return _TOKEN.findall(text)
+
+
+def _has_colour(text: str, colour: str) -> bool:
+    """Whether ``text`` says ``colour`` (a name's colour word) or a word of its colour family."""
+    fam = family(colour)
+    said = colour_words_in(text)
+    return colour in said or (fam is not None and any(family(c) == fam for c in said))
+
+
+def blocking(tiers: Mapping[str, str], *, name: str, category: str, captioner: str) -> list[dict[str, str]]:
+    """The warnings of :func:`check_tiers_text` that no caption may carry (:data:`ANSWER_BLOCKING`)."""
+    return [w for w in check_tiers_text(tiers, name=name, category=category, captioner=captioner)
+            if w["kind"] in ANSWER_BLOCKING]
+
+
+def reasons(found: Iterable[Mapping[str, str]]) -> str:
+    """One line naming each blocking warning: ``short mesh_fact (mesh fact 'watertight'); ...``."""
+    return "; ".join(f"{w['tier']} {w['kind']} ({w['detail']})" for w in found)
 
 
 def _same(word: str, other: str) -> bool:
@@ -76,6 +114,7 @@ def check_tiers_text(
     broad = [w for w in category_noun(category) if w not in name_words and not (noun and _same(w, noun))]
     if is_folder_name(name):
         broad = []  # the category IS the noun of a folder name
+    name_colours = name_phrase(name, category).colours
     for tier in TIERS:
         text = tiers.get(tier) or ""
         words = _tokens(text)
@@ -102,6 +141,23 @@ def check_tiers_text(
             repeats = sorted({w for w in content if content.count(w) > 1})
             if repeats:
                 out.append({"kind": "repeated_word", "tier": tier, "detail": f"repeats {', '.join(repeats)}"})
+        if tier == "detailed":
+            lead = re.split(r"\bwith\b|[,.;:]", text, maxsplit=1)[0]
+            sizes = _SIZE_WORD.findall(lead)
+            if sizes:
+                out.append({"kind": "size_word", "tier": tier, "detail": f"absolute size {sizes[0].lower()!r}"})
+        else:
+            missing = [c for c in name_colours if not _has_colour(text, c)]
+            if missing:
+                out.append({"kind": "name_colour_lost", "tier": tier,
+                            "detail": f"the name's colour {missing[0]!r} is not said"})
+        facts = _MESH_FACT.findall(text)
+        if facts:
+            out.append({"kind": "mesh_fact", "tier": tier, "detail": f"mesh fact {' '.join(facts[0].split())!r}"})
+        measures = _ABS_SIZE.findall(text)
+        if measures:
+            out.append({"kind": "absolute_size", "tier": tier,
+                        "detail": f"size in units {' '.join(measures[0].split())!r}"})
         ids = []
         for i, w in enumerate(words):
             if any(c.isdigit() for c in w):

@@ -15,8 +15,9 @@ naming a k-means centre) keeps e.g. a red-and-white ball "red and white" rather 
 from __future__ import annotations
 
 import colorsys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
@@ -111,6 +112,9 @@ class ColourSummary:
     variation: float  # std of luminance over object pixels, 0..1: high = patterned/textured
     source: str  # "render" | "model" | "none"
     luminance: float = 0.0  # mean luminance over the object's pixels, 0..1 (tells two shades of one name apart)
+    # whether the colours come from an image texture (a print or pattern) rather than flat or vertex colours;
+    # None when not known (a render's pixels)
+    textured: bool | None = None
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -119,6 +123,7 @@ class ColourSummary:
             "variation": round(self.variation, 3),
             "source": self.source,
             "luminance": round(self.luminance, 3),
+            "textured": self.textured,
         }
 
 
@@ -181,6 +186,34 @@ def colours_from_render(path: Path) -> ColourSummary:
     return summarise(render_pixels(path), source="render")
 
 
+def lit_colours_from_render(path: Path) -> ColourSummary:
+    """Dominant colours of a render's lit side: the object's pixels at or above its median brightness (max
+    channel). The shaded side is named by its shadow (a gold ball's reads "brown", a white one's "grey");
+    the lit side is where a reader takes the object's colour from."""
+    px = render_pixels(path)
+    if px.size == 0:
+        return EMPTY
+    value = px.max(axis=1)
+    return summarise(px[value >= np.median(value)], source="render")
+
+
+def rendered_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The base-colour factor the renderer applies (RGB in [0, 1]).
+
+    A glTF ``baseColorFactor`` (trimesh's ``PBRMaterial``) multiplies the texture in Blender's glTF importer
+    and in the USD asset. An .mtl material (trimesh's ``SimpleMaterial``) with a ``map_Kd`` texture is
+    rendered with the texture alone: Blender's OBJ importer links the image to the base colour and leaves
+    ``Kd`` out, so the canonical render of pybullet's duck (texture (255, 216, 0), ``Kd`` 0.64) shows a
+    yellow, not a gold, duck; ``Kd`` counts only for an .mtl material without a texture.
+    """
+    from trimesh.visual.material import PBRMaterial
+
+    material = getattr(visual, "material", None)
+    if not isinstance(material, PBRMaterial) and base_colour_texture(visual) is not None:
+        return np.ones(3)
+    return base_colour_factor(visual)
+
+
 def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarray:  # type: ignore[no-untyped-def]
     """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8)."""
     import trimesh
@@ -194,7 +227,7 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     if isinstance(visual, trimesh.visual.TextureVisuals):
         # glTF base colour = baseColorFactor x texture(uv) x COLOR_0; trimesh keeps COLOR_0 of a
         # primitive that also has a material in visual.vertex_attributes["color"].
-        colour = np.tile(base_colour_factor(visual) * 255.0, (count, 1))
+        colour = np.tile(rendered_factor(visual) * 255.0, (count, 1))
         vcol = material_vertex_colours(visual, len(mesh.vertices))
         if vcol is not None:
             colour *= vcol[mesh.faces[faces]].mean(axis=1)
@@ -236,7 +269,9 @@ def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> Col
     shares = areas / areas.sum() if areas.sum() > 0 else np.full(len(meshes), 1.0 / len(meshes))
     parts = [mesh_colour_samples(m, rng, int(round(samples * s))) for m, s in zip(meshes, shares)]
     pixels = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3), dtype=np.uint8)])
-    return summarise(pixels, source="model")
+    textured = any(base_colour_texture(m.visual) is not None and getattr(m.visual, "uv", None) is not None
+                   for m in meshes)
+    return replace(summarise(pixels, source="model"), textured=textured)
 
 
 def count_parts(path: Path) -> int | None:
@@ -257,3 +292,57 @@ def count_parts(path: Path) -> int | None:
         plain.merge_vertices(merge_tex=True, merge_norm=True)
         total += int(plain.body_count)
     return total or None
+
+
+# Colour families: names a reader takes for one colour ("light grey" beside "grey", "maroon" beside "red").
+# A caption's colour agrees with a render's dominant colour when their families meet.
+FAMILIES: dict[str, str] = {
+    "black": "black", "dark grey": "grey", "grey": "grey", "light grey": "grey", "white": "white",
+    "red": "red", "maroon": "red", "orange": "orange", "brown": "brown", "tan": "brown", "beige": "beige",
+    "yellow": "yellow", "gold": "yellow", "olive": "green", "lime": "green", "green": "green",
+    "dark green": "green", "teal": "teal", "blue": "blue", "navy": "blue", "light blue": "blue",
+    "purple": "purple", "magenta": "pink", "pink": "pink",
+    # colour words of names (shops, DTC variants)
+    "gray": "grey", "golden": "yellow", "silver": "grey", "cyan": "teal", "violet": "purple", "cream": "beige",
+    "ivory": "white", "peach": "orange", "coral": "orange", "crimson": "red", "scarlet": "red",
+    "turquoise": "teal", "lavender": "purple", "mint": "green", "charcoal": "grey", "khaki": "beige",
+    "burgundy": "red", "aqua": "teal", "indigo": "blue", "rose": "pink", "salmon": "pink", "amber": "orange",
+    "bronze": "brown", "copper": "brown",
+}
+# Caption colour families that agree with a render's dominant family besides its own. Shading only darkens:
+# a render's "brown" may be a shaded orange or gold, its "grey" a shaded white; a caption darker than the
+# render is not excused (an orange cone captioned "brown", a white one "grey": the .mtl Kd bug). Neighbours
+# on the hue wheel agree both ways (the bins' borders, e.g. orange / yellow at 42 degrees, are arbitrary).
+NEAR: dict[str, frozenset[str]] = {
+    "white": frozenset({"beige"}), "grey": frozenset({"white", "black"}), "black": frozenset({"grey"}),
+    "beige": frozenset({"white", "yellow", "brown"}), "brown": frozenset({"beige", "orange", "yellow", "red"}),
+    "orange": frozenset({"yellow", "red"}), "yellow": frozenset({"orange", "beige"}),
+    "teal": frozenset({"green", "blue"}), "pink": frozenset({"red", "purple"}), "purple": frozenset({"pink", "blue"}),
+    "red": frozenset({"pink", "orange"}), "green": frozenset({"teal"}), "blue": frozenset({"teal", "purple"}),
+}
+
+
+def family(name: str) -> str | None:
+    """The family of a colour name or a name's colour word (None for a word that is no colour)."""
+    return FAMILIES.get(name.lower())
+
+
+def colours_agree(caption_colours: "Iterable[str]", dominant: str) -> bool:
+    """Whether a caption's colour words agree with a render's dominant colour name (its family, or one
+    :data:`NEAR` lists for it)."""
+    want = family(dominant)
+    if want is None:
+        return False
+    got = {family(c) for c in caption_colours} - {None}
+    return want in got or bool(got & NEAR.get(want, frozenset()))
+
+
+def colour_words_in(text: str) -> list[str]:
+    """The colour names and name colour words of a caption, longest first ("light grey" before "grey")."""
+    low = " " + " ".join(text.lower().replace(",", " ").split()) + " "
+    found = []
+    for name in sorted(FAMILIES, key=len, reverse=True):
+        if f" {name} " in low:
+            found.append(name)
+            low = low.replace(f" {name} ", " ")
+    return found

@@ -1,7 +1,8 @@
 """The HTTP captioner: a vision LLM behind an OpenAI-compatible or a Gemini endpoint (httpx).
 
-One request per object: the canonical render (PNG data, composited on white, downscaled) and the
-catalog's facts go out; a JSON object ``{short, concise, detailed}`` constrained by a JSON schema comes back.
+One request per object: the canonical render (PNG data, composited on white, downscaled), the object's
+name (as the captions should say it) and category, and a system prompt stating the caption rules go out
+(no dimensions, no mesh facts: :meth:`CaptionInput.facts`); a JSON object ``{short, concise, detailed}`` constrained by a JSON schema comes back.
 
 * ``openai``: ``POST {endpoint}/v1/chat/completions``, ``Authorization: Bearer``, image as a
   ``data:image/png;base64,...`` URI in an ``image_url`` part, ``response_format`` = ``json_schema`` (strict).
@@ -44,9 +45,9 @@ import httpx
 import numpy as np
 
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
-from mixcount.captions.check import ANSWER_BLOCKING, check_tiers_text
+from mixcount.captions.check import blocking, reasons
 from mixcount.config import CaptionsConfig
-from mixcount.errors import CaptionRequestError, ConfigError, UnusableAnswerError
+from mixcount.errors import CaptionError, CaptionRequestError, ConfigError, UnusableAnswerError
 
 log = logging.getLogger("mixcount.captions.http")
 
@@ -55,19 +56,24 @@ DEFAULT_ENDPOINTS = {"openai": "https://api.openai.com", "gemini": "https://gene
 RETRY_STATUSES = frozenset({408, 409, 429})
 
 SYSTEM_PROMPT = (
-    "You describe one physical object, photographed alone on a white background, for an object-counting "
-    "dataset whose prompts must tell similar objects apart. Answer with JSON holding three fields. "
-    "short: 2 to 5 words = the colours (or pattern, material) and the noun phrase a person would call the "
-    "object, as seen in the image (e.g. 'gold paneled volleyball', 'red coffee mug', 'camo patterned "
-    "basketball'). concise: 5 to 10 words, the same noun phrase with colours, pattern or a visible part (e.g. "
-    "'Shiny golden volleyball with dark seams'). detailed: one or two sentences on colours, pattern, "
-    "materials, markings, text, parts and shape (e.g. 'Shiny golden volleyball features segmented panels "
-    "joined by dark seams, displaying a smooth and reflective surface.'). Name the object with a specific "
-    "noun (mug, soccer ball, fire hydrant), never with a broad category (kitchenware, sports, food, toy, "
-    "furniture, animal, tool) and never add the category after the noun. No absolute size words (large, "
-    "small, hand-sized, mini) and no sizes in units: every object is rescaled in the images. No ids, "
-    "numbers, file or source names (high-res, copy, recolour, PartNet). Do not repeat a word within the "
-    "short or the concise text. Do not mention the background or the photograph."
+    "You write the prompts a person would type into an object counter to pick out one kind of object among "
+    "similar ones. The image shows the object alone on a white background, as it looks in every scene; you "
+    "also get the name a person gave it and its category (a shelf label). Answer with JSON holding three "
+    "fields. short: 2 to 4 words = colour or pattern plus the noun, as seen (e.g. 'gold paneled "
+    "volleyball', 'red coffee mug', 'camo patterned basketball'). concise: 3 to 10 words, the phrase that "
+    "picks this object out among similar ones: colour, pattern, material or a visible part (e.g. 'Shiny "
+    "golden volleyball with dark seams'). detailed: one or two sentences of appearance: which part has "
+    "which colour, print or pattern, material, and shape words a person uses (e.g. 'Shiny golden volleyball "
+    "with segmented panels joined by dark seams.'). Rules. The name wins where it knows: keep its colour "
+    "words (a 'Black bowl' with a white pattern is a black bowl with a white pattern), its compound noun "
+    "('ice-cream dispenser', never 'ice dispenser') and the capitals of proper nouns ('Stanford bunny'). "
+    "Name the object with that specific noun, never with the broad category, and never add the category "
+    "after the noun. Colours are the ones the image shows. No sizes: no size words (large, small, "
+    "hand-sized, mini) and no measurements in units in any field, since every object is rescaled in the "
+    "scenes. No facts about the 3D model: no surface, watertightness, part counts, polygon counts or colour "
+    "percentages. No ids, numbers, file or source names (high-res, copy, recolour, PartNet). No filler "
+    "such as 'with an irregular shape'. Do not repeat a word within the short or the concise text. Do not "
+    "mention the background, the photograph or the render."
 )
 
 JSON_SCHEMA: dict[str, Any] = {
@@ -245,10 +251,12 @@ class HttpCaptioner:
 
     # --- request bodies -----------------------------------------------------------------------------------
     def _user_text(self, item: CaptionInput, has_image: bool) -> str:
-        facts = json.dumps(item.facts(), sort_keys=True)
+        facts = json.dumps(item.facts(with_image=has_image), sort_keys=True)
         if has_image:
-            return f"Describe the object in the image. Catalog facts (may help, the image wins): {facts}"
-        return f"No image is available; describe the object from these catalog facts only: {facts}"
+            return (f"Describe the object in the image. Its name and category (keep the name's colour words, "
+                    f"noun and proper nouns; the image gives every other colour): {facts}")
+        return ("No image is available; describe the object from its name, its category and the colours seen "
+                f"on its material: {facts}")
 
     def build_body(self, item: CaptionInput) -> dict[str, Any]:
         image = encode_image(item.render_path, self.config.max_image_px) if item.render_path else None
@@ -283,8 +291,9 @@ class HttpCaptioner:
         """The original request plus the bad answer and what was wrong with it."""
         note = (
             f"Your previous answer was invalid: {error}. Reply again with only a JSON object with the string "
-            f"fields short (2-5 words), concise (5-10 words) and detailed (1-2 sentences), nothing else, in the "
-            f"form the instructions ask (a specific noun, no category after it, no size words, no ids)."
+            f"fields short (2-4 words), concise (3-10 words) and detailed (1-2 sentences), nothing else, in the "
+            f"form the instructions ask (the name's colour words and noun, no category after it, no size words "
+            f"or measurements, no facts about the 3D model, no ids)."
         )
         fixed = json.loads(json.dumps(body))
         if self.provider == "openai":
@@ -397,11 +406,37 @@ class HttpCaptioner:
         """:meth:`parse` plus the caption check (:mod:`mixcount.captions.check`): an answer that appends a
         category, repeats a word, carries an id or source tag, or an absolute size word is invalid too."""
         tiers = HttpCaptioner.parse(content)
-        found = [w for w in check_tiers_text(tiers, name=item.name, category=item.category, captioner="http")
-                 if w["kind"] in ANSWER_BLOCKING]
+        found = blocking(tiers, name=item.name, category=item.category, captioner="http")
         if found:
-            raise ValueError("caption check: " + "; ".join(f"{w['tier']} {w['kind']} ({w['detail']})" for w in found))
+            raise ValueError("caption check: " + reasons(found))
         return tiers
+
+    def tell_apart(self, item: CaptionInput, others: list[dict[str, str]]) -> CaptionResult | None:
+        """Captions of ``item`` again, asked to differ from ``others`` (the equal captions of different
+        objects) by what its image shows; None when the answer is invalid or still equal to one of them
+        (then the collision stays for the flags). One request, no repair: the first answer was valid."""
+        from mixcount.scene.caption_text import normalise_caption
+
+        body = self.build_body(item)
+        note = (
+            "Other, different objects of this catalog already have exactly these captions: "
+            f"{json.dumps(others)}. Write this object's three captions again so that each tier differs from "
+            "theirs, with what the image shows that tells this object apart (the colour of a part, a print or "
+            "pattern, a material, a shape word); the same rules as before."
+        )
+        if self.provider == "openai":
+            body["messages"].append({"role": "user", "content": note})
+        else:
+            body["contents"].append({"role": "user", "parts": [{"text": note}]})
+        try:
+            content, made = self._send(body, item.object_id, 0)
+            tiers = self.checked(content, item)
+        except (CaptionError, ValueError) as exc:
+            log.info("object %d: no telling captions (%s)", item.object_id, self.redact(str(exc)))
+            return None
+        if any(normalise_caption(tiers[t]) == normalise_caption(o.get(t, "")) for o in others for t in TIERS):
+            return None
+        return CaptionResult(raw=content, attempts=made, **tiers)
 
     def caption(self, item: CaptionInput) -> CaptionResult:
         body = self.build_body(item)

@@ -46,7 +46,7 @@ SOURCE_TAGS = (
     "recolored", "copy", "duplicate", "variant", "version", "decimated", "simplified", "remeshed", "remesh",
     "scanned", "scan", "photogrammetry", "textured", "untextured", "watertight", "model", "mesh", "asset",
     "object", "shapenet", "objaverse", "sketchfab", "google scanned objects", "gso", "abo", "ycb", "lod",
-    "final", "export", "untitled", "default", "new", "test", "sample",
+    "final", "export", "untitled", "default", "new", "test", "sample", "vhacd", "chs",
 )
 GENERIC_CATEGORIES = frozenset({"misc", "miscellaneous", "other", "others", "unknown", "uncategorized",
                                 "uncategorised", "general", "none", "object", "objects", "item", "items", ""})
@@ -101,13 +101,14 @@ def clean_name_words(name: str) -> tuple[list[str], list[str]]:
     text = name
     for inner in _PAREN.findall(text):  # parenthesised parts are qualifiers or tags: keep only real words
         dropped.append(f"({inner})")
-    text = _PAREN.sub(" ", text)
+    text = _PAREN.sub(" ", text).replace("_", " ")  # "_" is a word character: tags between them would hide
     spaced = re.sub(r"(?<=[a-z])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", " ", text).lower()
     for tag in _TAG_RE.findall(spaced):
         dropped.append(tag)
     spaced = _TAG_RE.sub(" ", spaced)
     kept: list[str] = []
     for word in _split_words(spaced):
+        word = _VERSIONED.sub(r"\1", word)
         if _is_id(word) or len(word) < 2 or word in COLOUR_WORDS or word in SIZE_WORDS or word in GENERIC_STEMS:
             dropped.append(word)
             continue
@@ -148,6 +149,123 @@ def noun_phrase(name: str, category: str, *, max_words: int = 3) -> NounPhrase:
     if cat_words:
         return NounPhrase(tuple(cat_words[-max_words:]), "category", tuple(dropped))
     return NounPhrase(("object",), "fallback", tuple(dropped))
+
+
+# Words that end the noun phrase of a name: what follows describes a part or a use ("Mug with handle").
+_PHRASE_BREAK = frozenset({"with", "without", "for", "featuring", "in", "on", "from", "by", "w"})
+# Proper adjectives (Siamese, Persian, Italian, Turkish) and well-known test objects of 3D graphics: a name's
+# first word is taken for a proper noun only by these (a capital at the start of a name says nothing).
+PROPER_WORDS = frozenset({"stanford", "utah", "suzanne", "rubik", "lego", "duplo", "ikea", "nerf", "barbie",
+                          "coca-cola", "pepsi", "oreo", "pringles", "starbucks", "nike", "adidas", "xbox",
+                          "playstation", "nintendo", "pikachu", "mario", "darth", "vader", "yoda", "christmas",
+                          "easter", "halloween", "eiffel", "big", "ben", "statue", "liberty"} - {"big", "statue"})
+_PROPER_SUFFIX = re.compile(r"^(?:[A-Z][a-z]{3,}(?:ese|ian|ish)|[A-Z][a-z]+'s)$")  # Siamese, Persian, Rubik's
+_VERSIONED = re.compile(r"^([A-Za-z]{3,})\d{1,3}$")  # a word with a version or copy number glued on
+_TOKEN_KEEP = re.compile(r"[A-Za-z0-9]+(?:['-][A-Za-z0-9]+)*")
+
+
+@dataclass(frozen=True)
+class NamePhrase:
+    """The words a caption names the object with, as the name says them.
+
+    ``words``: the name's own words, in its order and case (proper nouns kept, hyphenated compounds kept
+    whole: "Ice-cream dispenser", "Stanford bunny"), bookkeeping, ids and size words dropped, colour
+    words KEPT (``colours`` lists them: the name knows the object's colour better than a texture's mean);
+    the head noun is the last word. ``detail``: the name's words after a phrase break ("Mug with handle" ->
+    "handle"), for the concise and detailed tiers. ``source`` as :class:`NounPhrase`."""
+
+    words: tuple[str, ...]
+    colours: tuple[str, ...]
+    source: str
+    detail: tuple[str, ...] = ()
+    dropped: tuple[str, ...] = ()
+
+    @property
+    def head(self) -> str:
+        return self.words[-1].lower()
+
+    @property
+    def noun_words(self) -> tuple[str, ...]:
+        """The words without the name's leading colour words ("Red coffee mug" -> coffee mug)."""
+        out = list(self.words)
+        while len(out) > 1 and out[0].lower() in COLOUR_WORDS:
+            out.pop(0)
+        return tuple(out)
+
+    def text(self) -> str:
+        return " ".join(self.words)
+
+
+def _is_colour(word: str) -> bool:
+    """A name word that names a colour (a family of :mod:`mixcount.captions.colours`): "red", "gray",
+    "ivory"; not "dark", "clear", "natural" (they describe, they name no colour)."""
+    from mixcount.captions.colours import family
+
+    return family(word) is not None
+
+
+def _case(word: str, *, first: bool, title_case: bool) -> str:
+    """A name word as a caption writes it: ALLCAPS, camelCase and possessive/proper adjectives kept, a
+    capital inside a sentence-case name kept, everything else lower case."""
+    if len(word) > 1 and (word.isupper() or re.search(r"[a-z][A-Z]", word)):
+        return word  # LEGO, iPhone, McDonald
+    low = word.lower()
+    if low.split("-")[0].removesuffix("'s") in PROPER_WORDS or _PROPER_SUFFIX.match(word):
+        return word[:1].upper() + word[1:]
+    if word[:1].isupper() and not first and not title_case:
+        return word
+    return low
+
+
+def name_phrase(name: str, category: str, *, max_words: int = 4) -> NamePhrase:
+    """The name's phrase for the captions (see :class:`NamePhrase`). A DTC folder name, or a name left with
+    no word, falls back to :func:`noun_phrase` (category noun), with no colour words from the name."""
+    name = (name or "").strip()
+    if is_folder_name(name) or not name:
+        phrase = noun_phrase(name, category)
+        return NamePhrase(phrase.words, (), phrase.source, (), phrase.dropped)
+    dropped: list[str] = []
+    colours: list[str] = []
+    text = name
+    for inner in _PAREN.findall(text):  # a qualifier in brackets: its colour words count, the rest is a tag
+        dropped.append(f"({inner})")
+        colours += [w for w in _split_words(inner) if _is_colour(w)]
+    text = _PAREN.sub(" ", text)
+    text = re.sub(r"(?<=[a-z])(?=[A-Z][a-z])", " ", text) if " " not in text.strip() and "_" not in text else text
+    text = text.replace("_", " ")
+    low = text.lower()
+    for m in list(_TAG_RE.finditer(low))[::-1]:
+        dropped.append(m.group(0))
+        text = text[:m.start()] + " " + text[m.end():]
+        low = text.lower()
+    raw = [_VERSIONED.sub(r"\1", t) for t in _TOKEN_KEEP.findall(text)]  # "teddy2" -> "teddy"
+    alpha = [t for t in raw if t[:1].isalpha()]
+    title_case = len(alpha) > 1 and all(t[:1].isupper() for t in alpha)
+    kept: list[str] = []
+    detail: list[str] = []
+    into = kept
+    for tok in raw:
+        low_tok = tok.lower()
+        if low_tok in _PHRASE_BREAK and kept:
+            into = detail
+            continue
+        if _is_id(low_tok) or len(low_tok) < 2 or low_tok in SIZE_WORDS or low_tok in GENERIC_STEMS:
+            dropped.append(low_tok)
+            continue
+        into.append(_case(tok, first=not kept and into is kept, title_case=title_case))
+    kept = [w for w in kept if w.lower() not in ("a", "an", "the")]
+    if not kept:
+        phrase = noun_phrase(name, category)
+        return NamePhrase(phrase.words, tuple(dict.fromkeys(colours)), phrase.source, (), tuple(dropped))
+    if len(kept) > 1:  # "Ball B01 Volleyball": a word the head noun contains says it twice
+        head = kept[-1].lower()
+        kept = [w for w in kept[:-1] if not (w.lower() in head or singular(w.lower()) == singular(head))] + kept[-1:]
+    if len(kept) > max_words:
+        dropped += kept[:-max_words]
+        kept = kept[-max_words:]
+    colours = [w.lower() for w in kept if _is_colour(w.lower())] + colours
+    return NamePhrase(tuple(kept), tuple(dict.fromkeys(colours)), "name",
+                      tuple(w.lower() for w in detail), tuple(dropped))
 
 
 def name_noun(name: str, category: str) -> str | None:

@@ -1,19 +1,23 @@
-"""The offline captioner: deterministic text grounded in what the catalog measured.
+"""The offline captioner: the words a person would type into a counter's prompt box, from what is seen.
 
-Nothing here is canned per object: every word comes from a fact.
+Nothing here is canned per object, and nothing comes from the mesh:
 
-* noun phrase: from the person-written name ("Red coffee mug" -> "coffee mug"), bookkeeping, ids, colour
-  and size words dropped; the category only when the name has none, e.g. a DTC folder name
-  ("Ball_B07X_Volleyball" -> "volleyball"), see :mod:`mixcount.captions.nouns`. Never name + category;
-* colours: names of the dominant colours counted over the canonical render's object pixels (or over
-  colours sampled on the model's surface when no render exists), see :mod:`mixcount.captions.colours`;
-* measured dimensions from the real bounding box (metres, Z-up), in the detailed tier only: scenes rescale
-  objects, so absolute size words are noise (a resized pair gets "larger"/"smaller" at scene time);
-* shape cues from bounding-box ratios (elongated, flat, compact), the fill ratio volume / box volume of a
-  watertight mesh (boxy, cylindrical, round, irregular) and the surface (closed or open, faceted);
-* surface finish from the spread of luminance over the object's pixels (plain / patterned);
-* separate parts of the model (connected components, 2-12 are said) in the detailed tier.
+* the name wins where it knows (:func:`mixcount.captions.nouns.name_phrase`): its own words in its order
+  and case ("Stanford bunny", "Ice-cream dispenser", "Orange juice carton"), its colour words kept (a
+  texture's mean colour is not the object's colour: dark prints, labels, patterns), ids, source tags and
+  size words dropped; a DTC folder name gives the category noun;
+* colours as rendered: the dominant colours measured from the canonical render or from the material the
+  way the renderer evaluates it (:mod:`mixcount.captions.colours`); beside the name's own colours they
+  add only what the name does not say ("Black bowl with a white pattern");
+* "patterned" for a textured object of several colours, "plain" for one colour with little variation;
+* proportion words a person uses ("long", "flat", "slender"), from the ratios of the box: scale-free, so
+  true in every scene; no mesh facts (surface, watertightness, parts, colour percentages) and no sizes
+  (scenes rescale each class; "larger" / "smaller" come from the scene's class qualifier only).
 
+Tiers: short = colours + noun phrase (2-5 words); concise = the phrase that picks the object out (finish,
+colours, noun phrase, the name's own detail, what the name's colours leave out); detailed = one or two
+sentences of appearance. ``item.tell`` > 0 (set when two different objects came out equal) adds telling
+words to every tier; ``item.tone`` says "darker" / "lighter" against an object of the same colour names.
 The same input always gives the same text (no randomness at all).
 """
 
@@ -23,107 +27,50 @@ import hashlib
 import json
 
 from mixcount.captions.base import CaptionInput, CaptionResult
-from mixcount.captions.nouns import noun_phrase
+from mixcount.captions.colours import family
+from mixcount.captions.nouns import name_phrase
 from mixcount.catalog.naming import singular
 
-_CONTAINERS = {"plate", "tray", "bowl"}
-MAX_PARTS_SAID = 12  # more separate parts than this is a scan's debris or a CAD assembly: not worth a word
+MAX_SHORT = 5
 
 
-def size_class(max_dim_m: float) -> str:
-    """Size word from the largest real dimension."""
-    if max_dim_m <= 0:
-        return "small"
-    if max_dim_m < 0.03:
-        return "tiny"
-    if max_dim_m < 0.08:
-        return "small"
-    if max_dim_m < 0.2:
-        return "hand-sized"
-    if max_dim_m < 0.5:
-        return "large"
-    return "very large"
-
-
-def _length(value_m: float) -> str:
-    """A measured length in words: "2 mm", "3.5 cm", "24 cm" (half-cm steps below 10 cm)."""
-    cm = value_m * 100.0
-    if cm < 1.0:
-        return f"{max(1, round(cm * 10))} mm"
-    if cm < 10:
-        return f"{round(cm * 2) / 2:.1f}".rstrip("0").rstrip(".") + " cm"
-    return f"{round(cm):d} cm"
-
-
-def shape_cues(item: CaptionInput) -> tuple[str | None, str | None]:
-    """(proportion cue, form cue) from the bounding box and, for closed meshes, the fill ratio."""
-    x, y, z = item.dims
-    a, b, c = sorted((abs(x), abs(y), abs(z)), reverse=True)
-    if a <= 0:
-        return None, None
-    proportion: str | None = None
-    if b > 0 and a / b >= 2.2:
-        proportion = "slender" if c > 0 and b / c < 1.6 else "long"
-    elif b > 0 and c / b <= 0.3:
-        proportion = "flat"
-    elif c > 0 and a / c < 1.3:
-        proportion = "compact"
-    form: str | None = None
-    if item.watertight and item.volume and a * b * c > 0:
-        fill = item.volume / (a * b * c)
-        if fill >= 0.9:
-            form = "boxy"
-        elif fill >= 0.7:
-            near = lambda p, q: q > 0 and abs(p - q) / max(p, q) < 0.12  # noqa: E731
-            form = "cylindrical" if near(a, b) or near(b, c) else "rounded"
-        elif fill >= 0.42:
-            form = "round"
-        else:
-            form = "irregular"
-    if form is None and item.face_count is not None and 0 < item.face_count < 300:
-        form = "faceted"
-    return proportion, form
-
-
-def _distinct_colours(names: tuple[str, ...]) -> list[str]:
-    """Colour names without near-repeats ("light grey" after "grey" reads as one colour)."""
-    kept: list[str] = []
-    for n in names:
-        if not any(set(n.split()) & set(k.split()) for k in kept):
-            kept.append(n)
-    return kept
-
-
-def _words(*groups: list[str]) -> list[str]:
-    return [w for g in groups for item in g for w in item.split()]
-
-
-def _colour_phrase(names: tuple[str, ...], style: str) -> str:
-    if not names:
-        return ""
-    names = tuple(_distinct_colours(names))
-    if style == "pair":
-        return " and ".join(names[:2])
-    if len(names) == 1:
-        return names[0]
-    if len(names) == 2:
-        return f"{names[0]} and {names[1]}"
-    return f"{names[0]}, {names[1]} and {names[2]}"
-
-
-def _finish(item: CaptionInput) -> str | None:
-    colours = item.colours
-    if not colours.names:
+def proportion_word(dims: tuple[float, float, float]) -> str | None:
+    """A shape word a person uses, from the box's ratios (never from its size): long, slender, flat."""
+    a, b, c = sorted((abs(d) for d in dims), reverse=True)
+    if a <= 0 or b <= 0:
         return None
-    if len(colours.names) >= 3 or colours.variation >= 0.22:
-        return "patterned"
-    if len(colours.names) == 1 and colours.variation < 0.08:
-        return "plain"
+    if a / b >= 2.2:
+        return "slender" if c > 0 and b / c < 1.6 else "long"
+    if c / b <= 0.3:
+        return "flat"
     return None
+
+
+def _distinct(names: tuple[str, ...] | list[str], taken: set[str]) -> list[str]:
+    """Colour names whose family is not taken yet, one per family and none sharing a word with one kept
+    ("light grey" after "light blue" would repeat "light"), in order."""
+    out: list[str] = []
+    seen = set(taken)
+    for n in names:
+        fam = family(n) or n
+        if fam not in seen and not any(set(n.split()) & set(k.split()) for k in out):  # "light blue", "light grey"
+            seen.add(fam)
+            out.append(n)
+    return out
+
+
+def _listing(names: list[str]) -> str:
+    if len(names) <= 1:
+        return "".join(names)
+    return ", ".join(names[:-1]) + " and " + names[-1]
 
 
 def _article(word: str) -> str:
     return "an" if word[:1].lower() in "aeiou" else "a"
+
+
+def _upper_first(text: str) -> str:
+    return text[:1].upper() + text[1:]
 
 
 class StubCaptioner:
@@ -138,91 +85,92 @@ class StubCaptioner:
         self.prompt_version = prompt_version
 
     def caption(self, item: CaptionInput) -> CaptionResult:
-        phrase = noun_phrase(item.name, item.category)
-        noun_words = list(phrase.words)
-        proportion, form = shape_cues(item)
-        finish = _finish(item)
-        colours = item.colours
-        named = _distinct_colours(colours.names)
-
-        # short: 2-5 words = up to two colours + "patterned" + the noun phrase; no size word (scenes rescale
-        # objects). Words are dropped least specific first: the pattern word, the second colour, then the
-        # compound's first words; the head noun always stays.
-        pattern = ["patterned"] if finish == "patterned" else []
-        tone = [item.tone] if item.tone else []  # a colour variant's measured shade against its pair
-        candidates = [
-            _words(tone, named[:2], pattern, noun_words),
-            _words(tone, named[:2], noun_words),
-            _words(tone, named[:1], pattern, noun_words),
-            _words(tone, named[:1], noun_words),
-            _words(tone, named[:1], noun_words[-2:]),
-            _words(tone, named[:1], noun_words[-1:]),
-        ]
-        short_words = next((c for c in candidates if 2 <= len(c) <= 5), None)
-        if short_words is None:  # no colour measured and a one-word noun: a measured shape cue in front
-            cue = [w for w in (form, proportion, "plain") if w][:1]
-            short_words = _words(cue, noun_words[-1:])
-        short = " ".join(short_words)
-
-        # concise: 5-10 words = colours + noun phrase + "with a <cues> shape" (or finish / surface).
-        features = [w for w in (proportion, form) if w]
-        tails = []
-        if features:
-            tails.append(f"with {_article(features[0])} {' '.join(features)} shape")
-        if finish:
-            tails.append(f"with {_article(finish)} {finish} finish")
-        surface = "closed" if item.watertight else "open" if item.watertight is False else None
-        if surface:
-            tails.append(f"with {_article(surface)} {surface} surface")
-        options = []
-        for colour_text in (_colour_phrase(colours.names, "concise"), _colour_phrase(colours.names, "pair"),
-                            " ".join(named[:1])):
-            colour_text = " ".join(tone + [colour_text]).strip()
-            for nw in (noun_words, noun_words[-2:], noun_words[-1:]):
-                for tail in tails + [""]:
-                    options.append([w for w in f"{colour_text} {' '.join(nw)} {tail}".split() if w])
-        concise_words = next((c for c in options if 5 <= len(c) <= 10), None)
-        if concise_words is None:
-            concise_words = max((c for c in options if len(c) <= 10), key=len, default=noun_words[-1:])
-            if len(concise_words) < 5:
-                concise_words = concise_words + "with no measured colour".split()
-        concise = " ".join(concise_words[:10])
-        concise = concise[:1].upper() + concise[1:]
-
-        # detailed: the measured facts (finish, colours with their shares, proportions, size, surface).
-        x, y, z = item.dims
-        length, width = max(x, y), min(x, y)
-        colour_text = _colour_phrase(colours.names, "concise")
-        lead = " ".join(p for p in (" ".join(tone), finish or "", colour_text, " ".join(noun_words)) if p)
+        phrase = name_phrase(item.name, item.category)
+        words = list(phrase.words)
+        lower = [w.lower() for w in words]
+        named = list(phrase.colours)  # the name's colour words: they win
+        lead = [c for c in named if c not in lower]  # "(blue recolour)": said in front of the noun
+        named_fams = {family(c) or c for c in named}
+        measured = _distinct(item.colours.names, set())
+        extra = _distinct(item.colours.names, named_fams)  # what the name's colours do not say
+        # a print or pattern: an image texture on the model (a render's pixels: a varied surface)
+        textured = item.colours.textured if item.colours.textured is not None else item.colours.variation >= 0.12
+        # a textured object of several colours; with a name's colour, a texture whose measured colours are
+        # other than the name's ("Black bowl" printed black on white)
+        patterned = textured and (len(measured) >= 3 or (len(measured) >= 2 and item.colours.variation >= 0.12)
+                                  or (bool(named) and bool(extra) and item.colours.variation >= 0.12))
+        plain = len(measured) == 1 and item.colours.variation < 0.08
+        shape = proportion_word(item.dims)
+        tone = [item.tone] if item.tone else []
         plural = singular(phrase.head) != phrase.head  # "sneakers", "headphones": no article
-        first = lead[:1].upper() + lead[1:] if plural else f"{_article(lead).capitalize()} {lead}"
-        if features:
-            first += f" with {_article(features[0])} {' and '.join(features)} shape"
-        if phrase.head in _CONTAINERS or item.category in _CONTAINERS:
-            first += ", used as a container"
-        if item.parts is not None and 2 <= item.parts <= MAX_PARTS_SAID:
-            first += f" in {item.parts} separate parts"
-        if len(colours.names) >= 2 and colours.shares:
-            first += f", {round(colours.shares[0] * 100):d} % {colours.names[0]}"
-        surface_text = (
-            "a closed, watertight surface"
-            if item.watertight
-            else "an open, non-watertight surface" if item.watertight is False else "a scanned surface"
-        )
-        second = (
-            f"It measures about {_length(length)} by {_length(width)} across and {_length(z)} tall, "
-            f"with {surface_text}."
-        )
-        detailed = f"{first}. {second}"
+        detail = list(phrase.detail)
+
+        # --- short: colours + noun phrase, 2-5 words; the name's words are never dropped before its colours
+        if named:
+            colour_words = lead + ([f"and {extra[0]}"] if item.tell >= 1 and extra else [])
+            options = [tone + colour_words + (["patterned"] if item.tell >= 1 and patterned else []) + words,
+                       tone + colour_words + words, tone + lead + words, lead + words]
+        else:
+            two = measured[:2]
+            options = [tone + _listing(two).split() + ["patterned"] + words if patterned else [],
+                       tone + _listing(two).split() + words,
+                       tone + measured[:1] + (["patterned"] if patterned else []) + words,
+                       tone + measured[:1] + words]
+            if item.tell >= 1 and len(measured) >= 3:
+                options.insert(0, tone + _listing(measured[:3]).split() + words)
+        if item.tell >= 2 and shape:
+            options = [[shape] + o for o in options if o] + options
+        options += [words[-MAX_SHORT:], words[-1:]]
+        short_words = next((o for o in options if o and 2 <= len(" ".join(o).split()) <= MAX_SHORT), None)
+        if short_words is None:  # a one-word name and no colour measured: the finish or shape in front
+            short_words = [shape or "plain"] + words[-1:]
+        short = " ".join(" ".join(short_words).split())
+
+        # --- concise: finish + colours + noun phrase + the name's detail + what the name's colours leave out
+        finish = ["patterned"] if patterned else ["plain"] if plain else []
+        shape_words = [shape] if shape else []
+        said_finish = finish if (patterned or not shape) else []
+        extra_text = (f"a {_listing(extra[:2])} pattern" if patterned else f"{_listing(extra[:2])} details") \
+            if extra else ""
+        if named:
+            tail = f"with {extra_text}" if extra else ""
+            head = tone + shape_words + (said_finish if not extra else []) + lead + words
+        else:
+            tail = ""
+            head = tone + shape_words + said_finish + _listing(measured[:3]).split() + words
+        if detail:
+            tail = " ".join(["with", *detail] + ([tail.removeprefix("with ")] if tail else []))
+        concise_words = (" ".join(head) + (" " + tail if tail else "")).split()
+        if len(concise_words) < 2:  # no colour measured and a one-word name: what the short tier says
+            concise_words = short.split()
+        concise = _upper_first(" ".join(concise_words[:12]))
+
+        # --- detailed: one or two sentences of appearance
+        body = " ".join(tone + shape_words + (finish if not (named and extra) else [])
+                        + (lead + words if named else _listing(measured[:3]).split() + words))
+        first = _upper_first(body) if plural else f"{_article(body).capitalize()} {body}"
+        withs = [" ".join(detail)] if detail else []
+        if named and extra:
+            withs.append(extra_text)
+        if withs:
+            first += " with " + " and ".join(withs)
+        second = ""
+        if len(measured) >= 2:
+            rest = _listing(measured[1:3])
+            second = f"It is mostly {measured[0]}, with {rest} {'in a pattern' if patterned else 'areas'}."
+        elif plain and measured:
+            second = f"It is plain {measured[0]} all over."
+        detailed = f"{first}. {second}".strip() if second else f"{first}."
         raw = json.dumps(
             {
                 "short": short,
                 "concise": concise,
                 "detailed": detailed,
                 "facts": item.facts(),
-                "noun_phrase": {"words": list(phrase.words), "source": phrase.source,
-                                "dropped": list(phrase.dropped)},
-                "colours": colours.as_dict(),
+                "name_phrase": {"words": list(phrase.words), "colours": list(phrase.colours),
+                                "source": phrase.source, "dropped": list(phrase.dropped)},
+                "colours": item.colours.as_dict(),
+                "tell": item.tell,
             },
             sort_keys=True,
         )

@@ -39,7 +39,8 @@ def _summary_text(summary: CaptionSummary, dedupe: bool) -> str:
         f"{summary.objects} active objects ({summary.captioner}/{summary.provider}/{summary.model}/"
         f"{summary.prompt_version})\n"
         f"caption collisions: {summary.collision_pairs} pairs over {summary.objects_in_collision} objects "
-        f"(by tier: {tiers})" + (f"; excluded {summary.excluded}" if dedupe else "; kept (--keep-collisions)") + "\n"
+        f"(by tier: {tiers}; {summary.variants_toned} objects told apart before flagging)"
+        + (f"; excluded {summary.excluded}" if dedupe else "; kept (--keep-collisions)") + "\n"
         f"caption check: {check.get('objects_warned', 0)} of {check.get('objects_checked', 0)} captioned active "
         f"objects have warnings ({kinds})"
     )
