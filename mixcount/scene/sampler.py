@@ -382,7 +382,8 @@ def _draw_container(rng: np.random.Generator, config: SceneConfig, pool: Sequenc
 
 
 def pile_fit_factor(extent_xy: tuple[float, float], sizes: NDArray[Any], area_range: Sequence[float]) -> float:
-    """XY factor that brings a container's box area into ``area_range`` x its pile's one-layer footprint.
+    """The factor (applied to the whole container: X, Y and its height) that brings the container's box area
+    into ``area_range`` x its pile's one-layer footprint.
 
     The footprint is the sum of the counted objects' largest sides squared (each at most a size x size
     square on the floor): a real 25 cm plate at s = 10 is 2.5 m across, and a hundred 0.8 m objects
@@ -613,8 +614,12 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     fit = 1.0
     if container_obj is not None:
         extent = np.asarray(container_obj.dims) * cont_scale
-        fit = pile_fit_factor((float(extent[0]), float(extent[1])), sizes, config.container_pile_area)
-        cont_scale = cont_scale * np.array([fit, fit, 1.0])
+        # a count target's container holds what will be kept (per class its first `aims` bodies), not the
+        # spawn's margin and reserve; the container scales whole, so a shrunk tray is no deep pit (issue 48)
+        kept_sizes = sizes if count_target is None else np.concatenate(
+            [sizes[inst_class == c][:a] for c, a in enumerate(count_target["per_class"])])
+        fit = pile_fit_factor((float(extent[0]), float(extent[1])), kept_sizes, config.container_pile_area)
+        cont_scale = cont_scale * fit
         extent = np.asarray(container_obj.dims) * cont_scale
     pile = _Pile(config, extent, yaw)
     floor = _floor_reaching(floor, pile.half_diagonal + config.floor_pile_margin * s)
