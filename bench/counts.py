@@ -81,9 +81,35 @@ def scene_look(scene_dir: Path, meta: dict[str, Any]) -> dict[str, Any]:
         out["union_box"] = round(float((ys.max() - ys.min() + 1) * (xs.max() - xs.min() + 1)) / mask.size, 4)
         rgb = np.asarray(Image.open(scene_dir / "rgb.png").convert("RGB"), dtype=np.float64) / 255.0
         out["luminance"] = round(float((rgb[mask] @ np.array([0.2126, 0.7152, 0.0722])).mean()), 4)
-    if meta.get("container") is not None or any(o.get("role") == "container" for o in meta["objects"]):
+    if meta["spec"].get("container") is not None:
         out["container"] = True
+    out.update(reframed(meta, counted))
     return out
+
+
+def reframed(meta: dict[str, Any], counted: list[dict[str, Any]]) -> dict[str, Any]:
+    """What framing cam_0 on the final pile (the kept counted objects, after any take-out and top-up) would
+    change against the camera written (framed on the first settle's pile): the distance ratio and the
+    look-at's shift over the distance (:func:`mixcount.scene.framing.frame_camera`, the same rule)."""
+    import numpy as np
+
+    from mixcount.scene.framing import frame_camera
+    from mixcount.scene.spec import CameraSpec
+
+    written = meta["cameras"][0].get("framing") or {}
+    if "distance" not in written or not counted:
+        return {}
+    cam = CameraSpec.from_dict(meta["spec"]["cameras"][0])
+    centres = np.array([np.asarray(o["matrix_world"])[:3, 3] for o in counted])
+    sizes = np.array([float(o["size_m"]) for o in counted])
+    cont = meta["spec"].get("container")
+    diag = float(np.linalg.norm(cont["extent_m"])) if cont else None
+    margin = float((meta["spec"].get("placement") or {}).get("frame_margin", 0.0))
+    again = frame_camera(cam, centres, sizes, diag, margin=margin)
+    d0 = float(written["distance"])
+    shift = np.linalg.norm(np.asarray(again.camera.look_at) - np.asarray(written["camera"]["look_at"]))
+    return {"reframe_distance_ratio": round(float(again.camera.distance) / d0, 4),
+            "reframe_shift": round(float(shift) / d0, 4)}
 
 
 def write_coco(scene_dirs: list[Path], path: Path) -> int:
@@ -223,6 +249,7 @@ def look_summary(lines: list[dict[str, Any]]) -> dict[str, Any]:
     cpu = [float(ln["worker_cpu_s"]) for ln in lines if ln.get("worker_cpu_s") is not None]
     return {"image_share_median": med("image_share"), "visible_px_median": med("visible_px_median"),
             "union_box_median": med("union_box"), "luminance_median": med("luminance"),
+            "reframe_distance_ratio_median": med("reframe_distance_ratio"), "reframe_shift_median": med("reframe_shift"),
             "worker_cpu_s_per_kept_scene": round(sum(cpu) / len(cpu), 2) if cpu else None}
 
 

@@ -130,3 +130,26 @@ def test_a_mixcount_dataset_file_gives_its_counted_objects(composed_dataset: Pat
     assert Counter(dict(zip(dist.counts, dist.weights))) == Counter(Counter(per_image.values()))
     metas = [json.loads(p.read_text()) for p in sorted((composed_dataset / "scenes").glob("scene_*/metadata.json"))]
     assert sorted(sum(per) for per in dist.images) == sorted(m["n_counted"] for m in metas)
+
+
+def test_stats_compare_the_kept_counts_with_the_files_histogram(tmp_path: Path) -> None:
+    """`mixcount stats` reads the file the run named again: KS distance against its histogram, per bin."""
+    from mixcount.evaluate.count_stats import count_lines, dataset_count_stats
+
+    path = _coco(tmp_path / "instances_val.json")  # totals 7 and 10, one image each
+    text = f"histogram:{path}"
+    for i, (target, kept) in enumerate([(7, 7), (10, 10), (10, 9), (7, 7)]):
+        d = tmp_path / "ds" / "scenes" / f"scene_{i:06d}"
+        d.mkdir(parents=True)
+        meta = {"scene_id": d.name, "seed": i, "counts": {"4": kept}, "diagnostics": [],
+                "objects": [{"role": "counted", "status": "kept"}] * kept,
+                "count_target": {"total": target, "per_class": {"4": target}, "distribution": text, "imbalance": None}}
+        (d / "metadata.json").write_text(json.dumps(meta))
+    stats = dataset_count_stats(tmp_path / "ds")
+    assert stats is not None and stats["ks_against"] == "distribution" and stats["distributions"] == [text]
+    # kept 7, 7, 9, 10 against half 7, half 10: the largest CDF gap is at 9 (0.75 against 0.5)
+    assert stats["ks_distance"] == pytest.approx(0.25)
+    assert stats["exact"] == 3 and sum(stats["bins"]["kept"]) == 4
+    assert any("KS distance 0.25" in line for line in count_lines(stats))
+    path.unlink()  # the file gone: against the drawn targets instead
+    assert dataset_count_stats(tmp_path / "ds")["ks_against"] != "distribution"
