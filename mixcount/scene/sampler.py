@@ -614,11 +614,13 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     fit = 1.0
     if container_obj is not None:
         extent = np.asarray(container_obj.dims) * cont_scale
-        # a count target's container holds what will be kept (per class its first `aims` bodies), not the
-        # spawn's margin and reserve; the container scales whole, so a shrunk tray is no deep pit (issue 48)
-        kept_sizes = sizes if count_target is None else np.concatenate(
-            [sizes[inst_class == c][:a] for c, a in enumerate(count_target["per_class"])])
-        fit = pile_fit_factor((float(extent[0]), float(extent[1])), kept_sizes, config.container_pile_area)
+        # a count target's container holds what its first settle drops (per class the spawn without the
+        # reserve), as a paper scene's holds its whole spawn; the reserve only enters for a top-up. The
+        # container scales whole, so a shrunk tray is no deep pit (issue 48)
+        settled_sizes = sizes if count_target is None else np.concatenate(
+            [sizes[inst_class == c][:n_c - r_c]
+             for c, (n_c, r_c) in enumerate(zip(counts, count_target["reserve"]))])
+        fit = pile_fit_factor((float(extent[0]), float(extent[1])), settled_sizes, config.container_pile_area)
         cont_scale = cont_scale * fit
         extent = np.asarray(container_obj.dims) * cont_scale
     pile = _Pile(config, extent, yaw)
