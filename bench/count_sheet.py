@@ -4,8 +4,8 @@
         --dense W2/out_uniform_1000-1000 --pairs 6 --out docs/count_targets_look.png
 
 Every ``scenes/scene_*`` folder under ``--paper`` and ``--target`` (bench/counts.py's per-seed folders) is
-read; each target scene is paired with a paper scene that kept the same number of counted objects (the
-nearest count when none did), ``--pairs`` pairs in all, the counts spread over the range. Each tile is the
+read; target and paper scenes are paired by the nearest kept counts (the closest pairs first, each scene
+once), ``--pairs`` pairs in all. Each tile is the
 scene's rgb.png (``--tile`` px, 512 by default) captioned with its seed, kept count, counted image share,
 union box and counted pixels' luminance (bench/counts.py :func:`scene_look`); the ``--dense`` scene(s) come
 last. stdout: one JSON line naming the pairs and their figures.
@@ -35,16 +35,19 @@ def scenes(root: Path) -> list[dict[str, Any]]:
 
 
 def pairs(paper: list[dict[str, Any]], target: list[dict[str, Any]], n: int) -> list[tuple[dict[str, Any], dict[str, Any]]]:
-    """``n`` target scenes spread over their counts, each with the paper scene of the nearest count."""
-    target = sorted(target, key=lambda r: r["kept"])
-    picks = [target[round(i * (len(target) - 1) / max(n - 1, 1))] for i in range(min(n, len(target)))]
-    used: set[Path] = set()
+    """Up to ``n`` (paper, target) pairs of the nearest counts, each scene used once: the closest pairs
+    first over all of them, then in order of the count."""
+    cands = sorted(((abs(p["kept"] - t["kept"]), i, j) for i, p in enumerate(paper) for j, t in enumerate(target)))
+    used_p: set[int] = set()
+    used_t: set[int] = set()
     out = []
-    for t in picks:
-        p = min((p for p in paper if p["dir"] not in used) or paper, key=lambda p: abs(p["kept"] - t["kept"]))
-        used.add(p["dir"])
-        out.append((p, t))
-    return out
+    for _, i, j in cands:
+        if i in used_p or j in used_t or len(out) >= n:
+            continue
+        used_p.add(i)
+        used_t.add(j)
+        out.append((paper[i], target[j]))
+    return sorted(out, key=lambda pt: pt[1]["kept"])
 
 
 def tile(rec: dict[str, Any], label: str, side: int) -> Any:
@@ -82,7 +85,7 @@ def main() -> int:
     for r, d in enumerate(dense[: len(chosen)]):
         sheet.paste(tile(d, "target", args.tile), (2 * (args.tile + 8), r * (h + 8)))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    sheet.save(args.out, optimize=True)
+    sheet.quantize(256, dither=Image.Dither.FLOYDSTEINBERG).save(args.out, optimize=True)  # a docs-sized PNG
     keep = ("seed", "kept", "image_share", "union_box", "luminance", "visible_px_median")
     print(json.dumps({"bench": "count_sheet", "out": str(args.out),
                       "pairs": [{"paper": {k: p.get(k) for k in keep}, "target": {k: t.get(k) for k in keep}}
