@@ -614,14 +614,13 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     fit = 1.0
     if container_obj is not None:
         extent = np.asarray(container_obj.dims) * cont_scale
-        # a count target's container holds its expected need (per class the first ceil(count_spawn_factor
-        # x target) bodies: neither the low camera's margin nor the reserve), as a paper scene's holds its
-        # whole spawn (fitted to the whole first settle, target objects were 0.48 x the paper's in pixels). A
+        # a count target's container holds what its first settle drops (per class the spawn without the
+        # reserve), as a paper scene's holds its whole spawn; the reserve only enters for a top-up. A
         # container shrunk to its pile shrinks whole (a shrunk tray is no deep pit); one widened keeps its
         # real height (walls grown with it hid the pile from low cameras) (issue 48)
         settled_sizes = sizes if count_target is None else np.concatenate(
-            [sizes[inst_class == c][:min(n_c - r_c, math.ceil(float(config.count_spawn_factor[1]) * a - 1e-9))]
-             for c, (n_c, r_c, a) in enumerate(zip(counts, count_target["reserve"], count_target["per_class"]))])
+            [sizes[inst_class == c][:n_c - r_c]
+             for c, (n_c, r_c) in enumerate(zip(counts, count_target["reserve"]))])
         fit = pile_fit_factor((float(extent[0]), float(extent[1])), settled_sizes, config.container_pile_area)
         cont_scale = cont_scale * np.array([fit, fit, min(fit, 1.0)])
         extent = np.asarray(container_obj.dims) * cont_scale
