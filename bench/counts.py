@@ -47,6 +47,90 @@ def _worker_peak_mb(worker: Any) -> Optional[float]:
     return None
 
 
+def _worker_cpu_s(worker: Any) -> Optional[float]:
+    """The bpy worker's user + system CPU seconds so far (/proc/PID/stat); None when not readable. Per scene
+    deltas of it weigh the work free of the other load on a shared machine."""
+    import os
+
+    pid = getattr(getattr(worker, "proc", None), "pid", None) or getattr(worker, "pid", None)
+    if pid is None:
+        return None
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def scene_look(scene_dir: Path, meta: dict[str, Any]) -> dict[str, Any]:
+    """How a finished scene looks in cam_0 (issue 48): the share of the image its counted objects cover
+    (instance.png pixels of kept counted ids), the median visible pixels of a counted object, the counted
+    objects' union box (of their pixels) over the image, and the counted pixels' mean luminance in rgb.png
+    (Rec. 709 weights of the 8-bit sRGB values, 0-1)."""
+    import numpy as np
+    from PIL import Image
+
+    counted = [o for o in meta["objects"] if o.get("role") == "counted" and o.get("status") == "kept"]
+    ids = np.array(Image.open(scene_dir / "instance.png"))
+    mask = np.isin(ids, np.array([o["instance_id"] for o in counted], dtype=ids.dtype))
+    px = [float(o.get("visible_px") or 0) for o in counted]
+    out: dict[str, Any] = {"image_share": round(float(mask.mean()), 4),
+                           "visible_px_median": float(np.median(px)) if px else None}
+    if mask.any():
+        ys, xs = np.nonzero(mask)
+        out["union_box"] = round(float((ys.max() - ys.min() + 1) * (xs.max() - xs.min() + 1)) / mask.size, 4)
+        rgb = np.asarray(Image.open(scene_dir / "rgb.png").convert("RGB"), dtype=np.float64) / 255.0
+        out["luminance"] = round(float((rgb[mask] @ np.array([0.2126, 0.7152, 0.0722])).mean()), 4)
+    if meta["spec"].get("container") is not None:
+        out["container"] = True
+    out.update(reframed(meta, counted))
+    return out
+
+
+def reframed(meta: dict[str, Any], counted: list[dict[str, Any]]) -> dict[str, Any]:
+    """What framing cam_0 on the final pile (the kept counted objects, after any take-out and top-up) would
+    change against the camera written (framed on the first settle's pile): the distance ratio and the
+    look-at's shift over the distance (:func:`mixcount.scene.framing.frame_camera`, the same rule)."""
+    import numpy as np
+
+    from mixcount.scene.framing import frame_camera
+    from mixcount.scene.spec import CameraSpec
+
+    written = meta["cameras"][0].get("framing") or {}
+    if "distance" not in written or not counted:
+        return {}
+    cam = CameraSpec.from_dict(meta["spec"]["cameras"][0])
+    centres = np.array([np.asarray(o["matrix_world"])[:3, 3] for o in counted])
+    sizes = np.array([float(o["size_m"]) for o in counted])
+    cont = meta["spec"].get("container")
+    diag = float(np.linalg.norm(cont["extent_m"])) if cont else None
+    margin = float((meta["spec"].get("placement") or {}).get("frame_margin", 0.0))
+    again = frame_camera(cam, centres, sizes, diag, margin=margin)
+    d0 = float(written["distance"])
+    shift = np.linalg.norm(np.asarray(again.camera.look_at) - np.asarray(written["camera"]["look_at"]))
+    return {"reframe_distance_ratio": round(float(again.camera.distance) / d0, 4),
+            "reframe_shift": round(float(shift) / d0, 4)}
+
+
+def write_coco(scene_dirs: list[Path], path: Path) -> int:
+    """The scenes' own coco.json files merged into one COCO instances file (image ids renumbered, the
+    annotations' ``is_distractor`` kept): the paper run's histogram for ``--counts histogram:PATH``."""
+    images, annotations, categories = [], [], {}
+    for n, d in enumerate(sorted(scene_dirs), 1):
+        doc = json.loads((d / "coco.json").read_text())
+        first = min(img["id"] for img in doc["images"])
+        for img in doc["images"]:
+            if img["id"] == first:  # cam_0
+                images.append({**img, "id": n})
+        for a in doc["annotations"]:
+            if a["image_id"] == first:
+                annotations.append({"id": len(annotations) + 1, "image_id": n, "category_id": a["category_id"],
+                                    "is_distractor": bool(a.get("is_distractor", False))})
+        categories.update({c["id"]: {"id": c["id"], "name": c.get("name")} for c in doc["categories"]})
+    path.write_text(json.dumps({"images": images, "annotations": annotations, "categories": list(categories.values())}))
+    return len(images)
+
+
 class Run:
     """One count target's scenes on its own worker, one kept scene per :meth:`step` (regenerated seeds
     included), so two runs can alternate and share the machine's load evenly."""
@@ -65,6 +149,7 @@ class Run:
         self.seconds = self.physics = self.rgb = 0.0
         self.seed = args.seed
         self.oracle_lines: list[dict[str, Any]] = []
+        self.looks: list[dict[str, Any]] = []
 
     @property
     def done(self) -> bool:
@@ -91,21 +176,27 @@ class Run:
         converted = convert_scene_assets(spec, self.work / "assets")
         warm_mesh_cache(self.worker, converted, cfg.compose.mesh_cache)
         t_scene = time.perf_counter()
+        cpu0 = _worker_cpu_s(self.worker)
         out = self.work / f"out_{self.label}" / f"seed_{seed}"
         outcome, meta, stages = run_fresh_scene(self.worker, spec, out, self.work / "assets", timeout_s=args.timeout,
                                                 threads=args.threads, mesh_cache=cfg.compose.mesh_cache,
                                                 oracle=args.oracle)
         dt = time.perf_counter() - t_scene
+        cpu1 = _worker_cpu_s(self.worker)
         self.seconds += dt
         line: dict[str, Any] = {"bench": "counts.scene", "run": self.label, "seed": seed, "seconds": round(dt, 2),
                                 "spawned": spec.n_counted, "status": outcome.status}
+        if cpu0 is not None and cpu1 is not None:
+            line["worker_cpu_s"] = round(cpu1 - cpu0, 2)
         if meta is not None:
             rec = scene_record(meta) if not self.dist.is_paper else {"kept": meta["n_counted"]}
             self.rows.append(rec or {})
             self.physics += stages.get("physics", 0.0)
             self.rgb += stages.get("rgb", 0.0)
-            line.update({"target": (rec or {}).get("target"), "kept": (rec or {}).get("kept"),
-                         "physics_s": stages.get("physics"), "rgb_s": stages.get("rgb")})
+            line.update({"target": (rec or {}).get("target"), "kept": (rec or {}).get("kept", meta["n_counted"]),
+                         "physics_s": stages.get("physics"), "rgb_s": stages.get("rgb"),
+                         "path": str(outcome.path), **scene_look(Path(outcome.path), meta)})
+            self.looks.append(line)
             if args.oracle:
                 kept_objs = [o for o in meta["objects"] if o.get("status") == "kept"]
                 ious = [o["oracle_iou"] for o in kept_objs if o.get("oracle_iou") is not None]
@@ -141,9 +232,25 @@ class Run:
                         if kept else None, "regenerated": len(self.rejected)})
         else:
             out.update(summarise_counts(self.rows, self.rejected, target_cdf=self.dist.cdf))
+        out.update(look_summary(self.looks))
         if self.oracle_lines:
             out["oracle"] = self.oracle_lines
         return out
+
+
+def look_summary(lines: list[dict[str, Any]]) -> dict[str, Any]:
+    """Medians of the kept scenes' look (:func:`scene_look`) and the worker CPU seconds per kept scene."""
+    import numpy as np
+
+    def med(key: str) -> Optional[float]:
+        v = [float(ln[key]) for ln in lines if ln.get(key) is not None]
+        return round(float(np.median(v)), 4) if v else None
+
+    cpu = [float(ln["worker_cpu_s"]) for ln in lines if ln.get("worker_cpu_s") is not None]
+    return {"image_share_median": med("image_share"), "visible_px_median": med("visible_px_median"),
+            "union_box_median": med("union_box"), "luminance_median": med("luminance"),
+            "reframe_distance_ratio_median": med("reframe_distance_ratio"), "reframe_shift_median": med("reframe_shift"),
+            "worker_cpu_s_per_kept_scene": round(sum(cpu) / len(cpu), 2) if cpu else None}
 
 
 def summarise_logs(logs: list[Path], work: Path, counts: str) -> list[dict[str, Any]]:
@@ -184,6 +291,7 @@ def summarise_logs(logs: list[Path], work: Path, counts: str) -> list[dict[str, 
         else:
             res.update({k: v for k, v in summarise_counts(rows, rejected, target_cdf=parse_count_target(counts).cdf)
                         .items() if k != "imbalance"})
+        res.update(look_summary(kept_lines))
         out.append(res)
     if "paper" in by_label and len(by_label) == 2:
         other = next(v for k, v in by_label.items() if k != "paper")
@@ -192,6 +300,12 @@ def summarise_logs(logs: list[Path], work: Path, counts: str) -> list[dict[str, 
         t_paper = sum(by_label["paper"][s]["seconds"] for s in both)
         out.append({"bench": "counts.time_ratio", "seeds_both_ran": len(both),
                     "target_over_paper": round(t_target / max(t_paper, 1e-9), 3)})
+    if "paper" in by_label and len(by_label) == 2:  # per kept scene, the regenerated seeds' time included
+        per = {k: (sum(ln["seconds"] for ln in v.values()), sum(ln.get("worker_cpu_s") or 0 for ln in v.values()),
+                   max(sum(1 for ln in v.values() if ln["status"] == "written"), 1)) for k, v in by_label.items()}
+        t, p = next(v for k, v in per.items() if k != "paper"), per["paper"]
+        out.append({"bench": "counts.time_ratio_per_kept_scene", "wall": round(t[0] / t[2] / max(p[0] / p[2], 1e-9), 3),
+                    "worker_cpu": round(t[1] / t[2] / max(p[1] / p[2], 1e-9), 3) if p[1] else None})
     return out
 
 
@@ -211,6 +325,9 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override (repeatable)")
     ap.add_argument("--budget-s", type=float, default=0, help="stop after this many seconds (0: never), "
                     "figures of the scenes kept by then")
+    ap.add_argument("--write-coco", type=Path, default=None, metavar="PATH",
+                    help="after the runs, merge the first run's scenes' coco.json (cam_0) into one COCO file: "
+                    "the paper run's own histogram for a later --counts histogram:PATH")
     ap.add_argument("--work", type=Path, default=None, help="pools, assets and scenes (reused across runs)")
     ap.add_argument("--smoke", action="store_true", help="seconds: tiny sizes, same code path (the suite runs it)")
     ap.add_argument("--summarise", type=Path, nargs="*", default=None, metavar="LOG",
@@ -234,7 +351,7 @@ def main() -> int:
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-bench-counts-"))
     pool = load_pool(args.pool, work)
     t0 = time.perf_counter()
-    label = args.counts.replace(":", "_").replace(",", "_").replace("/", "_")
+    label = "paper" if args.counts == "paper" else args.counts.replace(":", "_").replace(",", "_").replace("/", "_")[-60:]
     with contextlib.ExitStack() as stack:
         runs = []
         for counts, name in [(args.counts, label)] + ([("paper", "paper")] if args.paper else []):
@@ -250,6 +367,10 @@ def main() -> int:
                 if not r.done:
                     r.step()
         results = [r.result() for r in runs]
+        if args.write_coco:
+            dirs = [Path(ln["path"]) for ln in runs[0].looks]
+            print(f"bench/counts.py: wrote {write_coco(dirs, args.write_coco)} images to {args.write_coco}",
+                  file=sys.stderr)
     for res in results:
         print(json.dumps(res), flush=True)
     if len(results) == 2:

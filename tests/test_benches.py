@@ -134,6 +134,9 @@ def test_counts_bench(bench_root: Path) -> None:
                            "exact_share", "bins.kept.0", "per_class.max_off", "spawned_per_target"])
     assert target["exact"] == 2 and target["per_class"]["max_off"] == 0 and target["surplus_removed"] > 0
     assert paper["run"] == "paper" and paper["scenes_kept"] == 2 and ratio["target_over_paper"] > 0
+    for run in (target, paper):  # how the scenes look (issue 48): figures of instance.png and rgb.png
+        check_figures(run, ["image_share_median", "visible_px_median", "union_box_median", "luminance_median"])
+        assert 0 < run["image_share_median"] <= run["union_box_median"] <= 1 and 0 < run["luminance_median"] < 1
 
 
 @pytest.mark.blender

@@ -266,3 +266,35 @@ def test_displacements() -> None:
     b = a.copy()
     b[1, :3, 3] = [0.0, 0.3, 0.4]
     assert C.displacements(a, b).tolist() == pytest.approx([0.0, 0.5])
+
+
+def test_a_target_container_holds_its_first_settle_and_scales_whole() -> None:
+    """Issue 48: the container of a target scene is fitted to what its first settle drops (the spawn without
+    the reserve, as a paper scene's to its whole spawn); a container shrunk to its pile shrinks whole (no deep
+    pit), one widened keeps its real height."""
+    from test_scene_distributions import rich_pool
+
+    pool = rich_pool()
+    by_id = {o.object_id: o for o in pool}
+    seen, fits = 0, []
+    for seed, target in [(s, t) for t in ("uniform:20-200", "uniform:1-3") for s in range(40)]:
+        cfg = load_config([], [f"scene.count_target={target}"])
+        lo, hi = cfg.scene.container_pile_area
+        spec = sample_scene(seed, "train", cfg, pool)
+        if spec.container is None:
+            continue
+        seen += 1
+        t = spec.count_target
+        assert t is not None
+        first = [o for c, r in enumerate(t["reserve"])
+                 for o in sorted((o for o in spec.objects if o.class_index == c), key=lambda o: o.instance_id)
+                 [: sum(1 for o in spec.objects if o.class_index == c) - r]]
+        area = spec.container.extent_m[0] * spec.container.extent_m[1]
+        assert lo * (1 - 1e-3) <= area / sum(o.size_m ** 2 for o in first) <= hi * (1 + 1e-3)
+        ratio = np.asarray(spec.container.extent_m) / np.asarray(by_id[spec.container.object_id].dims)
+        f = spec.container.pile_fit
+        fits.append(f)
+        ratio = ratio / cfg.scene.scale / np.array([f, f, min(f, 1.0)])  # what is left is the per-axis jitter
+        assert np.all(ratio >= cfg.scene.container_scale_jitter[0] - 1e-4)
+        assert np.all(ratio <= cfg.scene.container_scale_jitter[1] + 1e-4)
+    assert seen >= 5 and min(fits) < 1.0 < max(fits)  # both shrunk and widened containers were checked

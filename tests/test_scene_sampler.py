@@ -53,7 +53,8 @@ def test_scale_is_applied_consistently(conf):
         if s.container is not None:
             real = np.asarray(by_id[s.container.object_id].dims)
             # per-axis jitter x s, then the pile fit on X and Y only
-            fit = np.array([s.container.pile_fit, s.container.pile_fit, 1.0])
+            f = s.container.pile_fit
+            fit = np.array([f, f, min(f, 1.0)])  # shrunk whole, widened in X and Y (issue 48)
             ratio = np.asarray(s.container.extent_m) / real / conf.scene.scale / fit
             assert np.all(ratio >= conf.scene.container_scale_jitter[0] - 1e-4)
             assert np.all(ratio <= conf.scene.container_scale_jitter[1] + 1e-4)

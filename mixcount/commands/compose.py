@@ -173,7 +173,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         trajectory: Optional[str] = typer.Option(None, "--trajectory", help="none or orbit: --frames more cameras on a circle around each pile (rerender.trajectory)."),
         frames: Optional[int] = typer.Option(None, "--frames", min=1, help="Cameras along the orbit (rerender.frames)."),
         rule: Optional[str] = typer.Option(None, "--rule", help="How the views are annotated: all_cameras (the paper's) or per_view (rerender.annotation_rule)."),
-        counts: Optional[str] = typer.Option(None, "--counts", help="Visible counted objects per image (scene.count_target): paper (spawned n ~ scene.n_objects, the default), uniform:A-B or histogram:PATH ('count weight' lines), optionally followed by ,imbalance:R1-R2 (largest / smallest class per scene); docs/scene.md."),
+        counts: Optional[str] = typer.Option(None, "--counts", help="Visible counted objects per image (scene.count_target): paper (spawned n ~ scene.n_objects, the default), uniform:A-B or histogram:PATH ('count weight' lines, or a COCO instances / FSC-147 annotation JSON), optionally followed by ,imbalance:R1-R2 (largest / smallest class per scene); docs/scene.md."),
         device: Optional[str] = typer.Option(None, "--device", help="Where Cycles renders: cpu (the default), gpu (CUDA / OptiX / HIP / oneAPI; exit 2 before anything is written when none is usable) or auto (a GPU when one works, else the CPU, said once); compose.device, docs/faults.md."),
         json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
     ) -> None:

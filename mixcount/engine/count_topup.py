@@ -304,7 +304,7 @@ def _measure_again(state: SceneState, cameras: list[PinholeCamera], timer: Any,
     moved bodies' settle verdict and frame check, their silhouettes drawn again, and each camera re-renders
     only the box where they (and the bodies ``removed_ids`` taken out since ``id_passes``) were seen and
     where they are now; then the visibility loop goes on from there."""
-    from mixcount.engine.scene_job import visibility_loop
+    from mixcount.engine.scene_steps import visibility_loop
     from mixcount.engine.visibility import unoccluded_mask
     from mixcount.scene.framing import image_box
 
@@ -345,7 +345,7 @@ def _check_moved(state: SceneState, moved: list[int], cameras: list[PinholeCamer
     fell in a rest check or were dropped in by a top-up, at their new poses (the others did not move:
     their checks stand). The simulation that moved them resolved their contacts, so no interpenetration
     check is run again."""
-    from mixcount.engine.scene_job import check_frame
+    from mixcount.engine.scene_steps import check_frame
 
     floor, ph = state.spec.floor, state.spec.physics
     for i in moved:

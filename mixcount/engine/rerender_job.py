@@ -31,12 +31,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from mixcount.annotate import scene_decisions as D
+from mixcount.engine.cameras import Placement, camera_record, set_matrix
 from mixcount.engine.scene_build import SceneState, load_scene
-from mixcount.engine.scene_job import (
-    Placement,
+from mixcount.engine.scene_steps import (
     Timer,
-    _camera_record,
-    _set_matrix,
     check_frame,
     final_status,
     place_poses,
@@ -131,7 +129,7 @@ def _place_cameras(state: SceneState, views: tuple[RenderView, ...]) -> list[dic
         obj.data.lens = view.focal_length_mm
         obj.data.sensor_width = view.sensor_width_mm
         obj.data.clip_start, obj.data.clip_end = view.clip_range
-        _set_matrix(obj, np.asarray(view.cam_to_world, dtype=np.float64))
+        set_matrix(obj, np.asarray(view.cam_to_world, dtype=np.float64))
         objs.append(obj)
     for extra in state.cam_objs[len(views):]:
         bpy.data.objects.remove(extra, do_unlink=True)
@@ -285,7 +283,7 @@ def render_views(state: SceneState, views: Sequence[RenderView], *, rule: str, p
     for i, recs in state.views.items():
         state.update(i, views=tuple({k: v for k, v in view.items() if k != "in_frame"} for view in recs))
     spec = state.spec
-    records = [_camera_record(c, cam) for c, cam in zip(state.cam_objs, cameras)]
+    records = [camera_record(c, cam) for c, cam in zip(state.cam_objs, cameras)]
     out_views = tuple(CameraView(name=c.name, suffix=view_suffix(k), camera=records[k], framing=framings[k],
                                  passes=view_passes[k]) for k, c in enumerate(state.cam_objs))
     return SceneResult(

@@ -6,7 +6,9 @@ follows from physics and occlusion. A count target instead names a distribution 
 - ``paper``: no target (the paper's rule, the default; the sampler's spawned-count path is untouched);
 - ``uniform:A-B``: the total uniform over the integers A..B;
 - ``histogram:PATH``: the total drawn from a text file of ``count weight`` lines (``#`` comments,
-  commas or spaces), e.g. shaped like a benchmark's per-image counts;
+  commas or spaces), e.g. shaped like a benchmark's per-image counts, or from a benchmark's own annotation
+  JSON (COCO instances, FSC-147's ``points``, a mixcount dataset's ``instances_<split>.json``:
+  :mod:`mixcount.scene.count_files`), whose per-image per-category counts also give the class split;
 
 optionally followed by ``,imbalance:R1-R2`` for the per-class split: each scene draws a ratio R in
 [R1, R2] and splits the total so the largest class holds about R times the smallest (class weights
@@ -34,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.errors import ConfigError
+from mixcount.scene.count_files import histogram_of, looks_like_json, read_annotation_file
 
 COUNT_TARGET_STREAM = 37  # the count target's generator: default_rng([scene seed, COUNT_TARGET_STREAM])
 PAPER = "paper"
@@ -42,13 +45,15 @@ PAPER = "paper"
 @dataclass(frozen=True)
 class CountDistribution:
     """A parsed count target: ``kind`` paper | uniform | histogram, the support and weights of the total,
-    and the per-class ``imbalance`` range (None: stars-and-bars)."""
+    and the per-class ``imbalance`` range (None: stars-and-bars); ``images``: per image of an annotation
+    file its per-category counts, largest first (empty for a text histogram or a uniform target)."""
 
     kind: str
     text: str
     counts: tuple[int, ...] = ()
     weights: tuple[float, ...] = ()
     imbalance: Optional[tuple[float, float]] = None
+    images: tuple[tuple[int, ...], ...] = ()
 
     @property
     def is_paper(self) -> bool:
@@ -77,12 +82,21 @@ def _range(text: str, what: str, integer: bool) -> tuple[float, float]:
     return lo, hi
 
 
+def _shown(line: str, limit: int = 60) -> str:
+    """A bad line as an error shows it: repr, cut to ``limit`` characters (a one-line JSON file is MBs)."""
+    return repr(line) if len(line) <= limit else repr(line[:limit]) + f"... ({len(line)} characters)"
+
+
 def read_histogram(path: Path) -> tuple[tuple[int, ...], tuple[float, ...]]:
     """``count weight`` per line (``#`` comments, blank lines, commas or spaces) -> sorted counts and weights."""
     if not path.is_file():
         raise ConfigError(f"count target histogram {path} does not exist")
     table: dict[int, float] = {}
-    for no, line in enumerate(path.read_text().splitlines(), 1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"count target histogram {path}: cannot read it as text ({type(exc).__name__})") from None
+    for no, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
@@ -92,9 +106,9 @@ def read_histogram(path: Path) -> tuple[tuple[int, ...], tuple[float, ...]]:
             if len(parts) != 2:
                 raise ValueError
         except (ValueError, IndexError):
-            raise ConfigError(f"{path}:{no}: expected 'count weight', got {line!r}") from None
+            raise ConfigError(f"{path}:{no}: expected 'count weight', got {_shown(line)}") from None
         if count < 1 or weight < 0 or not math.isfinite(weight):
-            raise ConfigError(f"{path}:{no}: count must be >= 1 and weight >= 0, got {line!r}")
+            raise ConfigError(f"{path}:{no}: count must be >= 1 and weight >= 0, got {_shown(line)}")
         table[count] = table.get(count, 0.0) + weight
     if not table or sum(table.values()) <= 0:
         raise ConfigError(f"count target histogram {path} holds no positive weight")
@@ -129,6 +143,12 @@ def parse_count_target(text: str, base_dir: Optional[Path] = None) -> CountDistr
         path = Path(value)
         if not path.is_absolute() and base_dir is not None:
             path = base_dir / path
+        if not path.is_file():
+            raise ConfigError(f"count target histogram {path} does not exist")
+        if looks_like_json(path):
+            images = read_annotation_file(path)
+            counts, weights = histogram_of(images)
+            return CountDistribution("histogram", text, counts, weights, imbalance, tuple(images))
         counts, weights = read_histogram(path)
         return CountDistribution("histogram", text, counts, weights, imbalance)
     raise ConfigError(f"count target {text!r}: expected paper, uniform:A-B or histogram:PATH "
@@ -148,20 +168,10 @@ def draw_total(dist: CountDistribution, seed: int) -> int:
     return int(rng.choice(np.asarray(dist.counts), p=dist.probabilities()))
 
 
-def split_total(dist: CountDistribution, seed: int, total: int, n_classes: int) -> tuple[list[int], Optional[float]]:
-    """``total`` over ``n_classes`` classes, every class >= 1 (the caller keeps n_classes <= total): the
-    stars-and-bars composition, or with an imbalance range a drawn ratio R (returned) and counts
-    proportional to R**(j / (k - 1)) in a random class order (largest remainder rounding)."""
-    rng = np.random.default_rng([int(seed), COUNT_TARGET_STREAM, 1])
-    k = int(n_classes)
-    if k <= 1:
-        return [int(total)], None
-    if dist.imbalance is None:
-        cuts = np.sort(rng.choice(np.arange(1, total), size=k - 1, replace=False))
-        return [int(c) for c in np.diff(np.concatenate([[0], cuts, [total]]))], None
-    ratio = float(rng.uniform(dist.imbalance[0], dist.imbalance[1]))
-    weights = ratio ** (np.arange(k) / (k - 1))
-    weights = weights[rng.permutation(k)]
+def _proportional(weights: NDArray[Any], total: int) -> list[int]:
+    """``total`` over ``len(weights)`` classes, every class >= 1, the rest in proportion to ``weights``
+    (largest remainder rounding)."""
+    k = len(weights)
     spare = total - k  # every class holds one; the rest in proportion
     share = weights / weights.sum() * total - 1.0
     share = np.clip(share, 0.0, None)
@@ -169,7 +179,38 @@ def split_total(dist: CountDistribution, seed: int, total: int, n_classes: int) 
     counts = np.floor(share).astype(int)
     order = np.argsort(-(share - counts), kind="stable")
     counts[order[: spare - int(counts.sum())]] += 1
-    return [int(c) + 1 for c in counts], ratio
+    return [int(c) + 1 for c in counts]
+
+
+def _file_image(dist: CountDistribution, rng: np.random.Generator, total: int) -> Optional[tuple[int, ...]]:
+    """One image of the annotation file with this total and two or more categories (None: none has)."""
+    same = [per for per in dist.images if sum(per) == total and len(per) >= 2]
+    return same[int(rng.integers(len(same)))] if same else None
+
+
+def split_total(dist: CountDistribution, seed: int, total: int, n_classes: int) -> tuple[list[int], Optional[float]]:
+    """``total`` over ``n_classes`` classes, every class >= 1 (the caller keeps n_classes <= total): the
+    stars-and-bars composition, or with an imbalance range a drawn ratio R (returned) and counts
+    proportional to R**(j / (k - 1)) in a random class order (largest remainder rounding). A target read
+    from an annotation file (no imbalance given) takes an image of the file with the drawn total and two or
+    more categories: its own per-category counts when it has ``n_classes`` categories, else its ratio
+    (largest / smallest) as R; stars-and-bars when no such image exists (FSC-147: one class per image)."""
+    rng = np.random.default_rng([int(seed), COUNT_TARGET_STREAM, 1])
+    k = int(n_classes)
+    if k <= 1:
+        return [int(total)], None
+    image = _file_image(dist, rng, int(total)) if dist.imbalance is None and dist.images else None
+    if image is not None:
+        ratio = float(image[0]) / float(image[-1])
+        if len(image) == k:
+            return _proportional(np.asarray(image, dtype=np.float64)[rng.permutation(k)], int(total)), ratio
+    elif dist.imbalance is None:
+        cuts = np.sort(rng.choice(np.arange(1, total), size=k - 1, replace=False))
+        return [int(c) for c in np.diff(np.concatenate([[0], cuts, [total]]))], None
+    else:
+        ratio = float(rng.uniform(dist.imbalance[0], dist.imbalance[1]))
+    weights = ratio ** (np.arange(k) / (k - 1))
+    return _proportional(weights[rng.permutation(k)], int(total)), ratio
 
 
 def draw_elevations(seed: int, n_cameras: int, elevation_range: Sequence[float]) -> list[float]:

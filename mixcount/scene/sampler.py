@@ -382,7 +382,8 @@ def _draw_container(rng: np.random.Generator, config: SceneConfig, pool: Sequenc
 
 
 def pile_fit_factor(extent_xy: tuple[float, float], sizes: NDArray[Any], area_range: Sequence[float]) -> float:
-    """XY factor that brings a container's box area into ``area_range`` x its pile's one-layer footprint.
+    """The XY factor that brings a container's box area into ``area_range`` x its pile's one-layer footprint
+    (its height takes the factor too when it is below 1: a container shrunk to its pile shrinks whole).
 
     The footprint is the sum of the counted objects' largest sides squared (each at most a size x size
     square on the floor): a real 25 cm plate at s = 10 is 2.5 m across, and a hundred 0.8 m objects
@@ -613,8 +614,15 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     fit = 1.0
     if container_obj is not None:
         extent = np.asarray(container_obj.dims) * cont_scale
-        fit = pile_fit_factor((float(extent[0]), float(extent[1])), sizes, config.container_pile_area)
-        cont_scale = cont_scale * np.array([fit, fit, 1.0])
+        # a count target's container holds what its first settle drops (per class the spawn without the
+        # reserve), as a paper scene's holds its whole spawn; the reserve only enters for a top-up. A
+        # container shrunk to its pile shrinks whole (a shrunk tray is no deep pit); one widened keeps its
+        # real height (walls grown with it hid the pile from low cameras) (issue 48)
+        settled_sizes = sizes if count_target is None else np.concatenate(
+            [sizes[inst_class == c][:n_c - r_c]
+             for c, (n_c, r_c) in enumerate(zip(counts, count_target["reserve"]))])
+        fit = pile_fit_factor((float(extent[0]), float(extent[1])), settled_sizes, config.container_pile_area)
+        cont_scale = cont_scale * np.array([fit, fit, min(fit, 1.0)])
         extent = np.asarray(container_obj.dims) * cont_scale
     pile = _Pile(config, extent, yaw)
     floor = _floor_reaching(floor, pile.half_diagonal + config.floor_pile_margin * s)

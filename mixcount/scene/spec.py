@@ -166,7 +166,7 @@ class ContainerSpec:
     orientation: Quat
     scale: Vec3
     extent_m: Vec3  # scaled AABB size in the scene (before yaw)
-    pile_fit: float  # XY factor applied (after the jitter) so the container holds its pile (1 = none)
+    pile_fit: float  # XY factor (and Z when < 1) applied after the jitter so the container holds its pile (1 = none)
 
     def to_dict(self) -> dict[str, Any]:
         return {

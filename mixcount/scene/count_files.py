@@ -1,0 +1,95 @@
+"""Count targets read from a benchmark's own annotation file (issue 48): ``--counts histogram:PATH``.
+
+A user asks for counts to match the benchmark they evaluate on; the benchmark's annotation file already
+holds them, so ``histogram:`` takes, besides a text file of ``count weight`` lines
+(:func:`mixcount.scene.count_targets.read_histogram`), a JSON file of one of these kinds, told apart by
+their keys:
+
+- a COCO instances file (``images`` + ``annotations``): one count per image, the annotations whose
+  ``image_id`` names it, without crowd regions (``iscrowd: 1``: one region for many objects, no count) and
+  without mixcount's distractors (``is_distractor: true``, so a mixcount dataset's own
+  ``annotations/instances_<split>.json`` gives its counted objects); per image and ``category_id`` too,
+  so a two-class benchmark's file also gives its class ratios;
+- FSC-147's annotation JSON (``annotation_FSC147_384.json``: image name -> ``{"points": [[x, y], ...],
+  ...}``): ``len(points)`` per image, one class.
+
+Images with no counted object (nothing to aim at) are left out; a file left with none is a ConfigError of
+one line that names the file and what it lacked, never its text. The file is read whole by ``json``
+(an FSC-147 or COCO val file is tens of MB; a merged mixcount file of tens of thousands of scenes holds
+gigabytes of masks: give such a split as a text histogram instead, docs/scene.md, "Count targets").
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+from typing import Any, Mapping
+
+from mixcount.errors import ConfigError
+
+
+def looks_like_json(path: Path) -> bool:
+    """True when the file's first non-blank character opens a JSON object or array."""
+    with path.open("rb") as fh:
+        head = fh.read(4096).lstrip()
+    return head[:1] in (b"{", b"[")
+
+
+def _load(path: Path) -> Any:
+    try:
+        with path.open(encoding="utf-8") as fh:
+            return json.load(fh)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"count target histogram {path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"count target histogram {path}: cannot read it ({type(exc).__name__})") from None
+    except ValueError:  # e.g. a number past int's digit limit: the decoder's message quotes no text
+        raise ConfigError(f"count target histogram {path}: not valid JSON (a value it cannot decode)") from None
+
+
+def _coco_images(doc: Mapping[str, Any], path: Path) -> list[tuple[int, ...]]:
+    """Per image with a counted annotation: its per-category counts, largest first."""
+    images, annotations = doc.get("images"), doc.get("annotations")
+    if not isinstance(images, list) or not isinstance(annotations, list):
+        raise ConfigError(f"count target histogram {path}: a COCO file needs 'images' and 'annotations' lists")
+    ids = {img.get("id") for img in images if isinstance(img, dict)}
+    per_image: dict[Any, Counter[Any]] = {}
+    for ann in annotations:
+        if not isinstance(ann, dict) or ann.get("image_id") not in ids:
+            continue
+        if ann.get("is_distractor") or ann.get("iscrowd"):
+            continue
+        per_image.setdefault(ann["image_id"], Counter())[ann.get("category_id")] += 1
+    return [tuple(sorted(c.values(), reverse=True)) for c in per_image.values() if sum(c.values()) > 0]
+
+
+def _fsc147_images(doc: Mapping[str, Any]) -> list[tuple[int, ...]]:
+    """Per image with points: ``(len(points),)`` (FSC-147 names one class per image)."""
+    return [(len(v["points"]),) for v in doc.values()
+            if isinstance(v, dict) and isinstance(v.get("points"), list) and v["points"]]
+
+
+def read_annotation_file(path: Path) -> list[tuple[int, ...]]:
+    """A benchmark's annotation JSON -> per usable image its per-category counts (largest first, each >= 1).
+    ConfigError (one line) when the file is neither kind or has no usable image."""
+    doc = _load(path)
+    if isinstance(doc, dict) and ("images" in doc or "annotations" in doc):
+        kind, images = "COCO", _coco_images(doc, path)
+        lacks = "no image with a counted annotation (crowd regions and distractors are not counted)"
+    elif isinstance(doc, dict) and any(isinstance(v, dict) and "points" in v for v in doc.values()):
+        kind, images = "FSC-147", _fsc147_images(doc)
+        lacks = "no image with 'points'"
+    else:
+        raise ConfigError(f"count target histogram {path}: JSON, but neither a COCO instances file ('images' and "
+                          "'annotations') nor FSC-147 annotations (image name -> 'points')")
+    if not images:
+        raise ConfigError(f"count target histogram {path}: a {kind} file with {lacks}")
+    return images
+
+
+def histogram_of(images: list[tuple[int, ...]]) -> tuple[tuple[int, ...], tuple[float, ...]]:
+    """Per-image totals -> sorted counts and their image counts as weights."""
+    table = Counter(sum(per) for per in images)
+    keys = tuple(sorted(table))
+    return keys, tuple(float(table[k]) for k in keys)
