@@ -139,7 +139,7 @@ def test_gpu_on_a_machine_without_one_is_one_line_exit_2_nothing_written(compose
     capsys.readouterr()
     assert main(["--config", "quick", "render", str(composed_dataset), "--out", str(out), "--device", "gpu"]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert len(err) == 1 and "no GPU" in err[0] and "found CPU" in err[0] and "nothing was written" in err[0]
+    assert len(err) == 1 and "no usable GPU" in err[0] and "found CPU" in err[0] and "nothing was written" in err[0]
     assert not out.exists()
 
 

@@ -70,11 +70,11 @@ def select(device: str, scene: Any = None, *, key: str = "compose.device") -> De
                          found=tuple(found), error="")
 
 
-def use(device: Optional[str]) -> DevicesResult:
+def use(device: Optional[str], *, key: str = "compose.device") -> DevicesResult:
     """Remember ``device`` (None: the CPU) for this process's next scenes; the selection it gives (no scene
     applied). A ``gpu`` without one raises RuntimeError with the error line (the scene fails, the worker lives)."""
     global _current
-    res = select(device or "cpu")
+    res = select(device or "cpu", key=key)
     if res.error:
         raise RuntimeError(res.error)
     _current = device or "cpu"

@@ -15,7 +15,7 @@ annotations hold the objects whose origin is in its frame and that are more than
 
 The import, the floor and the lights are paid once for all views; with ``req.persistent_data`` Cycles
 keeps its scene data (BVH, images) between the RGB renders of the views (``render.use_persistent_data``).
-:func:`select_device` enables CUDA / OptiX devices through Cycles' add-on preferences.
+:func:`select_device` enables CUDA / OptiX devices through Cycles' add-on preferences (:mod:`mixcount.engine.devices`).
 
 :func:`render_views` (every step after the poses) is shared with ``compose --views``:
 :func:`render_more_views` runs it inside the ``scene`` request on the pile that request has just settled,
@@ -31,6 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from mixcount.annotate import scene_decisions as D
+from mixcount.engine import devices
 from mixcount.engine.cameras import Placement, camera_record, set_matrix
 from mixcount.engine.scene_build import SceneState, load_scene
 from mixcount.engine.scene_steps import (
@@ -62,47 +63,10 @@ from mixcount.worker.contract import (
 # an occlusion threshold no object reaches (D.occluded drops visibility <= 1 - threshold = -1): the
 # per-view rule measures every view with the visibility loop and drops nothing
 NEVER_OCCLUDED = 2.0
-GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI")  # tried in this order; the first with a device is used
-
-
 def select_device(device: str, scene: Any = None) -> DevicesResult:
-    """Cycles' devices for ``device``: "cpu" -> the CPU; "gpu" -> every device of the first backend of
-    :data:`GPU_BACKENDS` that has one (an ``error`` line naming what was found when none has); "auto" ->
-    the GPU when there is one, else the CPU. With ``scene`` the choice is applied (``scene.cycles.device``)."""
-    import bpy
-
-    prefs = bpy.context.preferences.addons["cycles"].preferences
-    found: list[str] = []
-    chosen, devices = "", []
-    if device != "cpu":
-        for backend in GPU_BACKENDS:
-            try:
-                prefs.compute_device_type = backend
-            except TypeError:  # this Blender build has no such backend
-                continue
-            gpus = [d for d in prefs.get_devices_for_type(backend) if d.type == backend]
-            found.extend(f"{d.type}: {d.name}" for d in gpus)
-            if gpus and not chosen:
-                chosen, devices = backend, gpus
-    if not chosen:
-        prefs.compute_device_type = "NONE"
-        cpus = [d for d in prefs.get_devices_for_type("CPU")]
-        found.extend(f"{d.type}: {d.name}" for d in cpus)
-        if device == "gpu":
-            return DevicesResult(used="", backend="", devices=(), found=tuple(found),
-                                 error="rerender.device = \"gpu\" but Cycles found no GPU (tried "
-                                       f"{', '.join(GPU_BACKENDS)}; found {', '.join(found) or 'nothing'})")
-        if scene is not None:
-            scene.cycles.device = "CPU"
-        return DevicesResult(used="CPU", backend="NONE", devices=tuple(d.name for d in cpus), found=tuple(found),
-                             error="")
-    prefs.compute_device_type = chosen
-    for d in prefs.devices:
-        d.use = d in devices
-    if scene is not None:
-        scene.cycles.device = "GPU"
-    return DevicesResult(used="GPU", backend=chosen, devices=tuple(f"{d.type}: {d.name}" for d in devices),
-                         found=tuple(found), error="")
+    """Cycles' devices for a re-render's ``device`` (cpu | gpu | auto): :func:`mixcount.engine.devices.select`,
+    whose ``gpu`` error line names ``rerender.device``."""
+    return devices.select(device, scene, key="rerender.device")
 
 
 def probe_devices(req: DevicesRequest) -> DevicesResult:
@@ -195,9 +159,7 @@ def run_rerender(req: RerenderRequest) -> SceneResult:
     """Handle one ``rerender`` request (module docstring); returns the SceneResult like the ``scene`` op."""
     timer = Timer()
     with timer.stage("device"):
-        device = select_device(req.device)
-        if device.error:
-            raise RuntimeError(device.error)
+        device = devices.use(req.device, key="rerender.device")  # kept for every render setting made later
     with timer.stage("import"):
         state = load_scene(req.scene_request())
         state.scene.cycles.device = device.used
