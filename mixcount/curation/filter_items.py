@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from mixcount.atomic import write_text_atomic
 from mixcount.catalog.models import CatalogObject
@@ -124,6 +125,19 @@ class LayoutCache:
         if key is not None and key in self.values:
             return self.values[key]
         value = A.occupancy_distance(x.shape_look(), y.shape_look())
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
+    def cached(self, x: _Item, y: _Item, tag: str, compute: Callable[[], float]) -> float:
+        """``compute()`` for the pair (or one object when ``x is y``), cached under ``tag`` and the
+        shape-match version."""
+        key = self.key(x, y, 1.0)
+        key = f"{tag}-{S.MATCH_VERSION}:{key}" if key is not None else None
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = float(compute())
         if key is not None:
             self.values[key] = round(value, 6)
             self.dirty = True

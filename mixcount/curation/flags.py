@@ -68,6 +68,8 @@ from mixcount.catalog.models import (
 from mixcount.config import Config
 from mixcount.curation import appearance3d as A
 from mixcount.curation import descriptors as D
+from mixcount.curation.candidates import candidate_pairs, feature
+from mixcount.curation.copy_rules import pair_flags
 from mixcount.curation.filter_items import LayoutCache, _appearance_kind, _Item, _label
 from mixcount.curation.flag_kinds import (  # noqa: F401 - the kinds' public home for callers of the filter
     APPEARANCE_RANK,
@@ -92,7 +94,7 @@ from mixcount.curation.ground_truth import (  # noqa: F401 - re-exported
     evaluate_against_ground_truth,
     find_ground_truth,
 )
-from mixcount.curation.look_rules import _pair_flags, pattern_strength  # noqa: F401 - re-exported
+from mixcount.curation.look_rules import pattern_strength  # noqa: F401 - re-exported
 from mixcount.curation.quality_flags import _quality_flags, mesh_quality_score  # noqa: F401 - re-exported
 from mixcount.curation.renders import canonical_render_path, mask_path_for
 
@@ -106,6 +108,7 @@ class FilterSummary:
     reactivated: int = 0
     review_applied: int = 0
     missing_renders: int = 0
+    candidate_pairs: int = 0
     containers: int = 0
     descriptor_failures: list[dict[str, Any]] = field(default_factory=list)
     ground_truth: dict[str, Any] | None = None
@@ -140,6 +143,22 @@ def _describe(catalog: Catalog, session: Session, items: list[_Item], summary: F
         except OSError as exc:
             summary.descriptor_failures.append({"id": obj.id, "name": obj.name, "error": f"render unreadable: {exc}"})
 
+
+
+_pair_flags = pair_flags  # the name tests and benches use
+
+
+def candidate_items(items: list[_Item], k: int) -> list[tuple[_Item, _Item]]:
+    """The pairs the pair rules look at (:mod:`mixcount.curation.candidates`): each object's ``k``
+    nearest in the descriptor index, objects sharing a hash, and every pair with an object whose
+    surface samples are missing (nothing to index it by)."""
+    indexed = [it for it in items if it.surface is not None]
+    rest = [it for it in items if it.surface is None]
+    feats = [feature(it.surface.points, it.surface.colours) for it in indexed]  # type: ignore[union-attr]
+    hashes = [(it.obj.content_hash, it.obj.geometry_hash) for it in indexed]
+    pairs = [(indexed[i], indexed[j]) for i, j in candidate_pairs(feats, k=k, hashes=hashes)] if indexed else []
+    pairs += [(x, y) for x in rest for y in items if y is not x and (y in indexed or x.obj.id < y.obj.id)]
+    return pairs
 
 
 def quality_key(obj: CatalogObject, *, accepted: set[int], quality_flags: dict[int, int], appearance: str) -> tuple:
@@ -184,7 +203,9 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
         _describe(catalog, session, items, summary)
         item_of = {it.obj.id: it for it in items}
         layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{A.LAYOUT_VERSION}.json")
-        found = _pair_flags(items, th, layouts) + _quality_flags(items, broken, th)
+        compare = candidate_items(items, th.candidates)
+        summary.candidate_pairs = len(compare)
+        found = pair_flags(items, th, layouts, compare) + _quality_flags(items, broken, th)
         layouts.save()
 
         decisions = latest_decisions(session)

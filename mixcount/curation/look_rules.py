@@ -6,7 +6,6 @@ that needs shape evidence only is :mod:`mixcount.curation.copy_rules`."""
 from __future__ import annotations
 
 import math
-from itertools import combinations
 
 import numpy as np
 
@@ -23,10 +22,11 @@ from mixcount.curation.flag_kinds import (
 )
 
 
-def _pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None = None) -> list[_Found]:
-    layouts = layouts or LayoutCache(None)
+def look_pair(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> list[_Found]:
+    """The appearance rules on one pair, in order (the first that fires ends the search, but a
+    ``near_duplicate_geometry`` pair may also get ``near_duplicate_appearance``)."""
     found: list[_Found] = []
-    for x, y in combinations(items, 2):
+    for _ in (0,):  # one pass: `continue` ends the rules for this pair
         a, b = x.obj, y.obj
         if a.content_hash and a.content_hash == b.content_hash:
             found.append(_Found(a.id, b.id, EXACT, 1.0, "identical model content (content hash {})".format(a.content_hash[:12])))

@@ -33,6 +33,7 @@ from itertools import permutations, product
 import numpy as np
 from scipy.spatial import cKDTree
 
+MATCH_VERSION = "match-v1"  # cached distances are keyed by it
 COARSE = 400
 FINE = 1500
 REFINE_TOP = 4
@@ -145,7 +146,7 @@ def surface_distance(a: Normalised, b: Normalised, rot: np.ndarray, scale: np.nd
     (almost) no floor from two independent samplings of one surface."""
     pa, na = a.points[:FINE], a.normals
     pb = (b.points[:FINE] @ rot.T) * scale
-    nb = (b.normals @ rot.T) / scale
+    nb = (b.normals @ np.linalg.inv(rot)) / scale  # normals map by the inverse transpose
     nb /= np.linalg.norm(nb, axis=1, keepdims=True)
     d_ab, j = cKDTree(pb).query(pa)
     d_ba, i = cKDTree(pa).query(pb)
@@ -163,25 +164,25 @@ def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def _refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, max_squash: float) -> tuple[float, np.ndarray, np.ndarray]:
-    """ICP from ``rot``: rotation, then per-axis scale (a's axes) bounded by ``max_squash``; returns
-    (chamfer, rotation, scale)."""
-    scale = np.ones(3)
+    """ICP from ``rot`` with a linear map whose stretches are bounded: each step fits the least-squares
+    linear map of b's points onto their nearest points of a, keeps its rotation parts and clips its
+    singular values (relative to their geometric mean) to ``[1/max_squash, max_squash]``: a squash along
+    *any* axis, not only a principal one. Returns (chamfer, rotation, per-axis scale) where the map is
+    ``diag(scale) @ rotation`` expressed in a's frame (rotation = U V^T, scale along U's axes folded in)."""
     lo, hi = 1.0 / max_squash, max_squash
+    m = rot.copy()
     for _ in range(ICP_STEPS):
-        moved = (pb @ rot.T) * scale
+        moved = pb @ m.T
         _, idx = tree_a.query(moved)
         target = pa[idx]
-        # rotation on the unscaled points against the target divided by the scale
-        rot = _kabsch(pb, target / scale)
-        turned = pb @ rot.T
-        # per-axis least-squares scale, then bounded and normalised to the isotropic part
-        num = (turned * target).sum(axis=0)
-        den = (turned * turned).sum(axis=0) + 1e-12
-        s = num / den
+        fit, *_ = np.linalg.lstsq(pb, target, rcond=None)  # pb @ fit ~ target
+        u, s, vt = np.linalg.svd(fit.T)
+        if np.linalg.det(u @ vt) < 0:
+            u[:, 2] *= -1
         s = s / np.exp(np.log(np.clip(s, 1e-6, None)).mean())
-        scale = np.clip(s, lo, hi)
-    moved = (pb @ rot.T) * scale
-    return chamfer(pa, moved, tree_a), rot, scale
+        m = u @ np.diag(np.clip(s, lo, hi)) @ vt
+    moved = pb @ m.T
+    return chamfer(pa, moved, tree_a), m, np.ones(3)
 
 
 def match(a: Normalised, b: Normalised, *, max_squash: float) -> Match:
