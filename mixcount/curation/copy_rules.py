@@ -49,10 +49,10 @@ def shape_facts(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> t
 
 
 def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, float] | None,
-               found: list[_Found], *, mutual: bool) -> list[_Found]:
+               found: list[_Found], *, nearest: bool) -> list[_Found]:
     """The flags of one pair: the appearance rules' ``found``, checked for shape evidence where they say
     ``possible_copy``, or the shape rule's ``possible_copy`` / ``look_alike`` where they found nothing.
-    ``mutual``: each object is the other's nearest shape among its candidates."""
+    ``nearest``: one of the two is the other's nearest shape among its candidates."""
     if found and all(f.kind != POSSIBLE_COPY for f in found):
         return found
     if facts is None:
@@ -66,11 +66,11 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
                f"nearest primitive {prim:.3f}, surface colours {col:.3f}")
     a, b = x.obj.id, y.obj.id
     score = round(max(0.0, 1.0 - d / th.copy_loose), 4)
-    if evidence or (loose and detailed and same_colour and mutual and d <= prim):
+    if evidence or (loose and detailed and same_colour and nearest and d <= prim):
         if found:  # an appearance rule's possible copy, now with shape evidence
             return [_Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") for f in found]
         why = ("the shape carries evidence" if evidence else
-               "each other's nearest shape, a loose agreement of detailed shapes in the same colours")
+               "the nearest shape of one of them, a loose agreement of detailed shapes in the same colours")
         return [_Found(a, b, POSSIBLE_COPY, score, f"possible copy for review ({why}): {figures}")]
     if loose:
         why = "a plain solid's shape" if not detailed else ("other colours" if not same_colour else "loose agreement")
@@ -81,7 +81,7 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
 def pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None = None,
                pairs: Iterable[tuple[_Item, _Item]] | None = None) -> list[_Found]:
     """Every pair flag of ``pairs`` (default: all pairs of ``items``): appearance rules, then shape.
-    Two passes: the shape facts of every pair first (for each object's nearest shape), then the rules."""
+    Two passes: the shape facts of every pair first (each object's nearest shape), then the rules."""
     layouts = layouts or LayoutCache(None)
     looked: list[tuple[_Item, _Item, list[_Found], tuple[float, float, float] | None]] = []
     nearest: dict[int, float] = {}
@@ -96,6 +96,6 @@ def pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None
         looked.append((x, y, found, facts))
     out: list[_Found] = []
     for x, y, found, facts in looked:
-        mutual = facts is not None and facts[0] <= min(nearest[x.obj.id], nearest[y.obj.id])
-        out.extend(shape_pair(x, y, th, facts, found, mutual=mutual))
+        nearest_one = facts is not None and facts[0] <= max(nearest[x.obj.id], nearest[y.obj.id])
+        out.extend(shape_pair(x, y, th, facts, found, nearest=nearest_one))
     return out
