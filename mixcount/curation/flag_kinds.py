@@ -31,6 +31,11 @@ INFO_KINDS = (MESH_QUALITY, LOOK_ALIKE)
 DECIDED_MARK = "[decided by review:"  # a pair a person decided: the flag stays, as information
 
 
+def decided_mark(decision: str, reviewer: str | None) -> str:
+    """What a pair's flags carry once a person decided the pair (``same`` / ``variants`` / ``different``)."""
+    return f"{DECIDED_MARK} {decision} by {reviewer or 'someone'}]"
+
+
 def severity(kind: str, reason: str = "") -> str:
     """``decide`` or ``info`` for a flag of ``kind``; a pair a person already decided is ``info``."""
     if kind in INFO_KINDS or DECIDED_MARK in (reason or ""):

@@ -56,7 +56,7 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog.containers import refresh_containers
 from mixcount.catalog.db import Catalog
-from mixcount.catalog.decisions import latest_decisions
+from mixcount.catalog.decisions import latest_decisions, latest_pair_decisions
 from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
@@ -70,7 +70,7 @@ from mixcount.curation import appearance3d as A
 from mixcount.curation import descriptors as D
 from mixcount.curation.candidates import candidate_pairs, feature
 from mixcount.curation.copy_rules import pair_flags
-from mixcount.curation.filter_items import LayoutCache, _appearance_kind, _Item, _label
+from mixcount.curation.filter_items import LayoutCache, _appearance_kind, _Found, _Item, _label
 from mixcount.curation.flag_kinds import (  # noqa: F401 - the kinds' public home for callers of the filter
     APPEARANCE_RANK,
     CAPTION_COLLISION,
@@ -87,6 +87,7 @@ from mixcount.curation.flag_kinds import (  # noqa: F401 - the kinds' public hom
     QUALITY_KINDS,
     RELATION_KINDS,
     SIZE_OUTLIER,
+    decided_mark,
 )
 from mixcount.curation.ground_truth import (  # noqa: F401 - re-exported
     TRAP_KINDS,
@@ -157,7 +158,9 @@ def candidate_items(items: list[_Item], k: int) -> list[tuple[_Item, _Item]]:
     feats = [feature(it.surface.points, it.surface.colours) for it in indexed]  # type: ignore[union-attr]
     hashes = [(it.obj.content_hash, it.obj.geometry_hash) for it in indexed]
     pairs = [(indexed[i], indexed[j]) for i, j in candidate_pairs(feats, k=k, hashes=hashes)] if indexed else []
-    pairs += [(x, y) for x in rest for y in items if y is not x and (y in indexed or x.obj.id < y.obj.id)]
+    has_surface = {it.obj.id for it in indexed}
+    pairs += [(x, y) for x in rest for y in items
+              if y is not x and (y.obj.id in has_surface or x.obj.id < y.obj.id)]
     return pairs
 
 
@@ -218,7 +221,17 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
 
         # 2. duplicate groups: keep the best active member, exclude the other active ones
         exclude: dict[int, str] = {}
-        pairs = [(f.a, f.b) for f in found if f.kind in DUPLICATE_KINDS and f.b is not None]
+        # a person's pair decisions: "same" joins the two in a group, "variants" / "different" keeps the
+        # filter's own pairing of the two from excluding either (the flags stay, marked as decided)
+        pair_decisions = {p: rd for p, rd in latest_pair_decisions(session).items() if p <= set(item_of)}
+        overruled = {p for p, rd in pair_decisions.items() if rd.decision != "same"}
+        flagged_pairs = {frozenset((f.a, f.b)) for f in found if f.b is not None}
+        for p, rd in pair_decisions.items():
+            if rd.decision == "same" and p not in flagged_pairs:
+                a, b = sorted(p)
+                found.append(_Found(a, b, POSSIBLE_COPY, 1.0, "the same object, by a person's review"))
+        pairs = [(f.a, f.b) for f in found if f.b is not None and frozenset((f.a, f.b)) not in overruled
+                 and (f.kind in DUPLICATE_KINDS or frozenset((f.a, f.b)) in pair_decisions)]
         for group in _groups(pairs):
             summary.groups += 1
             members = [by_id[i] for i in group]
@@ -246,7 +259,10 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
                 reason = f.reason
                 if other is not None:
                     reason = f"{reason}; pair {_label(by_id[other])}"
-                if oid in exclude and (f.kind in DUPLICATE_KINDS or f.kind in (DEGENERATE, MESH_QUALITY)):
+                    rd = pair_decisions.get(frozenset((oid, other)))
+                    if rd is not None:
+                        reason = f"{reason} {decided_mark(rd.decision, rd.reviewer)}"
+                if oid in exclude:  # every flag of an excluded object says so: a later run undoes it
                     reason = f"{reason} {exclude[oid]}"
                 session.add(Flag(object_id=oid, kind=f.kind, score=float(f.score), reason=reason, pair_object_id=other))
                 counts[f.kind] += 1
