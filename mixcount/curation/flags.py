@@ -75,6 +75,7 @@ from mixcount.curation.flag_kinds import (  # noqa: F401 - the kinds' public hom
     APPEARANCE_RANK,
     CAPTION_COLLISION,
     COLOUR_VARIANT,
+    DECIDE,
     DEGENERATE,
     DUPLICATE_KINDS,
     EXACT,
@@ -88,6 +89,7 @@ from mixcount.curation.flag_kinds import (  # noqa: F401 - the kinds' public hom
     RELATION_KINDS,
     SIZE_OUTLIER,
     decided_mark,
+    severity,
 )
 from mixcount.curation.ground_truth import (  # noqa: F401 - re-exported
     TRAP_KINDS,
@@ -110,6 +112,8 @@ class FilterSummary:
     review_applied: int = 0
     missing_renders: int = 0
     candidate_pairs: int = 0
+    to_decide_objects: int = 0  # objects with a flag of severity decide (`catalog sheet --only flagged`)
+    to_decide_pairs: int = 0
     containers: int = 0
     descriptor_failures: list[dict[str, Any]] = field(default_factory=list)
     ground_truth: dict[str, Any] | None = None
@@ -253,6 +257,8 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
 
         # 3. write flags (both directions for pairs); the excluded side's reasons carry the mark
         counts: dict[str, int] = defaultdict(int)
+        decide_objects: set[int] = set()
+        decide_pairs: set[frozenset[int]] = set()
         for f in found:
             ends = [(f.a, f.b), (f.b, f.a)] if f.b is not None else [(f.a, None)]
             for oid, other in ends:
@@ -266,9 +272,14 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
                     reason = f"{reason} {exclude[oid]}"
                 session.add(Flag(object_id=oid, kind=f.kind, score=float(f.score), reason=reason, pair_object_id=other))
                 counts[f.kind] += 1
+                if severity(f.kind, reason) == DECIDE:
+                    decide_objects.add(oid)
+                    if other is not None:
+                        decide_pairs.add(frozenset((oid, other)))
         for oid in exclude:
             by_id[oid].status = STATUS_EXCLUDED
         summary.excluded = len(exclude)
+        summary.to_decide_objects, summary.to_decide_pairs = len(decide_objects), len(decide_pairs)
 
         # 4. a person's decision outranks everything
         for oid, rd in decisions.items():

@@ -131,7 +131,8 @@ def evaluate_against_ground_truth(catalog: Catalog, path: Path | None = None) ->
         "ground_truth": str(gt_path),
         "pairs_planted": len(true_pairs),
         "pairs_predicted": len(predicted),
-        "pairs_correct": len(hits),
+        "pairs_correct": len(hits),  # predicted pairs within one planted group (copies of one original too)
+        "pairs_found": sum(expected(p, k) for p, k in true_pairs.items()),  # planted pairs found, the recall's numerator
         "precision": round(len(hits) / len(predicted), 4) if predicted else 1.0,
         "recall": round(sum(expected(p, k) for p, k in true_pairs.items()) / len(true_pairs), 4) if true_pairs else 1.0,
         "by_trap": per_kind,
