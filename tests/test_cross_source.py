@@ -29,6 +29,7 @@ from sqlalchemy import select
 from mixcount.catalog.db import open_catalog
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.cli import main
+from mixcount.curation.flag_kinds import severity
 from mixcount.curation.flags import DUPLICATE_KINDS
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
@@ -56,13 +57,22 @@ def test_copies_from_another_source(tmp_path, capsys):
     finally:
         catalog.close()
     pairs: dict[frozenset[str], dict[str, str]] = {}
+    alike: set[frozenset[str]] = set()
     for f in flags:
-        pairs.setdefault(frozenset((folder[f.object_id], folder[f.pair_object_id])), {})[f.kind] = f.reason
+        key = frozenset((folder[f.object_id], folder[f.pair_object_id]))
+        if severity(f.kind, f.reason) == "info":  # a look-alike: ranked for a person, decides nothing
+            alike.add(key)
+            continue
+        pairs.setdefault(key, {})[f.kind] = f.reason
     assert len(status) == 43 and all(n in status for group in COPIES for n in group)
 
-    # no pairing of any kind between two different objects
+    # no pairing to decide between two different objects; the queue is a short one
     false = sorted(sorted(p) for p in pairs if not same_object(*p))
     assert false == [], false
+    assert summary["to_decide_pairs"] == len(pairs) and summary["to_decide_objects"] <= len(status) / 3
+    assert not any(same_object(*p) for p in alike)  # a copy is never only a look-alike
+    print(f"\ncross-source library: {len(status)} objects, to decide {summary['to_decide_objects']} objects and "
+          f"{len(pairs)} pairs (between different objects {len(false)}), look-alikes {len(alike)}")
 
     # the same bunny from three sources, patterned surface: duplicates, one kept
     same_look = ("bunny", "bunny_dec_flat_mm", "bunny_dec_flat_cm_dark")
@@ -111,3 +121,9 @@ def test_copies_from_another_source(tmp_path, capsys):
     card = card[:card.index("</article>")] if "</article>" in card else card[:20000]
     assert 'data-kind="possible_copy"' in card and f'data-pair="{b}"' in card
     assert f'alt="#{b}"' in card and "data:image/jpeg;base64," in card and "surface colours 0.0" in card
+    # ... and, pair-centred, one card per pair to decide, with both renders and the evidence
+    assert written["pairs_to_decide"] == written["pairs"] == len(pairs)
+    decide = page[page.index('id="pairs-decide"'):page.index('id="pairs-info"')]
+    pair_card = decide[decide.index(f'id="pair-{min(a, b)}-{max(a, b)}"'):]
+    pair_card = pair_card[:pair_card.index("</article>")]
+    assert pair_card.count('class="pthumb"') == 2 and "same plain colour" in pair_card

@@ -51,6 +51,7 @@ from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable
 
+import numpy as np
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
@@ -68,7 +69,7 @@ from mixcount.catalog.models import (
 from mixcount.config import Config
 from mixcount.curation import appearance3d as A
 from mixcount.curation import descriptors as D
-from mixcount.curation.candidates import candidate_pairs, feature
+from mixcount.curation.candidates import candidate_pairs, queries
 from mixcount.curation.copy_rules import pair_flags
 from mixcount.curation.filter_items import LayoutCache, _appearance_kind, _Found, _Item, _label
 from mixcount.curation.flag_kinds import (  # noqa: F401 - the kinds' public home for callers of the filter
@@ -159,9 +160,10 @@ def candidate_items(items: list[_Item], k: int) -> list[tuple[_Item, _Item]]:
     surface samples are missing (nothing to index it by)."""
     indexed = [it for it in items if it.surface is not None]
     rest = [it for it in items if it.surface is None]
-    feats = [feature(it.surface.points, it.surface.colours) for it in indexed]  # type: ignore[union-attr]
+    asks = np.asarray([queries(it.surface.points, it.surface.colours) for it in indexed])  # type: ignore[union-attr]
     hashes = [(it.obj.content_hash, it.obj.geometry_hash) for it in indexed]
-    pairs = [(indexed[i], indexed[j]) for i, j in candidate_pairs(feats, k=k, hashes=hashes)] if indexed else []
+    pairs = ([(indexed[i], indexed[j]) for i, j in candidate_pairs(asks[:, 0], k=k, hashes=hashes, extra=asks[:, 1:])]
+             if indexed else [])
     has_surface = {it.obj.id for it in indexed}
     pairs += [(x, y) for x in rest for y in items
               if y is not x and (y.obj.id in has_surface or x.obj.id < y.obj.id)]

@@ -34,12 +34,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 MATCH_VERSION = "match-v1"  # cached distances are keyed by it
-COARSE = 400
+COARSE = 250
 FINE = 1500
-REFINE_TOP = 4
-ICP_STEPS = 12
+REFINE_TOP = 3
+ICP_STEPS = 10
 TIE = 0.06  # principal RMS extents within 6 % of each other: the frame may turn about the third axis
-TIE_STEP_DEG = 20.0
+TIE_STEP_DEG = 30.0
 SEED = 20261204
 NORMAL_NEIGHBOURS = 10
 POINT_SHARE = 0.2
