@@ -66,13 +66,19 @@ def test_copies_from_another_source(tmp_path, capsys):
         pairs.setdefault(key, {})[f.kind] = f.reason
     assert len(status) == 43 and all(n in status for group in COPIES for n in group)
 
-    # no pairing to decide between two different objects; the queue is a short one
+    # no pairing to decide between two different objects, except objects built from one demo mould (the
+    # same builder: identical or near-identical geometry, other colours): variants for a person to confirm,
+    # never duplicates; the queue is a short one
     false = sorted(sorted(p) for p in pairs if not same_object(*p))
-    assert false == [], false
+    mould = [p for p in false if len({n.rstrip("0123456789") for n in p}) == 1 and set(pairs[frozenset(p)]) == {"possible_copy"}]
+    assert false == mould, [(p, sorted(pairs[frozenset(p)])) for p in false if p not in mould]
+    assert all("the shape carries evidence" in pairs[frozenset(p)]["possible_copy"] for p in mould)
+    assert not any(status[n] != "active" for p in mould for n in p)
     assert summary["to_decide_pairs"] == len(pairs) and summary["to_decide_objects"] <= len(status) / 3
     assert not any(same_object(*p) for p in alike)  # a copy is never only a look-alike
     print(f"\ncross-source library: {len(status)} objects, to decide {summary['to_decide_objects']} objects and "
-          f"{len(pairs)} pairs (between different objects {len(false)}), look-alikes {len(alike)}")
+          f"{len(pairs)} pairs (between different objects {len(false)}, all of one mould: {mould}), "
+          f"look-alikes {len(alike)}")
 
     # the same bunny from three sources, patterned surface: duplicates, one kept
     same_look = ("bunny", "bunny_dec_flat_mm", "bunny_dec_flat_cm_dark")

@@ -19,8 +19,8 @@ points of :func:`mixcount.curation.appearance3d.load_samples`, colours ignored):
    other sample, both ways, averaged, in units of the RMS radius (0 for one shape; a sphere against a
    cube of the same RMS radius is about 0.05).
 
-A *shape-free* figure comes with it: the distance of each object to its nearest primitive (a box, an
-ellipsoid, a cylinder along each axis, under the same alignment with free per-axis scale). A box
+A *shape-free* figure comes with it: the distance of each object to its nearest primitive (a box, three
+rounded boxes (superellipsoids), an ellipsoid, a cylinder along each axis, under the same alignment with free per-axis scale). A box
 against another box, a can against a can, agree as closely as copies do; the copy rule asks the pair to
 agree much more closely than either object agrees with a primitive (its shape must carry evidence)."""
 
@@ -33,7 +33,7 @@ from itertools import permutations, product
 import numpy as np
 from scipy.spatial import cKDTree
 
-MATCH_VERSION = "match-v1"  # cached distances are keyed by it
+MATCH_VERSION = "match-v2"  # cached distances are keyed by it
 COARSE = 250
 FINE = 1500
 REFINE_TOP = 3
@@ -214,6 +214,11 @@ def _primitive_samples(kind: str, spread: np.ndarray, n: int, rng: np.random.Gen
         v = rng.normal(size=(n * 3, 3))
         v /= np.linalg.norm(v, axis=1, keepdims=True)
         return v[:n]
+    if kind.startswith("rounded"):  # a superellipsoid |x|^(2/e) + |y|^(2/e) + |z|^(2/e) = 1: a rounded box
+        e = float(kind[len("rounded"):])
+        v = rng.normal(size=(n, 3))
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        return np.sign(v) * np.abs(v) ** e
     if kind == "box":
         face = rng.integers(0, 6, n)
         p = rng.uniform(-1, 1, (n, 3))
@@ -233,7 +238,7 @@ def _primitive_samples(kind: str, spread: np.ndarray, n: int, rng: np.random.Gen
     return p
 
 
-PRIMITIVES = ("box", "ellipsoid", "cylinder0", "cylinder1", "cylinder2")
+PRIMITIVES = ("box", "rounded0.2", "rounded0.4", "rounded0.6", "ellipsoid", "cylinder0", "cylinder1", "cylinder2")
 
 
 def primitive_distance(a: Normalised) -> float:
@@ -244,11 +249,15 @@ def primitive_distance(a: Normalised) -> float:
     best = np.inf
     fa = a.points[:FINE]
     tree = cKDTree(fa)
+    coarse_tree = cKDTree(a.points[:COARSE])
+    # where moments tie the object's frame may sit at any angle about the tied axis: try turns there
+    turns = [np.eye(3)] + [_about(axis, float(deg)) for axis in a.tied for deg in np.arange(15.0, 90.0, 15.0)]
     for kind in PRIMITIVES:
         p = _primitive_samples(kind, a.spread, 4 * FINE, rng)
         p = p - p.mean(axis=0)
         p = p * (a.spread / np.maximum(np.sqrt((p ** 2).mean(axis=0)), 1e-9))
         prim = normalise(p)
-        _, r, s = _refine(fa, tree, prim.points[:FINE], np.eye(3), 2.0)
+        start = min(turns, key=lambda t: chamfer(a.points[:COARSE], prim.points[:COARSE] @ t.T, coarse_tree))
+        _, r, s = _refine(fa, tree, prim.points[:FINE], start, 2.0)
         best = min(best, surface_distance(a, prim, r, s))
     return round(float(best), 6)
