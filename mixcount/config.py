@@ -200,6 +200,7 @@ class FilterConfig:
     copy_loose: float
     copy_min_detail: float
     copy_evidence: float
+    copy_colour: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float

@@ -12,7 +12,9 @@ shape numbers already agree loosely (``copy_gate_d2``, ``cross_source_proportion
   shape it has beyond a plain solid. A pair has *shape evidence* when the aligned distance ``d`` is at
   most ``copy_shape``, both objects are at least ``copy_min_detail`` from any primitive, and ``d`` is at
   most ``copy_evidence`` times the nearer one's primitive distance.
-* ``possible_copy`` (*decide*): shape evidence, whatever the colours; or a loose agreement (``d`` at most
+* ``possible_copy`` (*decide*): shape evidence with colours no further apart than ``copy_colour`` (another
+  print, a re-bake, other light: the public ducks differ by 0.073); the same shape in clearly other
+  colours (a navy and a mint mug of one mould) is ranked a look-alike, for a person; or a loose agreement (``d`` at most
   ``copy_loose``, the objects not primitives) with the same surface colours. A possible copy from an
   appearance rule without either is not one: it becomes a look-alike.
 * ``look_alike`` (*info*): different objects, as far as the evidence goes, whose shapes agree within
@@ -59,7 +61,7 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
         return [f for f in found if f.kind != POSSIBLE_COPY]  # no shape agreement at all: not a copy
     d, prim, col = facts
     detailed = prim >= th.copy_min_detail
-    evidence = d <= th.copy_shape and detailed and d <= th.copy_evidence * prim
+    evidence = d <= th.copy_shape and detailed and d <= th.copy_evidence * prim and col <= th.copy_colour
     same_colour = col <= th.look_colour
     loose = d <= th.copy_loose
     figures = (f"aligned shape distance {d:.3f} (any axis order, sign and a stretch up to x{th.copy_max_squash:g}), "
@@ -73,7 +75,9 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
                "the nearest shape of one of them, a loose agreement of detailed shapes in the same colours")
         return [_Found(a, b, POSSIBLE_COPY, score, f"possible copy for review ({why}): {figures}")]
     if loose:
-        why = "a plain solid's shape" if not detailed else ("other colours" if not same_colour else "loose agreement")
+        why = ("a plain solid's shape" if not detailed else
+               "the same shape in clearly other colours: variants, or a hard pair" if d <= th.copy_shape and col > th.copy_colour
+               else "other colours" if not same_colour else "loose agreement")
         return [_Found(a, b, LOOK_ALIKE, score, f"look-alike, not a copy as far as the evidence goes ({why}): {figures}")]
     return []
 

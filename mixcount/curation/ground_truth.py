@@ -138,6 +138,10 @@ def evaluate_against_ground_truth(catalog: Catalog, path: Path | None = None) ->
         "by_trap": per_kind,
         "missed_pairs": sorted(sorted(p) for p, k in true_pairs.items() if not expected(p, k)),
         "false_pairs": sorted(sorted(p) for p in predicted if not correct(p)),
+        "false_pair_kinds": {" | ".join(sorted(p)): sorted(k) for p, k in predicted.items() if not correct(p)},
+        # of the predicted pairs with a duplicate kind (those exclude one object), the share that is correct
+        "duplicate_precision": (round(sum(correct(p) for p, k in predicted.items() if k & set(DUPLICATE_KINDS))
+                                      / max(1, sum(bool(k & set(DUPLICATE_KINDS)) for k in predicted.values())), 4)),
         "broken_planted": len(broken),
         "broken_flagged": sum(DEGENERATE in quality.get(b, {}) for b in broken),
         "clean_objects": len(clean),
