@@ -13,8 +13,10 @@ shape numbers already agree loosely (``copy_gate_d2``, ``cross_source_proportion
   most ``copy_shape``, both objects are at least ``copy_min_detail`` from any primitive, and ``d`` is at
   most ``copy_evidence`` times the nearer one's primitive distance.
 * ``possible_copy`` (*decide*): shape evidence with colours no further apart than ``copy_colour`` (another
-  print, a re-bake, other light: the public ducks differ by 0.073); the same shape in clearly other
-  colours (a navy and a mint mug of one mould) is ranked a look-alike, for a person; or a loose agreement (``d`` at most
+  print, a re-bake, other light: the public ducks differ by 0.073), or shape evidence for an appearance
+  rule's possible copy (which brings its own: a repeated pattern, the axis-normalised shape of an
+  asymmetric object in another plain colour); the same shape in clearly other colours found by the shape
+  alone (a navy and a mint mug of one mould) is ranked a look-alike, for a person; or a loose agreement (``d`` at most
   ``copy_loose``, the objects not primitives) with the same surface colours. A possible copy from an
   appearance rule without either is not one: it becomes a look-alike.
 * ``look_alike`` (*info*): different objects, as far as the evidence goes, whose shapes agree within
@@ -61,7 +63,11 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
         return [f for f in found if f.kind != POSSIBLE_COPY]  # no shape agreement at all: not a copy
     d, prim, col = facts
     detailed = prim >= th.copy_min_detail
-    evidence = d <= th.copy_shape and detailed and d <= th.copy_evidence * prim and col <= th.copy_colour
+    shape_evidence = d <= th.copy_shape and detailed and d <= th.copy_evidence * prim
+    # an appearance rule's possible copy (a repeated pattern, the axis-normalised shape of an asymmetric
+    # object in another plain colour) brings evidence of its own: the shape's is enough; a pair found by
+    # the shape alone needs colours within copy_colour too
+    evidence = shape_evidence and (bool(found) or col <= th.copy_colour)
     same_colour = col <= th.look_colour
     loose = d <= th.copy_loose
     figures = (f"aligned shape distance {d:.3f} (any axis order, sign and a stretch up to x{th.copy_max_squash:g}), "
@@ -76,7 +82,7 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
         return [_Found(a, b, POSSIBLE_COPY, score, f"possible copy for review ({why}): {figures}")]
     if loose:
         why = ("a plain solid's shape" if not detailed else
-               "the same shape in clearly other colours: variants, or a hard pair" if d <= th.copy_shape and col > th.copy_colour
+               "the same shape in clearly other colours: variants, or a hard pair" if shape_evidence and col > th.copy_colour
                else "other colours" if not same_colour else "loose agreement")
         return [_Found(a, b, LOOK_ALIKE, score, f"look-alike, not a copy as far as the evidence goes ({why}): {figures}")]
     return []
