@@ -193,6 +193,14 @@ class FilterConfig:
     cross_source_pattern: float
     cross_source_occupancy: float
     cross_source_min_asymmetry: float
+    candidates: int
+    copy_gate_d2: float
+    copy_max_squash: float
+    copy_shape: float
+    copy_loose: float
+    copy_min_detail: float
+    copy_evidence: float
+    copy_colour: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float

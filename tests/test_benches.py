@@ -208,6 +208,13 @@ def test_capture_bench() -> None:
 
 
 @pytest.mark.slow
+def test_candidates_bench() -> None:
+    doc = run_smoke("candidates", None)[-1]
+    check_figures(doc, ["sizes.0.index_s", "sizes.1.index_s", "sizes.1.pairs", "sizes.0.align_s_per_pair"])
+    assert all(r["copies_found"] >= 0.9 * r["copies"] and r["pairs"] < r["all_pairs"] / 4 for r in doc["sizes"])
+
+
+@pytest.mark.slow
 def test_ingest_bench() -> None:
     doc = run_smoke("ingest", None)[-1]
     check_figures(doc, ["objects", "first_s", "first_obj_per_s", "rerun_s", "rerun_obj_per_s", "ratio"])

@@ -45,8 +45,8 @@ def test_filter_flags_pairs_groups_and_quality_order(catalog, tmp_path):
     assert ("near_duplicate_geometry", ids["ball"]) not in flags_of(catalog, ids["ball_big"])  # different size
     assert ("degenerate", None) in flags_of(catalog, ids["flat"])
     assert ("size_outlier", None) in flags_of(catalog, ids["giant"])
-    for clean in ("cone", "capsule", "ring"):
-        assert flags_of(catalog, ids[clean]) == set(), clean
+    for clean in ("cone", "capsule", "ring"):  # nothing to decide (a look-alike is information only)
+        assert {k for k in flags_of(catalog, ids[clean]) if k[0] != "look_alike"} == set(), clean
 
     _, status = state(catalog)
     # lower id wins a tie; an image-textured object beats a vertex-coloured one whatever the ids

@@ -43,12 +43,25 @@ def test_demo_library_precision_recall(tmp_path, capsys, rendered_demo_catalog):
     assert gt["recall"] == 1.0 and not gt["missed_pairs"]
     for kind, row in gt["by_trap"].items():
         assert row["planted"] >= 1 and row["recall"] == 1.0, (kind, row)
-        assert row["precision"] == 1.0, (kind, row)  # a copy is paired with its original only
+    # issue 49: copies found by their shape (another source, other resolution, pose, a squash) also raise, for
+    # a person, products of one demo mould in near colours (the espresso and the paper cups: one cup
+    # geometry, colours 0.075 apart; the blue and the white plate). Never a duplicate (nothing excluded for
+    # it), always two objects of one category: possible copies / variants to confirm.
+    assert gt["duplicate_precision"] == 1.0, gt["false_pair_kinds"]
+    for pair, kinds in gt["false_pair_kinds"].items():
+        a, b = pair.split(" | ")
+        assert set(kinds) <= {"possible_copy", "colour_variant"}, (pair, kinds)
+        assert a.split("_")[0].split("-")[0].lower() == b.split("_")[0].split("-")[0].lower(), pair  # one mould
     assert gt["broken_flagged"] == gt["broken_planted"] == len(truth["broken"])
     assert gt["clean_flag_rate"] <= 0.04, gt["clean_flagged"]
-    assert len(gt["clean_paired"]) <= 2, gt["clean_paired"]  # any pairing: before issue 34, the two dice
+    assert len(gt["clean_paired"]) <= 6, gt["clean_paired"]  # any pairing: before issue 34, the two dice
     assert gt["by_trap"]["recolour"]["flags"] == ["colour_variant"] and gt["variant_pairs"] >= 2
-    assert gt["precision"] >= 0.95, gt["false_pairs"]
+    assert gt["precision"] >= 0.8, gt["false_pairs"]
+    with capsys.disabled():
+        print(f"\ndemo library: pair precision {gt['precision']} ({gt['pairs_correct']}/{gt['pairs_predicted']}), "
+              f"duplicate precision {gt['duplicate_precision']}, recall {gt['recall']} ({gt['pairs_found']}/"
+              f"{gt['pairs_planted']}), to decide {summary['to_decide_objects']} of {summary['objects']} objects, "
+              f"{summary['to_decide_pairs']} pairs; false {gt['false_pair_kinds']}")
     (tote,) = gt["mesh_quality_planted"]
     assert tote["status"] == "active" and tote["mesh_quality"] > 0.3 and not tote["degenerate"]
 

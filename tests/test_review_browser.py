@@ -105,3 +105,69 @@ def test_review_page_round_trip(browser, catalog, tmp_path):
         container = s.get(CatalogObject, cyl.id)
         assert container.container and container.container_reason.startswith("review: container by tester")
         assert container.status == cyl_status  # a container setting is not an accept/reject
+
+
+def test_pair_review_round_trip_survives_filter(browser, catalog, tmp_path):
+    """The pair-centred page: the exact copies (box / box_copy, one excluded by the filter) shown as one pair
+    card with both renders and the evidence; a click on "different" and one on "variants, keep both" for
+    the recoloured cylinder, export, `catalog review import`: the excluded copy is active again, the
+    decisions are recorded with their pair, the pairs' flags become information (``--only flagged`` drops
+    them), and a re-run of `catalog filter` keeps all of it."""
+    objs = library_catalog(catalog, tmp_path)
+    config = quick_config()
+    run_filter(catalog, config)
+    box, copy, cyl, recolour = objs["box"], objs["box_copy"], objs["cyl"], objs["cyl_recolour"]
+    with catalog.session() as s:
+        assert sorted(s.get(CatalogObject, i).status for i in (box.id, copy.id)) == ["active", "excluded"]
+    written = write_sheets(catalog, tmp_path / "sheet", only="flagged")
+    box_key, cyl_key = f"{min(box.id, copy.id)}-{max(box.id, copy.id)}", f"{min(cyl.id, recolour.id)}-{max(cyl.id, recolour.id)}"
+
+    context = browser.new_context(accept_downloads=True)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.goto(Path(written["html"]).as_uri())
+    card = f"#pair-{box_key}"
+    assert page.locator(f"#pairs-decide {card}").count() == 1
+    assert page.locator(f"{card} img.pthumb").count() == 2
+    assert page.evaluate(f"[...document.querySelectorAll('{card} img.pthumb')].every(i => i.complete && i.naturalWidth > 0)")
+    assert "exact_duplicate" in (page.text_content(f"{card} ul.evidence") or "")
+    assert " cm" in (page.text_content(f"{card} .sides") or "")  # the sizes, beside the sources
+    page.fill("#reviewer", "pat")
+    page.click(f"{card} button.pair-decision.different")
+    page.fill(f"{card} input.pair-note", "two boxes")
+    page.click(f"#pair-{cyl_key} button.pair-decision.same")
+    page.click(f"#pair-{cyl_key} button.pair-decision.variants")  # a second choice replaces the first
+    assert page.text_content("#pending") == "2 decisions"
+    with page.expect_download() as info:
+        page.click("#export")
+    out = tmp_path / "decisions.json"
+    info.value.save_as(out)
+    assert not errors
+    context.close()
+
+    data = json.loads(out.read_text())
+    assert data["decisions"] == []
+    assert [(p["a"], p["b"], p["decision"]) for p in data["pairs"]] == sorted([
+        (min(box.id, copy.id), max(box.id, copy.id), "different"),
+        (min(cyl.id, recolour.id), max(cyl.id, recolour.id), "variants")])
+    assert next(p for p in data["pairs"] if p["decision"] == "different")["note"] == "two boxes"
+
+    db = ["--db", str(tmp_path / "catalog.db")]
+    assert main(db + ["catalog", "review", "import", str(out)]) == 0
+
+    def check() -> None:
+        with catalog.session() as s:
+            assert [s.get(CatalogObject, i).status for i in (box.id, copy.id, cyl.id, recolour.id)] == ["active"] * 4
+            rows = s.query(ReviewDecision).filter(ReviewDecision.pair_object_id.is_not(None)).all()
+            assert sorted((r.decision, r.reviewer) for r in rows) == [("different", "pat"), ("variants", "pat")]
+        flagged = write_sheets(catalog, tmp_path / "again", only="flagged")
+        html = Path(flagged["html"]).read_text()
+        assert f"pair-{box_key}" not in html and f"pair-{cyl_key}" not in html  # decided: information now
+        everything = Path(write_sheets(catalog, tmp_path / "all")["html"]).read_text()
+        info = everything[everything.index('id="pairs-info"'):]
+        assert f"pair-{box_key}" in info and "decided: different" in info
+
+    check()
+    run_filter(catalog, config)  # a re-run of the filter keeps the person's decisions
+    check()

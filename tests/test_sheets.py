@@ -17,6 +17,7 @@ from test_curate_support import add_captions, library_catalog, quick_config
 
 from mixcount.catalog.models import CatalogObject, ReviewDecision
 from mixcount.cli import main
+from mixcount.curation.flag_kinds import severity
 from mixcount.curation.flags import run_filter
 from mixcount.curation.review import FORMAT, import_decisions
 from mixcount.curation.sheets import CELL_TEXT_H, STATUS_COLOURS, collect, safe_json, write_sheets
@@ -49,8 +50,10 @@ def test_png_pages_borders_and_selection(catalog, curated, tmp_path):
     flagged = write_sheets(catalog, tmp_path / "flagged", only="flagged")
     with catalog.session() as s:
         n_flagged = sum(1 for e in collect(s) if e.flags)
+        n_decide = sum(1 for e in collect(s) if any(severity(f.kind, f.reason) == "decide" for f in e.flags))
         n_excluded = s.query(CatalogObject).filter_by(status="excluded").count()
-    assert flagged["objects"] == n_flagged == 8
+    # --only flagged: what needs a decision (a look-alike, a usable mesh warning is information only)
+    assert flagged["objects"] == n_decide == 8 and n_flagged == 9
     # box copy, one of the two balls, the flat sheet (the recoloured cylinder is a colour variant: active)
     assert write_sheets(catalog, tmp_path / "ex", only="excluded")["objects"] == n_excluded == 3
     one_cat = write_sheets(catalog, tmp_path / "cat", category=curated["cone"].category)
@@ -77,7 +80,9 @@ def test_html_escapes_everything(catalog, curated, tmp_path):
     assert json.loads(safe_json({"t": HOSTILE})) == {"t": HOSTILE}
     # pairs are shown side by side: the flagged copy's card holds both thumbnails
     card = re.search(rf'<article[^>]*id="obj-{curated["box_copy"].id}".*?</article>', text, re.S).group(0)
-    assert card.count('class="pair"') == 1 and card.count("data:image/jpeg;base64,") == 3
+    n_pairs = card.count('class="pair"')  # the exact copy, and a look-alike (information)
+    assert 'data-kind="exact_duplicate"' in card and n_pairs >= 1
+    assert card.count("data:image/jpeg;base64,") == 1 + 2 * n_pairs
 
 
 def write_decisions(path, decisions, reviewer="ana"):

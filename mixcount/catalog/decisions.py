@@ -1,8 +1,11 @@
 """A person's review decisions: the latest one per object and kind outranks every automatic rule.
 
-Two kinds of decision share the ``review_decisions`` table: keep or drop the object (``accept`` /
-``reject``, which outranks duplicate and quality flags) and whether it is a container (``container`` /
-``not_container``, which outranks the ``[containers]`` rules). Each kind has its own latest decision.
+Three kinds of decision share the ``review_decisions`` table: keep or drop the object (``accept`` /
+``reject``, which outranks duplicate and quality flags), whether it is a container (``container`` /
+``not_container``, which outranks the ``[containers]`` rules), and what a *pair* is (``same`` object,
+``variants`` to keep both, ``different`` objects; ``pair_object_id`` names the other one), which
+outranks the filter's pairing of the two. Each kind has its own latest decision (per object, or per
+unordered pair).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from mixcount.catalog.models import ReviewDecision
 
 STATUS_DECISIONS = ("accept", "reject")
 CONTAINER_DECISIONS = {"container": True, "not_container": False}
+PAIR_DECISIONS = ("same", "variants", "different")
 
 
 def latest_decisions(session: Session, object_ids: Optional[Iterable[int]] = None, *,
@@ -41,3 +45,14 @@ def latest_container_decisions(session: Session,
 def accepted_ids(session: Session) -> set[int]:
     """Objects whose latest keep/drop decision is "accept"."""
     return {oid for oid, rd in latest_decisions(session).items() if rd.decision == "accept"}
+
+
+def latest_pair_decisions(session: Session) -> dict[frozenset[int], ReviewDecision]:
+    """Unordered pair of object ids -> its latest pair decision (``same`` / ``variants`` / ``different``)."""
+    query = (select(ReviewDecision).where(ReviewDecision.decision.in_(list(PAIR_DECISIONS)),
+                                          ReviewDecision.pair_object_id.is_not(None))
+             .order_by(ReviewDecision.decided_at, ReviewDecision.id))
+    latest: dict[frozenset[int], ReviewDecision] = {}
+    for rd in session.scalars(query):
+        latest[frozenset((rd.object_id, int(rd.pair_object_id)))] = rd  # type: ignore[arg-type]
+    return latest

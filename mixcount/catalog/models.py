@@ -225,7 +225,9 @@ class ReviewDecision(Base):
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     object_id: Mapped[int] = mapped_column(ForeignKey("objects.id", ondelete="CASCADE"), index=True)
-    decision: Mapped[str] = mapped_column(String(16))  # accept | reject | container | not_container
+    decision: Mapped[str] = mapped_column(String(16))  # accept | reject | container | not_container | same | variants | different
+    # the other object of a pair decision (same / variants / different), else None
+    pair_object_id: Mapped[Optional[int]] = mapped_column(Integer, nullable=True)
     reviewer: Mapped[str] = mapped_column(String(128), default="")
     note: Mapped[str] = mapped_column(Text, default="")
     decided_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)

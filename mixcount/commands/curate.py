@@ -53,7 +53,9 @@ def filter_cmd(
         catalog.close()
     flags = ", ".join(f"{n} {k}" for k, n in summary.flags.items()) or "none"
     lines = [f"filter: {summary.objects} objects; flags: {flags}; {summary.groups} duplicate groups, "
-             f"{summary.excluded} excluded, {summary.review_applied} review decisions applied"]
+             f"{summary.excluded} excluded, {summary.review_applied} review decisions applied; to decide: "
+             f"{summary.to_decide_objects} objects, {summary.to_decide_pairs} pairs ({summary.candidate_pairs} "
+             "candidate pairs compared)"]
     if summary.missing_renders:
         console.print(f"[yellow]{summary.missing_renders} objects have no canonical render: appearance checks "
                       "skipped for them (run `mixcount catalog render`)[/]", highlight=False)
@@ -64,9 +66,9 @@ def filter_cmd(
     if gt is not None:
         kinds = ", ".join(f"{k} {v['found']}/{v['planted']}" for k, v in gt["by_trap"].items())
         lines.append(
-            f"ground truth ({gt['ground_truth']}): duplicate pairs precision {gt['precision']:.3f}, "
-            f"recall {gt['recall']:.3f} ({gt['pairs_correct']}/{gt['pairs_planted']} planted, "
-            f"{gt['pairs_predicted']} predicted; {kinds}); broken flagged {gt['broken_flagged']}/{gt['broken_planted']}; "
+            f"ground truth ({gt['ground_truth']}): duplicate pairs precision {gt['precision']:.3f} "
+            f"({gt['pairs_correct']}/{gt['pairs_predicted']} predicted pairs correct), "
+            f"recall {gt['recall']:.3f} ({gt['pairs_found']}/{gt['pairs_planted']} planted pairs found; {kinds}); broken flagged {gt['broken_flagged']}/{gt['broken_planted']}; "
             f"clean objects with a duplicate flag {gt['clean_with_duplicate_flag']}/{gt['clean_objects']} "
             f"({100 * gt['clean_flag_rate']:.1f} %)")
     result(lines, summary.as_dict(), json_out)

@@ -5,10 +5,14 @@
   and the flags (``MESH 0.35`` prints the mesh_quality score;
   ``CONTAINER`` marks containers), framed in a colour per status (green active, orange excluded, red
   broken). Meant to be read at a glance.
-* ``review.html``: every selected object as a card with its thumbnail (inline base64 JPEG), all three
+* ``review.html``: first the flagged *pairs* (:mod:`mixcount.curation.review_pairs`): both renders side
+  by side with the evidence and one click for same object / variants, keep both / different; the pairs
+  to decide first, then the look-alikes and decided pairs for information. Then every selected object as a card with its thumbnail (inline base64 JPEG), all three
   captions, each flag with its reason and, for pairings, both objects' thumbnails side by side, and
   accept / reject buttons; "export decisions" downloads a ``mixcount-review-v1`` JSON file that
-  ``catalog review import`` applies. No external resource is loaded (a CSP forbids it).
+  ``catalog review import`` applies (object decisions and the pairs'). ``--only flagged`` selects the
+  objects with a flag to *decide* (:func:`mixcount.curation.flag_kinds.severity`; a usable mesh warning or
+  a look-alike is *info*). No external resource is loaded (a CSP forbids it).
 
 Every piece of catalog text (names, captions from an LLM, flag reasons) goes through ``html.escape``;
 the JSON embedded for the page's script has ``<``, ``>``, ``&`` and U+2028/9 escaped, so no text can
@@ -33,18 +37,20 @@ from sqlalchemy.orm import Session
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.catalog.records import active_captions
+from mixcount.curation.flag_kinds import DECIDE, severity
 from mixcount.curation.renders import canonical_render_path
 from mixcount.curation.review import FORMAT
+from mixcount.curation.review_pairs import PairView, pair_views, pairs_data, pairs_html
 from mixcount.errors import CatalogError
 from mixcount.scene.spec import TIERS
 
-ONLY = ("all", "flagged", "excluded")
+ONLY = ("all", "flagged", "excluded")  # flagged: objects with a flag to *decide* (docs/curation.md)
 STATUS_COLOURS = {"active": (46, 139, 87), "excluded": (224, 138, 0), "broken": (192, 57, 43)}
 TEMPLATE = Path(__file__).with_name("sheet_template.html")
 FLAG_SHORT = {
     "exact_duplicate": "EXACT", "near_duplicate_geometry": "GEOM", "near_duplicate_appearance": "LOOK",
     "degenerate": "DEGEN", "size_outlier": "SIZE", "caption_collision": "CAPTION", "mesh_quality": "MESH",
-    "colour_variant": "VARIANT", "possible_copy": "COPY?",
+    "colour_variant": "VARIANT", "possible_copy": "COPY?", "look_alike": "ALIKE",
 }
 # pixels under each thumbnail: name, the three caption tiers (short; concise in 2 lines; detailed in 4), flags
 CELL_TEXT_H = 142
@@ -91,7 +97,7 @@ def collect(session: Session, *, only: str = "all", category: str | None = None)
     entries = []
     for obj in session.scalars(query):
         flags = session.scalars(select(Flag).where(Flag.object_id == obj.id).order_by(Flag.kind, Flag.id)).all()
-        if only == "flagged" and not flags:
+        if only == "flagged" and not any(severity(f.kind, f.reason or "") == DECIDE for f in flags):
             continue
         sflags = []
         for f in flags:
@@ -292,10 +298,17 @@ def _card(e: SheetEntry, thumbs: dict[int, str], pair_thumbs: dict[int, str]) ->
 
 
 def write_html(entries: list[SheetEntry], out_path: Path, *, catalog_url: str = "", thumb: int = 256,
-               title: str = "mixcount catalog review") -> Path:
+               title: str = "mixcount catalog review", pairs: list[PairView] | None = None) -> Path:
     """One self-contained review page (see the module docstring)."""
     thumbs = {e.id: _data_url(thumbnail(e.render, thumb, "broken" if e.status == "broken" else "no render"))
               for e in entries}
+
+    def side_thumb(oid: int, render: Path | None) -> str:
+        if oid not in thumbs:
+            thumbs[oid] = _data_url(thumbnail(render, thumb))
+        return thumbs[oid]
+
+    pair_section = pairs_html(pairs or [], side_thumb)
     pair_thumbs: dict[int, str] = {}
     for e in entries:
         for f in e.flags:
@@ -306,12 +319,13 @@ def write_html(entries: list[SheetEntry], out_path: Path, *, catalog_url: str = 
         counts[e.status] = counts.get(e.status, 0) + 1
     summary = f"{len(entries)} objects: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
     data = {"format": FORMAT, "catalog": catalog_url,
-            "objects": {str(e.id): {"name": e.name, "status": e.status} for e in entries}}
+            "objects": {str(e.id): {"name": e.name, "status": e.status} for e in entries},
+            "pairs": pairs_data(pairs or [])}
     values = {
-        "TITLE": _e(title), "SUMMARY": _e(summary),
+        "TITLE": _e(title), "SUMMARY": _e(summary), "PAIRS": pair_section,
         "CARDS": "\n".join(_card(e, thumbs, pair_thumbs) for e in entries), "DATA": safe_json(data),
     }
-    page = re.sub(r"@@(TITLE|SUMMARY|CARDS|DATA)@@", lambda m: values[m.group(1)], TEMPLATE.read_text(encoding="utf-8"))
+    page = re.sub(r"@@(TITLE|SUMMARY|PAIRS|CARDS|DATA)@@", lambda m: values[m.group(1)], TEMPLATE.read_text(encoding="utf-8"))
     out_path.parent.mkdir(parents=True, exist_ok=True)
     out_path.write_text(page, encoding="utf-8")
     return out_path
@@ -322,8 +336,13 @@ def write_sheets(catalog: Catalog, out_dir: Path, *, only: str = "all", category
     """PNG pages and review.html for the selected objects; returns what was written."""
     with catalog.session() as session:
         entries = collect(session, only=only, category=category)
+        views = pair_views(session, {e.id for e in entries})
+        if only == "flagged":
+            views = [v for v in views if v.severity == DECIDE]
     label = f"mixcount catalog ({only}{', ' + category if category else ''})"
     pngs = write_png_sheets(entries, out_dir, cols=cols, rows=rows, title=label)
-    page = write_html(entries, out_dir / "review.html", catalog_url=catalog.engine.url.render_as_string(hide_password=True), title=label + " review")
-    return {"objects": len(entries), "pngs": [str(p) for p in pngs], "html": str(page), "only": only,
+    page = write_html(entries, out_dir / "review.html", catalog_url=catalog.engine.url.render_as_string(hide_password=True),
+                      title=label + " review", pairs=views)
+    return {"objects": len(entries), "pairs": len(views),
+            "pairs_to_decide": sum(v.severity == DECIDE for v in views), "pngs": [str(p) for p in pngs], "html": str(page), "only": only,
             "category": category}

@@ -1,0 +1,151 @@
+"""The filter's view of one catalog object (descriptors loaded once) and the per-pair layout cache."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from mixcount.atomic import write_text_atomic
+from mixcount.catalog.models import CatalogObject
+from mixcount.curation import appearance3d as A
+from mixcount.curation import descriptors as D
+from mixcount.curation import shape_match as S
+
+
+@dataclass
+class _Item:
+    obj: CatalogObject
+    shape: D.ShapeDescriptor | None = None
+    look: D.AppearanceDescriptor | None = None
+    surface: A.SurfaceLook | None = None
+    appearance: str = "none"
+    _asymmetry: list[float] | None = None
+    _normalised: S.Normalised | None = None
+    _primitive: float | None = None
+    _shape_look: A.SurfaceLook | None = None
+
+    def shape_look(self) -> A.SurfaceLook:
+        """The surface samples without their colours (:func:`~mixcount.curation.appearance3d.shape_only`)."""
+        assert self.surface is not None
+        if self._shape_look is None:
+            self._shape_look = A.shape_only(self.surface)
+        return self._shape_look
+
+    def normalised(self) -> S.Normalised:
+        """The surface samples in the principal frame (:func:`~mixcount.curation.shape_match.normalise`)."""
+        assert self.surface is not None
+        if self._normalised is None:
+            self._normalised = S.normalise(self.surface.points)
+        return self._normalised
+
+    def primitive(self) -> float:
+        """:func:`~mixcount.curation.shape_match.primitive_distance`, computed once."""
+        if self._primitive is None:
+            self._primitive = S.primitive_distance(self.normalised())
+        return self._primitive
+
+    def asymmetry(self) -> list[float]:
+        """:func:`~mixcount.curation.appearance3d.mirror_asymmetry`, computed once."""
+        if self._asymmetry is None:
+            self._asymmetry = A.mirror_asymmetry(self.shape_look())
+        return self._asymmetry
+
+
+@dataclass
+class _Found:
+    a: int
+    b: int | None
+    kind: str
+    score: float
+    reason: str
+
+
+def _label(obj: CatalogObject) -> str:
+    return f"#{obj.id} {obj.name!r}"
+
+
+def _appearance_kind(obj: CatalogObject) -> str:
+    try:
+        data = json.loads(obj.metadata_json or "{}")
+        return str((data.get("ingest") or {}).get("appearance") or "none")
+    except (ValueError, AttributeError):
+        return "none"
+
+
+
+class LayoutCache:
+    """Principal-frame layout distances of pairs already compared (the rotation search of a cube or a
+    ball costs ~0.1-1 s a pair), kept as JSON beside the descriptors, keyed by both content hashes,
+    the brightness factor (the file is named by the sample and layout versions), so a re-run only
+    compares new pairs."""
+
+    def __init__(self, path: Path | None) -> None:
+        self.path = path
+        self.values: dict[str, float] = {}
+        self.dirty = False
+        if path is not None and path.is_file():
+            try:
+                self.values = {str(k): float(v) for k, v in json.loads(path.read_text()).items()}
+            except (OSError, ValueError, TypeError, AttributeError):
+                self.values = {}
+
+    @staticmethod
+    def key(x: _Item, y: _Item, gain: float) -> str | None:
+        a, b = (x.obj.content_hash or "")[:32], (y.obj.content_hash or "")[:32]
+        return f"{a}:{b}:{gain:.4f}" if a and b else None
+
+    def layout(self, x: _Item, y: _Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float, search_above: float) -> float:
+        key = self.key(x, y, gain)
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = A.layout_distance(first, other, search_above=search_above)
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
+    def refined(self, x: _Item, y: _Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float) -> float:
+        """Layout distance after a local rotation refinement, both ways (cross-source copies), cached."""
+        key = self.key(x, y, gain)
+        key = f"refined:{key}" if key is not None else None
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = min(A.refined_layout_distance(first, other), A.refined_layout_distance(other, first))
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
+    def occupancy(self, x: _Item, y: _Item) -> float:
+        """Axis-normalised shape distance (:func:`~mixcount.curation.appearance3d.occupancy_distance`), cached."""
+        key = self.key(x, y, 1.0)
+        key = f"occupancy:{key}" if key is not None else None
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = A.occupancy_distance(x.shape_look(), y.shape_look())
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
+    def cached(self, x: _Item, y: _Item, tag: str, compute: Callable[[], float]) -> float:
+        """``compute()`` for the pair (or one object when ``x is y``), cached under ``tag`` and the
+        shape-match version."""
+        key = self.key(x, y, 1.0)
+        key = f"{tag}-{S.MATCH_VERSION}:{key}" if key is not None else None
+        if key is not None and key in self.values:
+            return self.values[key]
+        value = float(compute())
+        if key is not None:
+            self.values[key] = round(value, 6)
+            self.dirty = True
+        return value
+
+    def save(self) -> None:
+        if self.path is None or not self.dirty:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self.path, json.dumps(self.values, sort_keys=True))  # a fresh temporary name per writer
+        self.dirty = False
