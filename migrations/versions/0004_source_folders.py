@@ -1,6 +1,6 @@
 """source folders: settings a person stated once for a folder given to ingest (its up axis)
 
-Revision ID: 0004_i52
+Revision ID: 0004
 Revises: 0003
 Create Date: 2026-12-04 19:20:00
 """
@@ -8,7 +8,7 @@ from alembic import op
 import sqlalchemy as sa
 
 
-revision = '0004_i52'
+revision = '0004'
 down_revision = '0003'
 branch_labels = None
 depends_on = None

@@ -1,15 +1,15 @@
 """review decisions on a pair of objects (same object / variants / different)
 
-Revision ID: 0004_i49
-Revises: 0003
+Revision ID: 0005
+Revises: 0004
 Create Date: 2026-12-04 19:30:00
 """
 from alembic import op
 import sqlalchemy as sa
 
 
-revision = '0004_i49'
-down_revision = '0003'
+revision = '0005'
+down_revision = '0004'
 branch_labels = None
 depends_on = None
 
