@@ -59,3 +59,20 @@ def test_compose_summary_names_the_causes_and_the_failure_log(tmp_path: Path) ->
     assert lines[0].startswith("wrote 3 new scene(s) (0 already there, 3 failed")
     assert lines[1] == ("failed scenes by cause: worker SIGSEGV 2, timeout 1 (seeds, signals and kept logs: "
                         f"{tmp_path / 'logs' / 'failures.jsonl'})")
+
+
+def test_a_long_faulthandler_report_keeps_its_header_in_the_tail() -> None:
+    """faulthandler's stacks of every thread run past the tail's line count: the tail then starts at the
+    report's header (what crashed), each line cut, instead of showing only the last threads' frames."""
+    from mixcount.worker.client import LINE_CHARS, TAIL_LINES, last_lines
+
+    threads = [f'  File "/x/thread{k}.py", line {k} in run' for k in range(3 * TAIL_LINES)]
+    log = "\n".join(["scene 7: settling", "Fatal Python error: Segmentation fault", "",
+                     "Current thread 0x1 (most recent call first):", *threads,
+                     "Extension modules: " + ", ".join(f"mod{k}" for k in range(400))])
+    tail = last_lines(log).splitlines()
+    assert tail[0] == "Fatal Python error: Segmentation fault" and len(tail) == TAIL_LINES
+    assert "Current thread" in tail[1]
+    short = last_lines("a\nb\nFatal Python error: Aborted\nc")  # the whole report fits: the last lines
+    assert short.splitlines() == ["a", "b", "Fatal Python error: Aborted", "c"]
+    assert all(len(ln) <= LINE_CHARS for ln in last_lines("x" * 5000).splitlines())

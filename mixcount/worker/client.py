@@ -67,10 +67,21 @@ def exit_words(code: Optional[int]) -> str:
     return f"exit code {code}"
 
 
+FAULT_HEADER = "Fatal Python error:"  # the first line of faulthandler's report
+LINE_CHARS = 300  # a longer log line (faulthandler's "Extension modules: ..." list) is cut
+
+
 def last_lines(text: str, n: int = TAIL_LINES, chars: int = TAIL_CHARS) -> str:
-    """The last ``n`` non-empty lines of ``text``, at most ``chars`` characters."""
-    lines = [ln.rstrip() for ln in text.splitlines() if ln.strip()]
-    return "\n".join(lines[-n:])[-chars:]
+    """The last ``n`` non-empty lines of ``text``, at most ``chars`` characters; each line cut at
+    :data:`LINE_CHARS`. When faulthandler's report began before those lines (its stacks of every thread
+    run longer than ``n`` lines), the ``n`` lines from its header instead: what crashed, and where, is what
+    a failure note must show."""
+    lines = [ln.rstrip()[:LINE_CHARS] for ln in text.splitlines() if ln.strip()]
+    start = max(0, len(lines) - n)
+    crash = max((i for i, ln in enumerate(lines) if ln.startswith(FAULT_HEADER)), default=None)
+    if crash is not None and crash < start:
+        return "\n".join(lines[crash:crash + n])[:chars]
+    return "\n".join(lines[start:])[-chars:]
 
 
 class _Spawner:
@@ -216,7 +227,7 @@ class BlenderWorker:
         try:
             with open(path or self.log_path, "rb") as f:
                 f.seek(0, os.SEEK_END)
-                f.seek(max(0, f.tell() - 4 * n))
+                f.seek(max(0, f.tell() - 16 * n))  # room for a faulthandler report of many threads
                 data = f.read()
         except OSError:
             return ""
