@@ -31,7 +31,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.errors import CompositionError
-from mixcount.scene.caption_text import normalise_caption, size_qualified
+from mixcount.scene.class_draws import (
+    ClassDraft,
+    build_classes,
+    caption_keys,
+    distinct_caption_picks,
+    qualify,
+    split_counts,
+)
 from mixcount.scene.count_targets import (
     PAPER,
     count_distribution,
@@ -47,6 +54,7 @@ from mixcount.scene.environment_sampling import sample_environment, sample_floor
 from mixcount.scene.framing import camera_position, look_at_rotation
 from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, ObjectRecord
 from mixcount.scene.rotation import quat_from_matrix
+from mixcount.scene.spawn_layout import ellipse_radius, release_waves, spawn_positions
 from mixcount.scene_config import SceneConfig
 
 if TYPE_CHECKING:
@@ -54,7 +62,6 @@ if TYPE_CHECKING:
 from mixcount.scene.spec import (
     ROLE_COUNTED,
     ROLE_DISTRACTOR,
-    TIERS,
     AssetRef,
     CameraSpec,
     Captions,
@@ -68,7 +75,6 @@ from mixcount.scene.spec import (
     SceneSpec,
 )
 
-CONSTRUCTIONS = ("same_object_resized", "same_category", "other_category", "colour_variant")
 _R = 6  # decimals kept for poses: readable stages, identical bytes
 
 
@@ -98,222 +104,6 @@ def _random_quats(rng: np.random.Generator, n: int) -> NDArray[Any]:
 
 def _vec(v: Sequence[float] | NDArray[Any]) -> tuple[float, float, float]:
     return tuple(round(float(x), _R) for x in v)  # type: ignore[return-value]
-
-
-def qualify(caption: str, qualifier: Optional[str]) -> str:
-    """'a large white bottle' + 'smaller' -> 'a smaller white bottle' (see :func:`size_qualified`)."""
-    return size_qualified(caption, qualifier)
-
-
-def caption_keys(captions: Captions) -> frozenset[tuple[str, str]]:
-    """(tier, normalised caption) of each tier: two objects whose keys intersect share a prompt."""
-    return frozenset((tier, normalise_caption(getattr(captions, tier))) for tier in TIERS)
-
-
-# ---------------------------------------------------------------------------------------------------
-# class construction
-
-
-class _ClassDraft:
-    def __init__(self, obj: ObjectRecord, size: float, construction: str, base: Optional[int] = None):
-        self.obj = obj
-        self.size = size
-        self.construction = construction
-        self.base = base
-        self.qualifier: Optional[str] = None
-
-
-def _resize_options(drafts: list[_ClassDraft], lo: float, hi: float, rmin: float) -> list[int]:
-    uses: dict[int, int] = {}
-    for d in drafts:
-        uses[d.obj.object_id] = uses.get(d.obj.object_id, 0) + 1
-    return [
-        i for i, d in enumerate(drafts)
-        if uses[d.obj.object_id] == 1 and (d.size * rmin <= hi or d.size / rmin >= lo)
-    ]
-
-
-def _resized_size(rng: np.random.Generator, base: float, lo: float, hi: float,
-                  ratio: tuple[float, float]) -> tuple[float, str]:
-    r = _u(rng, ratio)
-    direction = "larger" if rng.random() < 0.5 else "smaller"
-    for dirn in (direction, "smaller" if direction == "larger" else "larger"):
-        size = base * r if dirn == "larger" else base / r
-        if lo <= size <= hi:
-            return size, dirn
-    # the drawn ratio overshoots both ends: use the largest ratio that fits (still >= ratio[0])
-    up, down = hi / base, base / lo
-    if up >= down:
-        return hi, "larger"
-    return lo, "smaller"
-
-
-def construction_weights(config: SceneConfig) -> NDArray[Any]:
-    """Weights of :data:`CONSTRUCTIONS` before feasibility: the paper's three in their proportions share
-    ``1 - p_colour_variant``, the colour variant takes ``p_colour_variant``."""
-    paper = np.array([config.p_same_object_resized, config.p_same_category, config.p_other_category], dtype=float)
-    pv = float(config.p_colour_variant)
-    return np.append(paper / paper.sum() * (1.0 - pv), pv)
-
-
-def _variant_options(drafts: list[_ClassDraft], free: list[ObjectRecord]) -> list[tuple[int, list[ObjectRecord]]]:
-    """(class index, its object's free colour variants) for every class that has one."""
-    out = []
-    for i, d in enumerate(drafts):
-        ids = set(d.obj.variants)
-        cands = [o for o in free if o.object_id in ids]
-        if cands:
-            out.append((i, cands))
-    return out
-
-
-def _build_classes(rng: np.random.Generator, config: SceneConfig, eligible: list[ObjectRecord],
-                   n_classes: int) -> list[_ClassDraft]:
-    s = config.scale
-    lo, hi = config.class_size[0] * s, config.class_size[1] * s
-    first = eligible[int(rng.integers(len(eligible)))]
-    drafts = [_ClassDraft(first, _u(rng, (lo, hi)), "first")]
-    probs = construction_weights(config)
-    while len(drafts) < n_classes:
-        used = {d.obj.object_id for d in drafts}
-        cats = {d.obj.category for d in drafts}
-        taken = frozenset().union(*(caption_keys(d.obj.captions) for d in drafts))
-        free = [o for o in eligible if o.object_id not in used and not caption_keys(o.captions) & taken]
-        resizable = _resize_options(drafts, lo, hi, config.resize_ratio[0])
-        # a variant of a class in the scene comes only from option (d), so p_colour_variant is what
-        # decides how often a scene holds the hard pair
-        variant_ids = set().union(*(d.obj.variants for d in drafts))
-        same_cat = [o for o in free if o.category in cats and o.object_id not in variant_ids]
-        other_cat = [o for o in free if o.category not in cats]
-        variants = _variant_options(drafts, free)
-        feasible = np.array([bool(resizable), bool(same_cat), bool(other_cat), bool(variants)], dtype=float)
-        p = probs * feasible
-        if p.sum() <= 0:
-            break  # the split cannot provide another distinct class
-        choice = CONSTRUCTIONS[int(rng.choice(len(CONSTRUCTIONS), p=p / p.sum()))]
-        if choice == "colour_variant":
-            bi, cands = variants[int(rng.integers(len(variants)))]
-            draft = _ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice, base=bi)
-        elif choice == "same_object_resized":
-            bi = resizable[int(rng.integers(len(resizable)))]
-            base = drafts[bi]
-            size, direction = _resized_size(rng, base.size, lo, hi, config.resize_ratio)
-            draft = _ClassDraft(base.obj, size, choice, base=bi)
-            draft.qualifier = direction
-            base.qualifier = "smaller" if direction == "larger" else "larger"
-        elif choice == "same_category":
-            by_cat = sorted({o.category for o in same_cat})
-            cat = by_cat[int(rng.integers(len(by_cat)))]
-            cands = [o for o in same_cat if o.category == cat]
-            draft = _ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice)
-        else:
-            by_cat = sorted({o.category for o in other_cat})
-            cat = by_cat[int(rng.integers(len(by_cat)))]
-            cands = [o for o in other_cat if o.category == cat]
-            draft = _ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice)
-        drafts.append(draft)
-    return drafts
-
-
-def _distinct_caption_picks(rng: np.random.Generator, free: list[ObjectRecord], n: int,
-                            taken: frozenset[tuple[str, str]]) -> list[ObjectRecord]:
-    """Up to ``n`` objects of ``free`` drawn one by one, uniformly among those whose captions collide with
-    no caption already ``taken`` (by the classes or an earlier pick): the first fitting ones of a random
-    permutation, which is the same distribution."""
-    picks: list[ObjectRecord] = []
-    if n <= 0:
-        return picks
-    for i in rng.permutation(len(free)).tolist():
-        keys = caption_keys(free[i].captions)
-        if keys & taken:
-            continue
-        picks.append(free[i])
-        taken = taken | keys
-        if len(picks) == n:
-            break
-    return picks
-
-
-def _split_counts(rng: np.random.Generator, n: int, k: int) -> list[int]:
-    """n instances over k classes, every class >= 1, uniform over all such compositions."""
-    if k == 1:
-        return [n]
-    cuts = np.sort(rng.choice(np.arange(1, n), size=k - 1, replace=False))
-    return [int(c) for c in np.diff(np.concatenate([[0], cuts, [n]]))]
-
-
-# ---------------------------------------------------------------------------------------------------
-# placement
-
-
-def _spawn_positions(rng: np.random.Generator, radii: NDArray[Any], centre: NDArray[Any], semi: tuple[float, float],
-                     yaw: float, z_range: tuple[float, float], tries: int, ellipse: bool,
-                     stack: bool = True) -> NDArray[Any]:
-    """Uniform points in the (rotated) ellipse or square, heights in z_range; each instance takes the
-    first of ``tries`` candidates whose bounding sphere misses the ones placed so far, else the
-    candidate with the most clearance, lifted (``stack``) above the spheres already in its column."""
-    n = len(radii)
-    out = np.zeros((n, 3))
-    if n == 0:
-        return out
-    c, s_ = math.cos(yaw), math.sin(yaw)
-    if ellipse:
-        r = np.sqrt(rng.random((n, tries)))
-        t = rng.random((n, tries)) * 2 * math.pi
-        lx, ly = semi[0] * r * np.cos(t), semi[1] * r * np.sin(t)
-    else:
-        lx = rng.uniform(-semi[0], semi[0], (n, tries))
-        ly = rng.uniform(-semi[1], semi[1], (n, tries))
-    cand = np.stack([centre[0] + c * lx - s_ * ly, centre[1] + s_ * lx + c * ly,
-                     rng.uniform(z_range[0], z_range[1], (n, tries))], axis=2)
-    out[0] = cand[0, 0]
-    for i in range(1, n):
-        # squared centre distances against squared sums of radii: no square roots unless no spot is free
-        need = (radii[:i] + radii[i]) ** 2
-        first = out[:i] - cand[i, 0]
-        if (np.einsum("ij,ij->i", first, first) >= need).all():
-            out[i] = cand[i, 0]
-            continue
-        diff = cand[i][:, None, :] - out[None, :i, :]
-        d2 = np.einsum("tij,tij->ti", diff, diff)
-        ok = np.flatnonzero((d2 >= need).all(axis=1))
-        if len(ok):
-            out[i] = cand[i, ok[0]]
-            continue
-        clearance = (np.sqrt(d2) - radii[:i]).min(axis=1) - radii[i]
-        best = cand[i, int(np.argmax(clearance))].copy()
-        if stack:
-            # no free spot in the height range: stack above whatever this column already holds, so
-            # dense scenes do not start interpenetrated (the physics engine would explode them)
-            dxy = np.hypot(out[:i, 0] - best[0], out[:i, 1] - best[1])
-            column = dxy < radii[:i] + radii[i]
-            if column.any():
-                best[2] = max(best[2], float((out[:i, 2][column] + radii[:i][column]).max() + radii[i]) * 1.0001)
-        out[i] = best
-    return out
-
-
-def _release_waves(positions: NDArray[Any], z_range: tuple[float, float], clearance: float,
-                   interval: int) -> tuple[NDArray[Any], NDArray[Any]]:
-    """Stacked spawn spots -> spots in the height range, released in waves.
-
-    A body that :func:`_spawn_positions` stacked ``w`` bands (a band = the height range) above the range
-    is moved down ``w`` bands and up ``clearance`` (over the pile the earlier waves left), and released
-    at frame ``1 + w * interval``; the others are released at frame 1. Bodies of one wave keep their
-    relative positions, so they stay as clear of each other as the stacking made them; earlier waves
-    have fallen away by the time a later one is released. Returns the new positions and release frames.
-    """
-    band = z_range[1] - z_range[0]
-    out = np.array(positions, dtype=np.float64)
-    if band <= 0 or len(out) == 0:
-        return out, np.ones(len(out), dtype=int)
-    wave = np.where(out[:, 2] > z_range[1], np.ceil((out[:, 2] - z_range[1]) / band), 0).astype(int)
-    out[:, 2] -= wave * band - np.where(wave > 0, clearance, 0.0)
-    return out, 1 + wave * int(interval)
-
-
-def _ellipse_radius(a: float, b: float, theta: float) -> float:
-    return a * b / math.sqrt((b * math.cos(theta)) ** 2 + (a * math.sin(theta)) ** 2)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -401,7 +191,7 @@ def pile_fit_factor(extent_xy: tuple[float, float], sizes: NDArray[Any], area_ra
     return 1.0
 
 
-def _build_object_classes(drafts: list[_ClassDraft], counts: list[int]) -> list[ObjectClass]:
+def _build_object_classes(drafts: list[ClassDraft], counts: list[int]) -> list[ObjectClass]:
     classes = []
     for ci, (d, cnt) in enumerate(zip(drafts, counts)):
         caps = d.obj.captions
@@ -441,16 +231,16 @@ class _Pile:
         return float(math.hypot(abs(self.centre[0]) + self.outline[0], abs(self.centre[1]) + self.outline[1]))
 
 
-def _place_counted(rng: np.random.Generator, config: SceneConfig, drafts: list[_ClassDraft],
+def _place_counted(rng: np.random.Generator, config: SceneConfig, drafts: list[ClassDraft],
                    inst_class: NDArray[Any], sizes: NDArray[Any], pile: _Pile) -> list[PlacedObject]:
     """Spawn poses above the pile's ellipse (or square), in waves when stacked; random orientations."""
     s, n = config.scale, len(inst_class)
     z_range = (pile.base_z + config.spawn_height[0] * s, pile.base_z + config.spawn_height[1] * s)
-    positions = _spawn_positions(rng, sizes / 2, pile.centre, pile.semi, pile.yaw, z_range, config.spawn_max_tries,
+    positions = spawn_positions(rng, sizes / 2, pile.centre, pile.semi, pile.yaw, z_range, config.spawn_max_tries,
                                  pile.ellipse, config.spawn_stack)
     release = np.ones(n, dtype=int)
     if config.spawn_stack and config.spawn_release_waves:
-        positions, release = _release_waves(positions, z_range, config.spawn_wave_clearance * s,
+        positions, release = release_waves(positions, z_range, config.spawn_wave_clearance * s,
                                             config.spawn_wave_interval_frames)
     if config.random_orientation:
         orients = _random_quats(rng, n).tolist()
@@ -481,7 +271,7 @@ def _place_distractors(rng: np.random.Generator, config: SceneConfig, picks: lis
         rho = float(math.hypot(ext[0], ext[1]) / 2)
         for _ in range(config.distractor_max_tries):
             theta = _u(rng, (0.0, 2 * math.pi))
-            dist = (_ellipse_radius(pile.outline[0], pile.outline[1], theta) + rho + margin
+            dist = (ellipse_radius(pile.outline[0], pile.outline[1], theta) + rho + margin
                     + _u(rng, config.distractor_ring) * s)
             lx, ly = dist * math.cos(theta), dist * math.sin(theta)
             x = pile.centre[0] + math.cos(pile.yaw) * lx - math.sin(pile.yaw) * ly
@@ -582,11 +372,11 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     if target is not None:  # a visible-count target (issue 37): n is drawn from its own stream instead
         n = draw_total(target, seed)
     n_classes = min(_ui(rng, config.n_classes), n)
-    drafts = _build_classes(rng, config, eligible, n_classes)
+    drafts = build_classes(rng, config, eligible, n_classes)
     count_target = None
     elevations: Optional[list[float]] = None
     if target is None:
-        counts = _split_counts(rng, n, len(drafts))
+        counts = split_counts(rng, n, len(drafts))
     else:
         aims, ratio = split_total(target, seed, n, len(drafts))
         # the cameras' elevations first (their own stream): a low camera sees the pile from the side and
@@ -635,7 +425,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
                               *(caption_keys(c.captions) for c in classes))
     free = [o for o in in_split if o.object_id not in used and not caption_keys(o.captions) & taken]
     n_dist = min(_ui(rng, config.n_distractors), len(free))
-    picks = _distinct_caption_picks(rng, free, n_dist, taken)
+    picks = distinct_caption_picks(rng, free, n_dist, taken)
     distractors = _place_distractors(rng, config, picks, pile, n + 1)
 
     container = None
