@@ -19,8 +19,9 @@ from mixcount.catalog.splits import assign_splits, check_splits
 from mixcount.config import load_config
 from mixcount.curation.flags import run_filter
 from mixcount.errors import ConfigError
+from mixcount.scene.class_draws import CONSTRUCTIONS, caption_keys, construction_weights
 from mixcount.scene.object_records import ObjectRecord
-from mixcount.scene.sampler import CONSTRUCTIONS, caption_keys, construction_weights, sample_scene
+from mixcount.scene.sampler import sample_scene
 from mixcount.scene.spec import Captions
 
 N_SPECS = 500

@@ -46,10 +46,31 @@ def resolve_db_url(db: str | None = None) -> str:
     return f"sqlite:///{Path(value).expanduser().resolve()}"
 
 
+WAL_TRY_MS = 200  # one try of the WAL switch waits this long for the lock before it lets go and retries
+
+
+def _switch_to_wal(cur: Any) -> None:
+    """``PRAGMA journal_mode=WAL``, retried for up to :data:`BUSY_TIMEOUT_S`. The switch needs an exclusive
+    lock: processes opening a rollback-journal catalog at once (an older mixcount's file) each hold a shared
+    lock while they wait for it, so one long wait could only time out (seen as "database is locked" from
+    tests/test_faults_catalog.py's race on a loaded machine). A short wait, then letting go and trying again
+    after a pause that differs per process, lets one of them win; the others then find WAL already on."""
+    deadline = time.monotonic() + BUSY_TIMEOUT_S
+    cur.execute(f"PRAGMA busy_timeout={WAL_TRY_MS}")
+    while True:
+        try:
+            cur.execute("PRAGMA journal_mode=WAL")
+            return
+        except Exception as exc:  # sqlite3.OperationalError: the DB-API connection, not SQLAlchemy's
+            if not _is_locked(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.02 + (os.getpid() % 10) * 0.02)
+
+
 def _sqlite_pragmas(dbapi_conn, _record) -> None:  # type: ignore[no-untyped-def]
     cur = dbapi_conn.cursor()
-    cur.execute(f"PRAGMA busy_timeout={int(BUSY_TIMEOUT_S * 1000)}")  # first: switching to WAL may wait
-    cur.execute("PRAGMA journal_mode=WAL")
+    _switch_to_wal(cur)
+    cur.execute(f"PRAGMA busy_timeout={int(BUSY_TIMEOUT_S * 1000)}")
     cur.execute("PRAGMA foreign_keys=ON")
     cur.execute("PRAGMA synchronous=NORMAL")
     cur.close()
