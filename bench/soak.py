@@ -44,6 +44,8 @@ from typing import Any, Optional
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from mixcount.worker.processes import child_pids, pid_running  # noqa: E402
+
 CHILD = """
 import json, sys
 from pathlib import Path
@@ -63,27 +65,6 @@ except MixcountError as exc:
 print(json.dumps({"written": s.written, "skipped": s.skipped, "failed": s.failed, "empty": s.empty,
                   "rejected": s.rejected}))
 """
-
-
-def children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (from /proc)."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                    found.append(int(d.name))
-            except (OSError, IndexError, ValueError):
-                continue
-    return found
-
-
-def running(pid: int) -> bool:
-    """Whether ``pid`` runs (a zombie nobody reaped yet does not)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
 
 
 def rss_mb(pid: int) -> Optional[float]:
@@ -123,7 +104,7 @@ class Soak:
 
     def _fault(self, proc: subprocess.Popen[str]) -> Optional[str]:
         """Inject one fault into the running compose ``proc``: its kind, None when none could be (no worker)."""
-        workers = [p for p in children(proc.pid) if running(p)]
+        workers = [p for p in child_pids(proc.pid) if pid_running(p)]
         kind = self.rng.choice(["worker SIGKILL", "worker SIGSEGV", "worker SIGSEGV", "parent kill"])
         if kind != "parent kill" and not workers:
             return None  # between worker lives: try again later
@@ -132,11 +113,11 @@ class Soak:
             t0 = time.monotonic()
             os.kill(proc.pid, signal.SIGKILL)
             proc.wait()
-            while any(running(p) for p in workers) and time.monotonic() - t0 < 30:
+            while any(pid_running(p) for p in workers) and time.monotonic() - t0 < 30:
                 time.sleep(0.02)
             self.gone_s.append(round(time.monotonic() - t0, 3))
             for p in workers:  # none should be left; never leave one behind
-                if running(p):
+                if pid_running(p):
                     os.kill(p, signal.SIGKILL)
             return kind
         os.kill(self.rng.choice(workers), signal.SIGKILL if kind == "worker SIGKILL" else signal.SIGSEGV)
@@ -150,7 +131,7 @@ class Soak:
             next_fault = time.monotonic() + self.rng.uniform(0.5, 1.5) * args.every
             killed = False
             while proc.poll() is None:
-                for p in children(proc.pid):
+                for p in child_pids(proc.pid):
                     mb = rss_mb(p)
                     if mb is not None and mb > 50:  # the bpy worker (not a shell or a helper)
                         self.rss.append(mb)

@@ -19,6 +19,7 @@ from typing import Any, Iterator
 import numpy as np
 import pytest
 
+from mixcount.worker.processes import child_pids, pid_running
 from tests.conftest import PROJECT_ROOT
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
@@ -602,27 +603,6 @@ def test_worker_segfault_mid_scene_is_explained_and_the_next_scene_composed(libr
     assert failures_by_cause(out)["by_cause"] == {"worker SIGSEGV": 1}
 
 
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (from /proc)."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                    found.append(int(d.name))
-            except (OSError, IndexError, ValueError):
-                continue
-    return found
-
-
-def _running(pid: int) -> bool:
-    """Whether ``pid`` exists and is not a zombie (a reparented worker nobody reaped yet is gone)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
-
-
 def test_killed_compose_process_takes_its_workers_and_the_rerun_completes(library, tmp_path: Path) -> None:
     """``kill -9`` of the compose process alone (not its process group): its render and settle-ahead workers
     are gone within 3 s, nothing half-written is a scene, the rerun completes and ``verify`` passes."""
@@ -644,7 +624,7 @@ def test_killed_compose_process_takes_its_workers_and_the_rerun_completes(librar
     workers: list[int] = []
 
     def kill() -> None:
-        workers.extend(_children(proc.pid))
+        workers.extend(child_pids(proc.pid))
         os.kill(proc.pid, signal.SIGKILL)
 
     th = _kill_when_tmp_scene_appears(out, kill)
@@ -652,9 +632,9 @@ def test_killed_compose_process_takes_its_workers_and_the_rerun_completes(librar
     th.join(5)
     assert proc.returncode == -signal.SIGKILL and workers
     deadline = time.monotonic() + 3.0
-    while any(_running(p) for p in workers) and time.monotonic() < deadline:
+    while any(pid_running(p) for p in workers) and time.monotonic() < deadline:
         time.sleep(0.05)
-    left = [p for p in workers if _running(p)]
+    left = [p for p in workers if pid_running(p)]
     for p in left:  # do not leave them to the next tests
         os.kill(p, signal.SIGKILL)
     assert not left, f"workers {left} outlived their compose process by 3 s"
