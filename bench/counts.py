@@ -114,7 +114,8 @@ def reframed(meta: dict[str, Any], counted: list[dict[str, Any]]) -> dict[str, A
 
 def write_coco(scene_dirs: list[Path], path: Path) -> int:
     """The scenes' own coco.json files merged into one COCO instances file (image ids renumbered, the
-    annotations' ``is_distractor`` kept): the paper run's histogram for ``--counts histogram:PATH``."""
+    annotations' ``is_distractor``, ``area`` and ``bbox`` kept, masks left out): the paper run's histogram,
+    and its per-category counts by object size, for ``--counts histogram:PATH``."""
     images, annotations, categories = [], [], {}
     for n, d in enumerate(sorted(scene_dirs), 1):
         doc = json.loads((d / "coco.json").read_text())
@@ -124,8 +125,9 @@ def write_coco(scene_dirs: list[Path], path: Path) -> int:
                 images.append({**img, "id": n})
         for a in doc["annotations"]:
             if a["image_id"] == first:
+                kept = {k: a[k] for k in ("area", "bbox") if k in a}
                 annotations.append({"id": len(annotations) + 1, "image_id": n, "category_id": a["category_id"],
-                                    "is_distractor": bool(a.get("is_distractor", False))})
+                                    "is_distractor": bool(a.get("is_distractor", False)), **kept})
         categories.update({c["id"]: {"id": c["id"], "name": c.get("name")} for c in doc["categories"]})
     path.write_text(json.dumps({"images": images, "annotations": annotations, "categories": list(categories.values())}))
     return len(images)

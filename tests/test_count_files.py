@@ -35,7 +35,7 @@ def _coco(path: Path) -> Path:
 def test_coco_file_gives_counts_and_class_ratios(tmp_path: Path) -> None:
     dist = parse_count_target(f"histogram:{_coco(tmp_path / 'instances_val.json')}")
     assert dist.kind == "histogram" and dist.counts == (7, 10) and dist.weights == (1.0, 1.0)
-    assert sorted(dist.images) == [(5, 2), (10,)]
+    assert sorted(img.counts for img in dist.images) == [(5, 2), (10,)]
     assert {draw_total(dist, s) for s in range(100)} == {7, 10}
     # two classes: the image's own per-category counts, in either order; its ratio recorded
     splits = {tuple(split_total(dist, s, 7, 2)[0]) for s in range(60)}
@@ -53,6 +53,23 @@ def test_coco_file_gives_counts_and_class_ratios(tmp_path: Path) -> None:
     assert ratio == 1.0 and sorted(counts) == [3, 4]
 
 
+def test_a_coco_files_counts_go_to_classes_by_object_size(tmp_path: Path) -> None:
+    """Image 1 holds 30 small objects (area 40 px, no area key: bbox) and 10 large ones (area 900): the
+    scene's class of the largest objects takes 10, whatever the class order; the smaller class 30."""
+    anns = [{"image_id": 1, "category_id": 1, "bbox": [0, 0, 5, 8]} for _ in range(30)]
+    anns += [{"image_id": 1, "category_id": 2, "area": 900.0, "bbox": [0, 0, 30, 30]} for _ in range(10)]
+    path = tmp_path / "instances_val.json"
+    path.write_text(json.dumps({"images": [{"id": 1}], "categories": [{"id": 1}, {"id": 2}],
+                                "annotations": [{**a, "id": k + 1} for k, a in enumerate(anns)]}))
+    dist = parse_count_target(f"histogram:{path}")
+    assert dist.images[0].areas == (40.0, 900.0)
+    for seed in range(20):
+        assert split_total(dist, seed, 40, 2, [0.5, 0.05])[0] == [10, 30]
+        assert split_total(dist, seed, 40, 2, [0.05, 0.5])[0] == [30, 10]
+    # without the classes' areas (or in a file without areas) either order, as before
+    assert {tuple(split_total(dist, s, 40, 2)[0]) for s in range(40)} == {(10, 30), (30, 10)}
+
+
 def test_fsc147_file_gives_points_per_image(tmp_path: Path) -> None:
     doc = {f"{i}.jpg": {"H": 384, "W": 576, "box_examples_coordinates": [[[0, 0], [0, 9], [9, 9], [9, 0]]] * 3,
                         "points": [[float(k), 2.0 * k] for k in range(n)], "ratio_h": 1.0, "ratio_w": 1.0}
@@ -61,7 +78,7 @@ def test_fsc147_file_gives_points_per_image(tmp_path: Path) -> None:
     path.write_text(json.dumps(doc, indent=1))  # written over many lines, as the benchmark's file is
     dist = parse_count_target(f"histogram:{path}")
     assert dist.counts == (7, 12, 3731) and dist.weights == (1.0, 2.0, 1.0)  # the empty image left out
-    assert all(len(per) == 1 for per in dist.images)
+    assert all(len(img.counts) == 1 for img in dist.images)
     assert split_total(dist, 1, 12, 3)[1] is None  # one class per image: stars-and-bars
 
 
@@ -129,7 +146,7 @@ def test_a_mixcount_dataset_file_gives_its_counted_objects(composed_dataset: Pat
     dist = parse_count_target(f"histogram:{path}")
     assert Counter(dict(zip(dist.counts, dist.weights))) == Counter(Counter(per_image.values()))
     metas = [json.loads(p.read_text()) for p in sorted((composed_dataset / "scenes").glob("scene_*/metadata.json"))]
-    assert sorted(sum(per) for per in dist.images) == sorted(m["n_counted"] for m in metas)
+    assert sorted(sum(img.counts) for img in dist.images) == sorted(m["n_counted"] for m in metas)
 
 
 def test_stats_compare_the_kept_counts_with_the_files_histogram(tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ which-body-may-go decisions and the statistics. The worker path itself runs in t
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -268,10 +269,11 @@ def test_displacements() -> None:
     assert C.displacements(a, b).tolist() == pytest.approx([0.0, 0.5])
 
 
-def test_a_target_container_holds_its_first_settle_and_scales_whole() -> None:
-    """Issue 48: the container of a target scene is fitted to what its first settle drops (the spawn without
-    the reserve, as a paper scene's to its whole spawn); a container shrunk to its pile shrinks whole (no deep
-    pit), one widened keeps its real height."""
+def test_a_target_container_holds_its_expected_need_and_shrinks_whole() -> None:
+    """Issue 48: the container of a target scene is fitted to its expected need, per class the first
+    ceil(count_spawn_factor x target) bodies (neither the low camera's margin nor the reserve), as a paper
+    scene's to its whole spawn; a container shrunk to its pile shrinks whole (no deep pit), one widened
+    keeps its real height."""
     from test_scene_distributions import rich_pool
 
     pool = rich_pool()
@@ -286,9 +288,11 @@ def test_a_target_container_holds_its_first_settle_and_scales_whole() -> None:
         seen += 1
         t = spec.count_target
         assert t is not None
-        first = [o for c, r in enumerate(t["reserve"])
-                 for o in sorted((o for o in spec.objects if o.class_index == c), key=lambda o: o.instance_id)
-                 [: sum(1 for o in spec.objects if o.class_index == c) - r]]
+        f_need = cfg.scene.count_spawn_factor[1]
+        assert t["need"] == [min(sum(1 for o in spec.objects if o.class_index == c) - r, math.ceil(f_need * a - 1e-9))
+                             for c, (r, a) in enumerate(zip(t["reserve"], t["per_class"]))]
+        first = [o for c, need in enumerate(t["need"])
+                 for o in sorted((o for o in spec.objects if o.class_index == c), key=lambda o: o.instance_id)[:need]]
         area = spec.container.extent_m[0] * spec.container.extent_m[1]
         assert lo * (1 - 1e-3) <= area / sum(o.size_m ** 2 for o in first) <= hi * (1 + 1e-3)
         ratio = np.asarray(spec.container.extent_m) / np.asarray(by_id[spec.container.object_id].dims)

@@ -55,6 +55,13 @@ def test_paper_framing_aims_at_the_settled_median_at_the_container_rule() -> Non
     # without a container the settled footprint's diagonal: the strays do not stretch it
     free = frame_camera(_camera("paper"), pts, np.full(len(pts), 0.8), None, margin=0.02)
     assert free.camera.distance < 1.2 * 1.1 * 20.0
+    # a count target's floor pile framed on its expected need's footprint: the distance scales with it,
+    # a container scene's does not (its container is fitted to the need instead)
+    need = frame_camera(_camera("paper"), pts, np.full(len(pts), 0.8), None, margin=0.02, footprint_scale=0.8)
+    assert need.camera.distance == pytest.approx(0.8 * free.camera.distance, rel=1e-6)
+    assert need.derivation["footprint_scale"] == 0.8 and "expected need" in need.derivation["distance_rule"]
+    boxed = frame_camera(_camera("paper"), pts, np.full(len(pts), 0.8), 7.5, margin=0.02, footprint_scale=0.8)
+    assert boxed.camera.distance == pytest.approx(cam.distance, rel=1e-6)
 
 
 def test_fit_framing_is_the_smallest_distance_holding_the_share() -> None:

@@ -10,6 +10,8 @@ scene at its settled counted objects by the framing rule of :mod:`mixcount.scene
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Any
 
@@ -49,6 +51,16 @@ class Placement:
         return self.framings[k] if self.framings else {"framing": "fixed"}
 
 
+def need_scale(state: SceneState, settled: int) -> float:
+    """A count target's floor pile is framed on the footprint of its expected need, not of its first
+    settle (about 1.65 x the target, where a paper scene settles about 1.2 x what it keeps): the square
+    root of need / settled counted bodies, at most 1; 1 for a paper scene (issue 48)."""
+    target = state.spec.count_target
+    if target is None or not target.get("need") or settled <= 0:
+        return 1.0
+    return float(min(1.0, math.sqrt(sum(int(n) for n in target["need"]) / float(settled))))
+
+
 def frame_cameras(state: SceneState) -> list[dict[str, Any]]:
     """Every camera re-aimed at the settled counted objects by its framing rule
     (:func:`mixcount.scene.framing.frame_camera`); the Blender cameras move there. Returns how each
@@ -63,7 +75,7 @@ def frame_cameras(state: SceneState) -> list[dict[str, Any]]:
     margin = state.spec.placement.frame_margin if state.spec.placement is not None else 0.0
     framings = []
     for cam_obj, cam in zip(state.cam_objs, state.spec.cameras):
-        framed = frame_camera(cam, centres, sizes, diag, margin=margin)
+        framed = frame_camera(cam, centres, sizes, diag, margin=margin, footprint_scale=need_scale(state, len(kept)))
         m = np.eye(4)
         m[:3, :3], m[:3, 3] = rotation_of(framed.camera), framed.camera.position
         set_matrix(cam_obj, m)

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.errors import ConfigError
-from mixcount.scene.count_files import histogram_of, looks_like_json, read_annotation_file
+from mixcount.scene.count_files import FileImage, histogram_of, looks_like_json, read_annotation_file
 
 COUNT_TARGET_STREAM = 37  # the count target's generator: default_rng([scene seed, COUNT_TARGET_STREAM])
 PAPER = "paper"
@@ -53,7 +53,7 @@ class CountDistribution:
     counts: tuple[int, ...] = ()
     weights: tuple[float, ...] = ()
     imbalance: Optional[tuple[float, float]] = None
-    images: tuple[tuple[int, ...], ...] = ()
+    images: tuple[FileImage, ...] = ()
 
     @property
     def is_paper(self) -> bool:
@@ -182,28 +182,56 @@ def _proportional(weights: NDArray[Any], total: int) -> list[int]:
     return [int(c) + 1 for c in counts]
 
 
-def _file_image(dist: CountDistribution, rng: np.random.Generator, total: int) -> Optional[tuple[int, ...]]:
+def _file_image(dist: CountDistribution, rng: np.random.Generator, total: int) -> Optional[FileImage]:
     """One image of the annotation file with this total and two or more categories (None: none has)."""
-    same = [per for per in dist.images if sum(per) == total and len(per) >= 2]
+    same = [img for img in dist.images if sum(img.counts) == total and len(img.counts) >= 2]
     return same[int(rng.integers(len(same)))] if same else None
 
 
-def split_total(dist: CountDistribution, seed: int, total: int, n_classes: int) -> tuple[list[int], Optional[float]]:
+def _by_size(image: FileImage, class_areas: Optional[Sequence[float]], k: int) -> Optional[NDArray[Any]]:
+    """The image's per-category counts as weights in the scene's class order, by object size: the
+    category of the image's largest objects (mean area) goes to the class of the largest objects
+    (``class_areas``), and so on down; an image with another number of categories is resampled over the
+    size ranks (log counts interpolated, so its largest / smallest ratio is kept). None when the file gives
+    no areas or the scene none (the caller draws a random class order). A benchmark's image (and a paper
+    scene, whose small objects are lost to occlusion more often) holds more or fewer of its large objects;
+    in a random order a target read from the paper run's own file took 0.19 of its counted objects from
+    the largest class against the paper's 0.41 (issue 48, docs/performance.md)."""
+    if class_areas is None or len(class_areas) != k or min(image.areas) <= 0:
+        return None
+    by_area = np.argsort(-np.asarray(image.areas), kind="stable")  # categories, largest objects first
+    ranked = np.asarray(image.counts, dtype=np.float64)[by_area]
+    if len(ranked) != k:
+        ranked = np.exp(np.interp(np.linspace(0.0, 1.0, k), np.linspace(0.0, 1.0, len(ranked)), np.log(ranked)))
+    by_size = np.argsort(-np.asarray(class_areas, dtype=np.float64), kind="stable")  # classes, largest first
+    out = np.empty(k)
+    out[by_size] = ranked
+    return out
+
+
+def split_total(dist: CountDistribution, seed: int, total: int, n_classes: int,
+                class_areas: Optional[Sequence[float]] = None) -> tuple[list[int], Optional[float]]:
     """``total`` over ``n_classes`` classes, every class >= 1 (the caller keeps n_classes <= total): the
     stars-and-bars composition, or with an imbalance range a drawn ratio R (returned) and counts
     proportional to R**(j / (k - 1)) in a random class order (largest remainder rounding). A target read
     from an annotation file (no imbalance given) takes an image of the file with the drawn total and two or
-    more categories: its own per-category counts when it has ``n_classes`` categories, else its ratio
-    (largest / smallest) as R; stars-and-bars when no such image exists (FSC-147: one class per image)."""
+    more categories: its own per-category counts matched to the classes by object size when the file
+    gives areas (``class_areas``: any measure proportional to the area one object of each class shows;
+    resampled to ``n_classes``: :func:`_by_size`); without areas its counts in a random class order when
+    it has ``n_classes`` categories, else its ratio (largest / smallest) as R; stars-and-bars when no such
+    image exists (FSC-147: one class per image)."""
     rng = np.random.default_rng([int(seed), COUNT_TARGET_STREAM, 1])
     k = int(n_classes)
     if k <= 1:
         return [int(total)], None
     image = _file_image(dist, rng, int(total)) if dist.imbalance is None and dist.images else None
     if image is not None:
-        ratio = float(image[0]) / float(image[-1])
-        if len(image) == k:
-            return _proportional(np.asarray(image, dtype=np.float64)[rng.permutation(k)], int(total)), ratio
+        ratio = float(image.counts[0]) / float(image.counts[-1])
+        ranked = _by_size(image, class_areas, k)
+        if ranked is not None:
+            return _proportional(ranked, int(total)), ratio
+        if len(image.counts) == k:
+            return _proportional(np.asarray(image.counts, dtype=np.float64)[rng.permutation(k)], int(total)), ratio
     elif dist.imbalance is None:
         cuts = np.sort(rng.choice(np.arange(1, total), size=k - 1, replace=False))
         return [int(c) for c in np.diff(np.concatenate([[0], cuts, [total]]))], None

@@ -136,9 +136,12 @@ def fit_distance(cam: CameraSpec, target: NDArray[Any], points: NDArray[Any], sh
 
 
 def frame_camera(cam: CameraSpec, counted: NDArray[Any], sizes: NDArray[Any], container_diagonal: Optional[float],
-                 *, margin: float) -> Framing:
+                 *, margin: float, footprint_scale: float = 1.0) -> Framing:
     """``cam`` re-aimed at the settled counted objects (origins ``counted`` (N, 3), largest sides ``sizes``)
-    by its framing rule (module docstring); ``container_diagonal``: ||diag AABB(container)|| or None."""
+    by its framing rule (module docstring); ``container_diagonal``: ||diag AABB(container)|| or None.
+    ``footprint_scale`` (<= 1) scales the settled pile's footprint diagonal of the ``paper`` rule without a
+    container: a count target's first settle holds more bodies than it will keep, and its camera is
+    framed on the footprint of its expected need (``sqrt(need / settled)``, engine/cameras.py)."""
     pts = np.asarray(counted, dtype=np.float64).reshape(-1, 3)
     if cam.framing == "fixed" or len(pts) == 0:
         return Framing(cam, {"framing": cam.framing if len(pts) else f"{cam.framing} (no settled counted object)",
@@ -153,6 +156,10 @@ def frame_camera(cam: CameraSpec, counted: NDArray[Any], sizes: NDArray[Any], co
             base, rule = float(container_diagonal), "container box diagonal"
         else:
             base, rule = footprint_diagonal(pts, sizes), "settled pile footprint diagonal (5-95 % of origins + median size)"
+            if footprint_scale < 1.0:
+                base *= float(footprint_scale)
+                rule += f" x {footprint_scale:.4f} (the count target's expected need / settled, square root)"
+                derivation["footprint_scale"] = round(float(footprint_scale), _R)
         dist = cam.distance_factor * base * cam.distance_scale
         derivation.update(distance_rule=f"{cam.distance_factor} x {rule} x distance_scale", base_diagonal=round(base, _R))
     elif cam.framing == "fit":

@@ -171,6 +171,13 @@ def _draw_container(rng: np.random.Generator, config: SceneConfig, pool: Sequenc
     return container_obj, cont_scale, _u(rng, (0.0, 2 * math.pi))
 
 
+def shown_area(draft: ClassDraft) -> float:
+    """The area (m^2) one object of a class shows on average over orientations, as its scaled box's mean
+    face area: ranks the classes for a count split taken from an annotation file's image."""
+    a, b, c = np.asarray(draft.obj.dims, dtype=np.float64) * (draft.size / draft.obj.max_dim)
+    return float(a * b + b * c + c * a) / 3.0
+
+
 def pile_fit_factor(extent_xy: tuple[float, float], sizes: NDArray[Any], area_range: Sequence[float]) -> float:
     """The XY factor that brings a container's box area into ``area_range`` x its pile's one-layer footprint
     (its height takes the factor too when it is below 1: a container shrunk to its pile shrinks whole).
@@ -378,7 +385,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     if target is None:
         counts = split_counts(rng, n, len(drafts))
     else:
-        aims, ratio = split_total(target, seed, n, len(drafts))
+        aims, ratio = split_total(target, seed, n, len(drafts), [shown_area(d) for d in drafts])
         # the cameras' elevations first (their own stream): a low camera sees the pile from the side and
         # loses more to occlusion, so the spawn is sized for the lowest one
         elevations = draw_elevations(seed, config.n_cameras, config.camera_elevation_deg)
@@ -393,6 +400,11 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
                                      reserve=reserve, topup_rounds=config.count_topup_rounds,
                                      rest_frames=config.count_rest_frames, rest_tolerance=config.count_rest_tolerance,
                                      rest_verify=config.count_rest_verify)
+        # the expected need per class (the paper-like pile the container is fitted to and a floor
+        # scene's cameras framed on: engine/cameras.py)
+        f_need = float(config.count_spawn_factor[1 if container_obj is not None else 0])
+        count_target["need"] = [min(c - r, int(math.ceil(f_need * a - 1e-9)))
+                                for c, r, a in zip(counts, reserve, aims)]
         n = sum(counts)
     classes = _build_object_classes(drafts, counts)
 
@@ -404,13 +416,14 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     fit = 1.0
     if container_obj is not None:
         extent = np.asarray(container_obj.dims) * cont_scale
-        # a count target's container holds what its first settle drops (per class the spawn without the
-        # reserve), as a paper scene's holds its whole spawn; the reserve only enters for a top-up. A
-        # container shrunk to its pile shrinks whole (a shrunk tray is no deep pit); one widened keeps its
-        # real height (walls grown with it hid the pile from low cameras) (issue 48)
+        # a count target's container holds its expected need (per class the first count_target["need"]
+        # bodies: neither the low camera's margin nor the reserve), as a paper scene's holds its whole
+        # spawn, about 1.05-1.3 x what it keeps (fitted to the whole first settle, 1.65 x the target, its
+        # objects showed 0.48 x the paper's pixels). A container shrunk to its pile shrinks whole (a shrunk
+        # tray is no deep pit); one widened keeps its real height (walls grown with it hid the pile from
+        # low cameras) (issue 48)
         settled_sizes = sizes if count_target is None else np.concatenate(
-            [sizes[inst_class == c][:n_c - r_c]
-             for c, (n_c, r_c) in enumerate(zip(counts, count_target["reserve"]))])
+            [sizes[inst_class == c][:need] for c, need in enumerate(count_target["need"])])
         fit = pile_fit_factor((float(extent[0]), float(extent[1])), settled_sizes, config.container_pile_area)
         cont_scale = cont_scale * np.array([fit, fit, min(fit, 1.0)])
         extent = np.asarray(container_obj.dims) * cont_scale
