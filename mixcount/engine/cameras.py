@@ -11,7 +11,6 @@ scene at its settled counted objects by the framing rule of :mod:`mixcount.scene
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import Any
 
