@@ -249,17 +249,26 @@ def test_a_local_rest_check_wakes_the_bodies_near_what_changed() -> None:
 def test_drop_spots_fall_onto_the_pile_without_overlap() -> None:
     rng = np.random.default_rng(4)
     sizes = [0.05] * 30 + [0.08] * 5
-    spots = C.drop_spots(np.array([-0.2, -0.1]), np.array([0.2, 0.1]), 0.3, sizes, rng)
+    box = (np.array([-0.2, -0.1]), np.array([0.2, 0.1]))
+    spots = C.drop_spots(*box, 0.3, sizes, rng, room=box)
     assert spots.shape == (35, 3)
     assert (spots[:, 2] > 0.3).all()  # above the pile's top
-    assert (np.abs(spots[:, 0]) <= 0.2).all() and (np.abs(spots[:, 1]) <= 0.1).all()  # over its footprint
+    assert (np.abs(spots[:, 0]) <= 0.2).all() and (np.abs(spots[:, 1]) <= 0.1).all()  # inside its room
     d = np.linalg.norm(spots[:, None, :] - spots[None, :, :], axis=2) + np.eye(35)
     assert d.min() >= 0.8 * 1.2 * 0.08  # one cell (1.2 x the largest) apart, less the jitter
-    again = C.drop_spots(np.array([-0.2, -0.1]), np.array([0.2, 0.1]), 0.3, sizes, np.random.default_rng(4))
+    again = C.drop_spots(*box, 0.3, sizes, np.random.default_rng(4), room=box)
     assert np.array_equal(spots, again)
-    # a footprint smaller than a cell: a column over its centre
-    col = C.drop_spots(np.array([0.0, 0.0]), np.array([0.01, 0.01]), 0.0, [0.05] * 3, rng)
+    # a footprint smaller than a cell, no room to grow: a column over its centre
+    tiny = (np.array([0.0, 0.0]), np.array([0.01, 0.01]))
+    col = C.drop_spots(*tiny, 0.0, [0.05] * 3, rng, room=tiny)
     assert np.allclose(col[:, :2], 0.005, atol=0.1 * 0.06 + 1e-9) and len(set(np.round(col[:, 2], 6))) == 3
+    # with room (on the floor, or a wide container) the box grows about its centre to one layer: no tower
+    free = C.drop_spots(*tiny, 0.0, [0.05] * 5, rng)
+    assert len(set(np.round(free[:, 2], 6))) == 1
+    assert np.allclose(free[:, :2].mean(axis=0), 0.005, atol=0.06)
+    walls = (np.array([-0.06, -0.06]), np.array([0.07, 0.07]))  # a container's room: the box stops at it
+    held = C.drop_spots(*tiny, 0.0, [0.05] * 5, rng, room=walls)
+    assert (held[:, :2] >= -0.06 - 0.01).all() and (held[:, :2] <= 0.07 + 0.01).all()
 
 
 def test_displacements() -> None:
@@ -291,8 +300,13 @@ def test_a_target_container_holds_its_expected_need_and_shrinks_whole() -> None:
         f_need = cfg.scene.count_spawn_factor[1]
         assert t["need"] == [min(sum(1 for o in spec.objects if o.class_index == c) - r, math.ceil(f_need * a - 1e-9))
                              for c, (r, a) in enumerate(zip(t["reserve"], t["per_class"]))]
-        first = [o for c, need in enumerate(t["need"])
-                 for o in sorted((o for o in spec.objects if o.class_index == c), key=lambda o: o.instance_id)[:need]]
+        per_class = [sorted((o for o in spec.objects if o.class_index == c), key=lambda o: o.instance_id)
+                     for c in range(len(t["need"]))]
+        first = [o for c, need in enumerate(t["need"]) for o in per_class[c][:need]]
+        # a need below the paper's smallest spawn is made up from the rest of the first settle
+        rest = [o for c, (need, r) in enumerate(zip(t["need"], t["reserve"])) for o in per_class[c][need:len(per_class[c]) - r]]
+        first += rest[: max(0, cfg.scene.n_objects[0] - len(first))]
+        assert t["frame_need"] == len(first)
         area = spec.container.extent_m[0] * spec.container.extent_m[1]
         assert lo * (1 - 1e-3) <= area / sum(o.size_m ** 2 for o in first) <= hi * (1 + 1e-3)
         ratio = np.asarray(spec.container.extent_m) / np.asarray(by_id[spec.container.object_id].dims)

@@ -11,6 +11,8 @@ stay above v_t; the worker measures them again anyway.
 
 from __future__ import annotations
 
+import math
+
 from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
@@ -158,16 +160,22 @@ def topup_factors(short: Mapping[int, int], gained: Mapping[int, float], least: 
 
 
 def drop_spots(lo_xy: Array, hi_xy: Array, top_z: float, sizes: Sequence[float],
-               rng: np.random.Generator) -> Array:
+               rng: np.random.Generator, room: Optional[tuple[Array, Array]] = None) -> Array:
     """(K, 3) positions to drop K bodies (``sizes``: their largest sides) onto a settled pile: a grid over the
     pile's XY box (``lo_xy``..``hi_xy``, shrunk by half a cell) with one cell per body of side 1.2 x the
     largest, cells in a random order (``rng``), layers stacked from half a cell above ``top_z``; a jitter
-    of 0.1 cell. No two bodies overlap at their release, and each falls onto the pile."""
+    of 0.1 cell. No two bodies overlap at their release, and each falls onto the pile.
+
+    A pile's box too small for one layer of the K cells is first grown about its centre until it holds
+    them, within ``room`` (an XY box the bodies must stay over: inside a container's walls) when given:
+    a tower of five bodies over a small pile toppled and threw them out of a small tray and out of the
+    camera's view (issue 48)."""
     side = np.asarray(sizes, dtype=np.float64)
     k = len(side)
     if k == 0:
         return np.zeros((0, 3))
     cell = 1.2 * float(side.max())
+    lo_xy, hi_xy = _room_for(np.asarray(lo_xy, dtype=np.float64), np.asarray(hi_xy, dtype=np.float64), k, cell, room)
     lo = np.asarray(lo_xy, dtype=np.float64) + cell / 2
     hi = np.asarray(hi_xy, dtype=np.float64) - cell / 2
     mid = (np.asarray(lo_xy, dtype=np.float64) + np.asarray(hi_xy, dtype=np.float64)) / 2
@@ -186,6 +194,19 @@ def drop_spots(lo_xy: Array, hi_xy: Array, top_z: float, sizes: Sequence[float],
             out[row, :2] = cells[j] + rng.uniform(-0.1, 0.1, 2) * cell
             out[row, 2] = float(top_z) + cell * (layer + 0.5)
     return out
+
+
+def _room_for(lo: Array, hi: Array, k: int, cell: float, room: Optional[tuple[Array, Array]]) -> tuple[Array, Array]:
+    """The XY box grown about its centre to hold ``k`` cells in one layer (side ceil(sqrt(k)) cells, plus
+    the half cell the grid keeps from each border), never beyond ``room`` and never smaller than it was."""
+    need = (math.ceil(math.sqrt(k)) + 1) * cell
+    mid = (lo + hi) / 2
+    half = np.maximum((hi - lo) / 2, need / 2)
+    new_lo, new_hi = mid - half, mid + half
+    if room is not None:
+        new_lo = np.minimum(np.maximum(new_lo, np.asarray(room[0], dtype=np.float64)), lo)
+        new_hi = np.maximum(np.minimum(new_hi, np.asarray(room[1], dtype=np.float64)), hi)
+    return new_lo, new_hi
 
 
 def displacements(before: Array, after: Array) -> Array:

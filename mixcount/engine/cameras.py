@@ -53,11 +53,12 @@ class Placement:
 def need_scale(state: SceneState, settled: int) -> float:
     """A count target's floor pile is framed on the footprint of its expected need, not of its first
     settle (about 1.65 x the target, where a paper scene settles about 1.2 x what it keeps): the square
-    root of need / settled counted bodies, at most 1; 1 for a paper scene (issue 48)."""
+    root of need / settled counted bodies (``count_target["frame_need"]``: the need, never below the paper's
+    smallest spawn), at most 1; 1 for a paper scene (issue 48)."""
     target = state.spec.count_target
-    if target is None or not target.get("need") or settled <= 0:
+    if target is None or not target.get("frame_need") or settled <= 0:
         return 1.0
-    return float(min(1.0, math.sqrt(sum(int(n) for n in target["need"]) / float(settled))))
+    return float(min(1.0, math.sqrt(int(target["frame_need"]) / float(settled))))
 
 
 def frame_cameras(state: SceneState) -> list[dict[str, Any]]:

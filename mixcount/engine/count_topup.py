@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mixcount.annotate import count_decisions as C
 from mixcount.annotate import scene_decisions as D
@@ -128,6 +129,18 @@ def _simulate(state: SceneState, indices: list[int], frames: int, still: tuple[i
     return out, int(run.frames_run)
 
 
+def container_room(state: SceneState) -> Optional[tuple[NDArray[Any], NDArray[Any]]]:
+    """The XY square a top-up's bodies may be dropped over inside the container's walls, whatever its yaw:
+    half-side 0.35 x its shorter side about its centre (a square that fits in the rotated box); None on
+    the floor."""
+    container = state.spec.container
+    if container is None:
+        return None
+    centre = np.asarray(container.position[:2], dtype=np.float64)
+    half = 0.35 * float(min(container.extent_m[0], container.extent_m[1]))
+    return centre - half, centre + half
+
+
 def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_no: int,
            factors: Optional[dict[int, float]] = None) -> list[int]:
     """Drop bodies of the ``short`` classes (lacking objects per class: the class's reserve, then its bodies
@@ -157,7 +170,8 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
     else:
         lo = hi = np.zeros(3)
     rng = np.random.default_rng([int(state.spec.seed), COUNT_TOPUP_STREAM, int(round_no)])
-    spots = drop_spots(lo[:2], hi[:2], float(hi[2]), [state.objects[i].size_m for i in picks], rng)
+    spots = drop_spots(lo[:2], hi[:2], float(hi[2]), [state.objects[i].size_m for i in picks], rng,
+                       room=container_room(state))
     for i, spot in zip(picks, spots):
         obj = reserves.objects.pop(i) if i in reserves.objects else aside.pop(i)
         state.scene.collection.objects.link(obj)

@@ -178,6 +178,19 @@ def shown_area(draft: ClassDraft) -> float:
     return float(a * b + b * c + c * a) / 3.0
 
 
+def need_sizes(sizes: NDArray[Any], inst_class: NDArray[Any], count_target: dict[str, Any], counts: Sequence[int],
+               least: int) -> NDArray[Any]:
+    """The sizes a count target's container is fitted to: per class its first ``need`` bodies (the
+    expected need, ``count_target["need"]``), topped up with more of the first settle's bodies to
+    ``least`` (the paper's smallest spawn, ``n_objects[0]``) when the need is fewer: a target of 4 fitted a
+    container to 7 bodies, smaller than any paper scene's, and its top-ups fell off it (issue 48)."""
+    first = [sizes[inst_class == c][:n_c - r_c] for c, (n_c, r_c) in enumerate(zip(counts, count_target["reserve"]))]
+    need = [f[:k] for f, k in zip(first, count_target["need"])]
+    extra = np.concatenate([f[k:] for f, k in zip(first, count_target["need"])])
+    short = max(0, int(least) - sum(len(n) for n in need))
+    return np.concatenate([*need, extra[:short]])
+
+
 def pile_fit_factor(extent_xy: tuple[float, float], sizes: NDArray[Any], area_range: Sequence[float]) -> float:
     """The XY factor that brings a container's box area into ``area_range`` x its pile's one-layer footprint
     (its height takes the factor too when it is below 1: a container shrunk to its pile shrinks whole).
@@ -405,6 +418,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         f_need = float(config.count_spawn_factor[1 if container_obj is not None else 0])
         count_target["need"] = [min(c - r, int(math.ceil(f_need * a - 1e-9)))
                                 for c, r, a in zip(counts, reserve, aims)]
+        count_target["frame_need"] = max(sum(count_target["need"]),
+                                         min(int(config.n_objects[0]), sum(counts) - sum(reserve)))
         n = sum(counts)
     classes = _build_object_classes(drafts, counts)
 
@@ -422,8 +437,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         # objects showed 0.48 x the paper's pixels). A container shrunk to its pile shrinks whole (a shrunk
         # tray is no deep pit); one widened keeps its real height (walls grown with it hid the pile from
         # low cameras) (issue 48)
-        settled_sizes = sizes if count_target is None else np.concatenate(
-            [sizes[inst_class == c][:need] for c, need in enumerate(count_target["need"])])
+        settled_sizes = sizes if count_target is None else need_sizes(sizes, inst_class, count_target,
+                                                                       counts, config.n_objects[0])
         fit = pile_fit_factor((float(extent[0]), float(extent[1])), settled_sizes, config.container_pile_area)
         cont_scale = cont_scale * np.array([fit, fit, min(fit, 1.0)])
         extent = np.asarray(container_obj.dims) * cont_scale
