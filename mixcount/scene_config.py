@@ -139,6 +139,7 @@ class SceneConfig:
     n_classes: IntRange
     count_target: str  # paper | uniform:A-B | histogram:PATH [,imbalance:R1-R2] (scene/count_targets.py)
     count_spawn_factor: tuple[float, float]  # spawned per visible target: floor scenes, container scenes
+    count_container_need: float  # x target per class: the pile a target's container (floor: camera) is fitted to
     count_spawn_extra: int
     count_spawn_size_exponent: float  # x (largest class size / class size) ** this
     count_spawn_sqrt: float  # + ceil(this x sqrt(target)) per class
@@ -231,6 +232,8 @@ class SceneConfig:
             raise ConfigError("scene.n_objects and scene.n_classes must be >= 1")
         if self.n_objects[1] < self.n_classes[1]:
             raise ConfigError("scene.n_objects high must be >= scene.n_classes high (one instance per class)")
+        if self.count_container_need < 1.0:
+            raise ConfigError("scene.count_container_need must be >= 1 (bodies per visible target object)")
         if not 0.0 <= self.count_spawn_elevation < 1.0:
             raise ConfigError("scene.count_spawn_elevation must lie in [0, 1)")
         if min(self.count_spawn_factor) < 1.0 or self.count_spawn_extra < 0 or min(self.count_short_tolerance) < 0:

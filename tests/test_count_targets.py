@@ -280,7 +280,7 @@ def test_displacements() -> None:
 
 def test_a_target_container_holds_its_expected_need_and_shrinks_whole() -> None:
     """Issue 48: the container of a target scene is fitted to its expected need, per class the first
-    ceil(count_spawn_factor x target) bodies (neither the low camera's margin nor the reserve), as a paper
+    ceil(count_container_need x target) bodies (neither the low camera's margin nor the reserve), as a paper
     scene's to its whole spawn; a container shrunk to its pile shrinks whole (no deep pit), one widened
     keeps its real height."""
     from test_scene_distributions import rich_pool
@@ -297,7 +297,7 @@ def test_a_target_container_holds_its_expected_need_and_shrinks_whole() -> None:
         seen += 1
         t = spec.count_target
         assert t is not None
-        f_need = cfg.scene.count_spawn_factor[1]
+        f_need = cfg.scene.count_container_need
         assert t["need"] == [min(sum(1 for o in spec.objects if o.class_index == c) - r, math.ceil(f_need * a - 1e-9))
                              for c, (r, a) in enumerate(zip(t["reserve"], t["per_class"]))]
         per_class = [sorted((o for o in spec.objects if o.class_index == c), key=lambda o: o.instance_id)

@@ -415,7 +415,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
                                      rest_verify=config.count_rest_verify)
         # the expected need per class (the paper-like pile the container is fitted to and a floor
         # scene's cameras framed on: engine/cameras.py)
-        f_need = float(config.count_spawn_factor[1 if container_obj is not None else 0])
+        f_need = float(config.count_container_need)
         count_target["need"] = [min(c - r, int(math.ceil(f_need * a - 1e-9)))
                                 for c, r, a in zip(counts, reserve, aims)]
         count_target["frame_need"] = max(sum(count_target["need"]),
@@ -432,9 +432,9 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     if container_obj is not None:
         extent = np.asarray(container_obj.dims) * cont_scale
         # a count target's container holds its expected need (per class the first count_target["need"]
-        # bodies: neither the low camera's margin nor the reserve), as a paper scene's holds its whole
-        # spawn, about 1.05-1.3 x what it keeps (fitted to the whole first settle, 1.65 x the target, its
-        # objects showed 0.48 x the paper's pixels). A container shrunk to its pile shrinks whole (a shrunk
+        # bodies, count_container_need x its target: neither the low camera's margin nor the reserve), as a
+        # paper scene's holds its whole spawn, on average 1.28 x what it keeps (fitted to the whole first
+        # settle, 1.65 x the target, its objects showed 0.48 x the paper's pixels). A container shrunk to its pile shrinks whole (a shrunk
         # tray is no deep pit); one widened keeps its real height (walls grown with it hid the pile from
         # low cameras) (issue 48)
         settled_sizes = sizes if count_target is None else need_sizes(sizes, inst_class, count_target,
