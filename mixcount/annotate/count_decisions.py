@@ -12,7 +12,6 @@ stay above v_t; the worker measures them again anyway.
 from __future__ import annotations
 
 import math
-
 from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
