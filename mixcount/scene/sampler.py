@@ -41,6 +41,7 @@ from mixcount.scene.class_draws import (
 )
 from mixcount.scene.count_targets import (
     PAPER,
+    CountDistribution,
     count_distribution,
     draw_elevations,
     draw_total,
@@ -362,6 +363,33 @@ def _physics_spec(config: SceneConfig) -> PhysicsSpec:
         floor_collider_depth=round(float(config.physics_floor_collider_depth) * s, 6))
 
 
+def _target_spawn(seed: int, config: SceneConfig, target: CountDistribution, n: int, drafts: list[ClassDraft],
+                  in_container: bool) -> tuple[list[float], list[int], dict[str, Any]]:
+    """A count target's draws: the cameras' elevations, the bodies spawned per class (reserve included)
+    and the spec's ``count_target`` record (scene/count_targets.py; docs/scene.md "Count targets")."""
+    aims, ratio = split_total(target, seed, n, len(drafts), [shown_area(d) for d in drafts])
+    # the cameras' elevations first (their own stream): a low camera sees the pile from the side and
+    # loses more to occlusion, so the spawn is sized for the lowest one
+    elevations = draw_elevations(seed, config.n_cameras, config.camera_elevation_deg)
+    factor = float(config.count_spawn_factor[1 if in_container else 0]) * elevation_factor(
+        min(elevations), config.count_spawn_elevation)
+    counts = spawn_counts(aims, factor, config.count_spawn_extra, [d.size for d in drafts],
+                          config.count_spawn_size_exponent, config.count_spawn_sqrt)
+    reserve = reserve_counts(aims, config.count_reserve)  # held out of the first settle, for a top-up
+    counts = [c + r for c, r in zip(counts, reserve)]
+    record = target_record(n, aims, ratio, target, factor, config.count_short_tolerance,
+                           config.count_class_short_tolerance, config.count_min_object_px,
+                           reserve=reserve, topup_rounds=config.count_topup_rounds,
+                           rest_frames=config.count_rest_frames, rest_tolerance=config.count_rest_tolerance,
+                           rest_verify=config.count_rest_verify)
+    # the expected need per class (the paper-like pile the container is fitted to and a floor scene's
+    # cameras framed on: engine/cameras.py), never below the paper's smallest spawn in all
+    f_need = float(config.count_container_need)
+    record["need"] = [min(c - r, int(math.ceil(f_need * a - 1e-9))) for c, r, a in zip(counts, reserve, aims)]
+    record["frame_need"] = max(sum(record["need"]), min(int(config.n_objects[0]), sum(counts) - sum(reserve)))
+    return elevations, counts, record
+
+
 def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectRecord], *,
                  environments: Sequence[EnvironmentRecord] = (), materials: Sequence[MaterialRecord] = (),
                  scene_id: Optional[str] = None) -> SceneSpec:
@@ -398,28 +426,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     if target is None:
         counts = split_counts(rng, n, len(drafts))
     else:
-        aims, ratio = split_total(target, seed, n, len(drafts), [shown_area(d) for d in drafts])
-        # the cameras' elevations first (their own stream): a low camera sees the pile from the side and
-        # loses more to occlusion, so the spawn is sized for the lowest one
-        elevations = draw_elevations(seed, config.n_cameras, config.camera_elevation_deg)
-        factor = float(config.count_spawn_factor[1 if container_obj is not None else 0]) * elevation_factor(
-            min(elevations), config.count_spawn_elevation)
-        counts = spawn_counts(aims, factor, config.count_spawn_extra, [d.size for d in drafts],
-                              config.count_spawn_size_exponent, config.count_spawn_sqrt)
-        reserve = reserve_counts(aims, config.count_reserve)  # held out of the first settle, for a top-up
-        counts = [c + r for c, r in zip(counts, reserve)]
-        count_target = target_record(n, aims, ratio, target, factor, config.count_short_tolerance,
-                                     config.count_class_short_tolerance, config.count_min_object_px,
-                                     reserve=reserve, topup_rounds=config.count_topup_rounds,
-                                     rest_frames=config.count_rest_frames, rest_tolerance=config.count_rest_tolerance,
-                                     rest_verify=config.count_rest_verify)
-        # the expected need per class (the paper-like pile the container is fitted to and a floor
-        # scene's cameras framed on: engine/cameras.py)
-        f_need = float(config.count_container_need)
-        count_target["need"] = [min(c - r, int(math.ceil(f_need * a - 1e-9)))
-                                for c, r, a in zip(counts, reserve, aims)]
-        count_target["frame_need"] = max(sum(count_target["need"]),
-                                         min(int(config.n_objects[0]), sum(counts) - sum(reserve)))
+        elevations, counts, count_target = _target_spawn(seed, config, target, n, drafts, container_obj is not None)
         n = sum(counts)
     classes = _build_object_classes(drafts, counts)
 
