@@ -167,8 +167,8 @@ def drop_spots(lo_xy: Array, hi_xy: Array, top_z: float, sizes: Sequence[float],
 
     A pile's box too small for one layer of the K cells is first grown about its centre until it holds
     them, within ``room`` (an XY box the bodies must stay over: inside a container's walls) when given:
-    a tower of five bodies over a small pile toppled and threw them out of a small tray and out of the
-    camera's view (issue 48)."""
+    five bodies dropped in a column over a 3-body pile came to rest mostly out of the camera's view
+    (issue 48)."""
     side = np.asarray(sizes, dtype=np.float64)
     k = len(side)
     if k == 0:

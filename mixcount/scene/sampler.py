@@ -183,8 +183,8 @@ def need_sizes(sizes: NDArray[Any], inst_class: NDArray[Any], count_target: dict
                least: int) -> NDArray[Any]:
     """The sizes a count target's container is fitted to: per class its first ``need`` bodies (the
     expected need, ``count_target["need"]``), topped up with more of the first settle's bodies to
-    ``least`` (the paper's smallest spawn, ``n_objects[0]``) when the need is fewer: a target of 4 fitted a
-    container to 7 bodies, smaller than any paper scene's, and its top-ups fell off it (issue 48)."""
+    ``least`` (the paper's smallest spawn, ``n_objects[0]``) when the need is fewer, so a small target's
+    container is never smaller than any paper scene's (issue 48)."""
     first = [sizes[inst_class == c][:n_c - r_c] for c, (n_c, r_c) in enumerate(zip(counts, count_target["reserve"]))]
     need = [f[:k] for f, k in zip(first, count_target["need"])]
     extra = np.concatenate([f[k:] for f, k in zip(first, count_target["need"])])
