@@ -123,7 +123,8 @@ def check_tiers_text(
         if not lo <= n <= hi:
             out.append({"kind": "word_bounds", "tier": tier, "detail": f"{n} words, expected {lo}-{hi}"})
         lower = [w.lower() for w in words]
-        if tier != "detailed":
+        detailed = tier == "detailed"
+        if not detailed:
             if noun and not any(_same(w, noun) for w in lower):
                 out.append({"kind": "missing_noun", "tier": tier, "detail": f"no {noun!r} (the name's noun)"})
             if noun:
@@ -134,19 +135,15 @@ def check_tiers_text(
                 if tacked:
                     out.append({"kind": "category_appended", "tier": tier,
                                 "detail": f"category word {tacked[0]!r} beside the noun"})
-            sizes = _SIZE_WORD.findall(text)
-            if sizes:
-                out.append({"kind": "size_word", "tier": tier, "detail": f"absolute size {sizes[0].lower()!r}"})
+        # a size word anywhere in the short tiers; in the detailed one only in its lead (before "with" or a stop)
+        sizes = _SIZE_WORD.findall(re.split(r"\bwith\b|[,.;:]", text, maxsplit=1)[0] if detailed else text)
+        if sizes:
+            out.append({"kind": "size_word", "tier": tier, "detail": f"absolute size {sizes[0].lower()!r}"})
+        if not detailed:
             content = [singular(w) for w in lower if w not in _STOP and not w.isdigit()]
             repeats = sorted({w for w in content if content.count(w) > 1})
             if repeats:
                 out.append({"kind": "repeated_word", "tier": tier, "detail": f"repeats {', '.join(repeats)}"})
-        if tier == "detailed":
-            lead = re.split(r"\bwith\b|[,.;:]", text, maxsplit=1)[0]
-            sizes = _SIZE_WORD.findall(lead)
-            if sizes:
-                out.append({"kind": "size_word", "tier": tier, "detail": f"absolute size {sizes[0].lower()!r}"})
-        else:
             missing = [c for c in name_colours if not _has_colour(text, c)]
             if missing:
                 out.append({"kind": "name_colour_lost", "tier": tier,

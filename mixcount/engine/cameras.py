@@ -73,9 +73,10 @@ def frame_cameras(state: SceneState) -> list[dict[str, Any]]:
     container = state.spec.container
     diag = float(np.linalg.norm(container.extent_m)) if container is not None else None
     margin = state.spec.placement.frame_margin if state.spec.placement is not None else 0.0
+    scale = need_scale(state, len(kept))
     framings = []
     for cam_obj, cam in zip(state.cam_objs, state.spec.cameras):
-        framed = frame_camera(cam, centres, sizes, diag, margin=margin, footprint_scale=need_scale(state, len(kept)))
+        framed = frame_camera(cam, centres, sizes, diag, margin=margin, footprint_scale=scale)
         m = np.eye(4)
         m[:3, :3], m[:3, 3] = rotation_of(framed.camera), framed.camera.position
         set_matrix(cam_obj, m)

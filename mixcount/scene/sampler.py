@@ -179,17 +179,16 @@ def shown_area(draft: ClassDraft) -> float:
     return float(a * b + b * c + c * a) / 3.0
 
 
-def need_sizes(sizes: NDArray[Any], inst_class: NDArray[Any], count_target: dict[str, Any], counts: Sequence[int],
-               least: int) -> NDArray[Any]:
+def need_sizes(sizes: NDArray[Any], inst_class: NDArray[Any], count_target: dict[str, Any],
+               counts: Sequence[int]) -> NDArray[Any]:
     """The sizes a count target's container is fitted to: per class its first ``need`` bodies (the
-    expected need, ``count_target["need"]``), topped up with more of the first settle's bodies to
-    ``least`` (the paper's smallest spawn, ``n_objects[0]``) when the need is fewer, so a small target's
-    container is never smaller than any paper scene's (issue 48)."""
+    expected need, ``count_target["need"]``), then more of the first settle's bodies up to
+    ``count_target["frame_need"]`` (never below the paper's smallest spawn, :func:`_target_spawn`), so a
+    small target's container is never smaller than any paper scene's (issue 48)."""
     first = [sizes[inst_class == c][:n_c - r_c] for c, (n_c, r_c) in enumerate(zip(counts, count_target["reserve"]))]
     need = [f[:k] for f, k in zip(first, count_target["need"])]
     extra = np.concatenate([f[k:] for f, k in zip(first, count_target["need"])])
-    short = max(0, int(least) - sum(len(n) for n in need))
-    return np.concatenate([*need, extra[:short]])
+    return np.concatenate([*need, extra[:int(count_target["frame_need"]) - sum(len(n) for n in need)]])
 
 
 def pile_fit_factor(extent_xy: tuple[float, float], sizes: NDArray[Any], area_range: Sequence[float]) -> float:
@@ -441,11 +440,10 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         # a count target's container holds its expected need (per class the first count_target["need"]
         # bodies, count_container_need x its target: neither the low camera's margin nor the reserve), as a
         # paper scene's holds its whole spawn, on average 1.28 x what it keeps (fitted to the whole first
-        # settle, 1.65 x the target, its objects showed 0.48 x the paper's pixels). A container shrunk to its pile shrinks whole (a shrunk
-        # tray is no deep pit); one widened keeps its real height (walls grown with it hid the pile from
-        # low cameras) (issue 48)
-        settled_sizes = sizes if count_target is None else need_sizes(sizes, inst_class, count_target,
-                                                                       counts, config.n_objects[0])
+        # settle, 1.65 x the target, its objects showed 0.48 x the paper's pixels). A container shrunk to
+        # its pile shrinks whole (a shrunk tray is no deep pit); one widened keeps its real height (walls
+        # grown with it hid the pile from low cameras) (issue 48)
+        settled_sizes = sizes if count_target is None else need_sizes(sizes, inst_class, count_target, counts)
         fit = pile_fit_factor((float(extent[0]), float(extent[1])), settled_sizes, config.container_pile_area)
         cont_scale = cont_scale * np.array([fit, fit, min(fit, 1.0)])
         extent = np.asarray(container_obj.dims) * cont_scale
