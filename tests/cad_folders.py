@@ -28,7 +28,9 @@ from tests.public_packages import deb_tree, wheel_tree
 @dataclass(frozen=True)
 class Expected:
     source: str  # package
-    largest_m: float  # the real object's largest side, metres
+    largest_m: float | None  # the real object's largest side, metres (None: test geometry with no real size)
+    units: str  # the unit ingest reads it in with defaults
+    basis: str  # why: format, description, size prior, default
     parts: int = 1  # model files merged into the object
 
 
@@ -55,24 +57,24 @@ FOLDERS: dict[str, tuple[str, tuple[str, ...]]] = {
                                   f"{MW}/meshes/soccer/soccer_black.stl", f"{MW}/meshes/soccer/soccer_white.stl")),
 }
 
-# what a person knows of each: real largest side (metres) and parts merged
+# what a person knows of each: real largest side (metres), the unit and its basis, parts merged
 EXPECTED: dict[str, Expected] = {
-    "Hex nut M3": Expected("prusa-slicer", 0.0064),
-    "Screw M3x10": Expected("prusa-slicer", 0.013),
-    "Stanford bunny": Expected("prusa-slicer", 0.11),  # a print of the bunny, as the slicer offers it
-    "Torus": Expected("prusa-slicer", 0.029),
-    "Recycling symbol": Expected("prusa-slicer", 0.03),
-    "Spider": Expected("assimp-testmodels", 0.2),  # a toy spider
-    "Sphere with hole": Expected("assimp-testmodels", 0.1),
-    "Wuson": Expected("assimp-testmodels", 0.2),  # a toy figure
-    "Textured box": Expected("assimp-testmodels", 1.0),  # glTF: a 1 m box by its specification
-    "hammer": Expected("metaworld", 0.3, parts=2),
-    "basketball": Expected("metaworld", 0.06, parts=2),  # metaworld's toy basketball (6 cm)
-    "Soccer ball": Expected("metaworld", 0.05, parts=2),
-    "Hex nut M6 (STEP)": Expected("bd_warehouse", 0.0115),
-    "Plain washer M6 (STEP)": Expected("bd_warehouse", 0.012),
-    "Socket head screw M4x12 (STL)": Expected("bd_warehouse", 0.016),
-    "Hex nut M8 (STEP and STL)": Expected("bd_warehouse", 0.0150),
+    "Hex nut M3": Expected("prusa-slicer", 0.0064, "mm", "format"),
+    "Screw M3x10": Expected("prusa-slicer", 0.013, "mm", "format"),
+    "Stanford bunny": Expected("prusa-slicer", 0.11, "mm", "format"),  # the print the slicer offers
+    "Torus": Expected("prusa-slicer", 0.029, "mm", "format"),
+    "Recycling symbol": Expected("prusa-slicer", 0.03, "mm", "format"),
+    "Spider": Expected("assimp-testmodels", None, "mm", "format"),  # 8 units: test geometry
+    "Sphere with hole": Expected("assimp-testmodels", None, "mm", "format"),  # 3 units
+    "Wuson": Expected("assimp-testmodels", None, "m", "default"),  # PLY, 3.24 units: said implausible
+    "Textured box": Expected("assimp-testmodels", 1.0, "m", "format"),  # glTF: 1 m by its specification
+    "hammer": Expected("metaworld", 0.3, "m", "size prior", parts=2),  # parts each centred at the origin
+    "basketball": Expected("metaworld", 0.06, "m", "description", parts=2),  # metaworld's toy ball
+    "Soccer ball": Expected("metaworld", 0.05, "m", "description", parts=2),
+    "Hex nut M6 (STEP)": Expected("bd_warehouse", 0.0115, "m", "format"),
+    "Plain washer M6 (STEP)": Expected("bd_warehouse", 0.012, "m", "format"),
+    "Socket head screw M4x12 (STL)": Expected("bd_warehouse", 0.016, "mm", "format"),
+    "Hex nut M8 (STEP and STL)": Expected("bd_warehouse", 0.0150, "m", "format"),  # one model, two formats
 }
 
 CAD_SCRIPT = r'''

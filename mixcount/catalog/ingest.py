@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import os
-from collections import Counter
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -57,7 +56,7 @@ from mixcount.catalog.orientation import (  # noqa: F401  (check_up_axis re-expo
 from mixcount.catalog.proxies import refresh_proxy
 from mixcount.catalog.stale import Before, StoreContext, invalidate
 from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  # noqa: F401  (re-exported)
-from mixcount.catalog.units import basis, check_units, decide_frame, prior_applies
+from mixcount.catalog.units import check_units, decide_frame, note_units, prior_applies, units_summary
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
 from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
@@ -88,6 +87,7 @@ class IngestSummary:
     reoriented: list[tuple[str, str, str, str]] = field(default_factory=list)  # (name, old up, new up, reason)
     invalidated: list[tuple[str, list[str]]] = field(default_factory=list)  # (name, changed columns)
     rescaled: list[tuple[str, str, str]] = field(default_factory=list)  # (name, unit, reason)
+    implausible: list[tuple[str, str]] = field(default_factory=list)  # (name, unit reason): a size said, not re-read
 
     @property
     def total(self) -> int:
@@ -103,16 +103,11 @@ class IngestSummary:
             "reoriented": [{"name": n, "old_up_axis": a, "new_up_axis": b, "reason": r}
                            for n, a, b, r in self.reoriented],
             "invalidated": [{"name": n, "changed": c} for n, c in self.invalidated],
-            "rescaled": [{"name": n, "units": u, "reason": r} for n, u, r in self.rescaled],
-            "rescaled_by": self.rescaled_by(),
+            **units_summary(self.rescaled, self.implausible),
         }
 
-    def rescaled_by(self) -> dict[str, int]:
-        return dict(sorted(Counter(basis(reason) for _n, _u, reason in self.rescaled).items()))
-
-    def note_units(self, name: str, unit: str | None, reason: str | None) -> None:  # read in another unit than m
-        if unit and unit != "m":
-            self.rescaled.append((name, unit, reason or ""))
+    def note_units(self, name: str, unit: str | None, reason: str | None) -> None:
+        note_units(self.rescaled, self.implausible, name, unit, reason)
 
 
 # --------------------------------------------------------------------------- hashing

@@ -21,6 +21,7 @@ scale is never second-guessed. The unit and its reason are recorded beside the u
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -101,3 +102,20 @@ def prior_applies(reason: str | None) -> bool:
     ``ingest.assume_units`` whose size is implausible is said (its reason names the unit that would fit),
     not re-read: the configured assumption is the user's word for the library."""
     return (reason or "").startswith("format: STL")
+
+
+def note_units(rescaled: list[tuple[str, str, str]], implausible: list[tuple[str, str]], name: str,
+               unit: str | None, reason: str | None) -> None:
+    """Note an ingested object in an ingest summary's lists: ``rescaled`` when it is read in a unit other
+    than metres, ``implausible`` when its size was said to be implausible (not re-read)."""
+    if unit and unit != "m":
+        rescaled.append((name, unit, reason or ""))
+    if "would be" in (reason or ""):
+        implausible.append((name, reason or ""))
+
+
+def units_summary(rescaled: list[tuple[str, str, str]], implausible: list[tuple[str, str]]) -> dict[str, Any]:
+    """The units part of an ingest summary's JSON: who was read in which unit and why, counts per basis."""
+    return {"rescaled": [{"name": n, "units": u, "reason": r} for n, u, r in rescaled],
+            "rescaled_by": dict(sorted(Counter(basis(r) for _n, _u, r in rescaled).items())),
+            "implausible_sizes": [{"name": n, "reason": r} for n, r in implausible]}

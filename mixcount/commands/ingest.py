@@ -82,6 +82,13 @@ def ingest_cmd(
     for name, old, new, why in summary.reoriented:
         console.print(f"[yellow]re-oriented[/] {escape(name)}: up axis {old} -> {new} ({escape(why)}); "
                       "give --up-axis to choose", highlight=False, soft_wrap=True)
+    for name, unit, why in summary.rescaled:
+        if why.startswith("size prior"):
+            console.print(f"[yellow]re-read[/] {escape(name)} in {unit}: {escape(why)}; give --units to choose",
+                          highlight=False, soft_wrap=True)
+    for name, why in summary.implausible:
+        console.print(f"[yellow]warning:[/] {escape(name)}: {escape(why.split('; ', 1)[-1])}", highlight=False,
+                      soft_wrap=True)
     if summary.invalidated:
         console.print(f"{len(summary.invalidated)} changed object(s): their renders, descriptors, flags and captions "
                       "were removed; catalog render / filter / caption redo them", highlight=False, soft_wrap=True)
@@ -91,7 +98,8 @@ def ingest_cmd(
         f"{summary.updated} updated, {summary.broken} broken" + (f" (layouts: {found})" if found else "")
         + (f"; {len(summary.reoriented)} re-oriented" if summary.reoriented else "")
         + (f"; {len(summary.rescaled)} read in a unit other than metres ("
-           + ", ".join(f"{n} by {why}" for why, n in summary.rescaled_by().items()) + ")" if summary.rescaled else "")
+           + ", ".join(f"{n} by {why}" for why, n in summary.as_dict()["rescaled_by"].items()) + ")"
+           if summary.rescaled else "")
         + (f"; {len(summary.warnings)} warning(s)" if summary.warnings else "")
         + (f"; skipped {len(skipped)} file(s) in formats not read" if skipped else ""),
         {**summary.as_dict(), "skipped": [{"path": str(p), "reason": r} for p, r in skipped]},

@@ -62,6 +62,10 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
         return
     files = [Path(e.path) for e in entries]
     descriptions = descriptions_in(files)
+    if not descriptions and record is None and folder != ctx.root and folder.name.strip().lower() in GENERIC_FOLDERS:
+        above = _description_above(folder)  # Toy car/toy_car.xml beside Toy car/meshes/ (an MJCF meshdir)
+        if above:
+            descriptions, folder = above, folder.parent
     main, companions = split_companions(models, descriptions)
     main, copies = same_model_formats(main, MODEL_PREFERENCE)
     try:
@@ -79,7 +83,7 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
         return
     if len(main) > 1 and len(described) == 1 and record is None:
         main = [m for m in main if m.name == described[0].visual]  # the URDF names the model
-    if len(main) == 1 or record is not None or meta_error:
+    if len(main) == 1 or (record is not None and rule != "separate") or meta_error:
         model = main[0] if len(main) == 1 else _preferred(main)
         desc = next((d for d in described if d.visual == model.name), None)
         yield _folder_object(ctx, folder, model, models, record, meta_error, meta_path, companions, desc,
@@ -92,6 +96,15 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
         if why:
             cand.parts_rule = why
         yield cand
+
+
+def _description_above(folder: Path) -> list[RobotDescription]:
+    """The descriptions (URDF/SDF/MJCF) in the folder above a generic mesh folder (``meshes/``)."""
+    try:
+        files = sorted(p for p in folder.parent.iterdir() if p.is_file())
+    except OSError:
+        return []
+    return descriptions_in(files)
 
 
 def _parts_of(ctx: Walker, folder: Path, main: list[Path], described: list[RobotDescription], rule: str,
@@ -151,7 +164,8 @@ def _attach(cand: Candidate, companions: dict[str, Path], desc: RobotDescription
     units = desc.units()
     if units is not None and not cand.units:
         cand.units = units
-        cand.units_reason = f"description: {desc.kind or 'the'} {desc.path.name} scales the mesh by {units}"
+        cand.units_reason = (f"description: {desc.kind or 'the'} {desc.path.name} gives the mesh scale "
+                             f"{desc.mesh_scale[0]:g} (" + ("metres" if units == "m" else f"{units} m per unit") + ")")
     if desc.up_axis and not cand.up_axis:
         cand.up_axis = desc.up_axis
         kind = desc.kind or desc.path.suffix.lstrip('.').upper()

@@ -125,7 +125,7 @@ def read_mjcf(paths: list[Path]) -> MjcfModel | None:
     used_collision: set[str] = set()
     for _p, root in roots:
         for body in root.iter("body"):
-            found = _body_parts(body, np.eye(4), body.get("childclass"), classes, meshes, radians,
+            found = _body_parts(body, None, body.get("childclass"), classes, meshes, radians,
                                 used_visual, used_collision)
             if found and not model.parts:
                 model.parts, model.name = found, body.get("name")
@@ -142,12 +142,13 @@ def read_mjcf(paths: list[Path]) -> MjcfModel | None:
     return model
 
 
-def _body_parts(body: ET.Element, parent: np.ndarray, childclass: str | None, classes: dict[str, dict[str, str]],
-                meshes: dict[str, tuple[str, list[float] | None]], radians: bool, used_visual: set[str],
-                used_collision: set[str]) -> list[tuple[str, np.ndarray]]:
-    """Visual mesh geoms of ``body`` and the bodies in it (placed in the outer body's frame); collision
-    meshes are added to ``used_collision``."""
-    here = parent @ _placement(body.attrib, radians)
+def _body_parts(body: ET.Element, parent: np.ndarray | None, childclass: str | None,
+                classes: dict[str, dict[str, str]], meshes: dict[str, tuple[str, list[float] | None]], radians: bool,
+                used_visual: set[str], used_collision: set[str]) -> list[tuple[str, np.ndarray]]:
+    """Visual mesh geoms of ``body`` and the bodies in it, placed in ``body``'s own frame (``parent``
+    None: the object's body, whose own placement in its world does not matter); collision meshes are added
+    to ``used_collision``."""
+    here = np.eye(4) if parent is None else parent @ _placement(body.attrib, radians)
     out: list[tuple[str, np.ndarray]] = []
     for geom in body.findall("geom"):
         cls = geom.get("class") or childclass or "main"
