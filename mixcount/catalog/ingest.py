@@ -129,7 +129,7 @@ def settings_of(config: IngestConfig) -> dict[str, Any]:
         "collision_face_budget": config.collision_face_budget,
         "assume_units": config.assume_units,
         "assume_up_axis": config.assume_up_axis,
-        "analysis_version": 1,  # bump when mesh.py measures differently
+        "analysis_version": 2,  # bump when mesh.py measures differently (2: units decided, issue 56)
     }
 
 

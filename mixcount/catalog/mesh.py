@@ -326,7 +326,7 @@ def analyse_model(
     when its box agrees with the model's (:func:`_companion_collision`)."""
     path = Path(model_path)
     norm = load_normalised(path, units=units, up_axis=up_axis)
-    if units_reason.startswith(("default:", "format: STL")) and path.suffix.lower() not in USD_EXTENSIONS:
+    if units_reason and not units_reason.startswith("stated"):  # what the user said is never second-guessed
         norm, units_reason = _size_prior(norm, units_reason, apply=size_prior)
         units = norm.source_units
     mesh = norm.mesh

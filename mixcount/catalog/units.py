@@ -14,9 +14,9 @@ The first that speaks decides:
 
 After 3 (STL) the **size prior** has its say in the analysis: a largest side that no everyday object has
 in the assumed millimetres is re-read in the unit that makes it plausible
-(:func:`mixcount.sizes.plausible_unit`; :func:`mixcount.catalog.mesh.analyse_model`); after 4 it is only
-said (the reason names the unit that would fit; ``--units`` re-reads). A stated unit or a description's
-scale is never second-guessed. The unit and its reason are recorded beside the up axis.
+(:func:`mixcount.sizes.plausible_unit`; :func:`mixcount.catalog.mesh.analyse_model`); otherwise an
+implausible size is only said (the reason names the unit that would fit, ingest prints a warning and
+``--units`` re-reads). A stated unit is never second-guessed. The unit and its reason are recorded beside the up axis.
 """
 
 from __future__ import annotations
