@@ -5,8 +5,10 @@ name, category, licence, units and up axis; without it the object takes the fold
 person wrote: ``red_mug/mug.obj`` is "red_mug", category mug), except in the folder given to ingest itself
 when it holds neither companions nor a URDF/SDF, and in folders whose name sorts files (``models/``, ``meshes/``: ``GENERIC_FOLDERS``), where only a
 generic file name (``model.glb``) takes the folder's name. A URDF/SDF beside the model gives
-its scale (units) and up axis. Otherwise each model file is an object of its own (:func:`read_file`),
-after the Objaverse reading had its turn."""
+its scale (units) and up axis; an MJCF also places the parts of a multi-part object. Several model files
+that are the parts of one object are one object (:mod:`.parts`: the rule, ``--parts``, a ``parts`` entry),
+the same stem in several formats one model. Otherwise each model file is an object of its own
+(:func:`read_file`), after the Objaverse reading had its turn."""
 
 from __future__ import annotations
 
