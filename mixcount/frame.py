@@ -4,9 +4,10 @@ Ingest (:mod:`mixcount.catalog.mesh`, mesh facts and collision meshes) and USD c
 (:mod:`mixcount.usd.assets`, the render asset) must place a model identically, or the collision mesh
 and the visual drift apart. Both use these functions. Pure numpy; trimesh only for the node walk.
 
-Rules: glTF/GLB are metres and Y-up by specification, unless an up axis is stated for the object
-(``up_axis`` in its ``metadata.json`` or ``catalog ingest --up-axis``: exporters that write Z-up
-geometry into a GLB are common); USD carries ``metersPerUnit`` and ``upAxis``; OBJ/PLY/STL carry
+Rules: glTF/GLB are metres and Y-up by specification, unless a unit or an up axis is stated for the
+object (``units`` / ``up_axis`` in its ``metadata.json``, ``catalog ingest --units`` / ``--up-axis``:
+exporters that write centimetres or Z-up geometry into a GLB are common; ingest's derived GLB of a STEP
+model or of a folder's parts keeps its source's numbers and records their unit); USD carries ``metersPerUnit`` and ``upAxis``; OBJ/PLY/STL carry
 neither, so the ingest settings (``ingest.assume_units``, ``ingest.assume_up_axis``) or the values
 recorded for the object apply. A Y-up frame becomes Z-up as Blender's glTF importer does
 it: (x, y, z) -> (x, -z, y).
@@ -22,6 +23,7 @@ import numpy as np
 UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 UP_AXES = ("X", "Y", "Z")
 GLTF_EXTENSIONS = (".glb", ".gltf")
+STEP_EXTENSIONS = (".step", ".stp")  # CAD exchange (ISO 10303), read through trimesh + cascadio
 
 
 def up_axis_rotation(up: str) -> np.ndarray:
@@ -58,10 +60,11 @@ GLTF_UP_AXIS = "Y"  # the glTF specification's up axis
 
 def source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str]) -> tuple[float, str, str]:
     """(metres per unit, units name, up axis) of a non-USD model file: glTF is metres by its spec and
-    Y-up unless ``up_axis`` (the object's recorded axis) says otherwise; the rest use ``units``/``up_axis``
-    (defaults m / Y when nothing was recorded)."""
+    Y-up unless ``units`` / ``up_axis`` (the object's recorded unit and axis) say otherwise; the rest use
+    ``units``/``up_axis`` (defaults m / Y when nothing was recorded)."""
     if model_path.suffix.lower() in GLTF_EXTENSIONS:
-        return 1.0, "m", (up_axis or GLTF_UP_AXIS).upper()
+        name = (units or "m").lower()
+        return unit_scale(name), name, (up_axis or GLTF_UP_AXIS).upper()
     name = (units or "m").lower()
     return unit_scale(name), name, (up_axis or "Y").upper()
 

@@ -149,7 +149,7 @@ def test_plain_folder_every_format(tmp_path, catalog):
     obj_box = textured_box((3.0, 4.0, 5.0))
     obj_box.export(lib / "block_cm.obj")
     trimesh.creation.box(extents=(1.0, 2.0, 3.0)).export(lib / "eraser.ply")
-    trimesh.creation.cylinder(radius=0.5, height=2.0).export(lib / "can.stl")
+    trimesh.creation.cylinder(radius=30.0, height=120.0).export(lib / "can.stl")  # STL: millimetres (issue 56)
     write_usd(lib / "sub" / "bottle.usda")
     from pxr import UsdUtils
 
@@ -173,8 +173,8 @@ def test_plain_folder_every_format(tmp_path, catalog):
     assert objs["block_cm"].source_units == "cm" and objs["block_cm"].textured
     assert objs["eraser"].dims == pytest.approx((0.01, 0.03, 0.02), abs=1e-6)
     # an STL is Z-up whatever ingest.assume_up_axis says (CAD tools write Z-up), and says why
-    assert objs["can"].dims == pytest.approx((0.01, 0.01, 0.02), abs=1e-3)
-    assert objs["can"].source_up_axis == "Z"
+    assert objs["can"].dims == pytest.approx((0.06, 0.06, 0.12), abs=1e-3)  # not ingest.assume_units
+    assert objs["can"].source_up_axis == "Z" and objs["can"].source_units == "mm"
     assert "STL" in json.loads(objs["can"].metadata_json)["ingest"]["up_axis_reason"]
     assert objs["bottle"].source_units == "cm" and objs["bottle"].source_up_axis == "Y"
     assert objs["bottle"].dims == pytest.approx((0.04, 0.10, 0.06), abs=1e-6)

@@ -34,7 +34,9 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog import hashing, layouts
 from mixcount.catalog.containers import opening_warnings, refresh_containers
+from mixcount.catalog.derived import derive
 from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
+from mixcount.catalog.layouts.parts import check_parts
 from mixcount.catalog.mesh import model_resources
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
@@ -54,6 +56,7 @@ from mixcount.catalog.orientation import (  # noqa: F401  (check_up_axis re-expo
 from mixcount.catalog.proxies import refresh_proxy
 from mixcount.catalog.stale import Before, StoreContext, invalidate
 from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  # noqa: F401  (re-exported)
+from mixcount.catalog.units import check_units, decide_frame, note_units, prior_applies, units_summary
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
 from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
@@ -83,6 +86,8 @@ class IngestSummary:
     warnings: list[tuple[str, str]] = field(default_factory=list)  # (name, what was tolerated: a missing .mtl)
     reoriented: list[tuple[str, str, str, str]] = field(default_factory=list)  # (name, old up, new up, reason)
     invalidated: list[tuple[str, list[str]]] = field(default_factory=list)  # (name, changed columns)
+    rescaled: list[tuple[str, str, str]] = field(default_factory=list)  # (name, unit, reason)
+    implausible: list[tuple[str, str]] = field(default_factory=list)  # (name, unit reason): a size said, not re-read
 
     @property
     def total(self) -> int:
@@ -98,7 +103,11 @@ class IngestSummary:
             "reoriented": [{"name": n, "old_up_axis": a, "new_up_axis": b, "reason": r}
                            for n, a, b, r in self.reoriented],
             "invalidated": [{"name": n, "changed": c} for n, c in self.invalidated],
+            **units_summary(self.rescaled, self.implausible),
         }
+
+    def note_units(self, name: str, unit: str | None, reason: str | None) -> None:
+        note_units(self.rescaled, self.implausible, name, unit, reason)
 
 
 # --------------------------------------------------------------------------- hashing
@@ -120,7 +129,7 @@ def settings_of(config: IngestConfig) -> dict[str, Any]:
         "collision_face_budget": config.collision_face_budget,
         "assume_units": config.assume_units,
         "assume_up_axis": config.assume_up_axis,
-        "analysis_version": 1,  # bump when mesh.py measures differently
+        "analysis_version": 2,  # bump when mesh.py measures differently (2: units decided, issue 56)
     }
 
 
@@ -155,7 +164,7 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> P
         prep.content_hash = hashing.files_hash(files)
         sidecar_hash = hashing.files_hash({f"side:{k}": v for k, v in cand.sidecars.items()})
         identity_hash = hashing.json_hash([cand.layout, cand.name, cand.category, cand.license, cand.metadata])
-        frame: list[Any] = [settings, cand.units, cand.up_axis]
+        frame: list[Any] = [settings, cand.units, cand.up_axis, cand.units_reason]
         if cand.up_axis and cand.model_path.suffix.lower() in GLTF_EXTENSIONS:
             frame.append("gltf up axis as stated")  # once ignored: such objects are measured again
         prep.settings_hash = hashing.json_hash(frame)
@@ -258,6 +267,8 @@ def _store(
                 "n_parts": facts.get("n_parts"),
                 "sidecars": sorted(cand.sidecars),
                 "up_axis_reason": cand.up_reason,
+                "units_reason": facts.get("units_reason") or cand.units_reason,
+                "parts_rule": cand.parts_rule,
                 "warnings": list(cand.warnings),
                 "collision_source": facts.get("collision_source"),
             }
@@ -268,6 +279,8 @@ def _store(
             obj.status = STATUS_EXCLUDED if obj.status == STATUS_EXCLUDED else STATUS_ACTIVE
             obj.error = None
             outcome = "new" if is_new else "updated"
+            if ctx is not None:
+                ctx.summary.note_units(obj.name, obj.source_units, ingest["units_reason"])
         if was_active and ctx is not None:
             changed = before.changed(obj)
             if changed:
@@ -296,6 +309,7 @@ def _facts_of(obj: CatalogObject) -> dict[str, Any]:
     facts["appearance"] = info.get("appearance")
     facts["n_parts"] = info.get("n_parts")
     facts["collision_source"] = info.get("collision_source")
+    facts["units_reason"] = info.get("units_reason")
     return facts
 
 
@@ -308,6 +322,8 @@ def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict
         "collision_dir": str(catalog_collision_dir),
         "face_budget": settings["collision_face_budget"],
         "units": (cand.units or settings["assume_units"]),
+        "units_reason": cand.units_reason or "",
+        "size_prior": prior_applies(cand.units_reason),
         "up_axis": (cand.up_axis or (GLTF_UP_AXIS if Path(str(cand.model_path)).suffix.lower() in GLTF_EXTENSIONS
                                      else settings["assume_up_axis"])),
         "proxy_max_vertices": settings["proxy_max_vertices"],
@@ -339,6 +355,8 @@ def ingest_paths(
     layout: str = "auto",
     metadata_files: Iterable[Path | str] = (),
     up_axis: str | None = None,
+    units: str | None = None,
+    parts: str = "auto",
 ) -> IngestSummary:
     """Ingest every object under ``paths`` into ``catalog``; see the module docstring.
 
@@ -346,10 +364,12 @@ def ingest_paths(
     metadata files (JSON/JSONL/CSV) searched for every model's id. ``strict`` does not change what is
     stored; the CLI uses it to exit non-zero when anything is broken. ``up_axis`` (X, Y or Z; None or
     ``auto``: each file's own rule) is the up axis of every object whose metadata or layout states none,
-    glTF included (docs/ingest.md, "Units and up axis").
+    glTF included (docs/ingest.md, "Units and up axis"). ``units`` (``--units``) and ``parts`` (``--parts``):
+    :mod:`mixcount.catalog.units`, :mod:`mixcount.catalog.layouts.parts`.
     """
     paths = list(paths)
-    candidates = discover(paths, layout=layout, metadata_files=metadata_files)
+    stated_units = check_units(units)
+    candidates = discover(paths, layout=layout, metadata_files=metadata_files, parts=check_parts(parts))
     ing = config.ingest
     for cand in candidates:
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
@@ -360,6 +380,8 @@ def ingest_paths(
         orient(session, candidates, paths, up_axis, assume=ing.assume_up_axis)
     for cand in candidates:
         layouts.stage(cand, catalog.staged_dir)
+        decide_frame(cand, stated=stated_units, assume=ing.assume_units)  # the unit and why (mixcount.catalog.units)
+        derive(cand, catalog.staged_dir)  # STEP or parts: one GLB in the sources' numbers
     settings = settings_of(ing)
     max_vertices = proxy_budget(ing)
     max_bytes = ing.max_file_mb * 2**20
@@ -408,6 +430,7 @@ def ingest_paths(
                     same_path = existing.model_path == _stored_path(cand.model_path)  # type: ignore[arg-type]
                     if info.get("ingest_hash") == prep.ingest_hash and same_path:
                         refresh_proxy(session, existing, collision_dir, max_vertices)
+                        summary.note_units(existing.name, existing.source_units, info.get("units_reason"))
                         count("unchanged", prep)
                         bar.advance()
                         continue

@@ -11,8 +11,11 @@ Conventions (see docs/ingest.md):
   its node's world transform before anything is measured.
 * USD/USDZ carry ``metersPerUnit`` and ``upAxis`` on the stage; mesh prims are placed by their
   local-to-world transform.
-* OBJ/PLY/STL carry neither: the caller passes the assumed units and up axis (config ``ingest`` or the
-  object's metadata).
+* OBJ/PLY/STL carry neither: the caller passes the units and up axis ingest decided
+  (:func:`mixcount.catalog.units.decide_units`); with ``size_prior`` a largest side that is implausible in
+  that unit is re-read in the unit that makes it plausible (:func:`mixcount.sizes.plausible_unit`).
+* STEP (``.step``/``.stp``) is read through trimesh's loader, which converts it with cascadio
+  (OpenCASCADE) into metres, whatever length unit the file states; CAD is Z-up.
 * Y-up becomes Z-up the way Blender's glTF importer does it: (x, y, z) -> (x, -z, y).
 """
 
@@ -28,9 +31,10 @@ import numpy as np
 from mixcount.atomic import atomic_path
 from mixcount.catalog.model_files import GLB_MAGIC, Relinked, model_resources, relink_textures  # noqa: F401  (re-exported)
 from mixcount.errors import IngestError
-from mixcount.frame import UNIT_SCALE, to_metres_z_up, unit_scale, walk_geometry
+from mixcount.frame import STEP_EXTENSIONS, UNIT_SCALE, to_metres_z_up, unit_scale, walk_geometry
+from mixcount.sizes import plausible_unit
 
-MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".usd", ".usda", ".usdc", ".usdz")
+MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".usd", ".usda", ".usdc", ".usdz", ".step", ".stp")
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 
 
@@ -198,7 +202,14 @@ def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> Norm
         parts, scale, up = _load_usd(path)
         units = _usd_units_name(scale)
     elif suffix in (".glb", ".gltf"):
+        try:  # metres by the glTF specification, unless a unit was stated (a derived GLB keeps its source's)
+            scale = unit_scale(units or "m")
+        except ValueError as exc:
+            raise IngestError(str(exc)) from None
         parts = _load_trimesh(path)
+        up = up_axis.upper()
+    elif suffix in STEP_EXTENSIONS:
+        parts = _load_trimesh(path)  # cascadio converts the STEP's own length unit into metres
         scale, units, up = 1.0, "m", up_axis.upper()
     elif suffix in (".obj", ".ply", ".stl"):
         try:
@@ -301,14 +312,23 @@ def analyse_model(
     up_axis: str,
     proxy_max_vertices: int,
     collision_source: str | None = None,
+    units_reason: str = "",
+    size_prior: bool = False,
 ) -> dict[str, Any]:
     """Worker entry point: all facts of one model as a plain dict (raises IngestError).
+
+    ``units``/``units_reason``: the unit ingest decided and why; with ``size_prior`` (a unit assumed, not
+    stated) a largest side implausible in it is re-read in the unit that makes it plausible, and the facts
+    say so (``units_reason`` starts with ``size prior``).
 
     ``collision_source``: a collision mesh shipped beside the model (``mug_col.obj``, ``duck_vhacd.obj``),
     read in the model's frame; the collision mesh and proxy are built from it instead of the visual mesh
     when its box agrees with the model's (:func:`_companion_collision`)."""
     path = Path(model_path)
     norm = load_normalised(path, units=units, up_axis=up_axis)
+    if units_reason and not units_reason.startswith("stated"):  # what the user said is never second-guessed
+        norm, units_reason = _size_prior(norm, units_reason, apply=size_prior)
+        units = norm.source_units
     mesh = norm.mesh
     ghash = geometry_hash(mesh)
     dims = mesh.extents
@@ -345,7 +365,28 @@ def analyse_model(
         proxy_path=proxy.path,
         proxy_vertex_count=proxy.vertex_count,
     )
-    return {**facts.as_dict(), "collision_source": used}
+    return {**facts.as_dict(), "collision_source": used, "units_reason": units_reason}
+
+
+def _size_prior(norm: NormalisedMesh, reason: str, *, apply: bool) -> tuple[NormalisedMesh, str]:
+    """``norm`` re-read in the unit that makes its largest side plausible when the assumed unit does not
+    (:func:`mixcount.sizes.plausible_unit`), with the reason that says so; unchanged otherwise. Without
+    ``apply`` the reason only says which unit would make it plausible (the unit is said, not changed)."""
+    try:
+        assumed_scale = unit_scale(norm.source_units)
+    except ValueError:
+        return norm, reason
+    largest = float(norm.mesh.extents.max()) / assumed_scale  # in the file's own numbers
+    unit = plausible_unit(largest, norm.source_units) if norm.source_units in UNIT_SCALE else None
+    if unit is None or unit == norm.source_units:
+        return norm, reason
+    if not apply:
+        return norm, (f"{reason}; its largest side, {largest * assumed_scale:.3g} m, is no everyday object's: "
+                      f"read as {unit} it would be {largest * UNIT_SCALE[unit]:.3g} m (catalog ingest --units)")
+    norm.mesh.apply_scale(UNIT_SCALE[unit] / assumed_scale)
+    why = (f"size prior: {largest * assumed_scale:.3g} m read as {norm.source_units} is no everyday object's "
+           f"size; read as {unit} it is {largest * UNIT_SCALE[unit]:.3g} m (was: {reason or 'assumed'})")
+    return NormalisedMesh(norm.mesh, unit, norm.source_up_axis, norm.appearance, norm.n_parts), why
 
 
 def _companion_collision(mesh: Any, path: Path, *, units: str, up_axis: str) -> Any | None:

@@ -95,9 +95,17 @@ def category_from_dtc_name(name: str, parent: str) -> str:
     return category_from_stem(name.split("_", 1)[0], parent)
 
 
+# what a person writes after the object's noun: a note in brackets ("Hex nut M6 (STEP)"), and what follows
+# a preposition ("Sphere with hole", "Bag of chips"): the noun is the head before it
+_NAME_NOTES = re.compile(r"\([^)]*\)|\[[^\]]*\]|\s(?:with|of|for|from|in|on)\s.*$", re.IGNORECASE)
+FORMAT_WORDS = {"step", "stp", "stl", "obj", "ply", "glb", "gltf", "usd", "usdz", "fbx", "cad", "mjcf", "urdf", "sdf"}
+
+
 def category_from_name(name: str, fallback: str = "unknown") -> str:
-    """The noun of a human name: its last word that is no colour, generic word or id (singular)."""
-    for word in reversed(words_of(name)):
-        if len(word) > 2 and word not in COLOUR_WORDS and word not in GENERIC_STEMS:
+    """The noun of a human name: its last word that is no colour, generic word, file format or id
+    (singular), notes in brackets and what follows a preposition left out."""
+    head = _NAME_NOTES.sub(" ", name).strip() or name
+    for word in reversed(words_of(head)):
+        if len(word) > 2 and word not in COLOUR_WORDS and word not in GENERIC_STEMS and word not in FORMAT_WORDS:
             return singular(word)
     return fallback

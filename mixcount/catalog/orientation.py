@@ -9,7 +9,7 @@ Formats that carry an up axis keep it (glTF's Y by the specification, USD's ``up
    auto`` forgets it;
 3. a URDF/SDF beside the mesh (robot and simulator bodies are Z-up; the visual's ``rpy`` says which mesh
    axis it turns up: :mod:`mixcount.catalog.layouts.companions`);
-4. an STL is Z-up (CAD and 3D-printing tools write Z-up);
+4. an STL or STEP file is Z-up (CAD and 3D-printing tools write Z-up);
 5. ``ingest.assume_up_axis``; then, for an OBJ/PLY container (tray, bowl) read by that rule whose opening
    faces another positive axis of the file (:func:`opening_up_axis`), that axis: a container opens
    upward. Ingest measures it again in that frame, and a later ingest keeps it (:func:`kept_evidence`).
@@ -171,8 +171,9 @@ def choose_up_axis(cand: Candidate, *, stated_now: str | None, axes: list[tuple[
         return
     if suffix in GLTF_EXTENSIONS:
         cand.up_axis, cand.up_reason = None, f"glTF specification ({GLTF_UP_AXIS}-up)"
-    elif suffix == ".stl":
-        cand.up_axis, cand.up_reason = "Z", "STL: CAD and 3D-printing tools write Z-up"
+    elif suffix in (".stl", ".step", ".stp"):
+        kind = "STL" if suffix == ".stl" else "STEP"
+        cand.up_axis, cand.up_reason = "Z", f"{kind}: CAD and 3D-printing tools write Z-up"
     elif suffix in (".obj", ".ply"):
         cand.up_axis, cand.up_reason = None, f"ingest.assume_up_axis ({assume})"
     else:

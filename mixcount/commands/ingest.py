@@ -30,6 +30,17 @@ def ingest_cmd(
              "included (Z-up geometry saved as GLB). Kept in the catalog for these folders: a later ingest "
              "without the option keeps it; auto forgets it. Absent: what was stated before, else a URDF/SDF "
              "beside the mesh, STL Z, glTF Y, USD its own, OBJ/PLY ingest.assume_up_axis (docs/ingest.md)."),
+    units: Optional[str] = typer.Option(
+        None, "--units",
+        help="Unit (mm, cm, m, in, ft, or metres per unit; auto: each file's own rule) of every object whose "
+             "metadata.json states none, glTF included; USD and STEP state their own. Absent: a URDF/MJCF/SDF "
+             "scale beside the mesh, else glTF m, STL mm, OBJ/PLY ingest.assume_units, and an STL/OBJ/PLY "
+             "whose size is implausible in that unit is re-read (docs/ingest.md, \"Units\")."),
+    parts: str = typer.Option(
+        "auto", "--parts",
+        help="How a folder's several model files become objects: merge (the parts of one object), separate "
+             "(one object per file) or auto (parts when named alike and their boxes touch or nest, or an MJCF "
+             "places them in one body). A \"parts\" entry in a folder's metadata.json wins."),
     metadata: list[Path] = typer.Option(
         [], "--metadata",
         help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
@@ -45,10 +56,16 @@ def ingest_cmd(
     check_catalog_file(st.db)  # a --db that is not a catalog is named first
     skipped = _check_inputs(paths, layout, metadata)
     check_up_axis(up_axis)
+    from mixcount.catalog.layouts.parts import check_parts
+    from mixcount.catalog.units import check_units
+
+    check_units(units)
+    check_parts(parts)
     catalog = st.catalog(create=True)
     try:
         summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
-                               layout=layout, metadata_files=metadata, up_axis=up_axis)
+                               layout=layout, metadata_files=metadata, up_axis=up_axis, units=units,
+                               parts=parts)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)
@@ -65,6 +82,13 @@ def ingest_cmd(
     for name, old, new, why in summary.reoriented:
         console.print(f"[yellow]re-oriented[/] {escape(name)}: up axis {old} -> {new} ({escape(why)}); "
                       "give --up-axis to choose", highlight=False, soft_wrap=True)
+    for name, unit, why in summary.rescaled:
+        if why.startswith("size prior"):
+            console.print(f"[yellow]re-read[/] {escape(name)} in {unit}: {escape(why)}; give --units to choose",
+                          highlight=False, soft_wrap=True)
+    for name, why in summary.implausible:
+        console.print(f"[yellow]warning:[/] {escape(name)}: {escape(why.split('; ', 1)[-1])}", highlight=False,
+                      soft_wrap=True)
     if summary.invalidated:
         console.print(f"{len(summary.invalidated)} changed object(s): their renders, descriptors, flags and captions "
                       "were removed; catalog render / filter / caption redo them", highlight=False, soft_wrap=True)
@@ -73,6 +97,9 @@ def ingest_cmd(
         f"ingested {summary.total} objects: {summary.new} new, {summary.unchanged} unchanged, "
         f"{summary.updated} updated, {summary.broken} broken" + (f" (layouts: {found})" if found else "")
         + (f"; {len(summary.reoriented)} re-oriented" if summary.reoriented else "")
+        + (f"; {len(summary.rescaled)} read in a unit other than metres ("
+           + ", ".join(f"{n} by {why}" for why, n in summary.as_dict()["rescaled_by"].items()) + ")"
+           if summary.rescaled else "")
         + (f"; {len(summary.warnings)} warning(s)" if summary.warnings else "")
         + (f"; skipped {len(skipped)} file(s) in formats not read" if skipped else ""),
         {**summary.as_dict(), "skipped": [{"path": str(p), "reason": r} for p, r in skipped]},
@@ -186,11 +213,12 @@ def list_cmd(
                                       for o in objects], sort_keys=True))
                 return
             table = Table(title=f"{len(objects)} objects")
-            for col in ("id", "name", "category", "status", "dims (cm)", "faces", "error"):
+            for col in ("id", "name", "category", "status", "dims (cm)", "unit / up", "faces", "error"):
                 table.add_column(col)
             for o in objects:
                 dims = "x".join(f"{d * 100:.1f}" for d in o.dims) if o.dim_x is not None else ""
-                table.add_row(str(o.id), o.name, o.category, o.status, dims, str(o.face_count or ""),
+                frame = f"{o.source_units or ''} / {o.source_up_axis or ''}" if o.source_units else ""
+                table.add_row(str(o.id), o.name, o.category, o.status, dims, frame, str(o.face_count or ""),
                               (o.error or "")[:60])
             out.print(table)
     finally:

@@ -80,6 +80,8 @@ class SheetEntry:
     last_review: dict[str, str] | None = None
     container: bool = False
     container_reason: str | None = None
+    frame: str = ""  # "mm, Z-up": the unit and up axis ingest read the model in
+    frame_reason: str = ""  # why (catalog list --json: units_reason, up_axis_reason)
 
 
 def collect(session: Session, *, only: str = "all", category: str | None = None) -> list[SheetEntry]:
@@ -112,8 +114,19 @@ def collect(session: Session, *, only: str = "all", category: str | None = None)
             last_review=({"decision": rd.decision, "reviewer": rd.reviewer, "at": rd.decided_at.isoformat() + "Z",
                           "note": rd.note} if rd is not None else None),
             container=bool(obj.container), container_reason=obj.container_reason,
+            frame=f"{obj.source_units}, {obj.source_up_axis}-up" if obj.source_units else "",
+            frame_reason=_frame_reason(obj.metadata_json),
         ))
     return entries
+
+
+def _frame_reason(metadata_json: str | None) -> str:
+    """The unit's and the up axis's reasons recorded by ingest, as one line."""
+    try:
+        info = (json.loads(metadata_json or "{}") or {}).get("ingest") or {}
+    except (ValueError, AttributeError):
+        return ""
+    return "; ".join(f"{k}: {info[r]}" for k, r in (("unit", "units_reason"), ("up", "up_axis_reason")) if info.get(r))
 
 
 # --------------------------------------------------------------------------- images
@@ -284,7 +297,9 @@ def _card(e: SheetEntry, thumbs: dict[int, str], pair_thumbs: dict[int, str]) ->
     return (
         f"<article class=\"card status-{_e(e.status)}\" id=\"obj-{e.id}\" data-id=\"{e.id}\" data-status=\"{_e(e.status)}\">"
         f"<h2><span class=\"oid\">#{e.id}</span> <span class=\"name\">{_e(e.name)}</span></h2>"
-        f"<div class=\"meta\"><span class=\"category\">{_e(e.category)}</span> · <span class=\"status\">{_e(e.status)}</span></div>"
+        f"<div class=\"meta\"><span class=\"category\">{_e(e.category)}</span> · <span class=\"status\">{_e(e.status)}</span>"
+        + (f" · <span class=\"frame\" title=\"{_e(e.frame_reason)}\">{_e(e.frame)}</span>" if e.frame else "")
+        + "</div>"
         f"<img class=\"thumb\" alt=\"render of {_e(e.name)}\" src=\"{thumbs[e.id]}\">"
         f"{error}{caps}{flags_html}"
         "<div class=\"review\"><button type=\"button\" class=\"accept\" data-decision=\"accept\">accept</button>"

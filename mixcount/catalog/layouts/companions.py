@@ -1,4 +1,4 @@
-"""What ships beside a model in real folders: companion meshes and a robot description (URDF/SDF).
+"""What ships beside a model in real folders: companion meshes and a robot description (URDF/SDF/MJCF).
 
 Packages such as pybullet's ``pybullet_data`` put next to ``mug.obj`` a collision mesh ``mug_col.obj``
 (also ``duck_vhacd.obj``, ``l_finger_collision.stl``), levels of detail (``chair_lod1.obj``) and a
@@ -6,7 +6,8 @@ Packages such as pybullet's ``pybullet_data`` put next to ``mug.obj`` a collisio
 is one object: the companions are not objects of their own (a collision companion becomes the object's
 physics source, :func:`mixcount.catalog.mesh.analyse_model`), and the description says which mesh is the
 model, its scale (units) and its up axis (URDF and SDF bodies are Z-up: a visual turned by ``rpy``
-tells which axis of the mesh points up).
+tells which axis of the mesh points up). MuJoCo XML (MJCF, :mod:`.mjcf`) is read the same way, and
+also says where each visual part of a multi-part object sits and which meshes are collision only.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from mixcount.catalog.layouts.mjcf import is_mjcf, read_mjcf
 
 # collision companions: mug_col, duck_vhacd, teddy2_VHACD_CHs, l_finger_collision, cube_collisionfilter
 _COLLISION = re.compile(r"[_\-\s.](col|coll|collider|collision\w*|vhacd\w*|convex|hull|phys|physics)$"
@@ -54,6 +57,10 @@ class RobotDescription:
     mesh_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     up_axis: str | None = None  # the mesh axis the description turns to +Z (X, Y or Z), None if none is
     warnings: list[str] = field(default_factory=list)
+    # MJCF: every visual part (file name, 4x4 placement in metres) and every collision-only mesh file
+    parts: list[tuple[str, np.ndarray]] = field(default_factory=list)
+    collision_files: tuple[str, ...] = ()
+    kind: str = ""  # URDF, SDF or MJCF
 
     def units(self) -> str | None:
         """The units the scale amounts to (metres per mesh unit, as :func:`mixcount.frame.unit_scale`
@@ -130,7 +137,8 @@ def read_description(path: Path) -> RobotDescription | None:
     name = (body.get("name") or "").strip() or None
     if name and name.lower().endswith(DESCRIPTION_EXTENSIONS):
         name = name.rsplit(".", 1)[0]
-    desc = RobotDescription(path, name, _file_name(visual_uri), _file_name(collision_uri))
+    desc = RobotDescription(path, name, _file_name(visual_uri), _file_name(collision_uri),
+                            kind="SDF" if sdf else "URDF")
     scale = _floats(scale_text, 3)
     if scale is not None:
         desc.mesh_scale = (scale[0], scale[1], scale[2])
@@ -152,11 +160,20 @@ def _file_name(uri: str | None) -> str | None:
 
 
 def descriptions_in(folder_files: list[Path]) -> list[RobotDescription]:
-    """The readable URDF/SDF files among a folder's files, by name."""
+    """The readable URDF/SDF files among a folder's files, by name, then the folder's MJCF files read
+    together as one description (a body file and its ``*_dependencies.xml`` / includes)."""
     found = []
     for path in sorted(folder_files):
         if path.suffix.lower() in DESCRIPTION_EXTENSIONS:
             desc = read_description(path)
             if desc is not None:
                 found.append(desc)
+    xml = [p for p in sorted(folder_files) if p.suffix.lower() == ".xml" and is_mjcf(p)]
+    model = read_mjcf(xml) if xml else None
+    if model is not None:
+        first = model.parts[0][0] if model.parts else None
+        desc = RobotDescription(model.files[0], model.name, first, model.collision[0] if model.collision else None,
+                                mesh_scale=model.scale, up_axis="Z", warnings=list(model.warnings),
+                                parts=model.parts, collision_files=tuple(model.collision), kind="MJCF")
+        found.append(desc)
     return found

@@ -5,8 +5,10 @@ name, category, licence, units and up axis; without it the object takes the fold
 person wrote: ``red_mug/mug.obj`` is "red_mug", category mug), except in the folder given to ingest itself
 when it holds neither companions nor a URDF/SDF, and in folders whose name sorts files (``models/``, ``meshes/``: ``GENERIC_FOLDERS``), where only a
 generic file name (``model.glb``) takes the folder's name. A URDF/SDF beside the model gives
-its scale (units) and up axis. Otherwise each model file is an object of its own (:func:`read_file`),
-after the Objaverse reading had its turn."""
+its scale (units) and up axis; an MJCF also places the parts of a multi-part object. Several model files
+that are the parts of one object are one object (:mod:`.parts`: the rule, ``--parts``, a ``parts`` entry),
+the same stem in several formats one model. Otherwise each model file is an object of its own
+(:func:`read_file`), after the Objaverse reading had its turn."""
 
 from __future__ import annotations
 
@@ -16,8 +18,12 @@ import re
 from pathlib import Path
 from typing import Any, Iterator
 
+import numpy as np
+
 from mixcount.catalog.layouts.companions import RobotDescription, companion_base, companion_kind, descriptions_in
+from mixcount.catalog.layouts.parts import auto_parts, check_parts, same_model_formats
 from mixcount.catalog.layouts.walker import (
+    MODEL_PREFERENCE,
     SOURCE_FOLDER,
     Candidate,
     Walker,
@@ -26,6 +32,7 @@ from mixcount.catalog.layouts.walker import (
     record_identity,
 )
 from mixcount.catalog.naming import GENERIC_FOLDERS, GENERIC_STEMS, category_from_name, category_from_stem, safe_text
+from mixcount.errors import IngestError
 
 NAME = SOURCE_FOLDER
 
@@ -57,26 +64,82 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
         return
     files = [Path(e.path) for e in entries]
     descriptions = descriptions_in(files)
+    if not descriptions and record is None and folder != ctx.root and folder.name.strip().lower() in GENERIC_FOLDERS:
+        above = _description_above(folder)  # Toy car/toy_car.xml beside Toy car/meshes/ (an MJCF meshdir)
+        if above:
+            descriptions, folder = above, folder.parent
     main, companions = split_companions(models, descriptions)
+    main, copies = same_model_formats(main, MODEL_PREFERENCE)
+    try:
+        rule = check_parts(str(record["parts"]) if record is not None and "parts" in record
+                           else getattr(ctx, "parts", "auto"))
+    except IngestError as exc:
+        rule, meta_error = "auto", meta_error or f"metadata.json: {exc.reason}"
     described = [d for d in descriptions if d.visual and any(m.name == d.visual for m in main)]
+    parts, why = _parts_of(ctx, folder, main, described, rule, record is not None)
+    if parts:
+        desc = next((d for d in described if d.parts), described[0] if described else None)
+        first = parts[0][0]
+        yield _folder_object(ctx, folder, first, models, record, meta_error, meta_path, companions, desc,
+                             parts=parts, parts_rule=why, copies=copies)
+        return
     if len(main) > 1 and len(described) == 1 and record is None:
         main = [m for m in main if m.name == described[0].visual]  # the URDF names the model
-    if len(main) == 1 or record is not None or meta_error:
+    if len(main) == 1 or (record is not None and rule != "separate") or meta_error:
         model = main[0] if len(main) == 1 else _preferred(main)
         desc = next((d for d in described if d.visual == model.name), None)
-        yield _folder_object(ctx, folder, model, models, record, meta_error, meta_path, companions, desc)
+        yield _folder_object(ctx, folder, model, models, record, meta_error, meta_path, companions, desc,
+                             parts_rule=why, copies=copies)
         return
     for path in main:
         cand = ctx.file_object(path)
         own = {k: v for k, v in companions.items() if companion_base(v.stem) == path.stem}
         _attach(cand, own, next((d for d in described if d.visual == path.name), None))
+        if why:
+            cand.parts_rule = why
         yield cand
+
+
+def _description_above(folder: Path) -> list[RobotDescription]:
+    """The descriptions (URDF/SDF/MJCF) in the folder above a generic mesh folder (``meshes/``)."""
+    try:
+        files = sorted(p for p in folder.parent.iterdir() if p.is_file())
+    except OSError:
+        return []
+    return descriptions_in(files)
+
+
+def _parts_of(ctx: Walker, folder: Path, main: list[Path], described: list[RobotDescription], rule: str,
+              has_record: bool) -> tuple[list[tuple[Path, Any]], str | None]:
+    """(the parts of the folder's one object, placed; why) by the rule of :mod:`.parts`, or ([], why)
+    when its model files are separate models (why None when there was nothing to decide)."""
+    if len(main) < 2 or rule == "separate":
+        return [], ("separate models: stated (parts: separate)" if rule == "separate" and len(main) > 1 else None)
+    by_name = {m.name: m for m in main}
+    placed = next((d for d in described if len(d.parts) >= 2), None)
+    if placed is not None:
+        scale = placed.mesh_scale[0] if placed.units() is not None else 1.0
+        parts = []
+        for name, matrix in placed.parts:
+            if name in by_name:
+                local = np.array(matrix, dtype=np.float64)
+                local[:3, 3] /= scale  # the description places parts in metres; the meshes are in its units
+                parts.append((by_name[name], local))
+        if len(parts) >= 2:
+            return parts, f"parts of one object: {placed.kind} {placed.path.name} places {len(parts)} visual meshes in one body"
+    if rule == "merge":
+        return [(m, None) for m in main], "parts of one object: stated (parts: merge)"
+    if has_record or folder == ctx.root or len(described) == 1:
+        return [], None
+    ok, why = auto_parts(folder, main)
+    return ([(m, None) for m in main], why) if ok else ([], why)
 
 
 def split_companions(models: list[Path], descriptions: list[RobotDescription]) -> tuple[list[Path], dict[str, Path]]:
     """(model files, companions by ``kind:file name``) of one folder: a file is a companion when its stem
     says so (or a URDF/SDF uses it as collision mesh only) and another model file is left as the object."""
-    collision_only = {d.collision for d in descriptions if d.collision} - {d.visual for d in descriptions}
+    collision_only = ({c for d in descriptions for c in (d.collision_files or (d.collision,)) if c}
+                      - {d.visual for d in descriptions} - {f for d in descriptions for f, _m in d.parts})
     kinds = {m: ("collision" if m.name in collision_only else companion_kind(m.stem)) for m in models}
     main = [m for m in models if kinds[m] is None]
     if not main:
@@ -103,32 +166,43 @@ def _attach(cand: Candidate, companions: dict[str, Path], desc: RobotDescription
     units = desc.units()
     if units is not None and not cand.units:
         cand.units = units
+        cand.units_reason = (f"description: {desc.kind or 'the'} {desc.path.name} gives the mesh scale "
+                             f"{desc.mesh_scale[0]:g} (" + ("metres" if units == "m" else f"{units} m per unit") + ")")
     if desc.up_axis and not cand.up_axis:
         cand.up_axis = desc.up_axis
-        cand.up_reason = f"{desc.path.suffix.lstrip('.').upper()} {desc.path.name} beside the model (Z-up body" + (
+        kind = desc.kind or desc.path.suffix.lstrip('.').upper()
+        cand.up_reason = f"{kind} {desc.path.name} beside the model (Z-up body" + (
             ")" if desc.up_axis == "Z" else f", mesh turned so that its {desc.up_axis} points up)")
 
 
 def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], record: dict[str, Any] | None,
                    meta_error: str | None, meta_path: Path, companions: dict[str, Path],
-                   desc: RobotDescription | None) -> Candidate:
+                   desc: RobotDescription | None, *, parts: list[tuple[Path, Any]] | None = None,
+                   parts_rule: str | None = None, copies: list[Path] | None = None) -> Candidate:
     cand = ctx.file_object(model)
     if cand.source != SOURCE_FOLDER or cand.error:
         return cand
+    cand.parts, cand.parts_rule = list(parts or []), parts_rule
+    if copies:
+        cand.metadata["other_formats"] = sorted(p.name for p in copies)
     if meta_error:
         cand.error = meta_error
         return cand
     generic = re.sub(r"[\d_\-\s]+$", "", model.stem).lower() in GENERIC_STEMS
     # the folder given to ingest names its model only when it is clearly one object's folder (it holds
     # companions or a URDF/SDF): a folder of loose files keeps its files' names
-    named_folder = folder != ctx.root or bool(companions) or desc is not None
+    named_folder = folder != ctx.root or bool(companions) or desc is not None or bool(parts)
     if generic or (named_folder and folder.name.strip().lower() not in GENERIC_FOLDERS):
         cand.name = safe_text(folder.name)
         cand.category = category_from_name(folder.name, category_from_stem(folder.name, folder.parent.name))
     elif desc is not None and desc.name:
         cand.name = safe_text(desc.name)
         cand.category = category_from_stem(desc.name, cand.category)
-    others = [p for p in models if p != model and p not in companions.values()]
+    in_parts = {p for p, _m in cand.parts}
+    others = [p for p in models if p != model and p not in companions.values() and p not in in_parts
+              and p not in (copies or [])]
+    if cand.parts:
+        cand.metadata["parts"] = [p.name for p, _m in cand.parts]
     if others:
         cand.metadata["other_model_files"] = sorted(p.name for p in others)
     if companions:

@@ -63,8 +63,9 @@ LAYOUTS = ("auto", *sorted(m.NAME for m in FOLDER_LAYOUTS + (objaverse,)), folde
 class TreeWalker:
     """Walks one root path and yields candidates (see the module docstring for the rules)."""
 
-    def __init__(self, root: Path, layout: str, side: objaverse.SideMetadata) -> None:
+    def __init__(self, root: Path, layout: str, side: objaverse.SideMetadata, parts: str = "auto") -> None:
         self.root = root
+        self.parts = parts  # catalog ingest --parts: merge | separate | auto (:mod:`.parts`)
         self.layout = layout
         self.side = side
         self._licences: dict[Path, tuple[str, Path] | None] = {}
@@ -168,7 +169,7 @@ class TreeWalker:
 
 def discover(paths: Iterable[Path | str], *, layout: str = "auto",
              metadata_files: Iterable[Path | str] = (),
-             skipped: list[tuple[Path, str]] | None = None) -> list[Candidate]:
+             skipped: list[tuple[Path, str]] | None = None, parts: str = "auto") -> list[Candidate]:
     """Every object under ``paths`` (sorted walk, duplicates removed); a missing path, an unknown
     layout or an unusable ``--metadata`` file is a CatalogError. Model files a walk passes over (formats
     in :data:`UNREAD_MODEL_FORMATS`) are appended to ``skipped`` as (path, reason) when it is given."""
@@ -181,7 +182,7 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
         if not os.path.lexists(path):
             raise CatalogError(f"path not found: {raw}")
         path = path.resolve()
-        walker = TreeWalker(path if path.is_dir() else path.parent, layout, side)
+        walker = TreeWalker(path if path.is_dir() else path.parent, layout, side, parts)
         if path.is_dir():
             own = walker.object_at(path)
             items: Iterable[Candidate] = [own] if own is not None else walker.walk(path)

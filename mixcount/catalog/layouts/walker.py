@@ -21,7 +21,7 @@ SOURCE_OMNI = "omniobject3d"
 SOURCE_FOLDER = "folder"
 # LICENSE, LICENCE.txt, COPYING, LICENSE-CC-BY-NC-4.0.txt (Amazon Berkeley Objects), license.md ...
 LICENCE_NAMES = re.compile(r"^(licen[cs]e|copying)([-_.][\w.-]*)?$", re.IGNORECASE)
-MODEL_PREFERENCE = (".glb", ".gltf", ".usdz", ".usd", ".usdc", ".usda", ".obj", ".ply", ".stl")
+MODEL_PREFERENCE = (".glb", ".gltf", ".usdz", ".usd", ".usdc", ".usda", ".step", ".stp", ".obj", ".ply", ".stl")
 NAME_FIELDS = ("name", "title", "item_name", "display_name", "object_name")
 CATEGORY_FIELDS = ("category", "class", "label", "lvis_category", "categories", "product_type", "super_category")
 LICENCE_FIELDS = ("license", "licence", "license_name", "licenseName", "license_url")
@@ -58,6 +58,11 @@ class Candidate:
     collision_source: Path | None = None  # a collision companion: the physics proxy is built from it
     up_reason: str | None = None  # why the object has its up axis (recorded with it)
     warnings: list[str] = field(default_factory=list)  # what ingest tolerated (reported, not broken)
+    units_reason: str | None = None  # why ``units`` (a metadata entry, a description's scale): recorded with it
+    # the model files that are parts of this one object (merged in their common frame, with each part's
+    # 4x4 placement from a description), and the rule that made them one (:mod:`.parts`)
+    parts: list[tuple[Path, Any]] = field(default_factory=list)
+    parts_rule: str | None = None
 
 
 class Walker(Protocol):
@@ -139,9 +144,19 @@ def record_identity(record: dict[str, Any]) -> dict[str, str | None]:
     category = _first(record, CATEGORY_FIELDS)
     if category is not None and category.strip().lower() in ("none", "null", "unknown", "other", ""):
         category = None
-    units = record.get("units") if isinstance(record.get("units"), str) else None
+    units = record_units(record.get("units"))
     up = record.get("up_axis") if isinstance(record.get("up_axis"), str) else None
     return {"name": _first(record, NAME_FIELDS), "category": category, "license": lic, "units": units, "up_axis": up}
+
+
+def record_units(value: Any) -> str | None:
+    """A metadata ``units`` entry as text: a unit name (``"mm"``) or metres per unit, written as a string
+    (``"0.05"``) or as a JSON number (``0.05``); None for anything else."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        return f"{value:g}" if value > 0 else None
+    return value.strip() if isinstance(value, str) and value.strip() else None
 
 
 def apply_identity(cand: Candidate, ident: dict[str, str | None]) -> None:
@@ -155,6 +170,7 @@ def apply_identity(cand: Candidate, ident: dict[str, str | None]) -> None:
     elif ident["name"]:
         cand.category = category_from_name(ident["name"], cand.category)
     cand.units, cand.up_axis = ident["units"], ident["up_axis"]
+    cand.units_reason = "stated in the object's metadata" if ident["units"] else None
 
 
 def _read_licence(path: Path) -> str:

@@ -1,0 +1,121 @@
+"""Which unit a model is read in, and why (docs/ingest.md, "Units").
+
+The first that speaks decides:
+
+1. **stated**: a ``units`` entry in the object's ``metadata.json`` (a unit name, or metres per unit as a
+   number or a string), then ``catalog ingest --units mm|cm|m|in|ft`` (``auto``: say nothing); beside any
+   format, glTF included (exporters write centimetres into GLBs). USD (``metersPerUnit``) and STEP (its
+   length unit) state their own, which wins;
+2. **description**: the mesh ``scale`` of a URDF / SDF / MJCF beside the model (or a layout's
+   convention: GSO is metres, OmniObject3D ``ingest.omniobject3d_units``);
+3. **format**: glTF is metres by its specification, USD says, STEP states its length unit (OpenCASCADE
+   reads it into metres); STL from CAD and 3D-printing tools is millimetres;
+4. **default**: ``ingest.assume_units`` for OBJ / PLY.
+
+After 3 (STL) the **size prior** has its say in the analysis: a largest side that no everyday object has
+in the assumed millimetres is re-read in the unit that makes it plausible
+(:func:`mixcount.sizes.plausible_unit`; :func:`mixcount.catalog.mesh.analyse_model`); otherwise an
+implausible size is only said (the reason names the unit that would fit, ingest prints a warning and
+``--units`` re-reads). A stated unit is never second-guessed. The unit and its reason are recorded beside the up axis.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mixcount.errors import IngestError
+from mixcount.frame import GLTF_EXTENSIONS, STEP_EXTENSIONS, UNIT_SCALE, unit_scale
+
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+@dataclass(frozen=True)
+class UnitDecision:
+    """``unit`` (a name or metres per unit as text), ``reason`` (a sentence that starts with its basis:
+    stated, description, format, default) and whether the size prior may re-read it."""
+
+    unit: str
+    reason: str
+    size_prior: bool
+
+
+def check_units(value: str | None) -> str | None:
+    """``--units`` checked: a unit name (lower case) or metres per unit; None for ``auto`` or nothing."""
+    if value is None or value.strip().lower() == "auto":
+        return None
+    text = value.strip().lower()
+    try:
+        unit_scale(text)
+    except ValueError:
+        raise IngestError(f"unknown units {value!r}: give {', '.join(UNIT_SCALE)}, auto, or metres per unit "
+                          "as a number") from None
+    return text
+
+
+def decide_units(source: Path, *, units: str | None, units_reason: str | None, stated: str | None,
+                 assume: str, layout: str) -> UnitDecision:
+    """The unit of a model whose original file is ``source`` (the first part of a multi-part object, a
+    STEP file before conversion): ``units``/``units_reason`` are what its metadata or description said,
+    ``stated`` is ``--units``, ``assume`` is ``ingest.assume_units``."""
+    suffix = source.suffix.lower()
+    carries = suffix in USD_SUFFIXES or suffix in STEP_EXTENSIONS  # the file states its unit
+    from_metadata = bool(units) and (units_reason or "").startswith("stated")
+    if from_metadata and not carries:
+        return UnitDecision(str(units), f"stated: units {units} in the object's metadata.json", False)
+    if stated and not carries:
+        return UnitDecision(stated, f"stated: catalog ingest --units {stated}", False)
+    if units:
+        return UnitDecision(str(units), units_reason or f"description: the {layout} layout's convention", False)
+    if suffix in USD_SUFFIXES:
+        return UnitDecision("m", "format: USD states metersPerUnit", False)
+    if suffix in GLTF_EXTENSIONS:
+        return UnitDecision("m", "format: glTF is metres by its specification", False)
+    if suffix in STEP_EXTENSIONS:
+        return UnitDecision("m", "format: STEP states its length unit (read into metres by OpenCASCADE)", False)
+    if suffix == ".stl":
+        return UnitDecision("mm", "format: STL from CAD and 3D-printing tools is millimetres", True)
+    return UnitDecision(assume, f"default: ingest.assume_units ({assume}) for {suffix.lstrip('.').upper()}", True)
+
+
+def decide_frame(cand: Any, *, stated: str | None, assume: str) -> None:
+    """Set a candidate's ``units`` and ``units_reason`` by :func:`decide_units`, judged on its original
+    file (a multi-part object's first part, a staged or derived model's source)."""
+    if cand.model_path is None or cand.error:
+        return
+    source = cand.parts[0][0] if cand.parts else Path(cand.metadata.get("source_model_path") or cand.model_path)
+    decision = decide_units(source, units=cand.units, units_reason=cand.units_reason, stated=stated,
+                            assume=assume, layout=cand.layout)
+    cand.units, cand.units_reason = decision.unit, decision.reason
+
+
+def basis(reason: str | None) -> str:
+    """The first word group of a reason: stated, description, format, default or size prior."""
+    return (reason or "").split(":", 1)[0] or "unknown"
+
+
+def prior_applies(reason: str | None) -> bool:
+    """Whether the size prior may re-read a unit decided for this reason: a format's assumed unit (an
+    STL's millimetres), never a stated one, a description's or one a format states. An OBJ/PLY read by
+    ``ingest.assume_units`` whose size is implausible is said (its reason names the unit that would fit),
+    not re-read: the configured assumption is the user's word for the library."""
+    return (reason or "").startswith("format: STL")
+
+
+def note_units(rescaled: list[tuple[str, str, str]], implausible: list[tuple[str, str]], name: str,
+               unit: str | None, reason: str | None) -> None:
+    """Note an ingested object in an ingest summary's lists: ``rescaled`` when it is read in a unit other
+    than metres, ``implausible`` when its size was said to be implausible (not re-read)."""
+    if unit and unit != "m":
+        rescaled.append((name, unit, reason or ""))
+    if "would be" in (reason or ""):
+        implausible.append((name, reason or ""))
+
+
+def units_summary(rescaled: list[tuple[str, str, str]], implausible: list[tuple[str, str]]) -> dict[str, Any]:
+    """The units part of an ingest summary's JSON: who was read in which unit and why, counts per basis."""
+    return {"rescaled": [{"name": n, "units": u, "reason": r} for n, u, r in rescaled],
+            "rescaled_by": dict(sorted(Counter(basis(r) for _n, _u, r in rescaled).items())),
+            "implausible_sizes": [{"name": n, "reason": r} for n, r in implausible]}
