@@ -214,9 +214,14 @@ def rendered_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
     return base_colour_factor(visual)
 
 
-def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8)."""
+def mesh_colour_samples(mesh, rng: np.random.Generator, count: int,  # type: ignore[no-untyped-def]
+                        look: np.ndarray | None = None) -> np.ndarray:
+    """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8); a part with no colour
+    of its own (:func:`mixcount.catalog.materials.uncoloured`) has ``look`` (8-bit sRGB) when one is given,
+    as it renders."""
     import trimesh
+
+    from mixcount.catalog.materials import uncoloured
 
     if len(mesh.faces) == 0 or count <= 0:
         return np.zeros((0, 3), dtype=np.uint8)
@@ -224,6 +229,8 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     weights = area / area.sum() if area.sum() > 0 else None
     faces = rng.choice(len(mesh.faces), size=count, p=weights)
     visual = mesh.visual
+    if look is not None and uncoloured(visual):
+        return np.tile(np.asarray(look, dtype=np.uint8)[:3], (count, 1))
     if isinstance(visual, trimesh.visual.TextureVisuals):
         # glTF base colour = baseColorFactor x texture(uv) x COLOR_0; trimesh keeps COLOR_0 of a
         # primitive that also has a material in visual.vertex_attributes["color"].
@@ -252,8 +259,10 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     return np.zeros((0, 3), dtype=np.uint8)
 
 
-def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> ColourSummary:
-    """Dominant colours sampled from a model file's surface (texture, vertex colours or material)."""
+def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0,
+                       look: tuple[float, ...] | None = None) -> ColourSummary:
+    """Dominant colours sampled from a model file's surface (texture, vertex colours or material; ``look``,
+    sRGB in [0, 1] first, for its parts with none of these, as the renders give them)."""
     import trimesh
 
     try:
@@ -267,7 +276,8 @@ def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> Col
     rng = np.random.default_rng(seed)
     areas = np.array([max(m.area, 0.0) for m in meshes])
     shares = areas / areas.sum() if areas.sum() > 0 else np.full(len(meshes), 1.0 / len(meshes))
-    parts = [mesh_colour_samples(m, rng, int(round(samples * s))) for m, s in zip(meshes, shares)]
+    look8 = None if look is None else np.clip(np.round(np.asarray(look[:3], dtype=float) * 255), 0, 255)
+    parts = [mesh_colour_samples(m, rng, int(round(samples * s)), look8) for m, s in zip(meshes, shares)]
     pixels = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3), dtype=np.uint8)])
     textured = any(base_colour_texture(m.visual) is not None and getattr(m.visual, "uv", None) is not None
                    for m in meshes)

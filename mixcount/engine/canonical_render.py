@@ -125,6 +125,36 @@ def use_vertex_colours(objects: list[Any]) -> int:
     return done
 
 
+def apply_look(objects: list[Any], look: Any) -> int:
+    """Give every mesh with no material, no colour attribute and no texture a Principled material of
+    ``look`` = (sRGB r, g, b, metallic, roughness): an STL, PLY or OBJ-without-.mtl part would otherwise
+    render in Cycles' default near-white, as the USD asset's part does not (:mod:`mixcount.usd.assets`).
+    Returns how many meshes got it."""
+    import bpy
+
+    from mixcount.catalog.materials import srgb_to_linear
+
+    if look is None:
+        return 0
+    done, mat = 0, None
+    for obj in objects:
+        if obj.type != "MESH" or any(slot.material is not None for slot in obj.material_slots):
+            continue
+        if getattr(obj.data, "color_attributes", None):
+            continue  # its own colours (use_vertex_colours gives them a material)
+        if mat is None:
+            mat = bpy.data.materials.new("palette_look")
+            mat.use_nodes = True
+            bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+            bsdf.inputs["Base Color"].default_value = (*[float(c) for c in srgb_to_linear(look[:3])], 1.0)
+            bsdf.inputs["Metallic"].default_value = float(look[3])
+            bsdf.inputs["Roughness"].default_value = float(look[4])
+        obj.data.materials.clear()
+        obj.data.materials.append(mat)
+        done += 1
+    return done
+
+
 def world_vertices(objects: list[Any]) -> np.ndarray:
     """All evaluated vertices of ``objects`` in world space, (n, 3)."""
     import bpy
@@ -292,6 +322,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     objects = import_model(Path(req.model_path))
     orient_to_catalog(Path(req.model_path), req.up_axis)
     use_vertex_colours(objects)
+    apply_look(objects, req.look)
     pts = centre_objects(objects)
     look = req.settings
     configure_render(scene, resolution=look.resolution, samples=look.samples, denoise=look.denoise, threads=req.threads)
