@@ -110,7 +110,7 @@ class ColourSummary:
     names: tuple[str, ...]
     shares: tuple[float, ...]
     variation: float  # std of luminance over object pixels, 0..1: high = patterned/textured
-    source: str  # "render" | "model" | "none"
+    source: str  # "albedo" (a render's albedo pass) | "render" (its shaded pixels) | "model" | "none"
     luminance: float = 0.0  # mean luminance over the object's pixels, 0..1 (tells two shades of one name apart)
     # whether the colours come from an image texture (a print or pattern) rather than flat or vertex colours;
     # None when not known (a render's pixels)
@@ -183,6 +183,14 @@ def render_pixels(path: Path, *, max_side: int = 256) -> np.ndarray:
 
 
 def colours_from_render(path: Path) -> ColourSummary:
+    """Dominant colours of a canonical render's object: from its albedo (the surface colour the renderer
+    shaded, shading and highlights left out: a yellow duck is yellow whichever way it is lit) when the
+    render has one beside it, else from the shaded pixels."""
+    from mixcount.curation.renders import albedo_path_for
+
+    albedo = albedo_path_for(path)
+    if albedo.is_file():
+        return summarise(render_pixels(albedo), source="albedo")
     return summarise(render_pixels(path), source="render")
 
 

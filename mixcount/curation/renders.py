@@ -33,7 +33,8 @@ from mixcount.config import CanonicalRenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.worker.contract import CANONICAL, CanonicalRequest, CanonicalSettings, canonical_views
 
-RENDER_VERSION = "canonical-v2"  # bump when the renderer changes what a render looks like (v2: vertex colours)
+RENDER_VERSION = "canonical-v3"  # bump when the renderer changes what a render looks like (v2: vertex colours;
+# v3: palette looks for uncoloured parts, the albedo pass written beside each view)
 SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
                 "world_strength", "sun_strength")
 
@@ -98,6 +99,13 @@ def mask_path_for(render_path: Path | str) -> Path:
     """The coverage mask written next to a render (``x.png`` -> ``x_mask.png``)."""
     p = Path(render_path)
     return p.with_name(f"{p.stem}_mask.png")
+
+
+def albedo_path_for(render_path: Path | str) -> Path:
+    """The albedo (surface colour without shading, RGBA) written next to a render (``x.png`` ->
+    ``x_albedo.png``; :func:`mixcount.engine.canonical_render.render_albedo`)."""
+    p = Path(render_path)
+    return p.with_name(f"{p.stem}_albedo.png")
 
 
 def canonical_render_path(session: Session, object_id: int) -> Path | None:
