@@ -21,7 +21,13 @@ from typing import Iterable
 
 import numpy as np
 
-from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
+from mixcount.catalog.materials import (
+    base_colour_factor,
+    base_colour_texture,
+    linear_to_srgb,
+    material_vertex_colours,
+    srgb_to_linear,
+)
 
 # Hue bins (degrees, lower bound inclusive) for saturated colours; brightness variants are in _refine.
 _HUES: tuple[tuple[float, str], ...] = (
@@ -241,8 +247,10 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int,  # type: ign
         return np.tile(np.asarray(look, dtype=np.uint8)[:3], (count, 1))
     if isinstance(visual, trimesh.visual.TextureVisuals):
         # glTF base colour = baseColorFactor x texture(uv) x COLOR_0; trimesh keeps COLOR_0 of a
-        # primitive that also has a material in visual.vertex_attributes["color"].
-        colour = np.tile(rendered_factor(visual) * 255.0, (count, 1))
+        # primitive that also has a material in visual.vertex_attributes["color"]. The factor (glTF's, an
+        # .mtl's Kd) and COLOR_0 are linear, the texture sRGB: multiplied in linear, named in sRGB as the
+        # renderer shows it (a glTF factor of 0.85 is a white surface, not a light grey one)
+        colour = np.tile(rendered_factor(visual), (count, 1))
         vcol = material_vertex_colours(visual, len(mesh.vertices))
         if vcol is not None:
             colour *= vcol[mesh.faces[faces]].mean(axis=1)
@@ -255,8 +263,8 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int,  # type: ign
             h, w = image.shape[:2]
             x = np.mod(pts[:, 0], 1.0) * (w - 1)
             y = (1.0 - np.mod(pts[:, 1], 1.0)) * (h - 1)  # trimesh flips glTF's V on load
-            colour *= image[y.round().astype(int), x.round().astype(int)].astype(float) / 255.0
-        return np.clip(colour, 0, 255).astype(np.uint8)
+            colour *= srgb_to_linear(image[y.round().astype(int), x.round().astype(int)].astype(float) / 255.0)
+        return np.round(linear_to_srgb(colour) * 255.0).astype(np.uint8)
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.defined:
         if visual.kind == "face":
             cols = np.asarray(visual.face_colors)[faces, :3]

@@ -31,9 +31,15 @@ def base_colour_texture(visual: Any) -> Optional[NDArray[np.uint8]]:
 
 
 def base_colour_factor(visual: Any) -> NDArray[np.float64]:
-    """The base-colour factor as RGB in [0, 1]; white when the material names none."""
+    """The base-colour factor as RGB in [0, 1] (linear, as glTF and Blender's importers take it); white
+    when the material names none. A glTF material without ``baseColorFactor`` has glTF's default, 1 (not
+    trimesh's ``main_color``, a made-up 0.4 grey); an .mtl material's is its ``Kd``."""
+    from trimesh.visual.material import PBRMaterial
+
     material = getattr(visual, "material", None)
     factor = getattr(material, "baseColorFactor", None)
+    if factor is None and isinstance(material, PBRMaterial):
+        return np.ones(3)
     if factor is None:
         factor = getattr(material, "main_color", None)
     if factor is None:
@@ -98,6 +104,12 @@ def srgb_to_linear(rgb: "tuple[float, ...] | NDArray[np.float64]") -> NDArray[np
     """sRGB-encoded [0, 1] -> linear (what UsdPreviewSurface's diffuseColor and Blender's Base Color take)."""
     c = np.asarray(rgb, dtype=np.float64)
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(rgb: "tuple[float, ...] | NDArray[np.float64]") -> NDArray[np.float64]:
+    """Linear [0, 1] -> sRGB-encoded (how an image, and a person's colour name, sees it)."""
+    c = np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0)
+    return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)
 
 
 def _hex_rgb(text: str) -> Optional[tuple[float, float, float]]:

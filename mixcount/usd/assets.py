@@ -93,12 +93,13 @@ def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarr
         mat = visual.material
         info: dict[str, Any] = {"base_color_factor": [0.8, 0.8, 0.8, 1.0], "metallic": 0.0, "roughness": 0.5}
         factor = getattr(mat, "baseColorFactor", None)
-        if factor is not None:
+        if factor is not None or type(mat).__name__ == "PBRMaterial":  # unset: glTF's default, 1
+            factor = [1.0, 1.0, 1.0, 1.0] if factor is None else factor
             f = np.asarray(factor, dtype=float).ravel()
             info["base_color_factor"] = list((f / 255.0 if f.max() > 1.0 else f).tolist()) + [1.0] * (4 - len(f))
-        elif getattr(mat, "diffuse", None) is not None:
-            d = np.asarray(mat.diffuse, dtype=float).ravel()
-            info["base_color_factor"] = list((d / 255.0).tolist())
+        elif getattr(mat, "diffuse", None) is not None:  # an .mtl's Kd; with a map_Kd the map alone, as Blender
+            d = np.asarray(mat.diffuse, dtype=float).ravel() if _image(getattr(mat, "image", None)) is None else 255.0
+            info["base_color_factor"] = list((np.broadcast_to(d / 255.0, (4,))).tolist())
         if getattr(mat, "metallicFactor", None) is not None:
             info["metallic"] = float(mat.metallicFactor)
         if getattr(mat, "roughnessFactor", None) is not None:
