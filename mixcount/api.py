@@ -57,7 +57,7 @@ def compose(catalog: "Catalog", out: str | Path, *, n: int, split: Optional[str]
         "compose.split": split, "compose.seed": seed, "compose.resolution": resolution,
         "compose.samples": samples}.items() if v is not None})
     with catalog.session() as session:
-        pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
+        pool, envs, mats = load_pool(session, palette=cfg.palette), load_environments(session), load_materials(session)
     out = Path(out).resolve()
     summary = compose_scenes(pool=pool, config=cfg, out_dir=out, assets_dir=Path(catalog.usd_assets_dir).resolve(),
                              n=n, environments=tuple(envs), materials=tuple(mats), progress=progress,

@@ -15,6 +15,7 @@ import copy
 import difflib
 import hashlib
 import json
+import re
 import tomllib
 from dataclasses import dataclass, fields
 from functools import cached_property
@@ -269,6 +270,44 @@ class SplitConfig:
             raise ConfigError(f"split fractions must be >= 0 with a positive sum, got {fr}")
 
 
+HEX_COLOUR = re.compile(r"^#?[0-9a-fA-F]{6}$")
+
+
+@dataclass(frozen=True)
+class PaletteConfig:
+    """``[palette]``: looks for model parts with no texture, no vertex colours and no material (CAD
+    exports: STL, PLY, OBJ without .mtl), so they render as what they are, not the renderer's default
+    near-white grey (docs/captions.md, "Untextured models").
+
+    ``looks``: name, sRGB ``colour`` (``#rrggbb``), ``metallic``, ``roughness`` each. ``categories``:
+    ``"word=look"``, a look for objects whose name or category has that word. ``default``: the looks an
+    object without a metadata entry or category look is given, one per object by its content hash."""
+
+    looks: tuple[Mapping[str, Any], ...]
+    default: tuple[str, ...]
+    categories: tuple[str, ...]
+
+    def validate(self) -> None:
+        names = set()
+        for look in self.looks:
+            if not isinstance(look, Mapping) or set(look) != {"name", "colour", "metallic", "roughness"}:
+                raise ConfigError(f"palette.looks entries need exactly name, colour, metallic, roughness; got {look!r}")
+            if not HEX_COLOUR.match(str(look["colour"])):
+                raise ConfigError(f"palette look {look['name']!r}: colour must be #rrggbb, got {look['colour']!r}")
+            for key in ("metallic", "roughness"):
+                if not isinstance(look[key], (int, float)) or not 0.0 <= float(look[key]) <= 1.0:
+                    raise ConfigError(f"palette look {look['name']!r}: {key} must be in [0, 1], got {look[key]!r}")
+            names.add(str(look["name"]).lower())
+        for name in self.default:
+            if name.lower() not in names:
+                raise ConfigError(f"palette.default names {name!r}, which is not in palette.looks ({sorted(names)})")
+        for entry in self.categories:
+            word, _, look_name = str(entry).partition("=")
+            if not word.strip() or look_name.strip().lower() not in names:
+                raise ConfigError(f"palette.categories entry {entry!r} must be 'word=look' with a look of "
+                                  f"palette.looks ({sorted(names)})")
+
+
 # Cycles' OpenImageDenoise prefilter of the albedo / normal guiding passes (docs/performance.md)
 DENOISE_PREFILTERS = ("ACCURATE", "FAST", "NONE")
 # the one list of passes `compose --passes` chooses from (rgb is always written); mixcount.annotate.passes
@@ -358,6 +397,7 @@ class Config:
     canonical_render: CanonicalRenderConfig
     filter: FilterConfig
     captions: CaptionsConfig
+    palette: PaletteConfig
     split: SplitConfig
     scene: SceneConfig
     compose: ComposeConfig
@@ -380,7 +420,7 @@ class Config:
 
 SECTIONS: dict[str, type] = {
     "catalog": CatalogConfig, "ingest": IngestConfig, "demo": DemoConfig, "containers": ContainersConfig, "canonical_render": CanonicalRenderConfig,
-    "filter": FilterConfig, "captions": CaptionsConfig, "split": SplitConfig, "scene": SceneConfig,
+    "filter": FilterConfig, "captions": CaptionsConfig, "palette": PaletteConfig, "split": SplitConfig, "scene": SceneConfig,
     "compose": ComposeConfig, "cycles": CyclesConfig, "rerender": RerenderConfig,
 }
 

@@ -91,13 +91,24 @@ class CaptionInput:
     # captions (:func:`mixcount.captions.captioning.separate_collisions`); 1 = every measured colour and the
     # pattern also beside the name's colours, 2 = also the proportion word ("long", "flat")
     tell: int = 0
+    # (sRGB r, g, b, metallic, roughness): the [palette] look its parts without a colour render with
+    look: tuple[float, ...] | None = None
 
     @classmethod
-    def from_object(cls, obj: Any, *, render_path: Path | None = None) -> "CaptionInput":
-        """Build from a ``CatalogObject`` (a plain snapshot: safe to hand to worker threads).
+    def from_object(cls, obj: Any, *, render_path: Path | None = None, palette: Any = None) -> "CaptionInput":
+        """Build from a ``CatalogObject`` (a plain snapshot: safe to hand to worker threads); ``palette``
+        (``[palette]``) gives an untextured object the look its renders give it.
 
         Colours are not measured here (that reads files): see :meth:`with_measured_colours`.
         """
+        look = None
+        if palette is not None and not obj.textured:
+            from mixcount.catalog.materials import object_look
+
+            found = object_look(palette, name=obj.name or "", category=obj.category or "",
+                                metadata_json=getattr(obj, "metadata_json", None),
+                                content_hash=str(getattr(obj, "content_hash", "") or ""))
+            look = None if found is None else found.as_tuple()
         item = cls(
             object_id=int(obj.id),
             content_hash=str(getattr(obj, "content_hash", "") or ""),
@@ -112,6 +123,7 @@ class CaptionInput:
             textured=obj.textured,
             model_path=obj.model_path,
             render_path=Path(render_path) if render_path is not None and Path(render_path).is_file() else None,
+            look=look,
         )
         return item
 
@@ -141,7 +153,7 @@ class CaptionInput:
                 except (OSError, ValueError):  # unreadable/corrupt PNG: use the other source
                     colours = EMPTY
             elif kind == "model" and self.model_path and Path(self.model_path).is_file():
-                colours = colours_from_model(Path(self.model_path), seed=self.colour_seed())
+                colours = colours_from_model(Path(self.model_path), seed=self.colour_seed(), look=self.look)
             if colours.names:
                 break
         return replace(self, colours=colours)

@@ -106,10 +106,12 @@ def caption_catalog(
     colour_source: str,
     progress: ProgressReporter | bool | None = None,
     redact: Callable[[str], str] | None = None,
+    palette: Any = None,
 ) -> CaptionSummary:
     """Caption active objects with ``captioner``; record sets and failures; flag (and dedupe) collisions.
 
-    ``concurrency`` (threads) and ``colour_source`` are ``captions.concurrency`` / ``captions.colour_source``.
+    ``concurrency`` (threads) and ``colour_source`` are ``captions.concurrency`` / ``captions.colour_source``;
+    ``palette`` (``[palette]``): untextured objects are captioned in the colour they render with.
     """
     summary = CaptionSummary(captioner.name, captioner.provider, captioner.model, captioner.prompt_version)
     scrub = redact or getattr(captioner, "redact", None) or (lambda s: s)
@@ -140,7 +142,7 @@ def caption_catalog(
             # more than a stub caption.
             futures: dict[Future[CaptionResult], CatalogObject] = {}
             for obj in todo:
-                item = CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id))
+                item = CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id), palette=palette)
                 futures[pool.submit(_measure_and_caption, captioner, item, colour_source)] = obj
             for fut in _as_completed_in_order(futures):
                 obj = futures[fut]
@@ -183,7 +185,7 @@ def caption_catalog(
                 bar.advance()
         bar.stop()
 
-    summary.variants_toned = separate_variants(catalog, captioner, colour_source=colour_source)
+    summary.variants_toned = separate_variants(catalog, captioner, colour_source=colour_source, palette=palette)
     flag_collisions(catalog, summary=summary)
     if dedupe:
         summary.excluded = dedupe_collisions(catalog)
@@ -201,7 +203,7 @@ def _colliding_groups(captions: dict[int, CaptionSet]) -> list[list[int]]:
     return collision_groups(find_collisions(captions))
 
 
-def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: str) -> int:
+def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: str, palette: Any = None) -> int:
     """Tell apart different objects whose captions by this captioner came out equal at some tier, before any
     collision is flagged: each group is captioned again with more telling words, in the order of
     :data:`TELL_STEPS` (``CaptionInput.tell`` 1: the measured colours and pattern beside the name's colours;
@@ -220,7 +222,7 @@ def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: 
         def item_of(oid: int) -> CaptionInput:
             if oid not in items:
                 obj = session.get(CatalogObject, oid)
-                items[oid] = CaptionInput.from_object(obj, render_path=render_path_for(session, oid)) \
+                items[oid] = CaptionInput.from_object(obj, render_path=render_path_for(session, oid), palette=palette) \
                     .with_measured_colours(colour_source)
             return items[oid]
 

@@ -21,7 +21,13 @@ from typing import Iterable
 
 import numpy as np
 
-from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
+from mixcount.catalog.materials import (
+    base_colour_factor,
+    base_colour_texture,
+    linear_to_srgb,
+    material_vertex_colours,
+    srgb_to_linear,
+)
 
 # Hue bins (degrees, lower bound inclusive) for saturated colours; brightness variants are in _refine.
 _HUES: tuple[tuple[float, str], ...] = (
@@ -110,7 +116,7 @@ class ColourSummary:
     names: tuple[str, ...]
     shares: tuple[float, ...]
     variation: float  # std of luminance over object pixels, 0..1: high = patterned/textured
-    source: str  # "render" | "model" | "none"
+    source: str  # "albedo" (a render's albedo pass) | "render" (its shaded pixels) | "model" | "none"
     luminance: float = 0.0  # mean luminance over the object's pixels, 0..1 (tells two shades of one name apart)
     # whether the colours come from an image texture (a print or pattern) rather than flat or vertex colours;
     # None when not known (a render's pixels)
@@ -183,6 +189,14 @@ def render_pixels(path: Path, *, max_side: int = 256) -> np.ndarray:
 
 
 def colours_from_render(path: Path) -> ColourSummary:
+    """Dominant colours of a canonical render's object: from its albedo (the surface colour the renderer
+    shaded, shading and highlights left out: a yellow duck is yellow whichever way it is lit) when the
+    render has one beside it, else from the shaded pixels."""
+    from mixcount.curation.renders import albedo_path_for
+
+    albedo = albedo_path_for(path)
+    if albedo.is_file():
+        return summarise(render_pixels(albedo), source="albedo")
     return summarise(render_pixels(path), source="render")
 
 
@@ -214,9 +228,14 @@ def rendered_factor(visual) -> np.ndarray:  # type: ignore[no-untyped-def]
     return base_colour_factor(visual)
 
 
-def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8)."""
+def mesh_colour_samples(mesh, rng: np.random.Generator, count: int,  # type: ignore[no-untyped-def]
+                        look: np.ndarray | None = None) -> np.ndarray:
+    """``count`` surface colours of one trimesh.Trimesh, area-weighted (N x 3 uint8); a part with no colour
+    of its own (:func:`mixcount.catalog.materials.uncoloured`) has ``look`` (8-bit sRGB) when one is given,
+    as it renders."""
     import trimesh
+
+    from mixcount.catalog.materials import uncoloured
 
     if len(mesh.faces) == 0 or count <= 0:
         return np.zeros((0, 3), dtype=np.uint8)
@@ -224,10 +243,14 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     weights = area / area.sum() if area.sum() > 0 else None
     faces = rng.choice(len(mesh.faces), size=count, p=weights)
     visual = mesh.visual
+    if look is not None and uncoloured(visual):
+        return np.tile(np.asarray(look, dtype=np.uint8)[:3], (count, 1))
     if isinstance(visual, trimesh.visual.TextureVisuals):
         # glTF base colour = baseColorFactor x texture(uv) x COLOR_0; trimesh keeps COLOR_0 of a
-        # primitive that also has a material in visual.vertex_attributes["color"].
-        colour = np.tile(rendered_factor(visual) * 255.0, (count, 1))
+        # primitive that also has a material in visual.vertex_attributes["color"]. The factor (glTF's, an
+        # .mtl's Kd) and COLOR_0 are linear, the texture sRGB: multiplied in linear, named in sRGB as the
+        # renderer shows it (a glTF factor of 0.85 is a white surface, not a light grey one)
+        colour = np.tile(rendered_factor(visual), (count, 1))
         vcol = material_vertex_colours(visual, len(mesh.vertices))
         if vcol is not None:
             colour *= vcol[mesh.faces[faces]].mean(axis=1)
@@ -240,8 +263,8 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
             h, w = image.shape[:2]
             x = np.mod(pts[:, 0], 1.0) * (w - 1)
             y = (1.0 - np.mod(pts[:, 1], 1.0)) * (h - 1)  # trimesh flips glTF's V on load
-            colour *= image[y.round().astype(int), x.round().astype(int)].astype(float) / 255.0
-        return np.clip(colour, 0, 255).astype(np.uint8)
+            colour *= srgb_to_linear(image[y.round().astype(int), x.round().astype(int)].astype(float) / 255.0)
+        return np.round(linear_to_srgb(colour) * 255.0).astype(np.uint8)
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.defined:
         if visual.kind == "face":
             cols = np.asarray(visual.face_colors)[faces, :3]
@@ -252,8 +275,10 @@ def mesh_colour_samples(mesh, rng: np.random.Generator, count: int) -> np.ndarra
     return np.zeros((0, 3), dtype=np.uint8)
 
 
-def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> ColourSummary:
-    """Dominant colours sampled from a model file's surface (texture, vertex colours or material)."""
+def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0,
+                       look: tuple[float, ...] | None = None) -> ColourSummary:
+    """Dominant colours sampled from a model file's surface (texture, vertex colours or material; ``look``,
+    sRGB in [0, 1] first, for its parts with none of these, as the renders give them)."""
     import trimesh
 
     try:
@@ -267,7 +292,8 @@ def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0) -> Col
     rng = np.random.default_rng(seed)
     areas = np.array([max(m.area, 0.0) for m in meshes])
     shares = areas / areas.sum() if areas.sum() > 0 else np.full(len(meshes), 1.0 / len(meshes))
-    parts = [mesh_colour_samples(m, rng, int(round(samples * s))) for m, s in zip(meshes, shares)]
+    look8 = None if look is None else np.clip(np.round(np.asarray(look[:3], dtype=float) * 255), 0, 255)
+    parts = [mesh_colour_samples(m, rng, int(round(samples * s)), look8) for m, s in zip(meshes, shares)]
     pixels = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3), dtype=np.uint8)])
     textured = any(base_colour_texture(m.visual) is not None and getattr(m.visual, "uv", None) is not None
                    for m in meshes)

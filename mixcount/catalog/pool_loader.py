@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -59,8 +59,10 @@ def colour_variants(session: Session) -> dict[int, set[int]]:
     return {k: v - set(group_of.get(k, [k])) for k, v in out.items()}
 
 
-def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRecord]:
-    """Active objects with a split (optionally only ``split``), ordered by id (determinism)."""
+def load_pool(session: Session, *, split: Optional[str] = None, palette: Any = None) -> list[ObjectRecord]:
+    """Active objects with a split (optionally only ``split``), ordered by id (determinism). ``palette``
+    (``[palette]``): each untextured object's look for its parts without a colour (:func:`object_look`)."""
+    from mixcount.catalog.materials import object_look
 
     stmt = (
         select(CatalogObject, Split.split)
@@ -98,6 +100,9 @@ def load_pool(session: Session, *, split: Optional[str] = None) -> list[ObjectRe
                 render_path=renders.get(int(obj.id)),
                 source=obj.source, source_id=obj.source_id, license=obj.license, container=bool(obj.container),
                 variants=tuple(sorted(variants.get(int(obj.id), ()))),
+                look=None if palette is None or obj.textured else _look_tuple(object_look(
+                    palette, name=obj.name, category=obj.category or "", metadata_json=obj.metadata_json,
+                    content_hash=obj.content_hash or "")),
             )
         )
     return pool
@@ -117,3 +122,7 @@ def load_materials(session: Session) -> list[MaterialRecord]:
         MaterialRecord(int(m.id), m.name, m.path, dict(sorted(json.loads(m.maps_json or "{}").items())))
         for m in session.execute(select(Material).order_by(Material.id)).scalars()
     ]
+
+
+def _look_tuple(look: Any) -> Optional[tuple[float, ...]]:
+    return None if look is None else look.as_tuple()

@@ -72,7 +72,7 @@ def caption_cmd(
     try:
         summary = caption_catalog(
             catalog, cap, force=force, dedupe=dedupe, progress=RichProgress(),
-            colour_source=conf.colour_source, concurrency=conf.concurrency,
+            colour_source=conf.colour_source, concurrency=conf.concurrency, palette=cfg.palette,
         )
         from mixcount.catalog.containers import refresh_containers
 

@@ -25,7 +25,7 @@ def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
 
     split, base = config.compose.split, config.compose.seed
     with catalog.session() as session:
-        pool = load_pool(session)
+        pool = load_pool(session, palette=config.palette)
         envs = load_environments(session)
         mats = load_materials(session)
     require_split(pool, split)
@@ -207,7 +207,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         with catalog.session() as session:
             from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
 
-            pool, envs, mats = load_pool(session), load_environments(session), load_materials(session)
+            pool, envs, mats = load_pool(session, palette=cfg.palette), load_environments(session), load_materials(session)
         require_split(pool, cfg.compose.split)  # before OUT is made: a failed start leaves nothing behind
         executor = None  # local: compose_scenes starts its own pool; ray: mixcount.run.factory
         if executor_kind != "local" or address:

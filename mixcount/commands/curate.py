@@ -28,7 +28,7 @@ def render_cmd(
     catalog = st.catalog()
     try:
         summary = render_catalog(catalog, st.config().canonical_render, object_ids=ids or None, include_excluded=include_excluded,
-                                 force=force, progress=RichProgress())
+                                 force=force, progress=RichProgress(), palette=st.config().palette)
     finally:
         catalog.close()
     for f in summary.failures:

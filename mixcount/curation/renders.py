@@ -20,19 +20,21 @@ from __future__ import annotations
 import hashlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Optional
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.hashing import json_hash
+from mixcount.catalog.materials import object_look
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
 from mixcount.config import CanonicalRenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.worker.contract import CANONICAL, CanonicalRequest, CanonicalSettings, canonical_views
 
-RENDER_VERSION = "canonical-v2"  # bump when the renderer changes what a render looks like (v2: vertex colours)
+RENDER_VERSION = "canonical-v3"  # bump when the renderer changes what a render looks like (v2: vertex colours;
+# v3: palette looks for uncoloured parts, the albedo pass written beside each view)
 SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
                 "world_strength", "sun_strength")
 
@@ -66,24 +68,44 @@ def view_names(extra_views: int) -> list[str]:
     return [name for name, _ in canonical_views(int(extra_views), 0.0)]
 
 
-def canonical_request(config: CanonicalRenderConfig, obj: CatalogObject, out_dir: Path) -> CanonicalRequest:
+def canonical_request(config: CanonicalRenderConfig, obj: CatalogObject, out_dir: Path,
+                      look: Optional[tuple[float, ...]] = None) -> CanonicalRequest:
     """The worker request for one object's renders, every setting from ``[canonical_render]`` (threads are the
-    runner's: it shares the cores among its workers)."""
+    runner's: it shares the cores among its workers); ``look`` for its parts without a colour."""
     return CanonicalRequest(model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}",
                             threads=config.threads, settings=CanonicalSettings.from_config(config),
-                            up_axis=obj.source_up_axis or "")
+                            up_axis=obj.source_up_axis or "", look=look)
 
 
-def model_key(obj: CatalogObject) -> str:
-    """What a render depends on besides the settings: the model's content and the up axis the catalog
-    reads it with (a corrected up axis renders the object again). Stored as ``renders.model_hash``."""
-    return hashlib.sha256(f"{obj.content_hash}|{obj.source_up_axis or ''}".encode()).hexdigest()
+def render_look(palette: Any, obj: CatalogObject) -> Optional[tuple[float, ...]]:
+    """The palette look an untextured object's render gives its parts without a colour (None: textured,
+    or no palette)."""
+    if palette is None or obj.textured:
+        return None
+    look = object_look(palette, name=obj.name, category=obj.category or "", metadata_json=obj.metadata_json,
+                       content_hash=obj.content_hash or "")
+    return None if look is None else look.as_tuple()
+
+
+def model_key(obj: CatalogObject, look: Optional[tuple[float, ...]] = None) -> str:
+    """What a render depends on besides the settings: the model's content, the up axis the catalog
+    reads it with (a corrected up axis renders the object again) and the palette look of its parts without a
+    colour. Stored as ``renders.model_hash``."""
+    tail = "" if look is None else "|" + ",".join(f"{v:.4f}" for v in look)
+    return hashlib.sha256(f"{obj.content_hash}|{obj.source_up_axis or ''}{tail}".encode()).hexdigest()
 
 
 def mask_path_for(render_path: Path | str) -> Path:
     """The coverage mask written next to a render (``x.png`` -> ``x_mask.png``)."""
     p = Path(render_path)
     return p.with_name(f"{p.stem}_mask.png")
+
+
+def albedo_path_for(render_path: Path | str) -> Path:
+    """The albedo (surface colour without shading, RGBA) written next to a render (``x.png`` ->
+    ``x_albedo.png``; :func:`mixcount.engine.canonical_render.render_albedo`)."""
+    p = Path(render_path)
+    return p.with_name(f"{p.stem}_albedo.png")
 
 
 def canonical_render_path(session: Session, object_id: int) -> Path | None:
@@ -96,14 +118,15 @@ def canonical_render_path(session: Session, object_id: int) -> Path | None:
     return Path(row.path)
 
 
-def _up_to_date(rows: dict[str, Render], obj: CatalogObject, views: list[str], shash: str, own_dir: Path) -> bool:
+def _up_to_date(rows: dict[str, Render], obj: CatalogObject, views: list[str], shash: str, own_dir: Path,
+                look: Optional[tuple[float, ...]] = None) -> bool:
     for view in views:
         row = rows.get(view)
         if row is None or row.error or not row.path or not Path(row.path).is_file():
             return False
         if Path(row.path).parent != own_dir.resolve():
             return False  # a shared folder of an older catalog: possibly another catalog's picture
-        if row.model_hash != model_key(obj) or row.settings_hash != shash:
+        if row.model_hash != model_key(obj, look) or row.settings_hash != shash:
             return False
     return True
 
@@ -124,8 +147,10 @@ def render_catalog(
     include_excluded: bool = False,
     force: bool = False,
     progress: ProgressReporter | bool | None = None,
+    palette: Any = None,
 ) -> RenderSummary:
-    """Render every active (and optionally excluded) object whose render is missing or stale."""
+    """Render every active (and optionally excluded) object whose render is missing or stale; ``palette``
+    (``[palette]``) gives untextured objects' parts without a colour their look."""
     from mixcount.worker.canonical_runner import RenderOutcome, run_jobs
 
     settings = render_settings(config)
@@ -144,12 +169,13 @@ def render_catalog(
         for obj in session.scalars(query):
             summary.objects += 1
             rows = {r.view: r for r in session.scalars(select(Render).where(Render.object_id == obj.id))}
-            if not force and _up_to_date(rows, obj, views, shash, out_dir):
+            look = render_look(palette, obj)
+            if not force and _up_to_date(rows, obj, views, shash, out_dir, look):
                 summary.skipped += 1
                 continue
             key = str(obj.id)
-            names[key], hashes[key] = obj.name, model_key(obj)
-            jobs.append((key, canonical_request(config, obj, out_dir)))
+            names[key], hashes[key] = obj.name, model_key(obj, look)
+            jobs.append((key, canonical_request(config, obj, out_dir, look)))
     if not jobs:
         return summary
 

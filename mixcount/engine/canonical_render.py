@@ -125,6 +125,36 @@ def use_vertex_colours(objects: list[Any]) -> int:
     return done
 
 
+def apply_look(objects: list[Any], look: Any) -> int:
+    """Give every mesh with no material, no colour attribute and no texture a Principled material of
+    ``look`` = (sRGB r, g, b, metallic, roughness): an STL, PLY or OBJ-without-.mtl part would otherwise
+    render in Cycles' default near-white, as the USD asset's part does not (:mod:`mixcount.usd.assets`).
+    Returns how many meshes got it."""
+    import bpy
+
+    from mixcount.catalog.materials import srgb_to_linear
+
+    if look is None:
+        return 0
+    done, mat = 0, None
+    for obj in objects:
+        if obj.type != "MESH" or any(slot.material is not None for slot in obj.material_slots):
+            continue
+        if getattr(obj.data, "color_attributes", None):
+            continue  # its own colours (use_vertex_colours gives them a material)
+        if mat is None:
+            mat = bpy.data.materials.new("palette_look")
+            mat.use_nodes = True
+            bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+            bsdf.inputs["Base Color"].default_value = (*[float(c) for c in srgb_to_linear(look[:3])], 1.0)
+            bsdf.inputs["Metallic"].default_value = float(look[3])
+            bsdf.inputs["Roughness"].default_value = float(look[4])
+        obj.data.materials.clear()
+        obj.data.materials.append(mat)
+        done += 1
+    return done
+
+
 def world_vertices(objects: list[Any]) -> np.ndarray:
     """All evaluated vertices of ``objects`` in world space, (n, 3)."""
     import bpy
@@ -282,6 +312,44 @@ def composite_on_white(rgba_path: Path, out_path: Path, mask_path: Path) -> dict
     return {"coverage": round(coverage, 6), "width": int(rgb.shape[1]), "height": int(rgb.shape[0])}
 
 
+ALBEDO_PASSES = ("Diffuse Color", "Glossy Color", "Transmission Color")
+ALBEDO_SAMPLES = 4  # the passes are the first hit's surface colour: samples only anti-alias the edges
+
+
+def render_albedo(scene: Any, raw: Path, out: Path, mask_path: Path) -> None:
+    """The surface colour the render shaded, without the shading: Cycles' diffuse + glossy + transmission
+    colour passes (a Principled surface's base colour splits into them by metallic and transmission, so
+    their sum is its albedo whatever the light), sRGB-encoded, as RGBA with the render's coverage mask as
+    alpha, at ``out``. The captions name colours from it (:mod:`mixcount.captions.colours`); the render
+    itself is unchanged. Render settings are restored afterwards."""
+    import bpy
+    from PIL import Image
+
+    from mixcount.engine.render_passes import read_exr_layers
+
+    c, vl, s = scene.cycles, scene.view_layers[0], scene.render.image_settings
+    saved = (c.samples, c.use_denoising, c.max_bounces, s.media_type, s.file_format, s.color_mode, s.color_depth)
+    c.samples, c.use_denoising, c.max_bounces = ALBEDO_SAMPLES, False, 0
+    vl.use_pass_diffuse_color = vl.use_pass_glossy_color = vl.use_pass_transmission_color = True
+    s.media_type, s.file_format, s.color_depth, s.exr_codec = "MULTI_LAYER_IMAGE", "OPEN_EXR_MULTILAYER", "32", "NONE"
+    try:
+        scene.render.filepath = str(raw)
+        bpy.ops.render.render(write_still=True)
+        layers = read_exr_layers(raw)
+    finally:
+        vl.use_pass_diffuse_color = vl.use_pass_glossy_color = vl.use_pass_transmission_color = False
+        c.samples, c.use_denoising, c.max_bounces = saved[:3]
+        s.media_type, s.file_format, s.color_mode, s.color_depth = saved[3:]
+        raw.unlink(missing_ok=True)
+    linear = sum(np.asarray(layers[name], dtype=np.float64)[..., :3] for name in ALBEDO_PASSES if name in layers)
+    linear = np.clip(np.asarray(linear), 0.0, 1.0)
+    srgb = np.where(linear <= 0.0031308, linear * 12.92, 1.055 * linear ** (1 / 2.4) - 0.055)
+    alpha = np.asarray(Image.open(mask_path).convert("L"), dtype=np.uint8)
+    rgba = np.dstack([np.round(srgb * 255).astype(np.uint8), alpha])
+    with atomic_path(out) as tmp:
+        Image.fromarray(rgba, "RGBA").save(tmp, format="PNG")
+
+
 def render_object(req: CanonicalRequest) -> CanonicalResult:
     """Render every view of one request (:meth:`CanonicalRequest.views`), each composited on white."""
     import bpy
@@ -292,6 +360,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     objects = import_model(Path(req.model_path))
     orient_to_catalog(Path(req.model_path), req.up_axis)
     use_vertex_colours(objects)
+    apply_look(objects, req.look)
     pts = centre_objects(objects)
     look = req.settings
     configure_render(scene, resolution=look.resolution, samples=look.samples, denoise=look.denoise, threads=req.threads)
@@ -309,6 +378,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
         mask = out_dir / f"{stem}_mask.png"
         info = composite_on_white(raw, out, mask)
         raw.unlink()
+        render_albedo(scene, out_dir / f".{stem}.albedo.exr", out_dir / f"{stem}_albedo.png", mask)
         results.append(CanonicalView(view=view, path=str(out), mask_path=str(mask), **info))
         bpy.data.objects.remove(cam, do_unlink=True)
     return CanonicalResult(views=tuple(results))

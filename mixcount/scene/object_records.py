@@ -35,6 +35,8 @@ class ObjectRecord:
     license: Optional[str] = None  # ... and the licence text found at ingest
     container: bool = False  # catalog objects.container: may be drawn as the scene's container
     variants: tuple[int, ...] = ()  # object ids of its colour variants (catalog flag colour_variant)
+    # (sRGB r, g, b, metallic, roughness) for its parts without a colour of their own ([palette]); None: none
+    look: Optional[tuple[float, ...]] = None
 
     @property
     def max_dim(self) -> float:

@@ -346,7 +346,7 @@ def _asset_refs(objs: Sequence[ObjectRecord]) -> tuple[AssetRef, ...]:
         AssetRef(object_id=o.object_id, name=o.name, category=o.category, model_path=o.model_path,
                  content_hash=o.content_hash, dims_m=_vec(o.dims), collision_path=o.collision_path,
                  proxy_path=o.proxy_path, source_units=o.source_units, source_up_axis=o.source_up_axis,
-                 source=o.source, source_id=o.source_id, license=o.license)
+                 source=o.source, source_id=o.source_id, license=o.license, look=o.look)
         for _, o in sorted(used.items())
     )
 

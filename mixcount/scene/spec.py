@@ -67,10 +67,15 @@ class AssetRef:
     source: Optional[str] = None  # provenance (ATTRIBUTION.json): ingest source, its key, licence text
     source_id: Optional[str] = None
     license: Optional[str] = None
+    look: Optional[tuple[float, ...]] = None  # (sRGB r, g, b, metallic, roughness) of parts without a colour
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["dims_m"] = list(self.dims_m)
+        if self.look is None:
+            del d["look"]  # specs of coloured assets stay as they were
+        else:
+            d["look"] = list(self.look)
         return d
 
     @classmethod
@@ -80,7 +85,7 @@ class AssetRef:
             model_path=str(d["model_path"]), content_hash=str(d["content_hash"]), dims_m=_t(d["dims_m"]),
             collision_path=d.get("collision_path"), proxy_path=d.get("proxy_path"), source_units=d.get("source_units"),
             source_up_axis=d.get("source_up_axis"), source=d.get("source"), source_id=d.get("source_id"),
-            license=d.get("license"),
+            license=d.get("license"), look=None if d.get("look") is None else tuple(float(v) for v in d["look"]),
         )
 
 

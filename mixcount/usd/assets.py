@@ -18,8 +18,11 @@ Geometry comes from trimesh (GLB/GLTF/OBJ/PLY/STL): every node of the scene grap
 world transform, scaled to metres and turned Z-up exactly as ingest does (glTF Y-up: (x, y, z) ->
 (x, -z, y)), so the asset's size equals the catalog's dims. Materials become UsdPreviewSurface with
 UsdUVTexture readers for base colour, metallic-roughness (glTF packing: G = roughness, B = metallic)
-and normal maps; vertex or face colours become ``displayColor``. USD/USDZ sources are wrapped: the
-asset references the source file under a transform to metres, Z-up and centred.
+and normal maps; vertex or face colours become ``displayColor``. A part with none of these (an STL or
+PLY CAD export) gets the object's palette look (``look``: :func:`mixcount.catalog.materials.object_look`)
+as a plain UsdPreviewSurface instead of the renderer's default near-white; the look is recorded in the
+layer, so a changed look converts the asset again. USD/USDZ sources are wrapped: the asset references the
+source file under a transform to metres, Z-up and centred.
 """
 
 from __future__ import annotations
@@ -34,12 +37,12 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.catalog.materials import material_vertex_colours
+from mixcount.catalog.materials import material_vertex_colours, srgb_to_linear
 from mixcount.errors import CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
 from mixcount.usd.read import CONVEX_PARTS_PRIM
 
-CONVERTER_VERSION = 4  # bump when the converter output changes: cached assets are rebuilt
+CONVERTER_VERSION = 5  # bump when the converter output changes: cached assets are rebuilt
 # V-HACD (vhacdx through trimesh) settings of that decomposition: part of the converter's output, so
 # fixed here with the version rather than configured (a changed value must rebuild every cached asset)
 CONVEX_PARTS_MAX = 16
@@ -90,12 +93,13 @@ def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarr
         mat = visual.material
         info: dict[str, Any] = {"base_color_factor": [0.8, 0.8, 0.8, 1.0], "metallic": 0.0, "roughness": 0.5}
         factor = getattr(mat, "baseColorFactor", None)
-        if factor is not None:
+        if factor is not None or type(mat).__name__ == "PBRMaterial":  # unset: glTF's default, 1
+            factor = [1.0, 1.0, 1.0, 1.0] if factor is None else factor
             f = np.asarray(factor, dtype=float).ravel()
             info["base_color_factor"] = list((f / 255.0 if f.max() > 1.0 else f).tolist()) + [1.0] * (4 - len(f))
-        elif getattr(mat, "diffuse", None) is not None:
-            d = np.asarray(mat.diffuse, dtype=float).ravel()
-            info["base_color_factor"] = list((d / 255.0).tolist())
+        elif getattr(mat, "diffuse", None) is not None:  # an .mtl's Kd; with a map_Kd the map alone, as Blender
+            d = np.asarray(mat.diffuse, dtype=float).ravel() if _image(getattr(mat, "image", None)) is None else 255.0
+            info["base_color_factor"] = list((np.broadcast_to(d / 255.0, (4,))).tolist())
         if getattr(mat, "metallicFactor", None) is not None:
             info["metallic"] = float(mat.metallicFactor)
         if getattr(mat, "roughnessFactor", None) is not None:
@@ -111,7 +115,7 @@ def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarr
     return None, None, "vertex"
 
 
-def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
+def _load_parts(model_path: Path, scale: float, up: str, look: Optional[tuple[float, ...]] = None) -> list[_Part]:
     import trimesh
 
     try:
@@ -140,6 +144,8 @@ def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
         if mat is None and colors is not None:  # plain vertex/face colours: a material that reads them
             mat = {"base_color_factor": [1.0, 1.0, 1.0, 1.0], "metallic": 0.0, "roughness": 0.5,
                    "vertex_color": True}
+        if mat is None and colors is None and look is not None:  # no colour of its own: the palette look
+            mat = look_material(look)
         uv = getattr(geom.visual, "uv", None) if mat is not None else None
         if uv is not None and len(uv) != len(pts):
             uv = None
@@ -150,6 +156,18 @@ def _load_parts(model_path: Path, scale: float, up: str) -> list[_Part]:
     if not parts:
         raise CompositionError(f"model {model_path} has no triangle geometry to convert")
     return parts
+
+
+def look_material(look: tuple[float, ...]) -> dict[str, Any]:
+    """The material of a part without a colour: ``look`` = (sRGB r, g, b, metallic, roughness)."""
+    linear = srgb_to_linear(look[:3])
+    return {"base_color_factor": [float(c) for c in linear] + [1.0], "metallic": float(look[3]),
+            "roughness": float(look[4]), "base_color_tex": None, "mr_tex": None, "normal_tex": None}
+
+
+def look_tag(look: Optional[tuple[float, ...]]) -> str:
+    """How a layer records the look it was converted with ("" = none)."""
+    return "" if look is None else ",".join(f"{float(v):.4f}" for v in look)
 
 
 # ------------------------------------------------------------------------------------ pxr side
@@ -280,7 +298,7 @@ def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path], re
 
 
 def _is_current(path: Path, proxy: Optional[str] = None, *, frame: Optional[str] = None,
-                source: Optional[str] = None) -> bool:
+                source: Optional[str] = None, look: Optional[str] = None) -> bool:
     """Converted by this converter version (and, for a visual asset, with the proxy asked for and in the
     ``frame`` asked for; for a collision layer, from the ``source`` mesh file asked for)."""
     if not path.exists():
@@ -297,10 +315,12 @@ def _is_current(path: Path, proxy: Optional[str] = None, *, frame: Optional[str]
         return False
     if source is not None and data.get("source", "") != source:
         return False
+    if look is not None and data.get("look", "") != look:
+        return False
     return proxy is None or data.get("proxy", "") == proxy
 
 
-def _start_stage(path: Path, key: str, source: str, center: np.ndarray, frame: str) -> tuple[Any, Any]:
+def _start_stage(path: Path, key: str, source: str, center: np.ndarray, frame: str, look: str = "") -> tuple[Any, Any]:
     from pxr import Gf, Kind, Usd, UsdGeom
 
     stage = Usd.Stage.CreateNew(str(path))
@@ -311,15 +331,17 @@ def _start_stage(path: Path, key: str, source: str, center: np.ndarray, frame: s
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
     stage.GetRootLayer().customLayerData = {"mixcount": {
         "converter_version": CONVERTER_VERSION, "content_hash": key,
-        "source": source, "center_m": Gf.Vec3d(*[float(c) for c in center]), "frame": frame,
+        "source": source, "center_m": Gf.Vec3d(*[float(c) for c in center]), "frame": frame, "look": look,
     }}
     return stage, root
 
 
 def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = "", units: Optional[str] = None,
                   up_axis: Optional[str] = None, collision_path: Optional[str] = None,
-                  proxy_path: Optional[str] = None, textured: bool = True, force: bool = False) -> AssetPaths:
-    """Convert one model to ``out_dir/<hash>.usdc`` (+ textures, + collision, + proxy prim) unless cached."""
+                  proxy_path: Optional[str] = None, textured: bool = True, force: bool = False,
+                  look: Optional[tuple[float, ...]] = None) -> AssetPaths:
+    """Convert one model to ``out_dir/<hash>.usdc`` (+ textures, + collision, + proxy prim) unless cached.
+    ``look``: (sRGB r, g, b, metallic, roughness) for parts without a colour of their own."""
     model = Path(model_path)
     key = asset_key(content_hash, str(model))
     visual = out_dir / f"{key}.usdc"
@@ -328,8 +350,9 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
     proxy = Path(proxy_path) if proxy_path and Path(proxy_path).is_file() else None
     proxy_tag = str(proxy.resolve()) if proxy is not None else ""
     frame = "/".join(source_frame(model, units, up_axis)[1:]) if model.suffix.lower() not in USD_EXTENSIONS else "usd"
+    look = None if model.suffix.lower() in USD_EXTENSIONS else look  # a USD source keeps its own materials
     coll_source = str(Path(collision_path)) if collision_path else None
-    if not force and _is_current(visual, proxy_tag, frame=frame) and (
+    if not force and _is_current(visual, proxy_tag, frame=frame, look=look_tag(look)) and (
             coll is None or _is_current(coll, source=coll_source)):
         from pxr import Sdf
 
@@ -345,7 +368,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
             check_proxy_fits(proxy, lo, hi, model)
         _write_layer_atomically(lambda p, _t: _wrap_usd(p, key, model, center, proxy), visual, None)
     else:
-        parts = _load_parts(model, scale, up)
+        parts = _load_parts(model, scale, up, look)
         allpts = np.vstack([p.points for p in parts])
         center = (allpts.min(0) + allpts.max(0)) / 2
         if proxy is not None:
@@ -354,7 +377,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
         def build(path: Path, tdir: Optional[Path]) -> None:
             from pxr import UsdGeom, UsdShade
 
-            stage, _root = _start_stage(path, key, str(model), center, frame)
+            stage, _root = _start_stage(path, key, str(model), center, frame, look_tag(look))
             UsdGeom.Scope.Define(stage, "/Asset/Looks")
             UsdGeom.Scope.Define(stage, "/Asset/Geom")
             for i, part in enumerate(parts):

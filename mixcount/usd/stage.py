@@ -343,7 +343,7 @@ def convert_scene_assets(spec: SceneSpec, assets_dir: Path) -> dict[int, AssetPa
         out[a.object_id] = convert_asset(
             a.model_path, assets_dir, content_hash=a.content_hash, units=a.source_units,
             up_axis=a.source_up_axis, collision_path=a.collision_path if a.object_id == container_id else None,
-            proxy_path=a.proxy_path,
+            proxy_path=a.proxy_path, look=a.look,
         )
     return out
 

@@ -378,6 +378,9 @@ class CanonicalRequest:
     # the up axis the catalog reads the model with (objects.source_up_axis); the render turns the import
     # into that frame. "" = as Blender's importer reads it (glTF/OBJ Y-up, PLY/STL Z-up, USD its own)
     up_axis: str
+    # (sRGB r, g, b, metallic, roughness) for the model's parts without texture, vertex colours or material
+    # ([palette], mixcount.catalog.materials.object_look); None: they keep the importer's default
+    look: Optional[tuple[float, ...]] = None
 
     def views(self) -> tuple[tuple[str, float], ...]:
         return canonical_views(self.settings.extra_views, self.settings.azimuth_deg)
@@ -388,7 +391,8 @@ class CanonicalRequest:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalRequest":
         v = _known(cls, d)
-        return cls(**{**v, "settings": CanonicalSettings.from_dict(v["settings"])})
+        look = None if v["look"] is None else tuple(float(x) for x in v["look"])
+        return cls(**{**v, "settings": CanonicalSettings.from_dict(v["settings"]), "look": look})
 
 
 @dataclass(frozen=True)
