@@ -233,21 +233,31 @@ def test_scene_task_is_picklable_plain_data(setup) -> None:
 
 def test_the_dry_run_plan_names_the_scenes_the_run_writes(setup) -> None:
     """Issue 56: a dry run listed scene_000000/1 while the run wrote scene_000004/5 (seeds 0-3 thrown away
-    by an earlier run). The plan walks OUT as the run does; the run then writes exactly the planned ids."""
-    from mixcount.run.seed_plan import DRAWN, planned_seeds
+    by an earlier run). The dry run's walk (``dry_plan``, what `compose --dry-run --out OUT` prints) reads OUT
+    as the run does; the run then writes exactly the planned ids, kept scenes counting towards n in both."""
+    from mixcount.run.seed_plan import dry_plan
+    from mixcount.scene.sampler import sample_scene
 
-    out = setup[2]
-    assert [s.scene_id for s in planned_seeds(out, "train", 100, 2)] == ["scene_000100", "scene_000101"]
+    config, pool, out, _assets = setup
+
+    def plan(n: int) -> list[str]:
+        return [s.scene_id for s in dry_plan(out, "train", 100, n, lambda seed: sample_scene(seed, "train", config, pool),
+                                             10).specs]
+
+    assert plan(2) == ["scene_000100", "scene_000101"]  # nothing there yet
     first = _run(setup, lambda s: {100: "empty", 102: "rejected"}.get(s, "ok"), 2, [])
     assert [o["scene_id"] for o in first.outcomes if o["status"] == "written"] == ["scene_000101", "scene_000103"]
-    steps = planned_seeds(out, "train", 100, 4)  # what `compose --n 4 --dry-run` on this OUT shows
-    assert [(s.seed, s.state) for s in steps] == [(100, "rejected"), (101, "kept"), (102, "rejected"), (103, "kept"),
-                                                 (104, "new"), (105, "new")]
+    assert plan(2) == []  # the two finished scenes make n = 2
+    planned = plan(4)
+    assert planned == ["scene_000104", "scene_000105"]
     calls: list[int] = []
     again = _run(setup, lambda s: "ok", 4, calls)
-    written = [o["scene_id"] for o in again.outcomes if o["status"] == "written"]
-    assert written == [s.scene_id for s in steps if s.state in DRAWN] == ["scene_000104", "scene_000105"]
+    assert [o["scene_id"] for o in again.outcomes if o["status"] == "written"] == planned
     assert calls == [104, 105] and (again.written, again.skipped) == (4, 2)
+    walked = dry_plan(out, "train", 100, 5, lambda seed: seed, 10)
+    assert [(s.seed, s.state) for s in walked.passed] == [(100, "rejected"), (101, "kept"), (102, "rejected"),
+                                                         (103, "kept"), (104, "kept"), (105, "kept")]
+    assert walked.specs == [106] and walked.kept == 4
 
 
 def test_a_run_says_once_what_its_objects_were_never_given(setup) -> None:

@@ -27,7 +27,7 @@ def plan_scenes(catalog: Any, config: Config, *, n: int, out_dir: Optional[Path]
     captioned or rendered, seeds passed over) is printed once, on stderr, and appended to ``notes``."""
     from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
     from mixcount.run.readiness import missing_steps
-    from mixcount.run.seed_plan import DRAWN, describe_passed, planned_seeds
+    from mixcount.run.seed_plan import describe_passed, dry_plan
     from mixcount.scene.sampler import container_warning, sample_scene
 
     split, base = config.compose.split, config.compose.seed
@@ -37,28 +37,19 @@ def plan_scenes(catalog: Any, config: Config, *, n: int, out_dir: Optional[Path]
         mats = load_materials(session)
     require_split(pool, split)
     lines = [w for w in [container_warning(pool, split, config.scene)] if w] + missing_steps(pool, split)
-    specs: list[Any] = []
-    passed: list[Any] = []
-    start, failed = base, 0
-    limit = int(n * config.compose.max_attempts_factor) + 4  # the run's bound on drawn seeds
-    while len(specs) < n and failed < limit:
-        steps = planned_seeds(out_dir, split, start, n - len(specs))
-        passed += [st for st in steps if st.state not in DRAWN]
-        for st in steps:
-            if st.state not in DRAWN:
-                continue
-            try:
-                specs.append(sample_scene(st.seed, split, config, pool, environments=envs, materials=mats))
-            except Exception as exc:  # noqa: BLE001 - the run records such a seed as failed and draws the next
-                failed += 1
-                lines.append(f"seed {st.seed} cannot be sampled ({exc}): the run records it as failed and draws "
-                             "the next seed")
-        start = steps[-1].seed + 1 if steps else start + 1
-    lines += describe_passed(passed)
+    plan = dry_plan(out_dir, split, base, n,
+                    lambda seed: sample_scene(seed, split, config, pool, environments=envs, materials=mats),
+                    int(n * config.compose.max_attempts_factor) + 4)
+    lines += [f"seed {seed} cannot be sampled ({err}): the run records it as failed and draws the next seed"
+              for seed, err in plan.unsampled]
+    lines += describe_passed(plan.passed)
+    specs = plan.specs
     if specs:
         lines.append(f"the run draws {', '.join(s.scene_id for s in specs[:8])}"
                      + (f" and {len(specs) - 8} more" if len(specs) > 8 else "")
                      + "; a scene that comes out empty at render is replaced by the next seed")
+    elif plan.kept >= n:
+        lines.append(f"nothing to draw: {plan.kept} finished scene(s) of split {split!r} in {out_dir} already make --n {n}")
     for line in lines:
         console.print(f"[yellow]note:[/] {line}", highlight=False, soft_wrap=True)
     if notes is not None:

@@ -19,9 +19,9 @@ can tell - a scene that comes out empty or fails - makes the run draw the next s
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Any, Callable, Optional
 
 KEPT, OTHER_SPLIT, REJECTED_BEFORE, DAMAGED, NEW = "kept", "other_split", "rejected", "damaged", "new"
 DRAWN = (NEW, DAMAGED)  # states whose seed the run samples and renders
@@ -92,3 +92,37 @@ def describe_passed(steps: list[SeedStep]) -> list[str]:
             shown = ", ".join(ids[:6]) + (f" and {len(ids) - 6} more" if len(ids) > 6 else "")
             lines.append(f"{len(ids)} seed(s) {text}: {shown}")
     return lines
+
+
+@dataclass
+class DryPlan:
+    """What a run of ``n`` scenes would do with ``OUT`` as it is: the specs it draws, the seeds it passes
+    over or keeps, and the seeds whose sampling fails (the run records those as failed and draws on)."""
+
+    specs: list[Any] = field(default_factory=list)
+    passed: list[SeedStep] = field(default_factory=list)  # kept, other split, rejected before
+    kept: int = 0
+    unsampled: list[tuple[int, str]] = field(default_factory=list)  # (seed, error)
+
+
+def dry_plan(out_dir: Optional[Path], split: str, base: int, n: int, sample: Callable[[int], Any],
+             max_attempts: int) -> DryPlan:
+    """The run's walk without rendering: kept scenes count towards ``n`` as in the run, drawn seeds are
+    sampled with ``sample(seed)``; at most ``max_attempts`` failed samplings (the run's bound)."""
+    plan = DryPlan()
+    start = base
+    while plan.kept + len(plan.specs) < n and len(plan.unsampled) < max_attempts:
+        steps = planned_seeds(out_dir, split, start, n - plan.kept - len(plan.specs))
+        if not steps:
+            break
+        for st in steps:
+            if st.state not in DRAWN:
+                plan.passed.append(st)
+                plan.kept += st.state == KEPT
+                continue
+            try:
+                plan.specs.append(sample(st.seed))
+            except Exception as exc:  # noqa: BLE001 - the run records such a seed as failed and draws the next
+                plan.unsampled.append((st.seed, str(exc)))
+        start = steps[-1].seed + 1
+    return plan
