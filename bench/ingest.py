@@ -11,6 +11,15 @@ The demo library's meshes are deliberately light (~100-2,500 faces); real captur
 subdividing every part K times (UVs and textures kept); ``--subdivide 0`` measures the demo meshes as
 generated. Both figures are honest measurements; they answer different questions.
 
+``--captures K``: cost at the paper's scale (issue 56). K capture-like DTC objects (``<name>/3d-asset.glb``:
+a lumpy scan of ``--faces`` triangles, default 1.2 M, with a ``--texture-px`` JPEG, default 4096;
+bench/big_meshes.py) through ingest, canonical render and filter, each step in a fresh process so its peak
+memory is its own: seconds per object, peak RSS of one worker (the largest ingest worker / bpy worker /
+the filter process), and the three extrapolated to 2,000 objects at ``--workers``. One JSON line:
+{"bench": "ingest_captures", "objects": K, "faces": F, "texture_px": P, "steps": {"ingest": {"s_per_object": ...,
+"peak_rss_mb_per_worker": ...}, "render": {...}, "filter": {...}}, "extrapolated_2000": {"hours": ...}}.
+``--smoke`` with it: 2 objects of 20,000 faces, 256 px textures, 64 px renders (the suite runs it).
+
 ``--pybullet``: real folders as they come (issue 52). 20 models of pybullet's own ``pybullet_data`` are
 copied into folders named by a person (``Rubber duck/``, ``red_mug/``, ``blue_mug/``), each with what the
 package ships beside the model (.mtl or none, textures, the URDF, collision companions), then ingested
@@ -171,6 +180,97 @@ def run_pybullet(args: argparse.Namespace) -> int:
     return 0
 
 
+def _step(step: str, db: str, workers: int, values: dict) -> dict:
+    """One step of ``--captures`` in a fresh process: wall seconds and the peak RSS of its largest worker."""
+    import subprocess
+
+    cmd = [sys.executable, __file__, "--captures-step", step, "--captures-db", db, "--workers", str(workers),
+           "--captures-set", json.dumps(values)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"captures step {step} failed:\n{proc.stderr[-2000:]}")
+    return {**json.loads(proc.stdout.strip().splitlines()[-1]), "wall_s": round(wall, 2)}
+
+
+def run_captures_step(args: argparse.Namespace) -> int:
+    """Inside the step's process: run it, print {"peak_rss_mb_per_worker", "detail"} (workers' RSS from
+    RUSAGE_CHILDREN: the largest child; the process's own when the step runs in it)."""
+    import resource
+
+    values = json.loads(args.captures_set)
+    config = load_config(values={"ingest.workers": args.workers, "canonical_render.workers": args.workers,
+                                 **{k: v for k, v in values.items() if not k.startswith("_")}})
+    catalog = open_catalog(args.captures_db, data_dir="")
+    try:
+        if args.captures_step == "ingest":
+            detail = ingest_paths(catalog, [Path(values.get("_lib", ""))], config=config).as_dict()
+        elif args.captures_step == "render":
+            from mixcount.curation.renders import render_catalog
+
+            detail = render_catalog(catalog, config.canonical_render).as_dict()
+        else:
+            from mixcount.curation.flags import run_filter
+
+            res = run_filter(catalog, config)
+            detail = {"objects": res.objects, "flags": res.flags}
+    finally:
+        catalog.close()
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    worker = kids if kids > 0 and args.captures_step != "filter" else own
+    print(json.dumps({"peak_rss_mb_per_worker": round(worker, 1), "parent_rss_mb": round(own, 1),
+                      "detail": {k: v for k, v in detail.items() if k in ("new", "broken", "broken_objects", "warnings",
+                                                                       "rendered", "failed", "failures", "objects",
+                                                                       "flags")}}))
+    return 0
+
+
+def run_captures(args: argparse.Namespace) -> int:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import big_meshes as B
+
+    faces, px, k = args.faces, args.texture_px, args.captures
+    render = {"canonical_render.resolution": 512, "canonical_render.samples": 16}
+    if args.smoke:
+        faces, px, k = 20_000, 256, 2
+        render = {"canonical_render.resolution": 64, "canonical_render.samples": 2}
+    with tempfile.TemporaryDirectory(prefix="mixcount-captures-") as tmp:
+        lib = Path(tmp) / "lib"
+        t0 = time.perf_counter()
+        for i in range(k):
+            verts, tris, uv = B.lumpy_grid(faces, seed=i, radius=0.04 + 0.01 * i)
+            (lib / f"Capture_{i:04d}").mkdir(parents=True)
+            B.write_textured_glb(lib / f"Capture_{i:04d}" / "3d-asset.glb", verts, tris, uv, px, seed=i)
+        n_faces = int(len(tris))
+        print(f"generated {k} objects of {n_faces} faces, {px} px textures in {time.perf_counter() - t0:.1f} s",
+              file=sys.stderr)
+        db = str(Path(tmp) / "bench.db")
+        values = {"_lib": str(lib), **render}
+        steps = {name: _step(name, db, args.workers, values) for name in ("ingest", "render", "filter")}
+    for name, st in steps.items():
+        # worker-seconds per object: a step's wall time x the processes it kept busy, over the objects
+        busy = 1 if name == "filter" else min(args.workers, k)
+        st["s_per_object"] = round(st["wall_s"] * busy / k, 2)
+        print(f"{name}: {st['wall_s']} s for {k} objects ({st['s_per_object']} worker-s per object), peak "
+              f"{st['peak_rss_mb_per_worker']} MB per worker", file=sys.stderr)
+    per_obj = sum(st["s_per_object"] for st in steps.values())
+    hours = 2000 * per_obj / 3600.0
+    result = {
+        "bench": "ingest_captures", "objects": k, "faces": n_faces, "texture_px": px, "workers": args.workers,
+        "render": {k2.split(".")[1]: v for k2, v in render.items()},
+        "steps": steps,
+        "extrapolated_2000": {"worker_hours": round(hours, 2), "hours_at_workers": round(hours / args.workers, 2),
+                              "peak_rss_mb_per_worker": max(st["peak_rss_mb_per_worker"] for st in steps.values()),
+                              "by_step_hours": {n: round(2000 * st["s_per_object"] / 3600.0 / args.workers, 2)
+                                                for n, st in steps.items()}},
+    }
+    print(json.dumps(result))
+    broken = steps["ingest"]["detail"].get("broken", 0)
+    return 0 if broken == 0 and steps["render"]["detail"].get("failed", 0) == 0 else 1
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pybullet", action="store_true", help="ingest 20 pybullet_data models in person-named folders")
@@ -180,7 +280,17 @@ def main() -> int:
     parser.add_argument("--subdivide", type=int, default=2, help="subdivide every part K times (x4^K faces)")
     parser.add_argument("--smoke", action="store_true",
                         help="seconds: one demo library as generated; exit 0 whatever the ratio (the suite runs it)")
+    parser.add_argument("--captures", type=int, default=0, help="K capture-like DTC objects through ingest, render, filter")
+    parser.add_argument("--faces", type=int, default=1_200_000, help="--captures: faces per object")
+    parser.add_argument("--texture-px", type=int, default=4096, help="--captures: texture side in pixels")
+    parser.add_argument("--captures-step", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--captures-db", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--captures-set", default="{}", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.captures_step:
+        return run_captures_step(args)
+    if args.captures:
+        return run_captures(args)
     if args.pybullet:
         return run_pybullet(args)
     if args.smoke:

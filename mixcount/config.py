@@ -135,6 +135,11 @@ class IngestConfig:
     omniobject3d_units: str
     omniobject3d_up_axis: str
     proxy_max_vertices: int
+    facts_face_budget: int  # above it: facts measured whole, hash and collision mesh from a copy
+
+    def validate(self) -> None:
+        if self.facts_face_budget < 1000:
+            raise ConfigError(f"ingest.facts_face_budget must be >= 1000 faces, got {self.facts_face_budget!r}")
 
 
 @dataclass(frozen=True)

@@ -57,10 +57,10 @@ def bench_root(tmp_path_factory: pytest.TempPathFactory, demo_library: tuple[Pat
     return root
 
 
-def run_smoke(name: str, root: Path | None, *, share: bool = True) -> list[dict[str, Any]]:
-    """Run ``bench/<name>.py --smoke`` in a child process (``--work root/name``, linked to the shared demo
+def run_smoke(name: str, root: Path | None, *, share: bool = True, args: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """Run ``bench/<name>.py --smoke [args]`` in a child process (``--work root/name``, linked to the shared demo
     library when ``share``; no --work when ``root`` is None); the JSON lines it printed on stdout."""
-    cmd = [sys.executable, str(BENCH / f"{name}.py"), "--smoke"]
+    cmd = [sys.executable, str(BENCH / f"{name}.py"), "--smoke", *args]
     if root is not None:
         folder = root / name
         folder.mkdir(exist_ok=True)
@@ -219,6 +219,21 @@ def test_ingest_bench() -> None:
     doc = run_smoke("ingest", None)[-1]
     check_figures(doc, ["objects", "first_s", "first_obj_per_s", "rerun_s", "rerun_obj_per_s", "ratio"])
     assert doc["subdivide"] == 0 and doc["objects"] > 0 and doc["rerun_obj_per_s"] > doc["first_obj_per_s"]
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_ingest_captures_bench() -> None:
+    """Issue 56: the cost at the paper's scale, per step (ingest, canonical render, filter), with each step's
+    peak memory per worker and the extrapolation to 2,000 objects."""
+    doc = run_smoke("ingest", None, args=("--captures", "2"))[-1]
+    assert doc["bench"] == "ingest_captures" and doc["objects"] == 2 and doc["faces"] > 10_000
+    check_figures(doc, [f"steps.{s}.{k}" for s in ("ingest", "render", "filter")
+                        for k in ("s_per_object", "peak_rss_mb_per_worker", "wall_s")]
+                  + ["extrapolated_2000.worker_hours", "extrapolated_2000.hours_at_workers"])
+    assert doc["steps"]["ingest"]["detail"]["new"] == 2 and doc["steps"]["render"]["detail"]["rendered"] == 2
+    by_step = doc["extrapolated_2000"]["by_step_hours"]
+    assert doc["extrapolated_2000"]["hours_at_workers"] == pytest.approx(sum(by_step.values()), abs=0.05)
 
 
 @pytest.mark.blender

@@ -229,3 +229,51 @@ def test_scene_task_is_picklable_plain_data(setup) -> None:
     task = SceneTask(spec=spec, out_dir="o", assets_dir="a", timeout_s=5.0, threads=1,
                      outputs=SceneOutputs.from_config(load_config().compose))
     assert pickle.loads(pickle.dumps(task)) == task
+
+
+def test_the_dry_run_plan_names_the_scenes_the_run_writes(setup) -> None:
+    """Issue 56: a dry run listed scene_000000/1 while the run wrote scene_000004/5 (seeds 0-3 thrown away
+    by an earlier run). The dry run's walk (``dry_plan``, what `compose --dry-run --out OUT` prints) reads OUT
+    as the run does; the run then writes exactly the planned ids, kept scenes counting towards n in both."""
+    from mixcount.run.seed_plan import dry_plan
+    from mixcount.scene.sampler import sample_scene
+
+    config, pool, out, _assets = setup
+
+    def plan(n: int) -> list[str]:
+        return [s.scene_id for s in dry_plan(out, "train", 100, n, lambda seed: sample_scene(seed, "train", config, pool),
+                                             10).specs]
+
+    assert plan(2) == ["scene_000100", "scene_000101"]  # nothing there yet
+    first = _run(setup, lambda s: {100: "empty", 102: "rejected"}.get(s, "ok"), 2, [])
+    assert [o["scene_id"] for o in first.outcomes if o["status"] == "written"] == ["scene_000101", "scene_000103"]
+    assert plan(2) == []  # the two finished scenes make n = 2
+    planned = plan(4)
+    assert planned == ["scene_000104", "scene_000105"]
+    calls: list[int] = []
+    again = _run(setup, lambda s: "ok", 4, calls)
+    assert [o["scene_id"] for o in again.outcomes if o["status"] == "written"] == planned
+    assert calls == [104, 105] and (again.written, again.skipped) == (4, 2)
+    walked = dry_plan(out, "train", 100, 5, lambda seed: seed, 10)
+    assert [(s.seed, s.state) for s in walked.passed] == [(100, "rejected"), (101, "kept"), (102, "rejected"),
+                                                         (103, "kept"), (104, "kept"), (105, "kept")]
+    assert walked.specs == [106] and walked.kept == 4
+
+
+def test_a_run_says_once_what_its_objects_were_never_given(setup) -> None:
+    """Objects never captioned (prompts from file names) or rendered (no external exemplar): one line each,
+    with the command that fixes it, in the run's warnings; captioned and rendered objects: no line."""
+    config, pool, out, assets = setup
+    pool[0] = replace(pool[0], captions=fallback_captions(pool[0].name, pool[0].category))
+    summary = compose_scenes(pool=pool, config=config, out_dir=out, assets_dir=assets, n=1,
+                             executor=LocalExecutor(1, runner=lambda task, _w: run_scene_task(
+                                 task, FakeWorker(task.spec, lambda s: "ok", [])), recycle_after=0, settle_ahead=False))
+    caption_lines = [w for w in summary.warnings if "never captioned" in w]
+    render_lines = [w for w in summary.warnings if "no canonical render" in w]
+    assert len(caption_lines) == 1 and "1 of 5 objects" in caption_lines[0] and "'cube'" in caption_lines[0]
+    assert "mixcount catalog caption" in caption_lines[0]
+    assert len(render_lines) == 1 and "5 of 5 objects" in render_lines[0] and "mixcount catalog render" in render_lines[0]
+    from mixcount.run.readiness import missing_steps
+
+    ready = [replace(o, render_path=str(assets / "r.png")) for o in pool[1:]]  # pool[0]: uncaptioned above
+    assert missing_steps(ready, "train") == [] and missing_steps(ready, "val") == []

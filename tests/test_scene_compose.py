@@ -50,3 +50,20 @@ def test_empty_split_is_a_clear_error(demo_db, capsys):
     rc = main(["--db", str(demo_db / "catalog.db"), "compose", "--dry-run", "--split", "test"])
     assert rc == 2
     assert "no active objects in split 'test'" in capsys.readouterr().err
+
+
+def test_dry_run_shows_the_ids_the_run_writes_and_what_is_missing(demo_db, capsys, tmp_path):
+    """Issue 56: seeds an earlier run threw away are passed over in the plan as in the run, and the objects'
+    missing captions and renders are said once with the command that fixes them."""
+    rejected = tmp_path / "out" / "scenes" / ".rejected"
+    rejected.mkdir(parents=True)
+    (rejected / "scene_000010.json").write_text("{}")
+    rc = main(["--db", str(demo_db / "catalog.db"), "--config", "quick", "compose", "--dry-run", "--n", "2",
+               "--seed", "10", "--split", "train", "--out", str(tmp_path / "out"), "--json"])
+    captured = capsys.readouterr()
+    assert rc == 0
+    assert [p["scene_id"] for p in json.loads(captured.out)] == ["scene_000011", "scene_000012"]
+    err = " ".join(captured.err.split())
+    assert "thrown away by an earlier run" in err and "scene_000010" in err
+    assert err.count("never captioned") == 1 and "mixcount catalog caption" in err
+    assert err.count("no canonical render") == 1 and "mixcount catalog render" in err

@@ -129,6 +129,7 @@ def settings_of(config: IngestConfig) -> dict[str, Any]:
         "collision_face_budget": config.collision_face_budget,
         "assume_units": config.assume_units,
         "assume_up_axis": config.assume_up_axis,
+        "facts_face_budget": config.facts_face_budget,  # a big model's hash and collision mesh depend on it
         "analysis_version": 2,  # bump when mesh.py measures differently (2: units decided, issue 56)
     }
 
@@ -259,6 +260,9 @@ def _store(
             outcome = "broken"
         else:
             assert facts is not None
+            note = facts.get("facts_note")  # a big mesh analysed on a copy, numerical warnings: said and kept
+            if note and note not in cand.warnings:
+                cand.warnings.append(note)
             ingest = {
                 "ingest_hash": prep.ingest_hash,
                 "layout": cand.layout,
@@ -271,6 +275,7 @@ def _store(
                 "parts_rule": cand.parts_rule,
                 "warnings": list(cand.warnings),
                 "collision_source": facts.get("collision_source"),
+                "facts_note": note,
             }
             _apply_identity(obj, prep, run_id, ingest)
             obj.content_hash = prep.content_hash
@@ -310,6 +315,7 @@ def _facts_of(obj: CatalogObject) -> dict[str, Any]:
     facts["n_parts"] = info.get("n_parts")
     facts["collision_source"] = info.get("collision_source")
     facts["units_reason"] = info.get("units_reason")
+    facts["facts_note"] = info.get("facts_note")
     return facts
 
 
@@ -328,6 +334,7 @@ def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict
                                      else settings["assume_up_axis"])),
         "proxy_max_vertices": settings["proxy_max_vertices"],
         "collision_source": str(cand.collision_source) if cand.collision_source else None,
+        "facts_face_budget": settings["facts_face_budget"],
     }
 
 

@@ -22,13 +22,15 @@ Conventions (see docs/ingest.md):
 from __future__ import annotations
 
 import hashlib
-from dataclasses import asdict, dataclass
+import warnings
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mixcount.atomic import atomic_path
+from mixcount.catalog.mesh_bounds import FullFacts, check_coordinates, cluster_copy, full_facts
 from mixcount.catalog.model_files import GLB_MAGIC, Relinked, model_resources, relink_textures  # noqa: F401  (re-exported)
 from mixcount.errors import IngestError
 from mixcount.frame import STEP_EXTENSIONS, UNIT_SCALE, to_metres_z_up, unit_scale, walk_geometry
@@ -189,12 +191,15 @@ class NormalisedMesh:
     source_up_axis: str
     appearance: str
     n_parts: int
+    full: FullFacts | None = None  # a big mesh: ``mesh`` is a reduced copy, these facts are of the whole
 
 
-def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> NormalisedMesh:
+def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y", face_budget: int = 0) -> NormalisedMesh:
     """Load any supported model and return it in metres, Z-up. ``units`` applies only to formats that
     carry none (OBJ/PLY/STL); ``up_axis`` to those and to glTF, whose Y-up rule it overrides (ingest
-    passes Y for a glTF unless the object's up axis was stated: :func:`mixcount.frame.source_frame`)."""
+    passes Y for a glTF unless the object's up axis was stated: :func:`mixcount.frame.source_frame`).
+    ``face_budget`` > 0: a mesh of more faces is measured whole where that is cheap and returned as a
+    reduced copy (:mod:`mixcount.catalog.mesh_bounds`)."""
     import trimesh
 
     suffix = path.suffix.lower()
@@ -222,25 +227,39 @@ def load_normalised(path: Path, *, units: str = "m", up_axis: str = "Y") -> Norm
         raise IngestError(f"unsupported model format {suffix or '(no extension)'}")
     if not parts.faces:
         raise IngestError("mesh has no faces")
+    appearance_kinds = set(parts.appearance)
     offsets = np.cumsum([0] + [len(v) for v in parts.vertices[:-1]])
     vertices = np.vstack(parts.vertices) * scale
     faces = np.vstack([f + o for f, o in zip(parts.faces, offsets)])
-    if not np.all(np.isfinite(vertices)):
-        raise IngestError("mesh has non-finite vertex coordinates")
+    check_coordinates(vertices)  # inf / nan / absurdly far: broken, with the reason (mesh_bounds)
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise IngestError("mesh has face indices outside its vertex list")
     try:
         vertices = to_metres_z_up(vertices, 1.0, up)
     except ValueError as exc:
         raise IngestError(str(exc)) from None
+    n_parts = len(parts.faces)
+    del parts
+    full, vertices, faces = _bounded(vertices, faces, face_budget)
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=True)  # merges duplicate vertices
     if len(mesh.faces) == 0:
         raise IngestError("mesh has no faces")
     if not mesh.area > 0:
         raise IngestError("mesh is degenerate: zero surface area")
     rank = ("image", "vertex_color", "material", "none")
-    appearance = min(parts.appearance, key=rank.index) if parts.appearance else "none"
-    return NormalisedMesh(mesh, units, up, appearance, len(parts.faces))
+    appearance = min(appearance_kinds, key=rank.index) if appearance_kinds else "none"
+    return NormalisedMesh(mesh, units, up, appearance, n_parts, full)
+
+
+def _bounded(vertices: np.ndarray, faces: np.ndarray, face_budget: int) -> tuple[FullFacts | None, np.ndarray, np.ndarray]:
+    """(facts of the whole mesh, a reduced copy) above ``face_budget`` faces; (None, the mesh) within it."""
+    if face_budget <= 0 or len(faces) <= face_budget:
+        return None, vertices, faces
+    full = full_facts(vertices, faces)
+    if not full.area > 0:
+        raise IngestError("mesh is degenerate: zero surface area")
+    v, f = cluster_copy(vertices, faces, face_budget, full.area)
+    return replace(full, copy_faces=int(len(f))), v, f
 
 
 # --------------------------------------------------------------------------- facts
@@ -311,6 +330,7 @@ def analyse_model(
     units: str,
     up_axis: str,
     proxy_max_vertices: int,
+    facts_face_budget: int,
     collision_source: str | None = None,
     units_reason: str = "",
     size_prior: bool = False,
@@ -323,20 +343,40 @@ def analyse_model(
 
     ``collision_source``: a collision mesh shipped beside the model (``mug_col.obj``, ``duck_vhacd.obj``),
     read in the model's frame; the collision mesh and proxy are built from it instead of the visual mesh
-    when its box agrees with the model's (:func:`_companion_collision`)."""
+    when its box agrees with the model's (:func:`_companion_collision`).
+
+    ``facts_face_budget`` > 0: a model of more faces is measured whole where that is cheap, its hash and
+    collision mesh come from a reduced copy, and ``facts_note`` says so (:mod:`mixcount.catalog.mesh_bounds`).
+    Numerical warnings of the libraries are not printed: they are kept in ``facts_note``."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        facts = _analyse(model_path, collision_dir=collision_dir, face_budget=face_budget, units=units,
+                         up_axis=up_axis, proxy_max_vertices=proxy_max_vertices, collision_source=collision_source,
+                         facts_face_budget=facts_face_budget, units_reason=units_reason, size_prior=size_prior)
+    said = sorted({f"{w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught
+                   if issubclass(w.category, RuntimeWarning)})
+    if said:  # not on stderr: on the object, where the user looks for what ingest met
+        facts["facts_note"] = "; ".join(filter(None, [facts.get("facts_note"), "numerical warnings: " + "; ".join(said[:3])]))
+    return facts
+
+
+def _analyse(model_path: str, *, collision_dir: str, face_budget: int, units: str, up_axis: str,
+             proxy_max_vertices: int, collision_source: str | None, facts_face_budget: int,
+             units_reason: str, size_prior: bool) -> dict[str, Any]:
     path = Path(model_path)
-    norm = load_normalised(path, units=units, up_axis=up_axis)
+    norm = load_normalised(path, units=units, up_axis=up_axis, face_budget=facts_face_budget)
     if units_reason and not units_reason.startswith("stated"):  # what the user said is never second-guessed
         norm, units_reason = _size_prior(norm, units_reason, apply=size_prior)
         units = norm.source_units
-    mesh = norm.mesh
+    mesh, full = norm.mesh, norm.full
     ghash = geometry_hash(mesh)
-    dims = mesh.extents
-    watertight = bool(mesh.is_watertight)
-    volume = float(abs(mesh.volume)) if watertight else None
+    dims = mesh.extents if full is None else np.asarray(full.extents)
+    watertight = bool(mesh.is_watertight) if full is None else full.watertight
+    volume = (float(abs(mesh.volume)) if watertight else None) if full is None else full.volume
     source_mesh, used, key = mesh, None, ghash
     if collision_source:
-        companion = _companion_collision(mesh, Path(collision_source), units=units, up_axis=up_axis)
+        companion = _companion_collision(mesh, Path(collision_source), units=units, up_axis=up_axis,
+                                         face_budget=facts_face_budget)
         if companion is not None:
             source_mesh, used = companion, str(Path(collision_source).resolve())
             key = hashlib.sha256(f"{ghash}|{geometry_hash(companion)}".encode()).hexdigest()
@@ -351,11 +391,11 @@ def analyse_model(
         dim_x=float(dims[0]),
         dim_y=float(dims[1]),
         dim_z=float(dims[2]),
-        vertex_count=int(len(mesh.vertices)),
-        face_count=int(len(mesh.faces)),
+        vertex_count=int(len(mesh.vertices)) if full is None else full.vertex_count,
+        face_count=int(len(mesh.faces)) if full is None else full.face_count,
         watertight=watertight,
         volume=volume,
-        area=float(mesh.area),
+        area=float(mesh.area) if full is None else full.area,
         textured=norm.appearance in ("image", "vertex_color"),
         appearance=norm.appearance,
         geometry_hash=ghash,
@@ -365,7 +405,8 @@ def analyse_model(
         proxy_path=proxy.path,
         proxy_vertex_count=proxy.vertex_count,
     )
-    return {**facts.as_dict(), "collision_source": used, "units_reason": units_reason}
+    return {**facts.as_dict(), "collision_source": used, "units_reason": units_reason,
+            "facts_note": None if full is None else full.note()}
 
 
 def _size_prior(norm: NormalisedMesh, reason: str, *, apply: bool) -> tuple[NormalisedMesh, str]:
@@ -383,17 +424,23 @@ def _size_prior(norm: NormalisedMesh, reason: str, *, apply: bool) -> tuple[Norm
     if not apply:
         return norm, (f"{reason}; its largest side, {largest * assumed_scale:.3g} m, is no everyday object's: "
                       f"read as {unit} it would be {largest * UNIT_SCALE[unit]:.3g} m (catalog ingest --units)")
-    norm.mesh.apply_scale(UNIT_SCALE[unit] / assumed_scale)
+    factor = UNIT_SCALE[unit] / assumed_scale
+    norm.mesh.apply_scale(factor)
+    full = norm.full
+    if full is not None:  # the whole mesh's facts in the new unit too
+        full = replace(full, extents=tuple(float(e) * factor for e in full.extents),
+                                   area=full.area * factor ** 2,
+                                   volume=None if full.volume is None else full.volume * factor ** 3)
     why = (f"size prior: {largest * assumed_scale:.3g} m read as {norm.source_units} is no everyday object's "
            f"size; read as {unit} it is {largest * UNIT_SCALE[unit]:.3g} m (was: {reason or 'assumed'})")
-    return NormalisedMesh(norm.mesh, unit, norm.source_up_axis, norm.appearance, norm.n_parts), why
+    return NormalisedMesh(norm.mesh, unit, norm.source_up_axis, norm.appearance, norm.n_parts, full), why
 
 
-def _companion_collision(mesh: Any, path: Path, *, units: str, up_axis: str) -> Any | None:
+def _companion_collision(mesh: Any, path: Path, *, units: str, up_axis: str, face_budget: int = 0) -> Any | None:
     """The collision companion in the model's frame, or None when it does not load or its box is not
     the model's (within 25 % of the largest extent: a companion of another scale or pose is not used)."""
     try:
-        companion = load_normalised(path, units=units, up_axis=up_axis).mesh
+        companion = load_normalised(path, units=units, up_axis=up_axis, face_budget=face_budget).mesh
     except IngestError:
         return None
     size = float(max(mesh.extents.max(), 1e-12))

@@ -18,9 +18,16 @@ from mixcount.errors import CompositionError
 from mixcount.scene.count_targets import parse_count_target
 
 
-def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
-    """SceneSpecs for scenes ``compose.seed .. compose.seed+n-1`` of ``compose.split``."""
+def plan_scenes(catalog: Any, config: Config, *, n: int, out_dir: Optional[Path] = None,
+                notes: Optional[list[str]] = None) -> list[Any]:
+    """SceneSpecs of the ``n`` scenes a run of ``compose.split`` would draw into ``out_dir``: the seeds from
+    ``compose.seed`` that the run draws (:func:`mixcount.run.seed_plan.planned_seeds`: finished and
+    thrown-away scenes already in ``out_dir`` are passed over, as the run passes them; a seed that cannot
+    be sampled is replaced by the next, as in the run). What the run will say at its start (objects never
+    captioned or rendered, seeds passed over) is printed once, on stderr, and appended to ``notes``."""
     from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
+    from mixcount.run.readiness import missing_steps
+    from mixcount.run.seed_plan import describe_passed, dry_plan
     from mixcount.scene.sampler import container_warning, sample_scene
 
     split, base = config.compose.split, config.compose.seed
@@ -29,10 +36,25 @@ def plan_scenes(catalog: Any, config: Config, *, n: int) -> list[Any]:
         envs = load_environments(session)
         mats = load_materials(session)
     require_split(pool, split)
-    warning = container_warning(pool, split, config.scene)
-    if warning:
-        console.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
-    return [sample_scene(base + k, split, config, pool, environments=envs, materials=mats) for k in range(n)]
+    lines = [w for w in [container_warning(pool, split, config.scene)] if w] + missing_steps(pool, split)
+    plan = dry_plan(out_dir, split, base, n,
+                    lambda seed: sample_scene(seed, split, config, pool, environments=envs, materials=mats),
+                    int(n * config.compose.max_attempts_factor) + 4)
+    lines += [f"seed {seed} cannot be sampled ({err}): the run records it as failed and draws the next seed"
+              for seed, err in plan.unsampled]
+    lines += describe_passed(plan.passed)
+    specs = plan.specs
+    if specs:
+        lines.append(f"the run draws {', '.join(s.scene_id for s in specs[:8])}"
+                     + (f" and {len(specs) - 8} more" if len(specs) > 8 else "")
+                     + "; a scene that comes out empty at render is replaced by the next seed")
+    elif plan.kept >= n:
+        lines.append(f"nothing to draw: {plan.kept} finished scene(s) of split {split!r} in {out_dir} already make --n {n}")
+    for line in lines:
+        console.print(f"[yellow]note:[/] {line}", highlight=False, soft_wrap=True)
+    if notes is not None:
+        notes.extend(lines)
+    return specs
 
 
 def require_split(pool: list[Any], split: str) -> None:
@@ -103,6 +125,9 @@ def _compose_lines(summary: Any, out_dir: Path, *, merge: bool) -> list[str]:
     repaired = f", {len(summary.damaged)} damaged set aside and rendered again" if summary.damaged else ""
     lines = [f"wrote {summary.written - summary.skipped} new scene(s) ({summary.skipped} already there, {summary.failed} failed, "
              f"{summary.empty + summary.rejected} regenerated{repaired}) in {summary.seconds:.0f} s into {out_dir}"]
+    written = [str(o.get("scene_id")) for o in (summary.outcomes or []) if o.get("status") == "written"]
+    if written:  # the ids, to hold against the dry run's plan
+        lines.append("new scenes: " + ", ".join(written[:8]) + (f" and {len(written) - 8} more" if len(written) > 8 else ""))
     if summary.failures:  # what failed and where each failure is explained
         from collections import Counter
 
@@ -191,14 +216,14 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         parse_count_target(cfg.scene.count_target)  # a bad target stops here, before anything is written
         catalog = st.catalog()
         if dry_run:
-            specs = plan_scenes(catalog, cfg, n=n)
+            specs = plan_scenes(catalog, cfg, n=n, out_dir=out_dir)
             if json_out:
                 result("", [summarise(s) for s in specs], True)
             else:
                 _print_dry_run(specs)
             return
         if stage_only:
-            paths = write_stages(plan_scenes(catalog, cfg, n=n), out_dir, catalog)
+            paths = write_stages(plan_scenes(catalog, cfg, n=n, out_dir=out_dir), out_dir, catalog)
             result(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}", {"stages": [str(p) for p in paths]},
                    json_out)
             return

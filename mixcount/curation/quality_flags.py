@@ -18,8 +18,15 @@ def mesh_quality_score(fraction: float) -> float:
     return round(min(1.0, math.log10(1.0 + 1000.0 * max(0.0, fraction)) / 3.0), 4)
 
 
+def _broken_kind(error: str | None) -> str:
+    """A broken object's flag head: a file read whole whose geometry cannot be an object (inf / nan or absurd
+    coordinates, zero area: mesh_bounds) is a degenerate model, anything else an unreadable one."""
+    text = error or ""
+    return "degenerate model" if text.startswith(("mesh is degenerate", "mesh has non-finite")) else "unreadable model"
+
+
 def _quality_flags(items: list[_Item], broken: list[CatalogObject], th: FilterConfig) -> list[_Found]:
-    found = [_Found(o.id, None, DEGENERATE, 1.0, f"unreadable model: {o.error or 'broken'}") for o in broken]
+    found = [_Found(o.id, None, DEGENERATE, 1.0, f"{_broken_kind(o.error)}: {o.error or 'broken'}") for o in broken]
     for it in items:
         o, s = it.obj, it.shape
         reasons: list[str] = []

@@ -114,10 +114,12 @@ def compose_scenes(
         summary.warnings.append(device.note)
         bar.note(device.note)
     summary.device = device.device
-    warning = container_warning(pool, comp.split, config.scene)
-    if warning:  # once per run, not once per scene
-        summary.warnings.append(warning)
-        bar.note(warning)
+    from mixcount.run.readiness import missing_steps
+
+    for warning in [container_warning(pool, comp.split, config.scene), *missing_steps(pool, comp.split)]:
+        if warning:  # once per run, not once per scene
+            summary.warnings.append(warning)
+            bar.note(warning)
     bar.start("compose", n)
     try:
         run.drive(executor, on_outcome)
@@ -237,15 +239,18 @@ class _ComposeRun:
                           f"and kept, no new seed drawn: {advice}, then run the same command again")
 
     def finished_scene_counts(self, sdir: Path, sid: str) -> bool:
-        """Whether the seed's folder holds a sound finished scene (count it, draw no task); a damaged one
-        of this split (or of no readable split) is set aside first and then rendered again."""
-        from mixcount.dataset.manifest import check_scene, is_finished, set_aside
+        """Whether the seed is passed over (a sound finished scene, counted when of this split; a scene of
+        another split; a seed an earlier run threw away), by :func:`mixcount.run.seed_plan.seed_state`, the
+        rule the dry run shows; a damaged scene of this split (or of no readable split) is set aside first
+        and then rendered again."""
+        from mixcount.dataset.manifest import check_scene, set_aside
+        from mixcount.run.seed_plan import DAMAGED, KEPT, NEW, OTHER_SPLIT, scene_split, seed_state
 
-        if not is_finished(sdir):
+        state = seed_state(self.out_dir, sid, self.split)
+        if state == NEW:
             return False
-        meta_split = _scene_split(sdir)
-        check = check_scene(sdir, deep=False)
-        if check.damaged and meta_split in (self.split, None):
+        if state == DAMAGED:
+            check = check_scene(sdir, deep=False)
             try:
                 moved = set_aside(sdir, check)
             except OSError as exc:
@@ -256,11 +261,13 @@ class _ComposeRun:
             self.bar.note(f"scene {sid} is damaged ({check.describe()}): set aside as "
                           f"{moved if moved is not None else 'by another run'}; rendering it again")
             return False
-        if check.damaged:
-            self.bar.note(f"scene {sid} of split {meta_split} is damaged ({check.describe()}): "
-                          f"left for a compose of split {meta_split} to repair")
-            return True
-        if meta_split == self.split:
+        if state == OTHER_SPLIT and (sdir / "metadata.json").exists():
+            check = check_scene(sdir, deep=False)
+            if check.damaged:
+                meta_split = scene_split(sdir)
+                self.bar.note(f"scene {sid} of split {meta_split} is damaged ({check.describe()}): "
+                              f"left for a compose of split {meta_split} to repair")
+        if state == KEPT:
             self.summary.skipped += 1
             self.summary.written += 1
         return True
@@ -268,7 +275,6 @@ class _ComposeRun:
     def next_task(self) -> Optional[SceneTask]:
         """The next seed's task: finished and rejected seeds are passed over, a seed that cannot be sampled
         is a failed scene, a missing asset or an unwritable exemplar copy stops the run (None)."""
-        from mixcount.dataset.scene_writer import REJECTED_DIR
         from mixcount.scene.sampler import scene_id_for
 
         summary = self.summary
@@ -279,8 +285,6 @@ class _ComposeRun:
             if self.finished_scene_counts(self.out_dir / "scenes" / sid, sid):
                 if summary.written >= self.n or self.fatal is not None:
                     return None
-                continue
-            if (self.out_dir / "scenes" / REJECTED_DIR / f"{sid}.json").exists():
                 continue
             self.attempts += 1
             task = self._task(s, sid)
@@ -390,13 +394,4 @@ def merge_is_stale(out_dir: Path) -> bool:
         return (Path(out_dir) / "scenes").stat().st_mtime_ns > (Path(out_dir) / "dataset.json").stat().st_mtime_ns
     except OSError:
         return True
-
-
-def _scene_split(scene_dir: Path) -> Optional[str]:
-    import json
-
-    try:
-        return json.loads((scene_dir / "metadata.json").read_text()).get("split")
-    except (OSError, ValueError):
-        return None
 
