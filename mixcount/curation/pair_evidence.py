@@ -7,7 +7,7 @@ puck's look alike, a cup's and a mug's, a cone's and a pyramid's, and none of th
 object. :func:`weigh` checks each pairing the appearance rules found, before the shape rule
 (:mod:`mixcount.curation.copy_rules`) sees the pair:
 
-* **Size** (:func:`mixcount.sizes.size_ratio_evidence` on the largest real sides): a ratio beyond a
+* **Size** (:func:`mixcount.sizes.size_ratio_evidence` on the square roots of the real surface areas): a ratio beyond a
   re-export's rescale (``size_rescale``) that no unit factor explains (``size_unit_tolerance``) is
   evidence against a copy: the pair keeps no duplicate, variant or possible-copy flag (the shape rule makes
   it a ``look_alike`` at most, the size sentence in its reason). An identical file or mesh
@@ -25,6 +25,8 @@ object. :func:`weigh` checks each pairing the appearance rules found, before the
 Alignment distances are cached per pair (the same cache entries as the shape rule's)."""
 
 from __future__ import annotations
+
+import math
 
 from mixcount.config import FilterConfig
 from mixcount.curation import shape_match as S
@@ -44,10 +46,11 @@ PAIRING = EXCLUDING + (COLOUR_VARIANT, POSSIBLE_COPY)
 
 
 def size_evidence(x: _Item, y: _Item, th: FilterConfig) -> SizeEvidence | None:
-    """The largest real sides of the two weighed (None when a shape descriptor is missing)."""
-    if x.shape is None or y.shape is None:
+    """The real sizes of the two weighed: the square root of the surface area, which no pose changes (a
+    bounding box's largest side does: a turned copy's grows up to 1.7x); None when a descriptor is missing."""
+    if x.shape is None or y.shape is None or not (x.shape.area_m2 and y.shape.area_m2):
         return None
-    return size_ratio_evidence(x.shape.extents_m[0], y.shape.extents_m[0], rescale_limit=th.size_rescale,
+    return size_ratio_evidence(math.sqrt(x.shape.area_m2), math.sqrt(y.shape.area_m2), rescale_limit=th.size_rescale,
                                tolerance=th.size_unit_tolerance)
 
 
