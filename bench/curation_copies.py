@@ -26,7 +26,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", nargs="+", default=["tuning", "held_out"], choices=["tuning", "held_out"])
     args = ap.parse_args()
-    from capture_copies import pool, evaluate
+    from capture_copies import evaluate, pool
 
     from mixcount.config import load_config
 
