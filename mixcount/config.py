@@ -207,6 +207,12 @@ class FilterConfig:
     copy_min_detail: float
     copy_evidence: float
     copy_colour: float
+    match_quantile: float
+    appearance_min_pattern: float
+    exclude_shape: float
+    exclude_plain_shape: float
+    size_rescale: float
+    size_unit_tolerance: float
     min_faces: int
     min_area_ratio: float
     min_volume_m3: float

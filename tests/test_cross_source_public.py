@@ -27,6 +27,7 @@ from mixcount.curation import descriptors as D
 from mixcount.curation.filter_items import LayoutCache, _Item
 from mixcount.curation.flag_kinds import DUPLICATE_KINDS, RELATION_KINDS, severity
 from mixcount.curation.flags import candidate_items, pair_flags
+from mixcount.sizes import metres_per_unit, plausible_unit
 
 pytestmark = pytest.mark.slow
 GREY: float | None = None  # one grey for every pool object instead of a plain colour each (the worst case)
@@ -41,8 +42,10 @@ def test_public_pairs_paired_and_nothing_else(tmp_path):
         mesh = trimesh.load(path, force="mesh")
         points, colours = A.surface_samples(path)
         obj = CatalogObject(id=oid, name=label, content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
-        shape = D.shape_descriptor(np.asarray(mesh.vertices, float), np.asarray(mesh.faces), watertight=False,
-                                   volume=None, quality=False)
+        v = np.asarray(mesh.vertices, float)
+        unit = plausible_unit(float(np.ptp(v, axis=0).max()), "m")  # real sizes as ingest reads them (issue 57)
+        shape = D.shape_descriptor(v * (metres_per_unit(unit) if unit else 1.0), np.asarray(mesh.faces),
+                                   watertight=False, volume=None, quality=False)
         items.append(_Item(obj, shape=shape, surface=A.surface_look(points, colours), appearance="image"))
         name[oid] = label
     palette = np.random.default_rng(7)

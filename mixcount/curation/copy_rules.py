@@ -33,10 +33,11 @@ from typing import Iterable
 
 from mixcount.config import FilterConfig
 from mixcount.curation import descriptors as D
-from mixcount.curation import shape_match as S
+from mixcount.curation import pair_evidence as E
 from mixcount.curation.filter_items import LayoutCache, _Found, _Item
 from mixcount.curation.flag_kinds import LOOK_ALIKE, POSSIBLE_COPY
 from mixcount.curation.look_rules import _colours, look_pair
+from mixcount.sizes import SizeEvidence
 
 
 def shape_facts(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, float, float] | None:
@@ -46,8 +47,8 @@ def shape_facts(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> t
         return None
     if D.d2_distance(x.shape, y.shape) > th.copy_gate_d2 or D.moment_distance(x.shape, y.shape) > th.cross_source_proportions:
         return None
-    d = layouts.cached(x, y, "shape", lambda: S.match(x.normalised(), y.normalised(), max_squash=th.copy_max_squash).distance)
-    prim = min(layouts.cached(x, x, "primitive", x.primitive), layouts.cached(y, y, "primitive", y.primitive))
+    d = E.aligned_distance(x, y, th, layouts)
+    prim = min(E.primitive(x, th, layouts), E.primitive(y, th, layouts))
     col = _colours(x.surface, y.surface, th)[0]
     return d, prim, col
 
@@ -90,13 +91,16 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
 
 def pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None = None,
                pairs: Iterable[tuple[_Item, _Item]] | None = None) -> list[_Found]:
-    """Every pair flag of ``pairs`` (default: all pairs of ``items``): appearance rules, then shape.
-    Two passes: the shape facts of every pair first (each object's nearest shape), then the rules."""
+    """Every pair flag of ``pairs`` (default: all pairs of ``items``): appearance rules, weighed by
+    :func:`mixcount.curation.pair_evidence.weigh` (size, plain surfaces, aligned geometry), then shape. Two passes: the shape facts of every pair first (each object's nearest shape), then the rules."""
     layouts = layouts or LayoutCache(None)
     looked: list[tuple[_Item, _Item, list[_Found], tuple[float, float, float] | None]] = []
     nearest: dict[int, float] = {}
+    against: dict[tuple[int, int], SizeEvidence] = {}
     for x, y in (pairs if pairs is not None else combinations(items, 2)):
-        found = look_pair(x, y, th, layouts)
+        found, size = E.weigh(x, y, look_pair(x, y, th, layouts), th, layouts)
+        if size is not None:
+            against[x.obj.id, y.obj.id] = size
         facts = None
         if not found or any(f.kind == POSSIBLE_COPY for f in found):
             facts = shape_facts(x, y, th, layouts)
@@ -107,5 +111,6 @@ def pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None
     out: list[_Found] = []
     for x, y, found, facts in looked:
         nearest_one = facts is not None and facts[0] <= max(nearest[x.obj.id], nearest[y.obj.id])
-        out.extend(shape_pair(x, y, th, facts, found, nearest=nearest_one))
+        flags = shape_pair(x, y, th, facts, found, nearest=nearest_one)
+        out.extend(E.cap_to_look_alike(flags, against.get((x.obj.id, y.obj.id))))
     return out

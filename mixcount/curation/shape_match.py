@@ -43,7 +43,7 @@ TIE_STEP_DEG = 30.0
 SEED = 20261204
 NORMAL_NEIGHBOURS = 10
 POINT_SHARE = 0.2
-QUANTILE = float(__import__("os").environ.get("Q", "0.5"))
+QUANTILE = 0.5  # the default of [filter] match_quantile: the median of the point-to-plane distances
 
 
 @dataclass(frozen=True)
@@ -138,11 +138,13 @@ def chamfer(p: np.ndarray, q: np.ndarray, tree_p: cKDTree | None = None, tree_q:
     return 0.5 * (float(tq.query(p)[0].mean()) + float(tp.query(q)[0].mean()))
 
 
-def surface_distance(a: Normalised, b: Normalised, rot: np.ndarray, scale: np.ndarray) -> float:
+def surface_distance(a: Normalised, b: Normalised, rot: np.ndarray, scale: np.ndarray, *,
+                     quantile: float = QUANTILE) -> float:
     """Symmetric point-to-plane distance of ``b`` (turned by ``rot``, scaled per axis) to ``a`` on
     :data:`FINE` points each: the distance of each point to the tangent plane at its nearest point of the
     other sample, plus :data:`POINT_SHARE` of the point distance (a far point whose neighbour's plane
-    happens to pass through it still counts), averaged both ways. Unlike a point-to-point chamfer it has
+    happens to pass through it still counts), its ``quantile`` each way (``[filter] match_quantile``),
+    averaged. Unlike a point-to-point chamfer it has
     (almost) no floor from two independent samplings of one surface."""
     pa, na = a.points[:FINE], a.normals
     pb = (b.points[:FINE] @ rot.T) * scale
@@ -152,7 +154,7 @@ def surface_distance(a: Normalised, b: Normalised, rot: np.ndarray, scale: np.nd
     d_ba, i = cKDTree(pa).query(pb)
     plane_ab = np.abs(((pa - pb[j]) * nb[j]).sum(axis=1)) + POINT_SHARE * d_ab
     plane_ba = np.abs(((pb - pa[i]) * na[i]).sum(axis=1)) + POINT_SHARE * d_ba
-    return 0.5 * float(np.quantile(plane_ab, QUANTILE) + np.quantile(plane_ba, QUANTILE))
+    return 0.5 * float(np.quantile(plane_ab, quantile) + np.quantile(plane_ba, quantile))
 
 
 def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -185,7 +187,7 @@ def _refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, ma
     return chamfer(pa, moved, tree_a), m, np.ones(3)
 
 
-def match(a: Normalised, b: Normalised, *, max_squash: float) -> Match:
+def match(a: Normalised, b: Normalised, *, max_squash: float, quantile: float = QUANTILE) -> Match:
     """Best alignment of ``b`` onto ``a`` (see the module doc)."""
     ca, cb = a.points[:COARSE], b.points[:COARSE]
     tree_ca = cKDTree(ca)
@@ -201,7 +203,7 @@ def match(a: Normalised, b: Normalised, *, max_squash: float) -> Match:
     best: tuple[float, np.ndarray, np.ndarray] | None = None
     for _, rot in scored[:REFINE_TOP]:
         _, r, s = _refine(fa, tree_fa, fb, rot, max_squash)
-        got = (surface_distance(a, b, r, s), r, s)
+        got = (surface_distance(a, b, r, s, quantile=quantile), r, s)
         if best is None or got[0] < best[0]:
             best = got
     assert best is not None
@@ -241,7 +243,7 @@ def _primitive_samples(kind: str, spread: np.ndarray, n: int, rng: np.random.Gen
 PRIMITIVES = ("box", "rounded0.2", "rounded0.4", "rounded0.6", "ellipsoid", "cylinder0", "cylinder1", "cylinder2")
 
 
-def primitive_distance(a: Normalised) -> float:
+def primitive_distance(a: Normalised, *, quantile: float = QUANTILE) -> float:
     """Chamfer distance of the object to its nearest primitive (box, ellipsoid, cylinder along each
     principal axis), each stretched to the object's RMS spread per axis and then aligned as a copy would
     be with a free per-axis scale: how much of the shape a plain solid does *not* explain."""
@@ -259,5 +261,5 @@ def primitive_distance(a: Normalised) -> float:
         prim = normalise(p)
         start = min(turns, key=lambda t: chamfer(a.points[:COARSE], prim.points[:COARSE] @ t.T, coarse_tree))
         _, r, s = _refine(fa, tree, prim.points[:FINE], start, 2.0)
-        best = min(best, surface_distance(a, prim, r, s))
+        best = min(best, surface_distance(a, prim, r, s, quantile=quantile))
     return round(float(best), 6)

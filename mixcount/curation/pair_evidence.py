@@ -1,0 +1,113 @@
+"""What a pairing needs before it counts (issue 57): appearance is evidence only where there is some, a size
+ratio can be evidence against, and an exclusion needs geometry that agrees after alignment.
+
+The appearance rules (:mod:`mixcount.curation.look_rules`) pair objects whose renders or surface colours
+look alike. On an untextured library every object is the same grey: a hex nut's render and a hockey
+puck's look alike, a cup's and a mug's, a cone's and a pyramid's, and none of that says they are one
+object. :func:`weigh` checks each pairing the appearance rules found, before the shape rule
+(:mod:`mixcount.curation.copy_rules`) sees the pair:
+
+* **Size** (:func:`mixcount.sizes.size_ratio_evidence` on the square roots of the real surface areas): a ratio beyond a
+  re-export's rescale (``size_rescale``) that no unit factor explains (``size_unit_tolerance``) is
+  evidence against a copy: the pair keeps no duplicate, variant or possible-copy flag (the shape rule makes
+  it a ``look_alike`` at most, the size sentence in its reason). An identical file or mesh
+  (``exact_duplicate``) stays whatever the size.
+* **Plain surfaces**: two surfaces with less colour spread than ``appearance_min_pattern`` (untextured,
+  one flat colour) carry no evidence in their look. Their ``near_duplicate_*`` flags stand only with
+  *shape evidence* after alignment (:mod:`mixcount.curation.shape_match`): the aligned distance at most
+  ``exclude_plain_shape`` (tight: a cone and a pyramid agree within 0.048) and ``copy_evidence`` x the nearer primitive distance, both objects at least
+  ``copy_min_detail`` from a primitive. Otherwise the flags go and the shape rule decides (a
+  ``possible_copy`` for a person with shape evidence, else a ``look_alike`` at most).
+* **Patterned surfaces**: an exclusion needs the geometry to agree after alignment too (at most
+  ``exclude_shape``); a same-look pair whose shapes do not agree becomes a ``possible_copy``, which the
+  shape rule keeps only with shape evidence.
+
+Alignment distances are cached per pair (the same cache entries as the shape rule's)."""
+
+from __future__ import annotations
+
+import math
+
+from mixcount.config import FilterConfig
+from mixcount.curation import shape_match as S
+from mixcount.curation.filter_items import LayoutCache, _Found, _Item
+from mixcount.curation.flag_kinds import (
+    COLOUR_VARIANT,
+    LOOK_ALIKE,
+    NEAR_APPEARANCE,
+    NEAR_GEOMETRY,
+    POSSIBLE_COPY,
+)
+from mixcount.curation.look_rules import pattern_strength
+from mixcount.sizes import SizeEvidence, size_ratio_evidence
+
+EXCLUDING = (NEAR_APPEARANCE, NEAR_GEOMETRY)
+PAIRING = EXCLUDING + (COLOUR_VARIANT, POSSIBLE_COPY)
+
+
+def size_evidence(x: _Item, y: _Item, th: FilterConfig) -> SizeEvidence | None:
+    """The real sizes of the two weighed: the square root of the surface area, which no pose changes (a
+    bounding box's largest side does: a turned copy's grows up to 1.7x); None when a descriptor is missing."""
+    if x.shape is None or y.shape is None or not (x.shape.area_m2 and y.shape.area_m2):
+        return None
+    return size_ratio_evidence(math.sqrt(x.shape.area_m2), math.sqrt(y.shape.area_m2), rescale_limit=th.size_rescale,
+                               tolerance=th.size_unit_tolerance)
+
+
+def is_plain(it: _Item, th: FilterConfig) -> bool:
+    """No colour pattern on the surface (untextured, or one flat colour): its look is no evidence."""
+    return it.surface is None or pattern_strength(it.surface) < th.appearance_min_pattern
+
+
+def aligned_distance(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> float:
+    """The shape rule's aligned distance of the pair (cached under the same key)."""
+    return layouts.cached(x, y, "shape", lambda: S.match(x.normalised(), y.normalised(), max_squash=th.copy_max_squash,
+                                                         quantile=th.match_quantile).distance)
+
+
+def primitive(x: _Item, th: FilterConfig, layouts: LayoutCache) -> float:
+    """An object's distance to its nearest primitive (cached under the shape rule's key)."""
+    return layouts.cached(x, x, "primitive", lambda: S.primitive_distance(x.normalised(), quantile=th.match_quantile))
+
+
+def weigh(x: _Item, y: _Item, found: list[_Found], th: FilterConfig,
+          layouts: LayoutCache) -> tuple[list[_Found], SizeEvidence | None]:
+    """The appearance rules' ``found`` flags of one pair that the evidence bears (see the module doc), and
+    the size evidence when it is against a copy (the shape rule then ranks the pair a look-alike at most)."""
+    size = size_evidence(x, y, th)
+    against = size if size is not None and size.against else None
+    if against is not None:
+        return [f for f in found if f.kind not in PAIRING], against
+    if not any(f.kind in EXCLUDING for f in found) or x.surface is None or y.surface is None:
+        return found, None
+    d = aligned_distance(x, y, th, layouts)
+    plain = is_plain(x, th) and is_plain(y, th)
+    if plain:
+        prim = min(primitive(x, th, layouts), primitive(y, th, layouts))
+        evidence = d <= th.exclude_plain_shape and prim >= th.copy_min_detail and d <= th.copy_evidence * prim
+        if not evidence:  # a grey surface says nothing: the shape rule decides
+            return [f for f in found if f.kind not in EXCLUDING], None
+        figures = f"plain surfaces, the shape carries the evidence: aligned distance {d:.3f}, nearest primitive {prim:.3f}"
+    elif d <= th.exclude_shape:
+        figures = f"aligned shape distance {d:.3f}"
+    else:
+        return [_Found(f.a, f.b, POSSIBLE_COPY, f.score,
+                       f"possible copy for review (the look agrees, the shape does not after alignment: {d:.3f}): {f.reason}")
+                if f.kind in EXCLUDING else f for f in found], None
+    return [_Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") if f.kind in EXCLUDING else f
+            for f in found], None
+
+
+def cap_to_look_alike(flags: list[_Found], against: SizeEvidence | None) -> list[_Found]:
+    """With size evidence against a copy, every pairing the shape rule made is a look-alike at most."""
+    if against is None:
+        return flags
+    out = []
+    for f in flags:
+        if f.kind in PAIRING:
+            f = _Found(f.a, f.b, LOOK_ALIKE, f.score, f"look-alike, not a copy ({against.describe()}): {f.reason}")
+        elif f.kind == LOOK_ALIKE:
+            f = _Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {against.describe()}")
+        out.append(f)
+    return out
+
