@@ -78,10 +78,15 @@ class SplitFacts:
     def together_pairs(self) -> list[tuple[int, int]]:
         return sorted(tuple(sorted(p)) for k in TOGETHER_KINDS for p in self.pairs.get(k, ()))  # type: ignore[misc]
 
-    def groups(self, members: list[int] | None = None) -> list[list[int]]:
-        """Connected components of the together pairs, restricted to ``members`` (default: every active object)."""
+    def groups(self, members: list[int] | None = None, *, look_alikes: bool = False) -> list[list[int]]:
+        """Connected components of the together pairs, restricted to ``members`` (default: every active object);
+        with ``look_alikes`` also of the look-alike pairs of one category (``categories`` mode binds them)."""
         ids = set(self.ids if members is None else members)
-        found = ([i for i in g if i in ids] for g in connected_groups(self.together_pairs(), members=ids))
+        links = self.together_pairs()
+        if look_alikes:
+            links += [(a, b) for a, b in (sorted(p) for p in self.pairs.get("look_alike", ()))
+                      if a in self.keys and b in self.keys and self.keys[a] == self.keys[b]]
+        found = ([i for i in g if i in ids] for g in connected_groups(links, members=ids))
         return [g for g in found if g]
 
     def category_components(self, members: list[int] | None = None) -> list[list[int]]:
