@@ -13,8 +13,7 @@ active objects; train / val / test share the rest in the ``[split]`` fractions. 
    - ``categories``: the same over category components: whole kinds go to val or test;
    - ``objects``: groups drawn as in ``paper`` with FSC-147 ignored, but a group goes to val / test only
      while each of its categories keeps another group in train (method ``kept`` when that held it back).
-3. ``test_objects`` (when asked): groups of train (in ``categories`` mode joined by look-alike pairs of one
-   category), shuffled, each moved while each of its categories keeps
+3. ``test_objects`` (when asked): groups of train, shuffled, each moved while each of its categories keeps
    another group in train and it brings the split closer to its target. Step 2's train target includes
    this share, so train ends near its own fraction.
 
@@ -114,8 +113,7 @@ def assign(facts: SplitFacts, config: SplitConfig, table: FscTable, rng: np.rand
         put(unit, split, method)
 
     if config.test_objects_fraction > 0:
-        train_groups = [g for g in facts.groups(rest, look_alikes=mode == "categories")
-                        if all(decided[i][0] == "train" for i in g)]
+        train_groups = [g for g in facts.groups(rest) if all(decided[i][0] == "train" for i in g)]
         per_key: dict[str, int] = {}
         for g in train_groups:
             for key in {facts.keys[i] for i in g}:

@@ -1,10 +1,12 @@
 """What `catalog split` calls one category, and what it keeps together (docs/splits.md).
 
-A **category** is the catalog's category text after the FSC-147 matching's own normalisation
-(:func:`mixcount.catalog.splits.normalise`: lower case, singular, synonyms): when an FSC-147 class ends the
-words, the class is the category (so "Mug", "mugs" and "coffee mug" are all the class "cups", key ``cup``),
-else the head noun (the last word: "Teddy bear" -> ``bear``). An object with no category words falls back
-to its name, then its short caption; one with none at all is a category of its own (``#<id>``).
+A **category** is what the FSC-147 matching makes of the object (:meth:`FscTable.match`: its category,
+then its name, then its short caption, each through :func:`mixcount.catalog.splits.normalise`: lower case,
+singular, synonyms): the matched class when there is one (so "Mug", "mugs" and "coffee mug" are all the
+class "cups", key ``cup``, and a "Soccer ball" filed under the broad category "sports" is a ``ball`` like
+the one filed under "ball"), else the head noun of the catalog's category (the last word: "Teddy bear" ->
+``bear``, "sports" -> ``sport``). An object with no category words falls back to its name, then its short
+caption; one with none at all is a category of its own (``#<id>``).
 
 Pairs come from the catalog's pair flags and a person's pair decisions, sorted by what they mean:
 
@@ -12,8 +14,9 @@ Pairs come from the catalog's pair flags and a person's pair decisions, sorted b
 - ``copy``: maybe or surely the same object (every ``*duplicate*`` kind, ``possible_copy``, a person's
   ``same`` decision);
 - ``collision``: two objects captioned alike (``caption_collision``);
-- ``look_alike``: different objects that look alike (information; bound only in ``categories`` mode, and
-  there only when both are one category, which the category already binds).
+- ``look_alike``: different objects that look alike (information). In ``categories`` mode a look-alike pair
+  of one category is bound by its category: it never spans train / val / test / test_categories; the
+  extra ``test_objects`` split (unseen objects of trained kinds) may hold one of the two, by design.
 
 The first three always share one split (:meth:`SplitFacts.groups`: connected components, linked through
 excluded objects too, so A and B that both copy an excluded X share a split). ``categories`` mode binds
@@ -54,14 +57,13 @@ DECISION_KINDS = {"variants": "variant", "same": "copy"}  # a person's pair deci
 
 def category_key(table: FscTable, *, category: str | None, name: str | None, short: str | None) -> str | None:
     """The normalised category of one object (module docstring); None when no text has a word."""
+    found, _ = table.match(category=category or "", name=name or "", short=short)
+    if found is not None:
+        return " ".join(normalise(found, synonyms=False))
     for text in (category, name, short):
         words = normalise(text or "")
-        if not words:
-            continue
-        found = table.match_words(words)
-        if found is not None:
-            return " ".join(normalise(found, synonyms=False))
-        return words[-1]
+        if words:
+            return words[-1]
     return None
 
 
@@ -78,15 +80,10 @@ class SplitFacts:
     def together_pairs(self) -> list[tuple[int, int]]:
         return sorted(tuple(sorted(p)) for k in TOGETHER_KINDS for p in self.pairs.get(k, ()))  # type: ignore[misc]
 
-    def groups(self, members: list[int] | None = None, *, look_alikes: bool = False) -> list[list[int]]:
-        """Connected components of the together pairs, restricted to ``members`` (default: every active object);
-        with ``look_alikes`` also of the look-alike pairs of one category (``categories`` mode binds them)."""
+    def groups(self, members: list[int] | None = None) -> list[list[int]]:
+        """Connected components of the together pairs, restricted to ``members`` (default: every active object)."""
         ids = set(self.ids if members is None else members)
-        links = self.together_pairs()
-        if look_alikes:
-            links += [(a, b) for a, b in (sorted(p) for p in self.pairs.get("look_alike", ()))
-                      if a in self.keys and b in self.keys and self.keys[a] == self.keys[b]]
-        found = ([i for i in g if i in ids] for g in connected_groups(links, members=ids))
+        found = ([i for i in g if i in ids] for g in connected_groups(self.together_pairs(), members=ids))
         return [g for g in found if g]
 
     def category_components(self, members: list[int] | None = None) -> list[list[int]]:

@@ -137,7 +137,7 @@ def split_cmd(
             payload = summary.as_dict()
             grid = Table(title=f"object splits (mode {conf.mode}, seed {conf.seed})")
             for col in ("split", "fsc147", "group", "category", "random", "kept", "total", "share", "target"):
-                grid.add_column(col, justify="right" if col != "split" else "left")
+                grid.add_column(col, justify="right" if col != "split" else "left", no_wrap=True)
             totals = summary.totals()
             n = max(1, sum(totals.values()))
             for s, total in totals.items():
@@ -172,8 +172,10 @@ def print_split_report(doc: dict) -> None:
     """The split report (:func:`mixcount.catalog.split_report.report`) as a table and lists on stdout."""
     from rich.table import Table
 
-    grid = Table(title=f"split report (mode {doc['mode']}): {doc['objects']} objects, {doc['categories']} categories")
-    for col in ("split", "objects", "categories", "shared with train", "FSC-147 classes", "variant pairs", "copy pairs"):
+    grid = Table(title=f"split report (mode {doc['mode']}): {doc['objects']} objects, {doc['categories']} categories",
+                 caption="kinds: categories; in train: of them also in train; FSC: FSC-147 classes; variants / "
+                         "copies: pairs inside the split")
+    for col in ("split", "objects", "kinds", "in train", "FSC", "variants", "copies"):
         grid.add_column(col, justify="left" if col == "split" else "right")
     for s, row in doc["splits"].items():
         grid.add_row(s, str(row["objects"]), str(row["categories"]),
@@ -188,10 +190,15 @@ def print_split_report(doc: dict) -> None:
                         for c in cross["categories"]), highlight=False, soft_wrap=True)
     for kind in ("variant", "copy", "collision", "look_alike"):
         rows = cross[f"{kind}_pairs"]
+        if kind == "look_alike":  # many, mostly of other kinds: those of one kind first, ten shown
+            rows = sorted(rows, key=lambda r: not r["same_category"])
         out.print(f"{kind.replace('_', '-')} pairs across splits: {len(rows)} of {doc['pairs'][kind]}"
+                  + (f" ({sum(r['same_category'] for r in rows)} of one category)" if kind == "look_alike" else "")
                   + "".join(f"\n  {' / '.join(r['names'])}: {' / '.join(r['splits'])}"
                             + ("" if r["same_category"] or kind != "look_alike" else " (other categories)")
-                            for r in rows), highlight=False, soft_wrap=True)
+                            for r in rows[:10])
+                  + (f"\n  ... {len(rows) - 10} more (--json lists all)" if len(rows) > 10 else ""),
+                  highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
