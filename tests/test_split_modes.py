@@ -94,6 +94,11 @@ def test_one_category_whatever_the_spelling():
     assert key("ToyCar") == key("toy cars") != key("bottle caps")
     assert category_key(TABLE, category="", name="Rubber duck", short=None) == "duck"
     assert category_key(TABLE, category="3763", name="", short="a red bottle") == "bottle"
+    # a shelf label gives way to the captioner's noun; a generic caption noun to the category
+    assert category_key(TABLE, category="toy", name="Rubber duck", short="yellow rubber duck") == "duck"
+    assert category_key(TABLE, category="tool", name="Hammer", short="brown and black hammer") == "hammer"
+    assert category_key(TABLE, category="misc", name="Random object 17", short="maroon object") == "misc"
+    assert category_key(TABLE, category="sports", name="Soccer ball", short=None) == "ball"
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

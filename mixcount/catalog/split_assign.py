@@ -72,7 +72,8 @@ def assign(facts: SplitFacts, config: SplitConfig, table: FscTable, rng: np.rand
 
     if config.test_categories_fraction > 0:
         comps = facts.category_components()
-        eligible = [c for c in comps if {table.classes[fsc[i]] for i in c if i in fsc} <= {"test"}]
+        # FSC-147 train / val kinds are no unseen kinds to a model trained on FSC-147, whatever the mode
+        eligible = [c for c in comps if {table.classes[facts.fsc[i]] for i in c if i in facts.fsc} <= {"test"}]
         taken = 0
         for k in rng.permutation(len(eligible)):
             comp = eligible[int(k)]

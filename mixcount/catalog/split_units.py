@@ -1,12 +1,15 @@
 """What `catalog split` calls one category, and what it keeps together (docs/splits.md).
 
-A **category** is what the FSC-147 matching makes of the object (:meth:`FscTable.match`: its category,
-then its name, then its short caption, each through :func:`mixcount.catalog.splits.normalise`: lower case,
-singular, synonyms): the matched class when there is one (so "Mug", "mugs" and "coffee mug" are all the
-class "cups", key ``cup``, and a "Soccer ball" filed under the broad category "sports" is a ``ball`` like
-the one filed under "ball"), else the head noun of the catalog's category (the last word: "Teddy bear" ->
-``bear``, "sports" -> ``sport``). An object with no category words falls back to its name, then its short
-caption; one with none at all is a category of its own (``#<id>``).
+A **category** (a kind) is what the FSC-147 matching makes of the object (:meth:`FscTable.match`: its
+category, then its name, then its short caption, each through :func:`mixcount.catalog.splits.normalise`:
+lower case, singular, synonyms): the matched class when there is one (so "Mug", "mugs" and "coffee mug" are
+all the class "cups", key ``cup``, and a "Soccer ball" filed under the broad category "sports" is a
+``ball`` like the one filed under "ball"). Else the head noun of the active short caption (the captioner
+names the object by its own noun, never by the shelf label: "brown and black hammer" under "tool" ->
+``hammer``; not a generic one such as "maroon object"), else of the catalog's category ("Teddy bears" ->
+``bear``), else of the name. An object with none of these is a kind of its own (``#<id>``). Why not the
+category text alone: real libraries file objects under shelf labels ("toy", "tool", "kitchenware"), and a
+rubber duck under "toy" and a duck under "duck" would be two kinds, free to sit in train and in test.
 
 Pairs come from the catalog's pair flags and a person's pair decisions, sorted by what they mean:
 
@@ -33,6 +36,7 @@ from sqlalchemy.orm import Session
 from mixcount.catalog.decisions import latest_pair_decisions
 from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Flag
+from mixcount.catalog.naming import GENERIC_STEMS
 from mixcount.catalog.splits import FscTable, normalise
 
 TOGETHER_KINDS = ("variant", "copy", "collision")  # pair kinds that must never cross splits
@@ -60,7 +64,10 @@ def category_key(table: FscTable, *, category: str | None, name: str | None, sho
     found, _ = table.match(category=category or "", name=name or "", short=short)
     if found is not None:
         return " ".join(normalise(found, synonyms=False))
-    for text in (category, name, short):
+    caption = normalise(short or "")
+    if caption and caption[-1] not in GENERIC_STEMS:  # the captioner's noun (never the shelf label, docs/captions.md)
+        return caption[-1]
+    for text in (category, name):
         words = normalise(text or "")
         if words:
             return words[-1]
