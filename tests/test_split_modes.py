@@ -214,3 +214,13 @@ def test_cli_modes_report_and_errors(library, catalog, db_url, capsys):
     err = capsys.readouterr().err
     assert "split.mode must be one of paper, objects, categories" in err and "Traceback" not in err
     assert main(["--db", db, "catalog", "split", "--test-unseen-categories", "1.2"]) == 2
+
+
+def test_every_split_name_is_composable_and_bad_ones_say_which_are():
+    from mixcount.config import SPLIT_NAMES
+    from mixcount.errors import ConfigError
+
+    for name in SPLIT_NAMES:
+        assert load_config(values={"compose.split": name}).compose.split == name
+    with pytest.raises(ConfigError, match="test_objects, test_categories"):
+        load_config(values={"compose.split": "test_kinds"})

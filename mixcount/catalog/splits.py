@@ -160,12 +160,12 @@ class FscTable:
 class SplitSummary:
     seed: int
     targets: dict[str, float]
+    mode: str  # paper | objects | categories
     counts: dict[str, dict[str, int]] = field(default_factory=dict)  # split -> method -> n
     matched_classes: dict[str, int] = field(default_factory=dict)  # fsc class -> n objects
     conflicts: list[dict[str, Any]] = field(default_factory=list)
     leaks: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # e.g. a split left empty by a small library
-    mode: str = "paper"
     report: dict[str, Any] = field(default_factory=dict)  # :func:`mixcount.catalog.split_report.report`
 
     def totals(self) -> dict[str, int]:
