@@ -267,6 +267,9 @@ class SplitConfig:
     val_fraction: float
     test_fraction: float
     use_fsc147: bool
+    mode: str  # paper | objects | categories (SPLIT_MODES)
+    test_objects_fraction: float  # the extra test_objects split: unseen objects of categories kept in train
+    test_categories_fraction: float  # the extra test_categories split: whole categories nobody trains on
 
     @property
     def fractions(self) -> tuple[float, float, float]:
@@ -279,6 +282,12 @@ class SplitConfig:
         fr = (self.train_fraction, self.val_fraction, self.test_fraction)
         if min(fr) < 0 or sum(fr) <= 0:
             raise ConfigError(f"split fractions must be >= 0 with a positive sum, got {fr}")
+        if self.mode not in SPLIT_MODES:
+            raise ConfigError(f"split.mode must be one of {', '.join(SPLIT_MODES)}, got {self.mode!r}")
+        extra = (self.test_objects_fraction, self.test_categories_fraction)
+        if min(extra) < 0 or sum(extra) >= 1:
+            raise ConfigError("split.test_objects_fraction and split.test_categories_fraction must be >= 0 "
+                              f"with a sum below 1, got {extra}")
 
 
 HEX_COLOUR = re.compile(r"^#?[0-9a-fA-F]{6}$")
@@ -318,6 +327,10 @@ class PaletteConfig:
                 raise ConfigError(f"palette.categories entry {entry!r} must be 'word=look' with a look of "
                                   f"palette.looks ({sorted(names)})")
 
+# the splits `catalog split` writes (docs/splits.md): the paper's three, then the two extra test splits
+# (unseen objects of trained categories, unseen categories); compose / export / evaluate accept each
+SPLIT_NAMES = ("train", "val", "test", "test_objects", "test_categories")
+SPLIT_MODES = ("paper", "objects", "categories")  # `catalog split --mode`
 
 # Cycles' OpenImageDenoise prefilter of the albedo / normal guiding passes (docs/performance.md)
 DENOISE_PREFILTERS = ("ACCURATE", "FAST", "NONE")
@@ -359,8 +372,8 @@ class ComposeConfig:
     merge: bool
 
     def validate(self) -> None:
-        if self.split not in ("train", "val", "test"):
-            raise ConfigError(f"compose.split must be train, val or test, got {self.split!r}")
+        if self.split not in SPLIT_NAMES:
+            raise ConfigError(f"compose.split must be one of {', '.join(SPLIT_NAMES)}, got {self.split!r}")
         if self.workers < 1 or self.resolution < 1 or self.samples < 1:
             raise ConfigError("compose.workers, compose.resolution and compose.samples must be >= 1")
         if self.denoise_prefilter not in DENOISE_PREFILTERS:

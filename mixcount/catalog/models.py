@@ -183,13 +183,14 @@ class CaptionFailure(Base):
 
 
 class Split(Base):
-    """The object's split (train/val/test) and how it was decided."""
+    """The object's split (train / val / test / test_objects / test_categories) and how it was decided."""
 
     __tablename__ = "splits"
 
     object_id: Mapped[int] = mapped_column(ForeignKey("objects.id", ondelete="CASCADE"), primary_key=True)
-    split: Mapped[str] = mapped_column(String(8), index=True)
-    method: Mapped[str] = mapped_column(String(16))  # fsc147 | random | group
+    split: Mapped[str] = mapped_column(String(16), index=True)
+    method: Mapped[str] = mapped_column(String(16))  # fsc147 | random | group | category | kept
+    mode: Mapped[Optional[str]] = mapped_column(String(16))  # paper | objects | categories (None: before 0008)
     fsc_class: Mapped[Optional[str]] = mapped_column(String(128))
     seed: Mapped[Optional[int]] = mapped_column(Integer)
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)

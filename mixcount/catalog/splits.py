@@ -1,21 +1,21 @@
-"""`catalog split`: train / val / test per object, matched to FSC-147 classes where one fits.
+"""`catalog split`: train / val / test (and two extra test splits) per object, by one of three modes.
 
 1. Every active object is matched to an FSC-147 class (``mixcount/data/fsc147_class_splits.csv``) from, in
    order, its category, its name and its active short caption. Each text is normalised (lower case, words,
    plurals to singular, the synonym table below) and a class matches when its normalised words are the
    *last* words of the text: the head noun decides, so "orange ball" is a ball, not an orange. The longest
-   matching class wins ("bottle cap" over "cap").
-2. Duplicate groups: objects linked by any ``*duplicate*`` flag (exact or near, from curation), a
-   ``colour_variant`` or ``possible_copy`` flag (one object in two colours; maybe one object from two
-   sources) or a ``caption_collision`` flag form one group (connected components) that always shares one
-   split: a class seen in train must not reach test in another colour. If its
-   matched members disagree, the most held-out split wins (test > val > train): an object of a test class
-   must never reach train.
-3. Groups without a match are drawn at random (numpy Generator from ``seed``), each with probabilities
-   proportional to how far each split still is below its target fraction, so the totals approach
-   ``[split]`` fractions. Same catalog + same seed = same assignment.
-4. :func:`check_splits` then looks for leaks: a duplicate group spanning splits, an active object without
-   a split, or an object matched to a val/test class sitting in a less held-out split.
+   matching class wins ("bottle cap" over "cap"). The same normalisation names each object's category
+   (:mod:`mixcount.catalog.split_units`), so "Mug", "mugs" and "coffee mug" are one category.
+2. Groups: objects linked by any ``*duplicate*`` flag, a ``colour_variant`` or ``possible_copy`` flag, a
+   ``caption_collision`` flag or a person's ``same`` / ``variants`` pair decision always share one split.
+3. Modes (:mod:`mixcount.catalog.split_assign`): ``paper`` (FSC-147 class matches take their class's split,
+   the rest drawn at random to the ``[split]`` fractions: the paper's rule and the default), ``objects``
+   (every category keeps objects in train; val / test hold out objects: unseen assets), ``categories``
+   (whole categories go to one split: unseen kinds, FSC-147's class split kept). The extra splits
+   ``test_objects`` and ``test_categories`` hold out unseen objects and unseen categories in any mode.
+   Same catalog + same seed = same assignment.
+4. :func:`check_splits` then looks for the leaks the stored mode forbids
+   (:func:`mixcount.catalog.split_report.leaks`); :func:`split_report` says what each split holds.
 
 See docs/splits.md for the synonym table and its reasons.
 """
@@ -35,12 +35,13 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.grouping import connected_groups
-from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Flag, Split
-from mixcount.config import SplitConfig
+from mixcount.catalog.models import STATUS_ACTIVE, CatalogObject, Flag, Split
+from mixcount.config import SPLIT_NAMES, SplitConfig
 from mixcount.errors import CatalogError
 
-SPLITS = ("train", "val", "test")
-HELD_OUT_RANK = {"train": 0, "val": 1, "test": 2}
+SPLITS = ("train", "val", "test")  # the paper's three; SPLIT_NAMES adds the two extra test splits
+# how held out each split is: an object of an FSC-147 test class must never reach a lower rank
+HELD_OUT_RANK = {"train": 0, "val": 1, "test": 2, "test_objects": 2, "test_categories": 2}
 
 # Irregular plurals (and words that look plural but are not) for :func:`singular`.
 IRREGULAR = {
@@ -159,18 +160,24 @@ class FscTable:
 class SplitSummary:
     seed: int
     targets: dict[str, float]
+    mode: str  # paper | objects | categories
     counts: dict[str, dict[str, int]] = field(default_factory=dict)  # split -> method -> n
     matched_classes: dict[str, int] = field(default_factory=dict)  # fsc class -> n objects
     conflicts: list[dict[str, Any]] = field(default_factory=list)
     leaks: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # e.g. a split left empty by a small library
+    report: dict[str, Any] = field(default_factory=dict)  # :func:`mixcount.catalog.split_report.report`
 
     def totals(self) -> dict[str, int]:
-        return {s: sum(self.counts.get(s, {}).values()) for s in SPLITS}
+        """Objects per split: train / val / test always, an extra test split when it was asked for or holds any."""
+        names = [s for s in SPLIT_NAMES if s in SPLITS or self.targets.get(s, 0) > 0 or s in self.counts]
+        return {s: sum(self.counts.get(s, {}).values()) for s in names}
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "seed": self.seed,
+            "mode": self.mode,
+            "report": self.report,
             "targets": self.targets,
             "totals": self.totals(),
             "counts": self.counts,
@@ -205,112 +212,84 @@ def is_group_flag(kind: str) -> bool:
     return "duplicate" in kind or kind in GROUP_KINDS
 
 
-def _short_captions(session: Session) -> dict[int, str]:
-    rows = session.scalars(select(CaptionSet).where(CaptionSet.active.is_(True)))
-    return {cs.object_id: cs.short for cs in rows}
-
-
 def assign_splits(catalog: Catalog, config: SplitConfig, *, table: FscTable | None = None) -> SplitSummary:
-    """Assign every active object a split (replacing previous ones) and check for leaks."""
+    """Assign every active object a split by ``config.mode`` (replacing previous ones) and check for leaks.
+
+    The drawing is :func:`mixcount.catalog.split_assign.assign`; the facts it reads (categories, pairs)
+    :func:`mixcount.catalog.split_units.load_facts`."""
+    from mixcount.catalog.split_assign import assign, targets
+    from mixcount.catalog.split_report import report
+    from mixcount.catalog.split_units import load_facts
+
     table = table or FscTable.load()
-    summary = SplitSummary(seed=config.seed, targets=dict(zip(SPLITS, config.fractions)))
+    n_extra = config.test_objects_fraction + config.test_categories_fraction
+    summary = SplitSummary(seed=config.seed, targets={}, mode=config.mode)
     rng = np.random.default_rng(config.seed)
     with catalog.session() as session:
-        objects = list(
-            session.scalars(select(CatalogObject).where(CatalogObject.status == STATUS_ACTIVE).order_by(CatalogObject.id))
-        )
-        by_id = {o.id: o for o in objects}
-        shorts = _short_captions(session)
-        matches: dict[int, str] = {}
-        if config.use_fsc147:
-            for obj in objects:
-                cls_name, _ = table.match(category=obj.category, name=obj.name, short=shorts.get(obj.id))
-                if cls_name is not None:
-                    matches[obj.id] = cls_name
-        groups = duplicate_groups(session, by_id)
-
-        decided: dict[int, tuple[str, str, str | None]] = {}  # id -> (split, method, fsc class)
-        counts = {s: 0 for s in SPLITS}
-        unmatched: list[list[int]] = []
-        for group in groups:
-            wanted = {table.classes[matches[i]] for i in group if i in matches}
-            if not wanted:
-                unmatched.append(group)
-                continue
-            split = max(wanted, key=HELD_OUT_RANK.__getitem__)
-            if len(wanted) > 1:
-                summary.conflicts.append(
-                    {"group": group, "classes": sorted({matches[i] for i in group if i in matches}), "split": split}
-                )
-            for i in group:
-                own = table.classes.get(matches.get(i, ""), None)
-                method = "fsc147" if own == split else "group"
-                decided[i] = (split, method, matches.get(i))
-                counts[split] += 1
-
-        # Random part: shuffle the unmatched groups, then draw each one's split with probabilities
-        # proportional to each split's remaining deficit against its target.
-        n_total = len(objects)
-        targets = np.array(config.fractions) * n_total
-        order = rng.permutation(len(unmatched))
-        for k in order:
-            group = unmatched[int(k)]
-            deficit = np.maximum(targets - np.array([counts[s] for s in SPLITS]), 0.0)
-            p = deficit / deficit.sum() if deficit.sum() > 0 else np.array(config.fractions)
-            split = SPLITS[int(rng.choice(len(SPLITS), p=p))]
-            for i in group:
-                decided[i] = (split, "random", None)
-                counts[split] += 1
-
+        facts = load_facts(session, table, match_fsc=config.use_fsc147)
+        n = len(facts.ids)
+        summary.targets = {s: (v / n if n else (dict(zip(SPLITS, config.fractions)).get(s, 0.0) * (1 - n_extra)))
+                           for s, v in targets(config, n).items()}
+        decided, summary.conflicts = assign(facts, config, table, rng)
         session.execute(delete(Split))
         for oid in sorted(decided):
             split, method, fsc = decided[oid]
-            session.add(Split(object_id=oid, split=split, method=method, fsc_class=fsc, seed=config.seed))
+            session.add(Split(object_id=oid, split=split, method=method, fsc_class=fsc, seed=config.seed,
+                              mode=config.mode))
             summary.counts.setdefault(split, {}).setdefault(method, 0)
             summary.counts[split][method] += 1
             if fsc:
                 summary.matched_classes[fsc] = summary.matched_classes.get(fsc, 0) + 1
         session.commit()
+        summary.report = report(facts, {i: d[0] for i, d in decided.items()}, {i: d[2] for i, d in decided.items()},
+                                config.mode)
     summary.leaks = check_splits(catalog, table=table if config.use_fsc147 else None)
     totals = summary.totals()
-    for name in SPLITS:
-        if totals[name] == 0 and summary.targets[name] > 0 and objects:
+    for name in SPLIT_NAMES:
+        if totals.get(name, 0) == 0 and summary.targets.get(name, 0) > 0 and n:
             summary.warnings.append(
-                f"split {name!r} has 0 objects (target {summary.targets[name]:.0%} of {len(objects)} active objects): "
-                f"`mixcount compose --split {name}` will find nothing; add objects, or change split.fractions")
+                f"split {name!r} has 0 objects (target {summary.targets[name]:.0%} of {n} active objects): "
+                f"`mixcount compose --split {name}` will find nothing; add objects, or change the split fractions")
     return summary
 
 
-def check_splits(catalog: Catalog, *, table: FscTable | None = None) -> list[str]:
-    """Leaks in the stored splits: one message per problem (empty list = clean)."""
-    problems: list[str] = []
+def stored_splits(session: Session) -> tuple[dict[int, str], dict[int, str | None], str]:
+    """(object -> split, object -> stored FSC-147 class, the mode that assigned them; ``paper`` before modes)."""
+    rows = list(session.scalars(select(Split)))
+    modes = sorted({r.mode or "paper" for r in rows})
+    return ({r.object_id: r.split for r in rows}, {r.object_id: r.fsc_class for r in rows},
+            modes[0] if len(modes) == 1 else ",".join(modes) if modes else "paper")
+
+
+def check_splits(catalog: Catalog, *, table: FscTable | None = None, mode: str | None = None) -> list[str]:
+    """Leaks in the stored splits under their stored mode (or ``mode``): one message per problem (empty = clean).
+
+    The rules per mode: :func:`mixcount.catalog.split_report.leaks`."""
+    from mixcount.catalog.split_report import leaks
+    from mixcount.catalog.split_units import load_facts
+
     with catalog.session() as session:
-        active = [o.id for o in session.scalars(select(CatalogObject).where(CatalogObject.status == STATUS_ACTIVE))]
-        splits = {s.object_id: s for s in session.scalars(select(Split))}
-        for oid in sorted(active):
-            if oid not in splits:
-                problems.append(f"object {oid} has no split")
-        for oid, row in splits.items():
-            if row.split not in SPLITS:
-                problems.append(f"object {oid} has unknown split {row.split!r}")
-        for group in duplicate_groups(session, [o for o in active if o in splits]):
-            found = sorted({splits[o].split for o in group})
-            if len(found) > 1:
-                problems.append(f"duplicate group {group} spans splits {found}")
-        if table is not None:
-            for oid, row in splits.items():
-                fsc = row.fsc_class
-                if fsc and fsc in table.classes:
-                    want = table.classes[fsc]
-                    if HELD_OUT_RANK.get(row.split, -1) < HELD_OUT_RANK[want]:
-                        problems.append(f"object {oid} matches FSC-147 {want} class {fsc!r} but is in {row.split}")
-    return problems
+        split_of, fsc_of, stored = stored_splits(session)
+        facts = load_facts(session, table or FscTable.load(), match_fsc=False)
+    problems = [] if "," not in stored else [f"the stored splits mix modes ({stored}): run `mixcount catalog split` again"]
+    return problems + leaks(facts, split_of, mode or stored.split(",")[0], table, fsc_of)
+
+
+def split_report(catalog: Catalog, *, table: FscTable | None = None) -> dict[str, Any]:
+    """The report of the stored splits (:func:`mixcount.catalog.split_report.report`)."""
+    from mixcount.catalog.split_report import report
+    from mixcount.catalog.split_units import load_facts
+
+    with catalog.session() as session:
+        split_of, fsc_of, stored = stored_splits(session)
+        facts = load_facts(session, table or FscTable.load(), match_fsc=False)
+    return report(facts, split_of, fsc_of, stored)
 
 
 def split_object_ids(session: Session, split: str) -> list[int]:
     """Ids of the active objects in ``split`` (what the scene sampler draws from), sorted."""
-    if split not in SPLITS:
-        raise CatalogError(f"unknown split {split!r} (train | val | test)")
+    if split not in SPLIT_NAMES:
+        raise CatalogError(f"unknown split {split!r} ({' | '.join(SPLIT_NAMES)})")
     rows = session.scalars(
         select(Split.object_id)
         .join(CatalogObject, CatalogObject.id == Split.object_id)

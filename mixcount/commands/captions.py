@@ -101,37 +101,49 @@ def caption_cmd(
 def split_cmd(
     ctx: typer.Context,
     seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the random part [default: split.seed]."),
-    check: bool = typer.Option(False, "--check", help="Only check the stored splits for leaks."),
+    mode: Optional[str] = typer.Option(
+        None, "--mode", help="paper (FSC-147 classes first, the rest at random), objects (every category kept in "
+        "train; val / test hold out objects) or categories (whole categories held out) [default: split.mode]."),
+    test_objects: Optional[float] = typer.Option(
+        None, "--test-unseen-objects", help="Fraction of objects in an extra split test_objects: unseen objects of "
+        "categories train keeps [default: split.test_objects_fraction]."),
+    test_categories: Optional[float] = typer.Option(
+        None, "--test-unseen-categories", help="Fraction of objects in an extra split test_categories: whole "
+        "categories no other split holds [default: split.test_categories_fraction]."),
+    check: bool = typer.Option(False, "--check", help="Only check the stored splits for the leaks their mode forbids."),
+    report: bool = typer.Option(False, "--report", help="Print what each split holds and what crosses splits "
+                                "(with --check: of the stored splits, assigning nothing)."),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON on stdout instead of a table."),
 ) -> None:
-    """Assign train / val / test per object (FSC-147 matches first); exit non-zero on any leak."""
+    """Assign a split per object (mode paper / objects / categories); exit non-zero on any leak."""
     from rich.table import Table
 
-    from mixcount.catalog.splits import SPLITS, FscTable, assign_splits, check_splits
+    from mixcount.catalog.splits import FscTable, assign_splits, check_splits, split_report
 
     st = state(ctx)
-    conf = st.config(values={"split.seed": seed}).split
+    conf = st.config(values={"split.seed": seed, "split.mode": mode, "split.test_objects_fraction": test_objects,
+                             "split.test_categories_fraction": test_categories}).split
     table = FscTable.load()
     catalog = st.catalog()
     try:
         if check:
             leaks = check_splits(catalog, table=table if conf.use_fsc147 else None)
             payload: dict = {"leaks": leaks}
+            if report or json_out:
+                payload["report"] = split_report(catalog, table=table)
         else:
             summary = assign_splits(catalog, conf, table=table)
             leaks = summary.leaks
             payload = summary.as_dict()
-            grid = Table(title=f"object splits (seed {conf.seed})")
-            for col in ("split", "fsc147", "group", "random", "total", "share", "target"):
-                grid.add_column(col, justify="right" if col != "split" else "left")
+            grid = Table(title=f"object splits (mode {conf.mode}, seed {conf.seed})")
+            for col in ("split", "fsc147", "group", "category", "random", "kept", "total", "share", "target"):
+                grid.add_column(col, justify="right" if col != "split" else "left", no_wrap=True)
             totals = summary.totals()
             n = max(1, sum(totals.values()))
-            for s in SPLITS:
+            for s, total in totals.items():
                 c = summary.counts.get(s, {})
-                grid.add_row(
-                    s, str(c.get("fsc147", 0)), str(c.get("group", 0)), str(c.get("random", 0)), str(totals[s]),
-                    f"{totals[s] / n:.0%}", f"{summary.targets[s]:.0%}",
-                )
+                grid.add_row(s, *(str(c.get(m, 0)) for m in ("fsc147", "group", "category", "random", "kept")),
+                             str(total), f"{total / n:.0%}", f"{summary.targets.get(s, 0):.0%}")
             (console if json_out else out).print(grid)
             if summary.matched_classes:
                 console.print(
@@ -142,16 +154,51 @@ def split_cmd(
             for warning in summary.warnings:
                 console.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
             if summary.conflicts:
-                console.print(f"[yellow]{len(summary.conflicts)} duplicate group(s) matched classes of different splits; the most held-out split won[/]")
+                console.print(f"[yellow]{len(summary.conflicts)} group(s) matched classes of different splits; the most held-out split won[/]")
+        if report and not json_out:
+            print_split_report(payload["report"])
     finally:
         catalog.close()
     if json_out:
-        out.print(json.dumps(payload, sort_keys=True))
+        out.print(json.dumps(payload, sort_keys=True), highlight=False, soft_wrap=True)
     if leaks:
         for leak in leaks:
             console.print(f"[bold red]leak:[/] {leak}", highlight=False)
         raise CatalogError(f"{len(leaks)} split leak(s) found")
     (console if json_out else out).print("no leaks across splits", highlight=False)
+
+
+def print_split_report(doc: dict) -> None:
+    """The split report (:func:`mixcount.catalog.split_report.report`) as a table and lists on stdout."""
+    from rich.table import Table
+
+    grid = Table(title=f"split report (mode {doc['mode']}): {doc['objects']} objects, {doc['categories']} categories",
+                 caption="kinds: categories; in train: of them also in train; FSC: FSC-147 classes; variants / "
+                         "copies: pairs inside the split")
+    for col in ("split", "objects", "kinds", "in train", "FSC", "variants", "copies"):
+        grid.add_column(col, justify="left" if col == "split" else "right")
+    for s, row in doc["splits"].items():
+        grid.add_row(s, str(row["objects"]), str(row["categories"]),
+                     "-" if s == "train" else str(row["categories_shared_with_train"]), str(len(row["fsc147_classes"])),
+                     str(row["variant_pairs"]), str(row["copy_pairs"]))
+    out.print(grid)
+    for s, row in doc["splits"].items():
+        out.print(f"{s} categories: {', '.join(row['category_names']) or '-'}", highlight=False, soft_wrap=True)
+    cross = doc["crossing"]
+    out.print(f"categories across splits: {len(cross['categories'])}"
+              + "".join(f"\n  {c['category']}: " + ", ".join(f"{s} {k}" for s, k in c["splits"].items())
+                        for c in cross["categories"]), highlight=False, soft_wrap=True)
+    for kind in ("variant", "copy", "collision", "look_alike"):
+        rows = cross[f"{kind}_pairs"]
+        if kind == "look_alike":  # many, mostly of other kinds: those of one kind first, ten shown
+            rows = sorted(rows, key=lambda r: not r["same_category"])
+        out.print(f"{kind.replace('_', '-')} pairs across splits: {len(rows)} of {doc['pairs'][kind]}"
+                  + (f" ({sum(r['same_category'] for r in rows)} of one category)" if kind == "look_alike" else "")
+                  + "".join(f"\n  {' / '.join(r['names'])}: {' / '.join(r['splits'])}"
+                            + ("" if r["same_category"] or kind != "look_alike" else " (other categories)")
+                            for r in rows[:10])
+                  + (f"\n  ... {len(rows) - 10} more (--json lists all)" if len(rows) > 10 else ""),
+                  highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:

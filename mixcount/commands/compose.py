@@ -62,7 +62,10 @@ def require_split(pool: list[Any], split: str) -> None:
     it says how many objects each split holds, so a small library's empty val split is plain."""
     if any(getattr(o, "split", None) == split for o in pool):
         return
-    held = {s: sum(1 for o in pool if getattr(o, "split", None) == s) for s in ("train", "val", "test")}
+    from mixcount.config import SPLIT_NAMES
+
+    held = {s: sum(1 for o in pool if getattr(o, "split", None) == s) for s in SPLIT_NAMES}
+    held = {s: k for s, k in held.items() if k or s in ("train", "val", "test", split)}
     unsplit = sum(1 for o in pool if getattr(o, "split", None) is None)
     raise CompositionError(
         f"no active objects in split {split!r} (active objects per split: "
@@ -180,7 +183,7 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
         ctx: typer.Context,
         n: int = typer.Option(1, "--n", min=1, help="Number of scenes."),
         out_dir: Path = typer.Option(Path("out"), "--out", help="Output folder (scenes/<scene_id>/...)."),
-        split: Optional[str] = typer.Option(None, "--split", help="Split to draw objects from (default: config compose.split)."),
+        split: Optional[str] = typer.Option(None, "--split", help="Split to draw objects from: train, val, test, test_objects or test_categories (default: config compose.split)."),
         seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the first scene (default: config compose.seed)."),
         dry_run: bool = typer.Option(False, "--dry-run", help="Print classes, counts and sizes; write nothing."),
         stage_only: bool = typer.Option(False, "--stage-only", help="Write scene.usda stages, no rendering."),

@@ -24,7 +24,8 @@ def evaluate_cmd(
         help="Prediction JSON: rows of image_id, category_id, count|boxes|points, or COCO detection results "
              "(image_id, category_id, bbox, score).",
     ),
-    split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder."),
+    split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder (test, or "
+                              "test_objects / test_categories when catalog split wrote them)."),
     by: Optional[str] = typer.Option(
         None, "--by", help="Group by a field of the prediction rows (prompt, tier) or of GT categories/images."
     ),
@@ -126,7 +127,8 @@ def baseline_cmd(
     gt: Path = typer.Option(..., "--gt", help="COCO ground truth to predict for, or a dataset folder."),
     out_path: Path = typer.Option(..., "--out", help="Prediction JSON to write."),
     kind: str = typer.Option("mean", "--kind", help="mean (mean count of --reference) or perfect (the GT itself)."),
-    split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder."),
+    split: str = typer.Option("test", "--split", help="Split to read when --gt is a dataset folder (test, or "
+                              "test_objects / test_categories when catalog split wrote them)."),
     reference: Optional[Path] = typer.Option(
         None, "--reference",
         help="Where the mean baseline's mean count comes from: a dataset folder (its --reference-split is read) "

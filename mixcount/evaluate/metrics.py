@@ -145,7 +145,9 @@ def load_ground_truth(path: str | Path, split: str = "test") -> GroundTruth:
     if path.is_dir():
         path = path / "annotations" / f"instances_{split}.json"
         if not path.is_file():
-            raise GroundTruthError(f"{path}: not found (is this a mixcount dataset folder with a {split!r} split?)")
+            held = sorted(f.name[len("instances_"):-len(".json")] for f in path.parent.glob("instances_*.json"))
+            raise GroundTruthError(f"{path}: not found (is this a mixcount dataset folder with a {split!r} split? "
+                                   f"it holds {', '.join(held) or 'no split'})")
     doc = read_coco(path, GroundTruthError, keep=("image_id", "category_id", "is_distractor"))
     return ground_truth_from_coco(doc, str(path))
 

@@ -162,7 +162,7 @@ def export_countgd(ds: ComposedDataset, out: Path | str, *, split: Optional[str]
     folder.prune(".", [f"{s}_coco_exemplars.json" for s in splits], "*_coco_exemplars.json")
     folder.write_json(LABEL_MAP, label_map, indent=1)
     train = "train" if "train" in splits else splits[0]
-    val = next((s for s in ("val", "test") if s in splits), train)
+    val = next((s for s in ("val", "test", "test_objects", "test_categories") if s in splits and s != train), train)
     root = str(folder.root)
     folder.write_json(CONFIG, {
         "train": [{"root": f"{root}/{IMAGES}", "anno": f"{root}/{train}_odvg.jsonl", "label_map": f"{root}/{LABEL_MAP}",
