@@ -377,6 +377,8 @@ class _ComposeRun:
         append_failure(self.out_dir, rec)
         if problem:
             self.stop(StorageError(problem))
+        elif (outcome.error or "").startswith(f"{AssetError.__name__}: "):  # a file the stage needs: no seed fixes it
+            self.stop(AssetError(str(outcome.error).split(": ", 1)[1].splitlines()[0]))
         elif self.fatal is None:
             tail = "".join(f"\n    {ln[:200]}" for ln in rec["log_tail"].splitlines())  # the log's last lines
             self.bar.note(f"scene {outcome.scene_id} (seed {outcome.seed}) failed [{cause}]: "

@@ -37,9 +37,10 @@ import numpy as np
 from mixcount.catalog.materials import material_vertex_colours
 from mixcount.errors import CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
+from mixcount.usd.mesh_clean import add_counts, clean_triangles
 from mixcount.usd.read import CONVEX_PARTS_PRIM
 
-CONVERTER_VERSION = 4  # bump when the converter output changes: cached assets are rebuilt
+CONVERTER_VERSION = 5  # 5: degenerate / invalid triangles dropped (usd/mesh_clean.py); bump when the converter output changes: cached assets are rebuilt
 # V-HACD (vhacdx through trimesh) settings of that decomposition: part of the converter's output, so
 # fixed here with the version rather than configured (a changed value must rebuild every cached asset)
 CONVEX_PARTS_MAX = 16
@@ -229,9 +230,17 @@ def _define_material(stage: Any, mat_path: str, info: dict[str, Any], tex_dir: P
     return material
 
 
-def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray) -> Any:
+def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray,
+                 removed: Optional[dict[str, int]] = None) -> Any:
+    """One Mesh prim of ``part`` without degenerate or invalid triangles (their counts added to ``removed``)."""
     from pxr import UsdGeom, Vt
 
+    per_face = part.display_color if part.color_interp != "vertex" else None
+    faces, per_face, counts = clean_triangles(part.points, part.faces, per_face)
+    if counts:
+        part = _Part(part.points, faces, part.normals, part.uv, part.material,
+                     per_face if part.color_interp != "vertex" else part.display_color, part.color_interp)
+        add_counts(removed if removed is not None else {}, counts)
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = part.points - center
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
@@ -357,14 +366,17 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
             stage, _root = _start_stage(path, key, str(model), center, frame)
             UsdGeom.Scope.Define(stage, "/Asset/Looks")
             UsdGeom.Scope.Define(stage, "/Asset/Geom")
+            removed: dict[str, int] = {}
             for i, part in enumerate(parts):
-                mesh = _define_mesh(stage, f"/Asset/Geom/mesh_{i:03d}", part, center)
+                mesh = _define_mesh(stage, f"/Asset/Geom/mesh_{i:03d}", part, center, removed)
                 if part.material is not None:
                     mat = _define_material(stage, f"/Asset/Looks/mat_{i:03d}", part.material, tdir,  # type: ignore[arg-type]
                                            tex_dir.name, i, textured and part.uv is not None)
                     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
             if proxy is not None:
                 _define_proxy(stage, proxy, center)
+            _record(stage, faces_removed=dict(sorted(removed.items())),
+                    faces_kept=sum(len(p.faces) for p in parts) - sum(removed.values()))
             stage.GetRootLayer().Save()
 
         _write_layer_atomically(build, visual, tex_dir, replace_textures=force)
@@ -408,11 +420,14 @@ def _define_proxy(stage: Any, ply: Path, center: np.ndarray) -> None:
     mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)
     UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
     UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
+    _record(stage, proxy=str(ply.resolve()))
+
+
+def _record(stage: Any, **values: Any) -> None:
+    """``values`` added to the asset layer's record (``customLayerData["mixcount"]``)."""
     layer = stage.GetRootLayer()
     data = dict(layer.customLayerData)
-    mc = dict(data.get("mixcount", {}))
-    mc["proxy"] = str(ply.resolve())
-    data["mixcount"] = mc
+    data["mixcount"] = {**dict(data.get("mixcount", {})), **values}
     layer.customLayerData = data
 
 
