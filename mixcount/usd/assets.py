@@ -35,7 +35,7 @@ from typing import Any, Optional
 import numpy as np
 
 from mixcount.catalog.materials import material_vertex_colours
-from mixcount.errors import CompositionError
+from mixcount.errors import AssetError, CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
 from mixcount.usd.mesh_clean import add_counts, clean_triangles
 from mixcount.usd.read import CONVEX_PARTS_PRIM
@@ -283,6 +283,9 @@ def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path], re
                     os.replace(tmp_tex, tex_dir)
                 except OSError:
                     pass  # a concurrent writer put identical textures there first
+            for f in tmp_tex.iterdir() if tmp_tex.is_dir() and tex_dir.is_dir() else ():  # a texture lost from a kept folder
+                if not (tex_dir / f.name).exists():
+                    os.replace(f, tex_dir / f.name)
         os.replace(tmp_layer, final)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -305,6 +308,10 @@ def _is_current(path: Path, proxy: Optional[str] = None, *, frame: Optional[str]
     if frame is not None and data.get("frame", "") != frame:
         return False
     if source is not None and data.get("source", "") != source:
+        return False
+    from mixcount.usd.dependencies import problem_line
+
+    if problem_line(path) is not None:  # a texture of its _tex/ gone: converted again, never rendered magenta
         return False
     return proxy is None or data.get("proxy", "") == proxy
 
@@ -345,7 +352,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
         c = Sdf.Layer.FindOrOpen(str(visual)).customLayerData.get("mixcount", {}).get("center_m", (0.0, 0.0, 0.0))
         return AssetPaths(visual, coll, tuple(float(v) for v in c), proxy is not None)  # type: ignore[arg-type]
     if not model.is_file():
-        raise CompositionError(f"model file {model} of asset {key[:12]} does not exist")
+        raise AssetError(f"model file {model} of asset {key[:12]} does not exist")
     scale, _units, up = source_frame(model, units, up_axis)
     if model.suffix.lower() in USD_EXTENSIONS:
         lo, hi = _usd_bounds(model)
