@@ -89,12 +89,19 @@ def _copy_obj(src: Path, target: Path) -> None:
                         shutil.copyfile(tex, target / tex.name)
 
 
-def write_library(root: Path, public: bool = True) -> tuple[dict[str, int], Optional[str]]:
-    """The library under ``root`` (module docstring): name -> bad faces the model file holds, and why the
-    public half is missing (None when it is there)."""
-    from public_packages import deb_tree, wheel_tree
-
+def _bad_faces(model: Path) -> int:
     from mixcount.usd.mesh_clean import bad_triangles
+
+    scene = trimesh.load(str(model), force="scene", process=False)
+    return sum(int(sum(m.sum() for m in bad_triangles(g.vertices, g.faces).values()))
+               for g in scene.geometry.values() if len(getattr(g, "faces", ())))
+
+
+def write_library(root: Path, only: Optional[tuple[str, ...]] = None) -> tuple[dict[str, int], Optional[str]]:
+    """The library under ``root`` (module docstring; ``only``: these public entries alone): name -> bad
+    faces its model file holds (counted by mixcount/usd/mesh_clean.py's rule), and why the public half
+    is missing (None when it is there)."""
+    from public_packages import deb_tree, wheel_tree
 
     rng = np.random.default_rng(60)
     expected: dict[str, int] = {}
@@ -108,9 +115,11 @@ def write_library(root: Path, public: bool = True) -> tuple[dict[str, int], Opti
             mesh.export(target / "model.glb")
             (target / "metadata.json").write_text(json.dumps({"name": f"{kind} {name}", "category": category,
                                                               "units": "m", "up_axis": "Z"}))
-            expected[target.name] = WELDS + SLIVERS if kind == "welded" else 0
+            expected[target.name] = _bad_faces(target / "model.glb")
     why = None
-    for name, kind, package, inner, category, units in PUBLIC if public else ():
+    for name, kind, package, inner, category, units in PUBLIC:
+        if only is not None and name not in only:
+            continue
         tree, reason = deb_tree(package) if kind == "deb" else wheel_tree(package)
         if tree is None:
             why = reason
@@ -124,7 +133,5 @@ def write_library(root: Path, public: bool = True) -> tuple[dict[str, int], Opti
             shutil.copyfile(src, target / f"model{src.suffix}")
         (target / "metadata.json").write_text(json.dumps({"name": name.replace("_", " "), "category": category,
                                                           "units": units}))
-        scene = trimesh.load(str(src), force="scene", process=False)
-        expected[name] = sum(int(sum(m.sum() for m in bad_triangles(g.vertices, g.faces).values()))
-                             for g in scene.geometry.values() if len(getattr(g, "faces", ())))
+        expected[name] = _bad_faces(src)
     return expected, why
