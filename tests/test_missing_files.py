@@ -115,3 +115,46 @@ def test_conversion_drops_bad_faces_records_them_and_refills_a_lost_texture(tmp_
     (tmp_path / "scan.glb").unlink()
     with pytest.raises(AssetError, match="scan.glb"):
         convert_asset(tmp_path / "scan.glb", out, content_hash="scan", units="m", up_axis="Z")
+
+
+def test_usd_source_keeps_its_file_and_loses_its_invalid_faces(tmp_path: Path) -> None:
+    """A USD source is referenced as it is; the wrapping layer overrides its meshes' invalid faces, with
+    face-varying UVs, per-face colours and a GeomSubset filtered alike."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+
+    from mixcount.usd.assets import convert_asset
+
+    src = Usd.Stage.CreateNew(str(tmp_path / "scan.usda"))
+    UsdGeom.SetStageUpAxis(src, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(src, 0.01)
+    root = UsdGeom.Xform.Define(src, "/Scan")
+    src.SetDefaultPrim(root.GetPrim())
+    mesh = UsdGeom.Mesh.Define(src, "/Scan/Geom/body")
+    mesh.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(x, y, z) for x, y, z in
+                                         [(0, 0, 0), (10, 0, 0), (10, 10, 0), (0, 10, 0), (5, 5, 8)]]))
+    counts = [4, 3, 3, 3, 3, 3]  # the quad, then a welded triangle, then four good ones (one repeated)
+    idx = [0, 1, 2, 3, 0, 0, 4, 0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4]
+    mesh.CreateFaceVertexCountsAttr(counts)
+    mesh.CreateFaceVertexIndicesAttr(idx)
+    pv = UsdGeom.PrimvarsAPI(mesh)
+    pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying).Set(
+        Vt.Vec2fArray([Gf.Vec2f(k / 19.0, 0.5) for k in range(len(idx))]))
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray([Gf.Vec3f(k / 6.0, 0, 0) for k in range(6)]))
+    UsdGeom.Subset.CreateGeomSubset(mesh, "top", UsdGeom.Tokens.face, Vt.IntArray([1, 2, 5]))
+    src.GetRootLayer().Save()
+    before = (tmp_path / "scan.usda").read_bytes()
+    asset = convert_asset(tmp_path / "scan.usda", tmp_path / "assets", content_hash="usdscan")
+    assert (tmp_path / "scan.usda").read_bytes() == before  # the source is never written
+    record = dict(Sdf.Layer.FindOrOpen(str(asset.visual)).customLayerData["mixcount"])
+    assert dict(record["faces_removed"]) == {"invalid_polygon": 1}
+    stage = Usd.Stage.Open(str(asset.visual))
+    body = UsdGeom.Mesh(stage.GetPrimAtPath("/Asset/Source/Geom/body"))
+    assert list(body.GetFaceVertexCountsAttr().Get()) == [4, 3, 3, 3, 3]
+    got_idx = list(body.GetFaceVertexIndicesAttr().Get())
+    assert got_idx == idx[:4] + idx[7:]
+    assert not polygon_problems(body.GetFaceVertexCountsAttr().Get(), got_idx, 5).any()
+    st = UsdGeom.PrimvarsAPI(body).GetPrimvar("st").Get()
+    assert [round(v[0] * 19) for v in st] == list(range(4)) + list(range(7, 19))
+    assert [round(c[0] * 6) for c in body.GetDisplayColorPrimvar().Get()] == [0, 2, 3, 4, 5]
+    top = UsdGeom.Subset(stage.GetPrimAtPath("/Asset/Source/Geom/body/top"))
+    assert list(top.GetIndicesAttr().Get()) == [1, 4]  # faces 2 and 5 renumbered, the dropped face 1 gone

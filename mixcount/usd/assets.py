@@ -39,6 +39,7 @@ from mixcount.errors import AssetError, CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
 from mixcount.usd.mesh_clean import add_counts, clean_triangles
 from mixcount.usd.read import CONVEX_PARTS_PRIM
+from mixcount.usd.usd_source import override_invalid_faces, usd_bounds
 
 CONVERTER_VERSION = 5  # 5: degenerate / invalid triangles dropped (usd/mesh_clean.py); bump when the converter output changes: cached assets are rebuilt
 # V-HACD (vhacdx through trimesh) settings of that decomposition: part of the converter's output, so
@@ -355,7 +356,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
         raise AssetError(f"model file {model} of asset {key[:12]} does not exist")
     scale, _units, up = source_frame(model, units, up_axis)
     if model.suffix.lower() in USD_EXTENSIONS:
-        lo, hi = _usd_bounds(model)
+        lo, hi = usd_bounds(model)
         center = (lo + hi) / 2
         if proxy is not None:
             check_proxy_fits(proxy, lo, hi, model)
@@ -484,24 +485,9 @@ def _define_convex_parts(stage: Any, mesh: Any, center: np.ndarray) -> None:
         UsdPhysics.MeshCollisionAPI.Apply(usd_mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
 
 
-def _usd_bounds(model: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The USD model's box in metres, Z-up (its own metersPerUnit and up axis applied)."""
-    from pxr import Usd, UsdGeom
-
-    stage = Usd.Stage.Open(str(model))
-    if stage is None:
-        raise CompositionError(f"cannot open USD model {model}")
-    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
-    rot = up_axis_rotation(str(UsdGeom.GetStageUpAxis(stage)))
-    cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render])
-    box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
-    lo, hi = np.asarray(box.GetMin()) * mpu, np.asarray(box.GetMax()) * mpu
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) @ rot.T
-    return corners.min(0), corners.max(0)
-
-
 def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray, proxy: Optional[Path] = None) -> None:
-    """A USD source stays as it is: reference it under a transform to metres, Z-up and centred."""
+    """A USD source stays as it is: reference it under a transform to metres, Z-up and centred (its invalid
+    faces taken out by overrides in this layer: :func:`mixcount.usd.usd_source.override_invalid_faces`)."""
     from pxr import Gf, Usd, UsdGeom
 
     src = Usd.Stage.Open(str(model))
@@ -514,6 +500,7 @@ def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray, proxy: Opti
     m[:3, 3] = -center
     src_xf.AddTransformOp().Set(Gf.Matrix4d(m.T.tolist()))  # USD matrices are row-vector (transposed)
     src_xf.GetPrim().GetReferences().AddReference(str(model.resolve()))
+    _record(stage, faces_removed=override_invalid_faces(stage, model, "/Asset/Source"))
     if proxy is not None:
         _define_proxy(stage, proxy, center)
     stage.GetRootLayer().Save()
