@@ -158,3 +158,15 @@ def test_usd_source_keeps_its_file_and_loses_its_invalid_faces(tmp_path: Path) -
     assert [round(c[0] * 6) for c in body.GetDisplayColorPrimvar().Get()] == [0, 2, 3, 4, 5]
     top = UsdGeom.Subset(stage.GetPrimAtPath("/Asset/Source/Geom/body/top"))
     assert list(top.GetIndicesAttr().Get()) == [1, 4]  # faces 2 and 5 renumbered, the dropped face 1 gone
+
+
+def test_a_dataset_moved_without_its_assets_names_the_broken_link(tmp_path: Path) -> None:
+    path = _stage(tmp_path)
+    (tmp_path / "textures" / "empty.png").write_bytes(b"\x89PNG\r\n\x1a\n")
+    (tmp_path / "missing.usdc").symlink_to("../elsewhere/missing.usdc")  # a relative link, as OUT/assets holds
+    (tmp_path / "asset_tex").mkdir()
+    Image.new("RGB", (2, 2)).save(tmp_path / "asset_tex" / "gone.png")
+    line = problem_line(path)
+    assert line is not None and line.startswith(f"layer {tmp_path / 'missing.usdc'} is a broken link to "
+                                                "../elsewhere/missing.usdc"), line
+    assert "(and" not in line  # the only problem left

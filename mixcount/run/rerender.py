@@ -104,7 +104,7 @@ def copy_scene_files(scene_dir: Path, tmp: Path) -> list[str]:
     ``textures/`` and every floor rendered magenta). Returns the copied paths, relative."""
     from mixcount.usd.dependencies import dependencies
 
-    root = scene_dir.resolve()
+    root = Path(os.path.abspath(scene_dir))
     copied = []
     for dep in dependencies(scene_dir / "settled.usda"):
         try:

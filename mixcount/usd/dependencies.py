@@ -15,6 +15,7 @@ follows every referenced layer once. Paths with UDIM / ``<...>`` tokens are left
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Optional
@@ -36,8 +37,8 @@ class Dependency:
 
 
 def _resolve(layer: Path, written: str) -> Path:
-    p = Path(written)
-    return p if p.is_absolute() else (layer.parent / p).resolve()
+    """Lexically, as USD's default resolver does (TfNormPath): a link keeps its own name."""
+    return Path(os.path.normpath(layer.parent / written))
 
 
 def _named_by(layer: Path) -> list[str]:
@@ -50,7 +51,7 @@ def _named_by(layer: Path) -> list[str]:
 def dependencies(stage_path: Path) -> Iterator[Dependency]:
     """Every path the stage's layers name, depth first, each layer read once (a layer that cannot be
     read is reported by :func:`missing_files`, not followed)."""
-    root = Path(stage_path).resolve()
+    root = Path(os.path.abspath(stage_path))
     seen = {root}
     todo = [root]
     while todo:
@@ -72,7 +73,12 @@ def why_unusable(path: Path) -> Optional[str]:
         with open(path, "rb") as fh:
             head = fh.read(8)
     except FileNotFoundError:
-        return "missing"
+        link = next((p for p in (path, *path.parents) if p.is_symlink() and not p.exists()), None)
+        if link is None:
+            return "missing"
+        where = "a broken link" if link == path else f"missing (its folder {link} is a broken link)"
+        return (f"{where} to {os.readlink(link)} (moved without its assets? `mixcount package` writes a "
+                "copy that holds them)")
     except IsADirectoryError:
         return "a folder, not a file"
     except OSError as exc:
