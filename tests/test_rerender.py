@@ -60,8 +60,51 @@ def test_own_cameras_and_settings_give_identical_maps_and_coco(composed_dataset:
         for key in ("counts", "ground_truth", "n_distractors", "cameras"):
             assert meta[key] == again[key], key
     assert n_maps >= 4
+    # the image itself (issue 60: every floor came back magenta, its texture left behind): the same pixels
+    for d in _scenes(composed_dataset):
+        for p in sorted(d.glob("rgb*.png")):
+            a, b = (np.asarray(Image.open(x).convert("RGB"), dtype=np.float64) for x in (p, out / "scenes" / d.name / p.name))
+            mse = float(((a - b) ** 2).mean())
+            assert mse == 0.0 or 10 * np.log10(255.0 ** 2 / mse) >= 40.0, (d.name, p.name, mse)
+            assert magenta_pixels(b) == 0 == magenta_pixels(a), (d.name, p.name)
+        assert sorted(x.name for x in (d / "textures").iterdir()) == \
+            sorted(x.name for x in (out / "scenes" / d.name / "textures").iterdir())
     src_gt, new_gt = (json.loads((x / "annotations" / "instances_train.json").read_text()) for x in (composed_dataset, out))
     assert src_gt["annotations"] == new_gt["annotations"] and len(src_gt["images"]) == len(new_gt["images"])
+
+
+def magenta_pixels(rgb: np.ndarray) -> int:
+    """Pixels of Blender's missing-texture magenta under any light: R and B alike and both well above G."""
+    x = np.asarray(rgb, dtype=np.float64)[..., :3]
+    r, g, b = x[..., 0], x[..., 1], x[..., 2]
+    lift = np.minimum(r, b) - g
+    return int(((lift > 15) & (np.abs(r - b) < 0.3 * lift)).sum())
+
+
+def test_magenta_detector_sees_lit_magenta_and_not_pink_or_grey() -> None:
+    lit = np.array([[[108, 27, 102], [234, 200, 236], [255, 0, 255]]])  # a re-render's floors, shaded
+    other = np.array([[[230, 120, 160], [128, 128, 128], [40, 160, 40], [150, 60, 220]]])  # pink, grey, green, violet
+    assert magenta_pixels(lit) == 3 and magenta_pixels(other) == 0
+
+
+@pytest.mark.blender
+def test_a_deleted_floor_texture_is_one_line_naming_it(composed_dataset: Path, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    import shutil
+
+    src = tmp_path / "copy"
+    (src / "scenes").mkdir(parents=True)
+    (src / "assets").symlink_to((composed_dataset / "assets").resolve())
+    for d in _scenes(composed_dataset):
+        shutil.copytree(d, src / "scenes" / d.name, symlinks=True)
+    victim = sorted((src / "scenes").glob("scene_*/textures/*.png"))[-1]
+    victim.unlink()
+    out = tmp_path / "again"
+    rc = main(["--config", "quick", "render", str(src), "--out", str(out), "--views", "0"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert str(victim) in err and "is missing" in err and "Traceback" not in err
+    assert not out.exists()  # checked before anything was written
 
 
 def _reference_check(d: Path, image_id: int, suffix: str, v_t: float) -> int:

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from mixcount.atomic import atomic_path
+from mixcount.engine.render_passes import require_images
 from mixcount.worker.contract import CANONICAL, CanonicalRequest, CanonicalResult, CanonicalView
 
 IMPORTERS = {
@@ -361,6 +362,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     orient_to_catalog(Path(req.model_path), req.up_axis)
     use_vertex_colours(objects)
     apply_look(objects, req.look)
+    require_images(scene)  # a texture its importer could not open: an error naming it, not magenta
     pts = centre_objects(objects)
     look = req.settings
     configure_render(scene, resolution=look.resolution, samples=look.samples, denoise=look.denoise, threads=req.threads)

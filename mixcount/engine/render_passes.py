@@ -73,6 +73,46 @@ def configure_id_pass(scene: Any) -> None:
     s.exr_codec = "NONE"  # a temporary file read back at once: ZIP cost ~0.3-0.5 s a render at 1024²
 
 
+IMAGE_NODES = ("ShaderNodeTexImage", "ShaderNodeTexEnvironment")
+
+
+def missing_images(scene: Any) -> list[str]:
+    """Every image texture the scene's objects and world sample that has no pixels to give: Cycles renders
+    those flat magenta without a word. Blender's USD importer drops a texture file it cannot open (only
+    its log says "Couldn't open image file"), leaving the node empty; an image whose file went away after
+    loading keeps its path. One line each, naming the material and the file where known."""
+    import bpy
+
+    owners: dict[str, Any] = {}
+    for obj in scene.objects:
+        for slot in getattr(obj, "material_slots", ()):
+            if slot.material is not None and slot.material.node_tree is not None:
+                owners[f"material {slot.material.name!r}"] = slot.material.node_tree
+    if scene.world is not None and scene.world.node_tree is not None:
+        owners[f"world {scene.world.name!r}"] = scene.world.node_tree
+    out = []
+    for owner, tree in sorted(owners.items()):
+        for node in tree.nodes:
+            if node.bl_idname not in IMAGE_NODES:
+                continue
+            img = node.image
+            if img is None:
+                out.append(f"{owner}: texture node {node.name!r} has no image (its file could not be opened)")
+            elif img.source == "FILE" and img.packed_file is None and not os.path.isfile(bpy.path.abspath(img.filepath)):
+                out.append(f"{owner}: image file {bpy.path.abspath(img.filepath)} is missing")
+    return out
+
+
+def require_images(scene: Any) -> None:
+    """AssetError (one line, the first of :func:`missing_images`) instead of a magenta render."""
+    from mixcount.errors import AssetError
+
+    bad = missing_images(scene)
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise AssetError(f"{bad[0]}{more}: nothing rendered (Blender would paint it magenta)")
+
+
 def configure_rgb(scene: Any, render: Any) -> dict[str, Any]:
     """The final image with a :class:`~mixcount.scene.spec.RenderSpec`'s settings: samples, denoiser and
     every :class:`~mixcount.scene.spec.CyclesSpec` field; returns what Cycles holds afterwards, read back
@@ -80,7 +120,9 @@ def configure_rgb(scene: Any, render: Any) -> dict[str, Any]:
 
     ``denoise_prefilter`` is OIDN's treatment of the albedo / normal guiding passes. ACCURATE (Blender's
     default) denoises them first, i.e. runs the network three times: 13.4 s of a 1024² render on 2 cores;
-    FAST (guides denoised with the colour) 2.3 s (docs/performance.md)."""
+    FAST (guides denoised with the colour) 2.3 s (docs/performance.md). A texture without pixels stops it
+    first (:func:`require_images`)."""
+    require_images(scene)
     c, cy = scene.cycles, render.cycles
     c.samples = int(render.samples)
     c.use_denoising = bool(render.denoise)

@@ -220,7 +220,10 @@ def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
         try:
             reply(handler(req))
         except Exception as exc:  # the request fails, the worker lives on
-            reply({"ok": False, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()})
+            from mixcount.errors import MixcountError  # a user's error (a missing file): its line, no traceback
+
+            reply({"ok": False, "error": f"{type(exc).__name__}: {exc}",
+                   "traceback": "" if isinstance(exc, MixcountError) else traceback.format_exc()})
         sys.stderr.flush()
     return 0
 

@@ -381,6 +381,8 @@ class _ComposeRun:
         append_failure(self.out_dir, rec)
         if problem:
             self.stop(StorageError(problem))
+        elif "AssetError: " in (outcome.error or "").split("\n", 1)[0]:  # a file it needs (here or in the worker)
+            self.stop(AssetError((outcome.error or "").split("\n", 1)[0].split("AssetError: ", 1)[1]))
         elif self.fatal is None:
             tail = "".join(f"\n    {ln[:200]}" for ln in rec["log_tail"].splitlines())  # the log's last lines
             self.bar.note(f"scene {outcome.scene_id} (seed {outcome.seed}) failed [{cause}]: "

@@ -2,6 +2,7 @@
 
 For each complete scene of ``SRC/scenes/`` (in scene-id order): its ``settled.usda`` is copied into a
 temporary folder of ``NEW/scenes/`` as the new scene's ``scene.usda`` (the stage it is rendered from),
+with every scene-local file it names (the floor's ``textures/``: :func:`copy_scene_files`),
 the poses and camera records of its ``metadata.json`` (float64, exactly what the original render used)
 go into a :class:`~mixcount.worker.contract.RerenderRequest` with the new settings and any new views
 (:mod:`mixcount.scene.views`), one bpy worker renders it (:mod:`mixcount.engine.rerender_job`), and the
@@ -10,7 +11,9 @@ settled.usda, metadata.json last). ``NEW/assets/`` holds relative links to ``SRC
 the copied stages resolve their ``../../assets/`` references. At the end ``NEW`` is merged like a composed
 dataset. The source is only read.
 
-The device is asked for before anything is written: ``[rerender] device = "gpu"`` on a machine without
+Before anything is written every file each stage needs is checked (:func:`check_scene_files`): a
+missing floor texture, environment map or asset is an AssetError naming it (exit 2), never a magenta
+render. The device is asked for before anything is written too: ``[rerender] device = "gpu"`` on a machine without
 one is a RenderError (one line naming what Cycles found; exit 2) and ``NEW`` is not created.
 """
 
@@ -94,6 +97,38 @@ def link_assets(src: Path, dst: Path) -> None:
             os.symlink(os.path.relpath(entry, link.parent), link)
 
 
+def copy_scene_files(scene_dir: Path, tmp: Path) -> list[str]:
+    """Every file inside ``scene_dir`` that its settled.usda names (the procedural floor's
+    ``./textures/floor_<pattern>.png``, any other scene-local texture) copied to the same place under
+    ``tmp``, so the copied stage resolves them as the original did (issue 60: the new folders had no
+    ``textures/`` and every floor rendered magenta). Returns the copied paths, relative."""
+    from mixcount.usd.dependencies import dependencies
+
+    root = Path(os.path.abspath(scene_dir))
+    copied = []
+    for dep in dependencies(scene_dir / "settled.usda"):
+        try:
+            rel = dep.path.relative_to(root)
+        except ValueError:
+            continue  # the dataset's assets/ (linked by link_assets) or an absolute path: used where it is
+        if (tmp / rel).exists():
+            continue
+        (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(dep.path, tmp / rel)
+        copied.append(str(rel))
+    return copied
+
+
+def check_scene_files(scenes: list[Path]) -> None:
+    """Every file each scene's settled.usda needs (textures, environment maps, assets) can be read, or an
+    AssetError naming the first missing one: checked for all scenes before anything is written."""
+    from mixcount.usd.dependencies import require_files
+
+    for scene_dir in scenes:
+        require_files(scene_dir / "settled.usda",
+                      f"scene {scene_dir.name} cannot be rendered again (nothing was written)")
+
+
 def own_views(meta: dict[str, Any]) -> list[RenderView]:
     """The scene's cameras at the poses recorded in its metadata.json (as they rendered)."""
     views = []
@@ -146,6 +181,7 @@ def rerender_scene(scene_dir: Path, dst: Path, config: Config, worker: Worker, *
     tmp.mkdir(parents=True)
     try:
         shutil.copyfile(scene_dir / "settled.usda", tmp / "scene.usda")
+        copy_scene_files(scene_dir, tmp)
         outputs = SceneOutputs.from_config(config.compose)
         views = own_views(meta) + new_views(meta, spec, config)
         req = RerenderRequest(
@@ -204,6 +240,7 @@ def rerender_dataset(src: Path, dst: Path, config: Config, worker: Worker, *, or
     if dst.exists() and any(dst.iterdir()):
         raise CompositionError(f"--out {dst} exists and is not empty: the re-render goes into a new folder")
     scenes = finished_scenes(src)
+    check_scene_files(scenes)
     t0 = time.perf_counter()
     device = probe_device(worker, config.rerender.device, config.rerender.timeout_s)
     summary = RerenderSummary(source=str(src), out=str(dst), device=device.to_dict())

@@ -133,6 +133,7 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         write_metadata,
     )
     from mixcount.run.rejections import object_lines, rejection_reason
+    from mixcount.usd.dependencies import require_files
     from mixcount.usd.stage import write_stage
 
     spec = task.spec
@@ -153,6 +154,7 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
         else:
             timings["stage"] = staged.stage_s
             request = staged.request
+        require_files(Path(request.stage), f"scene {spec.scene_id} cannot be rendered")  # never magenta (issue 60)
         t = time.perf_counter()
         result = worker.run_scene_job(request, timeout=task.timeout_s)
         timings["worker"] = round(time.perf_counter() - t, 4)

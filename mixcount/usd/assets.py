@@ -38,11 +38,13 @@ from typing import Any, Optional
 import numpy as np
 
 from mixcount.catalog.materials import material_vertex_colours, srgb_to_linear
-from mixcount.errors import CompositionError
+from mixcount.errors import AssetError, CompositionError
 from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
+from mixcount.usd.mesh_clean import add_counts, clean_triangles
 from mixcount.usd.read import CONVEX_PARTS_PRIM
+from mixcount.usd.usd_source import override_invalid_faces, usd_bounds
 
-CONVERTER_VERSION = 5  # bump when the converter output changes: cached assets are rebuilt
+CONVERTER_VERSION = 6  # 5: palette looks / 6: degenerate, invalid triangles dropped (usd/mesh_clean.py); bump when the converter output changes: cached assets are rebuilt
 # V-HACD (vhacdx through trimesh) settings of that decomposition: part of the converter's output, so
 # fixed here with the version rather than configured (a changed value must rebuild every cached asset)
 CONVEX_PARTS_MAX = 16
@@ -247,9 +249,17 @@ def _define_material(stage: Any, mat_path: str, info: dict[str, Any], tex_dir: P
     return material
 
 
-def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray) -> Any:
+def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray,
+                 removed: Optional[dict[str, int]] = None) -> Any:
+    """One Mesh prim of ``part`` without degenerate or invalid triangles (their counts added to ``removed``)."""
     from pxr import UsdGeom, Vt
 
+    per_face = part.display_color if part.color_interp != "vertex" else None
+    faces, per_face, counts = clean_triangles(part.points, part.faces, per_face)
+    if counts:
+        part = _Part(part.points, faces, part.normals, part.uv, part.material,
+                     per_face if part.color_interp != "vertex" else part.display_color, part.color_interp)
+        add_counts(removed if removed is not None else {}, counts)
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = part.points - center
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
@@ -292,6 +302,9 @@ def _write_layer_atomically(build: Any, final: Path, tex_dir: Optional[Path], re
                     os.replace(tmp_tex, tex_dir)
                 except OSError:
                     pass  # a concurrent writer put identical textures there first
+            for f in tmp_tex.iterdir() if tmp_tex.is_dir() and tex_dir.is_dir() else ():  # a texture lost from a kept folder
+                if not (tex_dir / f.name).exists():
+                    os.replace(f, tex_dir / f.name)
         os.replace(tmp_layer, final)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -316,6 +329,10 @@ def _is_current(path: Path, proxy: Optional[str] = None, *, frame: Optional[str]
     if source is not None and data.get("source", "") != source:
         return False
     if look is not None and data.get("look", "") != look:
+        return False
+    from mixcount.usd.dependencies import problem_line
+
+    if problem_line(path) is not None:  # a texture of its _tex/ gone: converted again, never rendered magenta
         return False
     return proxy is None or data.get("proxy", "") == proxy
 
@@ -359,10 +376,10 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
         c = Sdf.Layer.FindOrOpen(str(visual)).customLayerData.get("mixcount", {}).get("center_m", (0.0, 0.0, 0.0))
         return AssetPaths(visual, coll, tuple(float(v) for v in c), proxy is not None)  # type: ignore[arg-type]
     if not model.is_file():
-        raise CompositionError(f"model file {model} of asset {key[:12]} does not exist")
+        raise AssetError(f"model file {model} of asset {key[:12]} does not exist")
     scale, _units, up = source_frame(model, units, up_axis)
     if model.suffix.lower() in USD_EXTENSIONS:
-        lo, hi = _usd_bounds(model)
+        lo, hi = usd_bounds(model)
         center = (lo + hi) / 2
         if proxy is not None:
             check_proxy_fits(proxy, lo, hi, model)
@@ -380,14 +397,17 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
             stage, _root = _start_stage(path, key, str(model), center, frame, look_tag(look))
             UsdGeom.Scope.Define(stage, "/Asset/Looks")
             UsdGeom.Scope.Define(stage, "/Asset/Geom")
+            removed: dict[str, int] = {}
             for i, part in enumerate(parts):
-                mesh = _define_mesh(stage, f"/Asset/Geom/mesh_{i:03d}", part, center)
+                mesh = _define_mesh(stage, f"/Asset/Geom/mesh_{i:03d}", part, center, removed)
                 if part.material is not None:
                     mat = _define_material(stage, f"/Asset/Looks/mat_{i:03d}", part.material, tdir,  # type: ignore[arg-type]
                                            tex_dir.name, i, textured and part.uv is not None)
                     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
             if proxy is not None:
                 _define_proxy(stage, proxy, center)
+            _record(stage, faces_removed=dict(sorted(removed.items())),
+                    faces_kept=sum(len(p.faces) for p in parts) - sum(removed.values()))
             stage.GetRootLayer().Save()
 
         _write_layer_atomically(build, visual, tex_dir, replace_textures=force)
@@ -431,11 +451,14 @@ def _define_proxy(stage: Any, ply: Path, center: np.ndarray) -> None:
     mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)
     UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
     UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
+    _record(stage, proxy=str(ply.resolve()))
+
+
+def _record(stage: Any, **values: Any) -> None:
+    """``values`` added to the asset layer's record (``customLayerData["mixcount"]``)."""
     layer = stage.GetRootLayer()
     data = dict(layer.customLayerData)
-    mc = dict(data.get("mixcount", {}))
-    mc["proxy"] = str(ply.resolve())
-    data["mixcount"] = mc
+    data["mixcount"] = {**dict(data.get("mixcount", {})), **values}
     layer.customLayerData = data
 
 
@@ -485,24 +508,9 @@ def _define_convex_parts(stage: Any, mesh: Any, center: np.ndarray) -> None:
         UsdPhysics.MeshCollisionAPI.Apply(usd_mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
 
 
-def _usd_bounds(model: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The USD model's box in metres, Z-up (its own metersPerUnit and up axis applied)."""
-    from pxr import Usd, UsdGeom
-
-    stage = Usd.Stage.Open(str(model))
-    if stage is None:
-        raise CompositionError(f"cannot open USD model {model}")
-    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
-    rot = up_axis_rotation(str(UsdGeom.GetStageUpAxis(stage)))
-    cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render])
-    box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
-    lo, hi = np.asarray(box.GetMin()) * mpu, np.asarray(box.GetMax()) * mpu
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) @ rot.T
-    return corners.min(0), corners.max(0)
-
-
 def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray, proxy: Optional[Path] = None) -> None:
-    """A USD source stays as it is: reference it under a transform to metres, Z-up and centred."""
+    """A USD source stays as it is: reference it under a transform to metres, Z-up and centred (its invalid
+    faces taken out by overrides in this layer: :func:`mixcount.usd.usd_source.override_invalid_faces`)."""
     from pxr import Gf, Usd, UsdGeom
 
     src = Usd.Stage.Open(str(model))
@@ -515,6 +523,7 @@ def _wrap_usd(path: Path, key: str, model: Path, center: np.ndarray, proxy: Opti
     m[:3, 3] = -center
     src_xf.AddTransformOp().Set(Gf.Matrix4d(m.T.tolist()))  # USD matrices are row-vector (transposed)
     src_xf.GetPrim().GetReferences().AddReference(str(model.resolve()))
+    _record(stage, faces_removed=override_invalid_faces(stage, model, "/Asset/Source"))
     if proxy is not None:
         _define_proxy(stage, proxy, center)
     stage.GetRootLayer().Save()

@@ -317,7 +317,8 @@ class BlenderWorker:
         failure, crash or timeout)."""
         answer = self.request({"op": op, "request": request}, timeout=timeout)
         if not answer.get("ok"):
-            raise RenderError(f"{self.name}: {what} failed: {answer.get('error')}\n{answer.get('traceback', '')}")
+            tb = answer.get("traceback") or ""
+            raise RenderError(f"{self.name}: {what} failed: {answer.get('error')}" + (f"\n{tb}" if tb else ""))
         result: dict[str, Any] = answer["result"]
         return result
 
