@@ -139,7 +139,8 @@ class TreeWalker:
         link are walked after every real one (an object keeps its real path where it has one); a folder
         reached again (a link to a folder above it, i.e. a loop, or a second link to one folder) is not
         walked again but listed in ``repeats``. A stack, not recursion: depth is bounded by paths only."""
-        pending, linked = [folder], []
+        pending: list[Path] = [folder]
+        linked: list[Path] = []
         while pending or linked:
             here = pending.pop() if pending else linked.pop(0)
             subdirs: list[Path] = []
