@@ -100,6 +100,10 @@ def review_import_cmd(
     ctx: typer.Context,
     file: Path = typer.Argument(..., help="Decisions JSON exported from review.html."),
     reviewer: Optional[str] = typer.Option(None, "--reviewer", help="Reviewer name [default: the file's, else $USER]."),
+    other_catalog: bool = typer.Option(
+        False, "--other-catalog",
+        help="Import a file exported from another catalog (its 'catalog' field names another database: a copy "
+             "or a moved catalog); ids and names must still match this one."),
     json_out: bool = json_option("the summary"),
 ) -> None:
     """Record accept/reject decisions (with reviewer and time) and apply them to object statuses."""
@@ -107,7 +111,7 @@ def review_import_cmd(
 
     catalog = state(ctx).catalog()
     try:
-        summary = import_decisions(catalog, file, reviewer=reviewer)
+        summary = import_decisions(catalog, file, reviewer=reviewer, other_catalog=other_catalog)
     finally:
         catalog.close()
     for c in summary.status_changes:

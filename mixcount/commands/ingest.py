@@ -54,7 +54,8 @@ def ingest_cmd(
     # a missing PATH, an unknown layout, a bad --metadata file or a PATH with no model file in it is an
     # error before the database is touched; files in formats ingest does not read are listed, not fatal
     check_catalog_file(st.db)  # a --db that is not a catalog is named first
-    skipped = _check_inputs(paths, layout, metadata)
+    repeats: list[tuple[Path, str]] = []
+    skipped = _check_inputs(paths, layout, metadata, repeats)
     check_up_axis(up_axis)
     from mixcount.catalog.layouts.parts import check_parts
     from mixcount.catalog.units import check_units
@@ -101,8 +102,10 @@ def ingest_cmd(
            + ", ".join(f"{n} by {why}" for why, n in summary.as_dict()["rescaled_by"].items()) + ")"
            if summary.rescaled else "")
         + (f"; {len(summary.warnings)} warning(s)" if summary.warnings else "")
-        + (f"; skipped {len(skipped)} file(s) in formats not read" if skipped else ""),
-        {**summary.as_dict(), "skipped": [{"path": str(p), "reason": r} for p, r in skipped]},
+        + (f"; skipped {len(skipped)} file(s) in formats not read" if skipped else "")
+        + (f"; {len(repeats)} link(s) to what was already walked, read once" if repeats else ""),
+        {**summary.as_dict(), "skipped": [{"path": str(p), "reason": r} for p, r in skipped],
+         "walked_once": [{"path": str(p), "reason": r} for p, r in repeats]},
         json_out,
     )
     if strict and summary.broken:
@@ -112,18 +115,21 @@ def ingest_cmd(
 SKIPPED_LINES = 20  # skipped files named one per line; the rest are counted
 
 
-def _check_inputs(paths: list[Path], layout: str, metadata: list[Path]) -> list[tuple[Path, str]]:
+def _check_inputs(paths: list[Path], layout: str, metadata: list[Path],
+                  repeats: list[tuple[Path, str]]) -> list[tuple[Path, str]]:
     """Walk every PATH once before the database is opened: a PATH with no model file in it is an error
     that names it (with what was skipped there), and the files in formats ingest does not read are
-    reported on stderr by name, with a count per format. Returns the skipped (path, reason) pairs."""
+    reported on stderr by name, with a count per format, as are the links not followed again (loops,
+    repeated targets: appended to ``repeats``). Returns the skipped (path, reason) pairs."""
     from mixcount.catalog.ingest import discover
     from mixcount.catalog.layouts.walk import UNREAD_MODEL_FORMATS
     from mixcount.catalog.mesh import MESH_EXTENSIONS
+    from mixcount.catalog.naming import safe_text
 
     skipped: list[tuple[Path, str]] = []
     for path in paths:
         here: list[tuple[Path, str]] = []
-        if not discover([path], layout=layout, metadata_files=metadata, skipped=here):
+        if not discover([path], layout=layout, metadata_files=metadata, skipped=here, repeats=repeats):
             what = (f": only {len(here)} file(s) in formats ingest does not read ("
                     + ", ".join(sorted({p.suffix.lower() for p, _ in here})) + ")") if here else ""
             raise CatalogError(
@@ -141,6 +147,13 @@ def _check_inputs(paths: list[Path], layout: str, metadata: list[Path]) -> list[
             console.print(f"  skipped {escape(str(p))}: {escape(reason)}", highlight=False, soft_wrap=True)
         if len(skipped) > SKIPPED_LINES:
             console.print(f"  ... and {len(skipped) - SKIPPED_LINES} more (all listed by --json)", highlight=False)
+    if repeats:
+        console.print(f"[yellow]read once:[/] {len(repeats)} link(s) lead to a folder or file already walked "
+                      "(each real folder is read once)", highlight=False, soft_wrap=True)
+        for p, reason in repeats[:SKIPPED_LINES]:
+            console.print(f"  {escape(safe_text(str(p)))}: {escape(safe_text(reason))}", highlight=False, soft_wrap=True)
+        if len(repeats) > SKIPPED_LINES:
+            console.print(f"  ... and {len(repeats) - SKIPPED_LINES} more (all listed by --json)", highlight=False)
     return skipped
 
 

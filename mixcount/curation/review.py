@@ -33,59 +33,43 @@ the latest container decision outranks the container rules
 from __future__ import annotations
 
 import getpass
-import json
 from dataclasses import asdict, dataclass, field
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable, cast
 
-from sqlalchemy import select
+from sqlalchemy import Table, bindparam, insert, select, update
+from sqlalchemy.orm import Session
 
 from mixcount.catalog.db import Catalog
 from mixcount.catalog.decisions import (
     CONTAINER_DECISIONS,
     PAIR_DECISIONS,
+    SCAN_ABOVE,
     STATUS_DECISIONS,
-    latest_container_decisions,
-    latest_decisions,
+    chunks,
+    latest_by_object,
 )
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
+from mixcount.curation.review_file import (
+    FORMAT,
+    check_catalog,
+    entry_lines,
+    is_id,
+    load_decisions,
+    parse_time,
+    short,
+    where,
+)
 from mixcount.errors import CatalogError
 
-FORMAT = "mixcount-review-v1"
+__all__ = ["FORMAT", "ReviewSummary", "import_decisions", "load_decisions"]
 
-
-def _check_pairs(session: Any, entries: list[Any], default_time: datetime,
-                 problems: list[str]) -> list[tuple[CatalogObject, CatalogObject, str, str, datetime]]:
-    """The file's pair decisions, checked (problems appended), as (a, b, decision, note, time)."""
-    planned = []
-    for k, entry in enumerate(entries):
-        if not isinstance(entry, dict):
-            problems.append(f"pair {k} is not an object")
-            continue
-        a, b, decision = entry.get("a"), entry.get("b"), entry.get("decision")
-        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (a, b)) or a == b:
-            problems.append(f"pair {k}: a {a!r} and b {b!r} are not two object ids")
-            continue
-        if decision not in PAIR_DECISIONS:
-            problems.append(f"pair {k}: decision {decision!r} is not one of {', '.join(PAIR_DECISIONS)}")
-            continue
-        objs = [session.get(CatalogObject, v) for v in (a, b)]
-        missing = [v for v, o in zip((a, b), objs) if o is None]
-        if missing:
-            problems.append(f"pair {k}: no catalog object with id {missing[0]}")
-            continue
-        wrong = [(o, entry.get(key)) for o, key in zip(objs, ("a_name", "b_name"))
-                 if entry.get(key) is not None and entry.get(key) != o.name]
-        if wrong:
-            problems.append(f"pair {k}: id {wrong[0][0].id} is {wrong[0][0].name!r} here, the file says {wrong[0][1]!r}")
-            continue
-        note = entry.get("note") or ""
-        if not isinstance(note, str):
-            problems.append(f"pair {k}: note is not a string")
-            continue
-        planned.append((objs[0], objs[1], str(decision), note[:4000], _parse_time(entry.get("decided_at")) or default_time))
-    return planned
+OBJECTS = cast(Table, CatalogObject.__table__)  # Core tables: bulk statements without ORM objects
+DECISIONS = cast(Table, ReviewDecision.__table__)
+NOTE_CHARS = 4000
+SHOWN_PROBLEMS = 5
+Problem = tuple[str, int, str | None, str]  # (list: decisions | pairs, index, the field at fault, what)
 
 
 @dataclass
@@ -102,124 +86,212 @@ class ReviewSummary:
         return asdict(self)
 
 
-def _parse_time(value: Any) -> datetime | None:
-    if not value:
-        return None
-    if not isinstance(value, str):
-        raise CatalogError(f"decision time {value!r} is not an ISO-8601 string")
-    try:
-        dt = datetime.fromisoformat(value.replace("Z", "+00:00"))
-    except ValueError:
-        raise CatalogError(f"decision time {value!r} is not an ISO-8601 time") from None
-    if dt.tzinfo is not None:
-        dt = dt.astimezone(timezone.utc).replace(tzinfo=None)
-    return dt.replace(microsecond=(dt.microsecond // 1000) * 1000)
+@dataclass(frozen=True)
+class _Obj:
+    name: str
+    status: str
+    container: bool
 
 
-def load_decisions(path: Path) -> dict[str, Any]:
-    """Read and shape-check a decisions file (raises CatalogError)."""
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise CatalogError(f"decisions file not found: {path}") from None
-    except (OSError, ValueError) as exc:
-        raise CatalogError(f"cannot read decisions file {path}: {exc}") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("decisions"), list):
-        raise CatalogError(f"{path} is not a {FORMAT} decisions file")
-    if not isinstance(data.get("pairs", []), list):
-        raise CatalogError(f"{path}: 'pairs' is not a list")
-    return data
+def _objects(session: Session, ids: Iterable[int]) -> dict[int, _Obj]:
+    """id -> (name, status, container) of the catalog objects among ``ids`` (one query per chunk)."""
+    found: dict[int, _Obj] = {}
+    t = CatalogObject.__table__.c
+    query = select(t.id, t.name, t.status, t.container)  # Core rows: no ORM objects for 200,000 ids
+    conn, wanted = session.connection(), set(ids)
+    if len(wanted) > SCAN_ABOVE:
+        for oid, name, status, container in conn.execute(query):
+            if oid in wanted:
+                found[oid] = _Obj(name, status, bool(container))
+        return found
+    for part in chunks(sorted(wanted)):
+        for oid, name, status, container in conn.execute(query.where(t.id.in_(part))):
+            found[oid] = _Obj(name, status, bool(container))
+    return found
 
 
-def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = None) -> ReviewSummary:
-    """Validate every decision in ``path``, then record them all and apply the statuses (atomic)."""
-    data = load_decisions(path)
+def _when(entry: dict[str, Any], default: datetime, now: datetime) -> datetime:
+    return parse_time(entry.get("decided_at"), now=now) or default
+
+
+def _note(entry: dict[str, Any]) -> str:
+    note = entry.get("note") or ""
+    if not isinstance(note, str):
+        raise CatalogError("note is not a string")
+    return note[:NOTE_CHARS]
+
+
+def _check_entries(entries: list[Any], objects: dict[int, _Obj], default: datetime, now: datetime,
+                   problems: list[Problem]) -> list[tuple[int, str, str, datetime]]:
+    """The file's object decisions, checked (problems appended), as (id, decision, note, time)."""
+    planned = []
+    for k, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            problems.append(("decisions", k, None, "is not an object"))
+            continue
+        oid, decision, container = entry.get("id"), entry.get("decision"), entry.get("container")
+        if not is_id(oid):
+            what = "is out of range" if isinstance(oid, int) and not isinstance(oid, bool) else "is not an integer"
+            problems.append(("decisions", k, "id", f"id {short(oid)} {what}"))
+            continue
+        if decision is None and container is None:
+            problems.append(("decisions", k, None, "neither a decision nor a container setting"))
+            continue
+        if decision is not None and decision not in STATUS_DECISIONS:
+            problems.append(("decisions", k, "decision", f"decision {short(decision)} is not accept or reject"))
+            continue
+        if container is not None and not isinstance(container, bool):
+            problems.append(("decisions", k, "container", f"container {short(container)} is not true or false"))
+            continue
+        obj = objects.get(oid)
+        if obj is None:
+            problems.append(("decisions", k, "id", f"no catalog object with id {oid}"))
+            continue
+        name = entry.get("name")
+        if name is not None and name != obj.name:
+            problems.append(("decisions", k, "name", f"id {oid} is {short(obj.name)} here, the file says {short(name)}"))
+            continue
+        try:
+            note, when = _note(entry), _when(entry, default, now)
+        except CatalogError as exc:
+            problems.append(("decisions", k, "decided_at" if "time" in str(exc) else "note", str(exc)))
+            continue
+        if decision is not None:
+            planned.append((oid, str(decision), note, when))
+        if container is not None:
+            planned.append((oid, "container" if container else "not_container", note, when))
+    return planned
+
+
+def _check_pairs(entries: list[Any], objects: dict[int, _Obj], default: datetime, now: datetime,
+                 problems: list[Problem]) -> list[tuple[int, int, str, str, datetime]]:
+    """The file's pair decisions, checked (problems appended), as (a, b, decision, note, time)."""
+    planned = []
+    for k, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            problems.append(("pairs", k, None, "is not an object"))
+            continue
+        a, b, decision = entry.get("a"), entry.get("b"), entry.get("decision")
+        if not (is_id(a) and is_id(b)) or a == b:
+            problems.append(("pairs", k, "a", f"a {short(a)} and b {short(b)} are not two object ids"))
+            continue
+        if decision not in PAIR_DECISIONS:
+            problems.append(("pairs", k, "decision", f"decision {short(decision)} is not one of {', '.join(PAIR_DECISIONS)}"))
+            continue
+        missing = [v for v in (a, b) if v not in objects]
+        if missing:
+            problems.append(("pairs", k, "a", f"no catalog object with id {missing[0]}"))
+            continue
+        wrong = [(v, entry.get(key)) for v, key in ((a, "a_name"), (b, "b_name"))
+                 if entry.get(key) is not None and entry.get(key) != objects[v].name]
+        if wrong:
+            oid, said = wrong[0]
+            problems.append(("pairs", k, "a_name" if oid == a else "b_name",
+                             f"id {oid} is {short(objects[oid].name)} here, the file says {short(said)}"))
+            continue
+        try:
+            note, when = _note(entry), _when(entry, default, now)
+        except CatalogError as exc:
+            problems.append(("pairs", k, "decided_at" if "time" in str(exc) else "note", str(exc)))
+            continue
+        planned.append((int(a), int(b), str(decision), note, when))  # type: ignore[arg-type]
+    return planned
+
+
+def _rejected(path: Path, text: str, problems: list[Problem]) -> CatalogError:
+    """One line naming the first problems, each with the line of the file that holds it."""
+    spans = entry_lines(text)
+    shown = []
+    for key, k, fld, what in problems[:SHOWN_PROBLEMS]:
+        label = "entry" if key == "decisions" else "pair"
+        shown.append(f"{label} {k}{where(text, spans, key, k, fld)}: {what}")
+    more = f"; ... ({len(problems)} problems)" if len(problems) > SHOWN_PROBLEMS else ""
+    return CatalogError(f"decisions file {path} rejected, nothing applied: " + "; ".join(shown) + more)
+
+
+def _record(session: Session, who: str, planned: list[tuple[int, str, str, datetime]],
+            pair_plan: list[tuple[int, int, str, str, datetime]], summary: ReviewSummary) -> None:
+    """Insert every decision not recorded yet (same object, pair, decision, reviewer and time), in bulk."""
+    t = ReviewDecision.__table__.c
+    query = select(t.object_id, t.pair_object_id, t.decision, t.decided_at).where(t.reviewer == who)
+    seen = {tuple(r) for r in session.connection().execute(query)}
+    rows = []
+    for oid, pair, decision, note, when in [(o, None, d, n, w) for o, d, n, w in planned] + pair_plan:
+        key = (oid, pair, decision, when)
+        if key in seen:
+            summary.already_recorded += 1
+            continue
+        seen.add(key)
+        rows.append({"object_id": oid, "pair_object_id": pair, "decision": decision, "reviewer": who,
+                     "note": note, "decided_at": when})
+    if rows:  # Core executemany: the ORM's bulk path costs several times more per row
+        session.connection().execute(insert(DECISIONS), rows)
+    summary.recorded += len(rows)
+
+
+def _apply_latest(session: Session, touched: list[int], objects: dict[int, _Obj], summary: ReviewSummary) -> None:
+    """The latest decision per touched object and kind onto its status and container flag (a file may
+    hold older decisions than the catalog); a broken object stays broken. ``objects``: their state now."""
+    newest_status = latest_by_object(session, touched, STATUS_DECISIONS, details=False)
+    newest_container = latest_by_object(session, touched, CONTAINER_DECISIONS)
+    statuses, containers = [], []
+    for oid in touched:
+        obj = objects[oid]
+        status = newest_status.get(oid)
+        if status is not None and obj.status != STATUS_BROKEN:
+            want = STATUS_ACTIVE if status[0] == "accept" else STATUS_EXCLUDED
+            if obj.status != want:
+                summary.status_changes.append({"id": oid, "name": obj.name, "from": obj.status, "to": want})
+                statuses.append({"oid": oid, "status": want, "updated_at": utcnow()})
+        marked = newest_container.get(oid)
+        if marked is not None:
+            decision, reviewer, decided_at = marked
+            value = CONTAINER_DECISIONS[decision]
+            if obj.container != value:
+                summary.container_changes.append({"id": oid, "name": obj.name, "container": value})
+            at = decided_at.isoformat() if decided_at is not None else "?"
+            containers.append({"oid": oid, "container": value,
+                               "container_reason": f"review: {decision} by {reviewer or 'someone'} at {at}Z"})
+    for rows in (statuses, containers):
+        if rows:  # one executemany per kind of change
+            columns: dict[str, Any] = {c: bindparam(c) for c in rows[0] if c != "oid"}
+            query = update(OBJECTS).where(OBJECTS.c.id == bindparam("oid")).values(columns)
+            session.connection().execute(query, rows)
+
+
+def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = None,
+                     other_catalog: bool = False) -> ReviewSummary:
+    """Validate every decision in ``path``, then record them all and apply the statuses (atomic).
+    ``other_catalog``: the file may come from another catalog (its ids and names are still checked)."""
+    data, text = load_decisions(path)
+    check_catalog(data, path, catalog.url, other_catalog=other_catalog)
+    now = utcnow()
     who = (reviewer or str(data.get("reviewer") or "").strip() or getpass.getuser())[:128]
-    default_time = _parse_time(data.get("exported_at")) or utcnow()
-    summary = ReviewSummary(file=str(path), reviewer=who, decisions=len(data["decisions"]))
+    try:
+        default_time = parse_time(data.get("exported_at"), now=now) or now
+    except CatalogError as exc:
+        raise CatalogError(f"decisions file {path} rejected, nothing applied: exported_at: {exc}") from None
+    entries, pairs = data["decisions"], data.get("pairs", [])
+    summary = ReviewSummary(file=str(path), reviewer=who, decisions=len(entries))
+    ids: set[int] = {e["id"] for e in entries if isinstance(e, dict) and is_id(e.get("id"))}
+    ids |= {e[s] for e in pairs if isinstance(e, dict) for s in ("a", "b") if is_id(e.get(s))}
     with catalog.session() as session:
-        planned: list[tuple[CatalogObject, str, str, datetime]] = []
-        problems: list[str] = []
-        for k, entry in enumerate(data["decisions"]):
-            if not isinstance(entry, dict):
-                problems.append(f"entry {k} is not an object")
-                continue
-            oid, decision, container = entry.get("id"), entry.get("decision"), entry.get("container")
-            if not isinstance(oid, int) or isinstance(oid, bool):
-                problems.append(f"entry {k}: id {oid!r} is not an integer")
-                continue
-            if decision is None and container is None:
-                problems.append(f"entry {k}: neither a decision nor a container setting")
-                continue
-            if decision is not None and decision not in STATUS_DECISIONS:
-                problems.append(f"entry {k}: decision {decision!r} is not accept or reject")
-                continue
-            if container is not None and not isinstance(container, bool):
-                problems.append(f"entry {k}: container {container!r} is not true or false")
-                continue
-            obj = session.get(CatalogObject, oid)
-            if obj is None:
-                problems.append(f"entry {k}: no catalog object with id {oid}")
-                continue
-            name = entry.get("name")
-            if name is not None and name != obj.name:
-                problems.append(f"entry {k}: id {oid} is {obj.name!r} here, the file says {name!r}")
-                continue
-            note = entry.get("note") or ""
-            if not isinstance(note, str):
-                problems.append(f"entry {k}: note is not a string")
-                continue
-            when = _parse_time(entry.get("decided_at")) or default_time
-            if decision is not None:
-                planned.append((obj, decision, note[:4000], when))
-            if container is not None:
-                planned.append((obj, "container" if container else "not_container", note[:4000], when))
-        pair_plan = _check_pairs(session, data.get("pairs", []), default_time, problems)
+        objects = _objects(session, ids)
+        problems: list[Problem] = []
+        planned = _check_entries(entries, objects, default_time, now, problems)
+        pair_plan = _check_pairs(pairs, objects, default_time, now, problems)
         summary.decisions += len(pair_plan)
         if problems:
-            shown = "; ".join(problems[:5]) + (f"; ... ({len(problems)} problems)" if len(problems) > 5 else "")
-            raise CatalogError(f"decisions file {path} rejected, nothing applied: {shown}")
-        for obj, decision, note, when in planned:
-            same = session.scalar(select(ReviewDecision).where(
-                ReviewDecision.object_id == obj.id, ReviewDecision.decision == decision,
-                ReviewDecision.reviewer == who, ReviewDecision.decided_at == when))
-            if same is not None:
-                summary.already_recorded += 1
-            else:
-                session.add(ReviewDecision(object_id=obj.id, decision=decision, reviewer=who, note=note, decided_at=when))
-                summary.recorded += 1
-        for a_obj, b_obj, decision, note, when in pair_plan:
-            same = session.scalar(select(ReviewDecision).where(
-                ReviewDecision.object_id == a_obj.id, ReviewDecision.pair_object_id == b_obj.id,
-                ReviewDecision.decision == decision, ReviewDecision.reviewer == who, ReviewDecision.decided_at == when))
-            if same is not None:
-                summary.already_recorded += 1
-            else:
-                session.add(ReviewDecision(object_id=a_obj.id, pair_object_id=b_obj.id, decision=decision,
-                                           reviewer=who, note=note, decided_at=when))
-                summary.recorded += 1
+            raise _rejected(path, text, problems)
+        _record(session, who, planned, pair_plan, summary)
         session.flush()
+        touched = sorted({oid for oid, *_ in planned})
         if pair_plan:
             from mixcount.curation.pair_review import apply_pair_decisions
 
             summary.status_changes.extend(apply_pair_decisions(session))
-        # the latest decision per object and kind applies (a file may hold older decisions than the DB)
-        touched = {o.id: o for o, *_ in planned}
-        newest_status = latest_decisions(session, touched)
-        newest_container = latest_container_decisions(session, touched)
-        for obj in touched.values():
-            status = newest_status.get(obj.id)
-            if status is not None and obj.status != STATUS_BROKEN:
-                want = STATUS_ACTIVE if status.decision == "accept" else STATUS_EXCLUDED
-                if obj.status != want:
-                    summary.status_changes.append({"id": obj.id, "name": obj.name, "from": obj.status, "to": want})
-                    obj.status = want
-            marked = newest_container.get(obj.id)
-            if marked is not None:
-                value = CONTAINER_DECISIONS[marked.decision]
-                reason = f"review: {marked.decision} by {marked.reviewer or 'someone'} at {marked.decided_at.isoformat()}Z"
-                if bool(obj.container) != value:
-                    summary.container_changes.append({"id": obj.id, "name": obj.name, "container": value})
-                obj.container, obj.container_reason = value, reason
+            session.flush()
+            objects = _objects(session, touched)  # the pairs may have changed some
+        _apply_latest(session, touched, objects, summary)
         session.commit()
     return summary

@@ -13,6 +13,7 @@ import importlib
 import os
 import pkgutil
 import shutil
+import unicodedata
 from pathlib import Path
 from types import ModuleType
 from typing import Iterable, Iterator
@@ -70,6 +71,8 @@ class TreeWalker:
         self.side = side
         self._licences: dict[Path, tuple[str, Path] | None] = {}
         self.skipped: list[tuple[Path, str]] = []  # (model file in a format not read, why)
+        self.repeats: list[tuple[Path, str]] = []  # (a folder not walked again: a loop, a repeated target; why)
+        self._walked: dict[tuple[int, int], Path] = {}  # real folder (device, inode) -> where it was walked
 
     def _folder_licence(self, folder: Path) -> tuple[str, Path] | None:
         if folder not in self._licences:
@@ -133,17 +136,36 @@ class TreeWalker:
         return self.folder_object(folder, entries)
 
     def walk(self, folder: Path) -> Iterator[Candidate]:
+        """Every object under ``folder``, each real folder read once. Folders reached through a symbolic
+        link are walked after every real one (an object keeps its real path where it has one); a folder
+        reached again (a link to a folder above it, i.e. a loop, or a second link to one folder) is not
+        walked again but listed in ``repeats``. A stack, not recursion: depth is bounded by paths only."""
+        pending: list[Path] = [folder]
+        linked: list[Path] = []
+        while pending or linked:
+            here = pending.pop() if pending else linked.pop(0)
+            subdirs: list[Path] = []
+            yield from self._read_folder(here, subdirs, linked)
+            pending.extend(reversed(subdirs))
+
+    def _read_folder(self, folder: Path, subdirs: list[Path], linked: list[Path]) -> Iterator[Candidate]:
+        """The objects of one folder; its sub-folders are appended to ``subdirs`` (``linked`` for links)."""
         try:
+            st = os.stat(folder)
             entries = [e for e in _scan(folder) if not e.name.startswith(".")]
         except OSError as exc:
             yield broken_path_candidate(folder, exc)
+            return
+        first = self._walked.setdefault((st.st_dev, st.st_ino), folder)
+        if first != folder:
+            loop = " (a loop: a link to a folder above it)" if first in folder.parents else ""
+            self.repeats.append((folder, f"leads to {first}, already walked{loop}"))
             return
         own = self.folder_object(folder, entries)
         if own is not None:
             yield own
             return
         models: list[Path] = []
-        subdirs: list[Path] = []
         for entry in entries:
             path = Path(entry.path)
             try:
@@ -155,7 +177,7 @@ class TreeWalker:
                     yield broken_path_candidate(path, exc)
                 continue
             if is_dir:
-                subdirs.append(path)
+                (linked if entry.is_symlink() else subdirs).append(path)
             elif is_file and path.suffix.lower() in MESH_EXTENSIONS:
                 models.append(path)
             elif is_file and path.suffix.lower() in UNREAD_MODEL_FORMATS:
@@ -163,20 +185,74 @@ class TreeWalker:
                                            "is not a format ingest reads"))
         if models:
             yield from folder_layout.read_models(self, folder, entries, models)
-        for sub in subdirs:
-            yield from self.walk(sub)
+
+    def refuse_unusable_names(self, cand: Candidate) -> None:
+        """``cand`` broken when a folder or file name on the way to its files (from the path given down)
+        cannot be a path here: control characters (a newline), line separators, bytes that are not UTF-8.
+        The catalog, the workers and the exports could not name its files."""
+        if cand.error:
+            return
+        files = [cand.model_path, cand.collision_source, *cand.staged.values(), *cand.companions.values()]
+        for path in (f for f in files if f is not None):
+            try:
+                parts = path.relative_to(self.root.parent).parts
+            except ValueError:
+                parts = path.parts
+            for name in parts:
+                reason = unusable_name_reason(name)
+                if reason:
+                    cand.error = f"{reason}: {safe_text(str(path))} cannot be named here; rename it"
+                    return
+
+
+def unusable_name_reason(name: str) -> str | None:
+    """Why a folder or file name cannot be carried as a path (None when it can). Blanks and other
+    odd-but-valid characters pass: only what breaks one-line paths and text encodings is refused."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return f"name {ascii(name)} is not valid UTF-8"
+    bad = sorted({c for c in name if unicodedata.category(c) in ("Cc", "Zl", "Zp")})
+    if bad:
+        return f"name {ascii(name)} has control characters {ascii(''.join(bad))}"
+    return None
+
+
+def _drop_linked_copies(found: list[Candidate], repeats: list[tuple[Path, str]]) -> list[Candidate]:
+    """One object per real model file: a candidate reached through a symbolic link to a model file
+    another candidate already holds (at its real path, else the first link) is listed in ``repeats``."""
+    by_real: dict[str, list[Candidate]] = {}
+    for cand in found:
+        if cand.model_path is not None and not cand.error:
+            by_real.setdefault(os.path.realpath(cand.model_path), []).append(cand)
+    dropped: set[int] = set()
+    for real, group in by_real.items():
+        linked = [c for c in group if os.path.abspath(c.model_path or "") != real]
+        if len(group) < 2 or not linked:
+            continue
+        keep = next((c for c in group if c not in linked), linked[0])
+        for cand in linked:
+            if cand is not keep:
+                dropped.add(id(cand))
+                repeats.append((cand.model_path or Path(real), f"the same file as {keep.model_path}, already read"))
+    return [c for c in found if id(c) not in dropped]
 
 
 def discover(paths: Iterable[Path | str], *, layout: str = "auto",
              metadata_files: Iterable[Path | str] = (),
-             skipped: list[tuple[Path, str]] | None = None, parts: str = "auto") -> list[Candidate]:
+             skipped: list[tuple[Path, str]] | None = None,
+             repeats: list[tuple[Path, str]] | None = None, parts: str = "auto") -> list[Candidate]:
     """Every object under ``paths`` (sorted walk, duplicates removed); a missing path, an unknown
     layout or an unusable ``--metadata`` file is a CatalogError. Model files a walk passes over (formats
-    in :data:`UNREAD_MODEL_FORMATS`) are appended to ``skipped`` as (path, reason) when it is given."""
+    in :data:`UNREAD_MODEL_FORMATS`) are appended to ``skipped`` as (path, reason) when it is given;
+    folders and linked model files not read again (each real folder and file is read once: loops and
+    repeated link targets) to ``repeats``. Objects whose path has a name that cannot be a path here
+    (control characters) are broken (:meth:`TreeWalker.refuse_unusable_names`)."""
     if layout not in LAYOUTS:
         raise CatalogError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     side = objaverse.SideMetadata(Path(p) for p in metadata_files)
     found: dict[tuple[str, str], Candidate] = {}
+    again: list[tuple[Path, str]] = []
     for raw in paths:
         path = Path(raw).expanduser()
         if not os.path.lexists(path):
@@ -196,10 +272,15 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
             except OSError as exc:
                 items = [broken_path_candidate(path, exc)]
         for cand in items:
+            walker.refuse_unusable_names(cand)
             found.setdefault((cand.source, cand.source_id), cand)
         if skipped is not None:
             skipped.extend(walker.skipped)
-    return list(found.values())
+        again.extend(walker.repeats)
+    kept = _drop_linked_copies(list(found.values()), again)
+    if repeats is not None:
+        repeats.extend(again)
+    return kept
 
 
 def _relink(cand: Candidate) -> None:
