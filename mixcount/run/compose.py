@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from mixcount.config import Config
-from mixcount.errors import AssetError, CompositionError, MixcountError, StorageError, StoppedByUser, os_error_line
+from mixcount.errors import AssetError, CompositionError, MixcountError, StoppedByUser, StorageError, os_error_line
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
 from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
