@@ -10,12 +10,12 @@ after the Objaverse reading had its turn."""
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from pathlib import Path
 from typing import Any, Iterator
 
+from mixcount import json_input
 from mixcount.catalog.layouts.companions import RobotDescription, companion_base, companion_kind, descriptions_in
 from mixcount.catalog.layouts.walker import (
     SOURCE_FOLDER,
@@ -44,7 +44,7 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
     meta_error: str | None = None
     if meta_path.is_file() and ctx.layout != "objaverse":
         try:
-            data = json.loads(meta_path.read_text(encoding="utf-8"))
+            data = json_input.read(meta_path)  # too deep / too large: a ValueError of one line
         except (OSError, ValueError) as exc:
             data, meta_error = None, f"metadata.json does not parse: {exc}"
         if data is not None and not isinstance(data, dict):
