@@ -227,6 +227,7 @@ class CaptionsConfig:
     endpoint: str
     model: str
     api_key_env: str
+    allow_plain_http: bool  # an http:// endpoint that is not this machine: refused unless true (the key in clear)
     http_prompt_version: str
     timeout_s: float
     concurrency: int
