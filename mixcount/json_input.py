@@ -19,6 +19,9 @@ from typing import Any
 # A side metadata file (DTC metadata.json, a plain folder's record) holds a few kB; 64 MiB is a listing
 # of a million objects, and more is something else.
 SIDE_FILE_BYTES = 64 * 1024 * 1024
+# How deep a side file may nest: records are a few levels deep; a document nested near Python's recursion
+# limit would load, and then fail where it is written again (ingest stores the record as JSON).
+SIDE_FILE_DEPTH = 64
 # Count files: COCO train2017's instances file is 448 MB; json holds about 5-10 times a file's size in
 # memory. A larger file is better given as a text histogram (docs/scene.md, "Count targets").
 COUNT_FILE_BYTES = 1024 * 1024 * 1024
@@ -54,13 +57,40 @@ def loads(text: str | bytes) -> Any:
         raise JsonInputError("a number too long to read") from None
 
 
-def read(path: Path, *, max_bytes: int = SIDE_FILE_BYTES) -> Any:
-    """The JSON document of ``path``, refused past ``max_bytes`` before a byte of it is parsed.
-    OSError for an unreadable file, :class:`JsonInputError` / ``JSONDecodeError`` for unusable text."""
+def depth(doc: Any) -> int:
+    """How deep ``doc`` nests (a scalar 0, ``[]`` 1, ``[[1]]`` 2), walked without recursion."""
+    deepest, todo = 0, [(doc, 1)]
+    while todo:
+        node, level = todo.pop()
+        if isinstance(node, dict):
+            deepest = max(deepest, level)
+            todo.extend((v, level + 1) for v in node.values())
+        elif isinstance(node, list):
+            deepest = max(deepest, level)
+            todo.extend((v, level + 1) for v in node)
+    return deepest
+
+
+def check_depth(doc: Any, max_depth: int | None) -> Any:
+    """``doc``, or :class:`JsonInputError` when it nests deeper than ``max_depth`` (None: any depth)."""
+    if max_depth is not None and depth(doc) > max_depth:
+        raise JsonInputError(f"nested more than {max_depth} levels deep")
+    return doc
+
+
+def side_loads(text: str | bytes) -> Any:
+    """:func:`loads` for a side file's text (a record, a listing line): at most SIDE_FILE_DEPTH deep."""
+    return check_depth(loads(text), SIDE_FILE_DEPTH)
+
+
+def read(path: Path, *, max_bytes: int = SIDE_FILE_BYTES, max_depth: int | None = SIDE_FILE_DEPTH) -> Any:
+    """The JSON document of ``path``, refused past ``max_bytes`` before a byte of it is parsed and past
+    ``max_depth`` levels after. OSError for an unreadable file, :class:`JsonInputError` /
+    ``JSONDecodeError`` for unusable text."""
     with open(path, "rb") as fh:
         size = fh.seek(0, 2)
         if size > max_bytes:
             raise JsonInputError(f"{_size(size)}, more than the {_size(max_bytes)} a file of this kind may hold")
         fh.seek(0)
         data = fh.read()
-    return loads(data)
+    return check_depth(loads(data), max_depth)

@@ -57,7 +57,7 @@ def _load(path: Path) -> Any:
     """The file's JSON (:mod:`mixcount.json_input`: too deep, too large or a number past the digit limit
     is one ConfigError line, like malformed JSON)."""
     try:
-        return json_input.read(path, max_bytes=json_input.COUNT_FILE_BYTES)
+        return json_input.read(path, max_bytes=json_input.COUNT_FILE_BYTES, max_depth=None)
     except json.JSONDecodeError as exc:
         raise ConfigError(f"count target histogram {path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
     except json_input.JsonInputError as exc:
