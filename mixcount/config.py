@@ -96,6 +96,8 @@ def _parse_override(text: str) -> tuple[list[str], Any]:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw  # bare strings: --set compose.split=test
+    except RecursionError:  # arrays nested thousands deep: tomllib recurses per level
+        raise ConfigError(f"override {text[:60]!r}...: its value is nested too deep to read") from None
     return key.strip().split("."), value
 
 
