@@ -47,7 +47,10 @@ def _check_type(key: str, default: Any, value: Any) -> Any:
             return value
     elif isinstance(default, float):
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
+            try:
+                return float(value)
+            except OverflowError:  # an integer of hundreds of digits
+                raise ConfigError(f"config key {key!r}: {str(value)[:20]}... is past the float range") from None
     elif isinstance(default, int):
         if isinstance(value, int) and not isinstance(value, bool):
             return value
