@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 from fuzz_settings import NUMBER_TEXT, deep, dumps_loose, fuzz, json_values
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from mixcount.catalog.layouts.walk import discover
@@ -29,7 +29,12 @@ VALUE = st.one_of(NUMBER_TEXT, st.text(max_size=20), st.sampled_from(["[1, 2]", 
                                                                     "{a = 1}", "[30, 1e999]", "inf", "nan"]))
 
 
+FLOAT_KEY = next(k for k in KEYS if isinstance(load_config().to_dict()[k.split(".")[0]].get(k.split(".", 1)[1]), float))
+
+
 @fuzz(300)
+@example(FLOAT_KEY, "1" + "0" * 400, "=")  # found at 3,000 cases: an OverflowError in the float coercion
+@example("scene.n_objects", deep(3000), "=")  # found at 300 cases: a RecursionError in tomllib
 @given(st.one_of(st.sampled_from(KEYS), st.text(max_size=15)), VALUE, st.sampled_from(["=", "", "=="]))
 def test_set_overrides(key: str, value: str, sep: str) -> None:
     try:
