@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 from mixcount.commands.common import HELP_MARKUP, AppState, console
-from mixcount.errors import MixcountError, os_error_line
+from mixcount.errors import MixcountError, StoppedByUser, one_line, os_error_line
 
 app = typer.Typer(
     name="mixcount",
@@ -70,31 +70,49 @@ def _register_commands() -> None:
 _register_commands()
 
 
+def print_error(message: str, *, label: str = "error:") -> None:  # label "": the message alone
+    """One error line on stderr: a red ``label``, then ``message`` as plain text. Neither rich markup nor
+    emoji codes are read in the message (``reviews/[red]secret[/red]:x:.json`` is printed as it is) and
+    control characters are escaped (:func:`mixcount.errors.one_line`), so the line says what it was given."""
+    from rich.text import Text
+
+    line = Text(label, style="bold red")
+    line.append((" " if label else "") + one_line(str(message)))
+    console.print(line, highlight=False, soft_wrap=True, emoji=False, markup=False)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point: usage errors exit 2 with the usage line and one line of error,
     a :class:`MixcountError` exits 2 with its message, as does an ``OSError`` (cause and path, one line),
-    Ctrl-C exits 130. Never a traceback for any of them."""
+    Ctrl-C exits 130 with one line (:class:`StoppedByUser`: what a run kept and how to go on). Never a
+    traceback for any of them; every message is printed as plain text (:func:`print_error`)."""
     # typer vendors click as ``typer._click``: its exceptions are not ``click.exceptions`` classes.
     from typer._click import exceptions as click_exc
 
     try:
         result = app(args=argv, standalone_mode=False, prog_name="mixcount")
+    except StoppedByUser as exc:
+        print_error(str(exc), label="")
+        return 130
     except MixcountError as exc:
-        console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        print_error(str(exc))
         return 2
     except OSError as exc:  # a disk or permission fault no command turned into its own message: one line
-        console.print(f"[bold red]error:[/] {os_error_line(exc)}", highlight=False)
+        print_error(os_error_line(exc))
         return 2
     except (KeyboardInterrupt, typer.Abort):
-        console.print("[yellow]interrupted[/]")
+        print_error("stopped by the user", label="")
         return 130
     except click_exc.ClickException as exc:  # usage errors: bad option, bad value, unknown command
         exc.show()
         return exc.exit_code
     except SystemExit as exc:  # typer's own exits (--help)
         return int(exc.code or 0)
-    # In non-standalone mode typer returns the code of typer.Exit(n) and 130 for Ctrl-C.
+    # In non-standalone mode typer returns the code of typer.Exit(n), and 130 for a Ctrl-C that it caught
+    # as a KeyboardInterrupt (a command with more to say raises StoppedByUser instead).
     if isinstance(result, int) and not isinstance(result, bool) and result:
+        if result == 130:
+            print_error("stopped by the user", label="")
         return result
     return 0
 

@@ -48,7 +48,10 @@ def _check_type(key: str, default: Any, value: Any) -> Any:
             return value
     elif isinstance(default, float):
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
+            try:
+                return float(value)
+            except OverflowError:  # an integer of hundreds of digits
+                raise ConfigError(f"config key {key!r}: {str(value)[:20]}... is past the float range") from None
     elif isinstance(default, int):
         if isinstance(value, int) and not isinstance(value, bool):
             return value
@@ -97,6 +100,8 @@ def _parse_override(text: str) -> tuple[list[str], Any]:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw  # bare strings: --set compose.split=test
+    except RecursionError:  # arrays nested thousands deep: tomllib recurses per level
+        raise ConfigError(f"override {text[:60]!r}...: its value is nested too deep to read") from None
     return key.strip().split("."), value
 
 
@@ -239,6 +244,7 @@ class CaptionsConfig:
     endpoint: str
     model: str
     api_key_env: str
+    allow_plain_http: bool  # an http:// endpoint that is not this machine: refused unless true (the key in clear)
     http_prompt_version: str
     timeout_s: float
     concurrency: int

@@ -19,9 +19,10 @@ Like httpx's own list, each class says when it is raised; catch the narrowest on
     │   └── PackageError        a dataset's assets cannot be packaged (a file missing everywhere looked)
     ├── ExportError             a dataset could not be exported (not a composed dataset, unknown split or
     │                           format, bad output folder)
-    └── EvaluationError         evaluation or statistics could not be computed from the given files
-        ├── GroundTruthError    the ground-truth COCO file or dataset folder is missing or malformed
-        └── PredictionError     the prediction file is missing or malformed
+    ├── EvaluationError         evaluation or statistics could not be computed from the given files
+    │   ├── GroundTruthError    the ground-truth COCO file or dataset folder is missing or malformed
+    │   └── PredictionError     the prediction file is missing or malformed
+    └── StoppedByUser           Ctrl-C in a long run: what was finished and kept, how to go on (exit 130)
 
 StorageError and AssetError stop a compose run: no other seed could succeed (docs/faults.md).
 ``RayExecutorError`` is the old name of ExecutorError (mixcount.run.ray_executor keeps it).
@@ -118,6 +119,21 @@ class GroundTruthError(EvaluationError):
 
 class PredictionError(EvaluationError):
     """The prediction file is missing or malformed."""
+
+
+class StoppedByUser(MixcountError):
+    """Ctrl-C stopped a long run (compose): the message says what was finished and kept and how to go
+    on; the CLI prints it and exits 130, the shell's code for an interrupt. Not a KeyboardInterrupt, so
+    that the message reaches the CLI (typer turns a KeyboardInterrupt into a bare exit 130)."""
+
+
+def one_line(text: str) -> str:
+    """``text`` as one line of plain text: line breaks and other control characters written as escapes
+    (``\\n``, ``\\x1b``), so a path holding a newline or a terminal escape cannot split or restyle an
+    error line. Printable text, brackets and colons included, is kept as it is."""
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() or ch == " " else ascii(ch)[1:-1] for ch in text)
 
 
 def os_error_line(exc: OSError) -> str:

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "mixcount"
 MAX_FUNCTION_LINES = 120
 
 ROOMS: tuple[tuple[str, ...], ...] = (
-    ("version", "errors", "progress", "resources", "frame", "sizes", "atomic", "scene_config", "config"),  # the foundation
+    ("version", "errors", "progress", "resources", "frame", "sizes", "atomic", "json_input", "scene_config", "config"),  # the foundation
     ("annotate",),  # pure annotation maths, pass formats and the scene job's numpy decisions
     ("scene",),  # engine-free scene sampling
     ("catalog",),

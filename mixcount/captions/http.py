@@ -22,8 +22,11 @@ Failure policy (every sleep goes through the injected ``sleep`` so tests stay fa
   request (the bad answer and the validation error are sent back), then counts as a failure.
 
 Failures raise :class:`CaptionRequestError` carrying the number of HTTP requests made; the batch records
-it and goes on. The API key is read from the environment variable named in config, sent only in a request
-header, and scrubbed from every error message and log line this module writes.
+it and goes on. The API key is read from the environment variable named in config and sent only in a
+request header, never over plain ``http://`` to another machine (:func:`check_transport`). Whatever a
+server sends back passes through :class:`~mixcount.captions.redact.Redactor` before it is stored, logged
+or raised: the key in any case or encoding, or a part of it, becomes ``[redacted]`` (also in the log
+records of httpx / httpcore while the captioner is open).
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ import numpy as np
 
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
 from mixcount.captions.check import blocking, reasons
+from mixcount.captions.redact import RedactingFilter, Redactor
 from mixcount.config import CaptionsConfig
 from mixcount.errors import CaptionError, CaptionRequestError, ConfigError, UnusableAnswerError
 
@@ -96,6 +100,35 @@ def check_http_config(config: CaptionsConfig) -> None:
         raise ConfigError(f"captions.provider must be one of {PROVIDERS}, got {config.provider!r}")
     if not config.model:
         raise ConfigError("captions.model must name the model for the http captioner")
+
+
+HTTP_STACK_LOGGERS = ("httpx", "httpcore.connection", "httpcore.http11", "httpcore.http2", "httpcore.proxy",
+                      "mixcount.captions.http", "mixcount.captions.captioning")
+
+
+def is_loopback_host(host: str) -> bool:
+    """True for a host name that cannot leave this machine: localhost (and *.localhost, RFC 6761),
+    127.0.0.0/8, ::1. Names are not resolved: a name that resolves to 127.0.0.1 today may not tomorrow."""
+    import ipaddress
+
+    name = host.strip("[]").rstrip(".").lower()
+    if name == "localhost" or name.endswith(".localhost"):
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False
+
+
+def check_transport(config: CaptionsConfig, url: str) -> None:
+    """A ConfigError for a plain ``http://`` URL to another machine, unless ``captions.allow_plain_http``:
+    the API key (and every image) would cross the network in clear text."""
+    parsed = httpx.URL(url)
+    if parsed.scheme == "http" and not is_loopback_host(parsed.host) and not config.allow_plain_http:
+        raise ConfigError(
+            f"captions endpoint {parsed.scheme}://{parsed.host}{':' + str(parsed.port) if parsed.port else ''} is "
+            "plain http:// to another machine: the API key would cross the network in clear text; use https://, "
+            "or set captions.allow_plain_http = true if that network is yours")
 
 
 def endpoint_url(config: CaptionsConfig) -> str:
@@ -219,6 +252,12 @@ class HttpCaptioner:
             else:
                 api_key = ""
         self._key = api_key
+        self._redactor = Redactor(api_key)
+        self.url = endpoint_url(config)
+        check_transport(config, self.url)
+        self._log_filter = RedactingFilter(self._redactor)
+        for name in HTTP_STACK_LOGGERS:
+            logging.getLogger(name).addFilter(self._log_filter)
         self._own_client = client is None
         self.client = client or httpx.Client(
             timeout=config.timeout_s,
@@ -227,18 +266,18 @@ class HttpCaptioner:
         self._sleep = sleep
         self._rng = rng or np.random.default_rng()
         self._rng_lock = threading.Lock()  # numpy Generators are not thread-safe
-        self.url = endpoint_url(config)
 
     def close(self) -> None:
         if self._own_client:
             self.client.close()
+        for name in HTTP_STACK_LOGGERS:
+            logging.getLogger(name).removeFilter(self._log_filter)
 
     # --- text hygiene -------------------------------------------------------------------------------------
     def redact(self, text: str) -> str:
-        """Remove the API key (and a Bearer token) from any text before it is stored or logged."""
-        if self._key:
-            text = text.replace(self._key, "[redacted]")
-        return re.sub(r"(?i)(bearer\s+)[A-Za-z0-9._\-]+", r"\1[redacted]", text)
+        """Remove the API key in any case or encoding, a part of it, and a Bearer token from any text
+        before it is stored, logged or raised (:class:`~mixcount.captions.redact.Redactor`)."""
+        return self._redactor(text)
 
     def _headers(self) -> dict[str, str]:
         headers = {"content-type": "application/json", "accept": "application/json"}
@@ -317,7 +356,7 @@ class HttpCaptioner:
                 choice = data["choices"][0]
                 message = choice["message"]
                 if message.get("refusal"):
-                    raise UnusableAnswerError(f"model refused: {message['refusal']}", None)
+                    raise UnusableAnswerError(self.redact(f"model refused: {message['refusal']}"), None)
                 content = message["content"]
                 if isinstance(content, list):  # content parts
                     content = "".join(p.get("text", "") for p in content if isinstance(p, dict))
@@ -328,7 +367,7 @@ class HttpCaptioner:
             raise UnusableAnswerError("response lacks the answer text (unexpected envelope)", None) from None
         if not isinstance(content, str) or not content.strip():
             raise UnusableAnswerError("empty answer", None)
-        return content
+        return self.redact(content)  # an answer that echoes the key is stored without it
 
     @staticmethod
     def parse(content: str) -> dict[str, str]:
@@ -360,7 +399,7 @@ class HttpCaptioner:
             try:
                 response = self.client.post(self.url, json=body, headers=self._headers(), timeout=self.config.timeout_s)
             except httpx.TimeoutException:
-                last = f"timed out after {self.config.timeout_s:g} s ({self.url})"
+                last = self.redact(f"timed out after {self.config.timeout_s:g} s ({self.url})")
             except httpx.TransportError as exc:
                 last = self.redact(f"connection error to {self.url}: {type(exc).__name__}: {exc}")
             else:

@@ -102,8 +102,42 @@ def make_engine(url: str) -> Engine:
                 raise CatalogError(f"catalog directory {path.parent} is not writable")
         engine = create_engine(url, connect_args={"timeout": BUSY_TIMEOUT_S})
         event.listen(engine, "connect", _sqlite_pragmas)
+        event.listen(engine, "handle_error", _damaged_as_catalog_error)
         return engine
     return create_engine(url)
+
+
+def is_damage(exc: BaseException) -> bool:
+    """True for SQLite's own word that the file is damaged (SQLITE_CORRUPT, SQLITE_NOTADB), whenever it is
+    found: a damaged page is only read, and only then reported, by the statement that needs it."""
+    orig = getattr(exc, "orig", None) or exc
+    name = str(getattr(orig, "sqlite_errorname", "") or "")
+    if name.startswith(("SQLITE_CORRUPT", "SQLITE_NOTADB")):
+        return True
+    low = str(orig).lower()
+    return "disk image is malformed" in low or "file is not a database" in low
+
+
+def damaged_line(where: Path | str, text: str) -> str:
+    """One line for a damaged catalog: the file, SQLite's words, and how to get a usable catalog back."""
+    import shlex
+
+    if isinstance(where, Path):
+        fixed = where.with_name(f"{where.stem}-recovered{where.suffix or '.db'}")
+        return (f"catalog {where} is damaged ({text}): stop every run that uses it, then copy out what is "
+                f"readable with `sqlite3 {shlex.quote(str(where))} .recover | sqlite3 {shlex.quote(str(fixed))}` "
+                f"and use --db {shlex.quote(str(fixed))}, or restore {where} from a backup")
+    return f"catalog {where} is damaged ({text}): restore it from a backup"
+
+
+def _damaged_as_catalog_error(context: Any) -> None:
+    """SQLAlchemy ``handle_error`` hook: a damaged SQLite file found by any statement, at any time
+    (``catalog list`` reading a damaged page), becomes a :class:`CatalogError` of one line."""
+    orig = context.original_exception
+    if is_damage(orig):
+        url = str(context.engine.url) if context.engine is not None else ""
+        text = str(orig).strip().splitlines()[0] if str(orig).strip() else type(orig).__name__
+        raise CatalogError(damaged_line(_sqlite_file(url) or "database", text))
 
 
 def alembic_config(url: str):  # type: ignore[no-untyped-def]
@@ -339,7 +373,7 @@ def describe_database_error(url: str, exc: BaseException) -> str:
     if "file is not a database" in low or "not a database" in low:
         return f"{where} is not a SQLite database ({text}): give --db a catalog file or a new path"
     if "malformed" in low or "corrupt" in low:
-        return f"catalog {where} is damaged ({text}): restore it from a backup, or give --db a new path"
+        return damaged_line(where, text)
     if _is_locked(exc):
         return f"catalog {where} stayed locked by another process for {BUSY_TIMEOUT_S:.0f} s ({text}); try again"
     if "unable to open" in low:

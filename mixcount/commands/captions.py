@@ -7,6 +7,7 @@ import logging
 from typing import TYPE_CHECKING, Optional
 
 import typer
+from rich.markup import escape
 
 from mixcount.commands.common import RichProgress, console, out, state
 from mixcount.config import CaptionsConfig
@@ -85,7 +86,8 @@ def caption_cmd(
             close()
     for entry in summary.warnings:
         text = "; ".join(f"{w['tier']}: {w['kind']} ({w['detail']})" for w in entry["warnings"])
-        console.print(f"caption check: object {entry['object_id']} {entry['name']}: {text}", highlight=False)
+        console.print(f"caption check: object {entry['object_id']} {entry['name']}: {text}", highlight=False,
+                      markup=False)
     if json_out:
         out.print(json.dumps(summary.as_dict(), sort_keys=True))
     else:
@@ -152,7 +154,7 @@ def split_cmd(
                     highlight=False,
                 )
             for warning in summary.warnings:
-                console.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
+                console.print(f"[yellow]warning:[/] {escape(warning)}", highlight=False, soft_wrap=True)
             if summary.conflicts:
                 console.print(f"[yellow]{len(summary.conflicts)} group(s) matched classes of different splits; the most held-out split won[/]")
         if report and not json_out:
@@ -163,7 +165,7 @@ def split_cmd(
         out.print(json.dumps(payload, sort_keys=True), highlight=False, soft_wrap=True)
     if leaks:
         for leak in leaks:
-            console.print(f"[bold red]leak:[/] {leak}", highlight=False)
+            console.print(f"[bold red]leak:[/] {escape(leak)}", highlight=False)
         raise CatalogError(f"{len(leaks)} split leak(s) found")
     (console if json_out else out).print("no leaks across splits", highlight=False)
 

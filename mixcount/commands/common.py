@@ -19,8 +19,11 @@ from mixcount.config import Config, load_config
 from mixcount.errors import MixcountError
 from mixcount.progress import PlainProgress
 
-console = Console(stderr=True, soft_wrap=True)  # progress, warnings and messages
-out = Console(highlight=False, soft_wrap=True)  # results: the readable summary, or JSON with --json
+# Neither console reads emoji codes: ":x:" in a path or a name is printed as it is, never as an emoji.
+# Results are plain text (no markup either: JSON, names and "[redacted]" markers are printed as they are);
+# messages on stderr may style their own label, and quote user text with rich.markup.escape.
+console = Console(stderr=True, soft_wrap=True, emoji=False)  # progress, warnings and messages
+out = Console(highlight=False, soft_wrap=True, emoji=False, markup=False)  # results: summary, or --json JSON
 
 # Help texts are plain text, not rich markup: rich would swallow "[default: split.seed]" as a style tag.
 HELP_MARKUP = None
@@ -87,7 +90,8 @@ class RichProgress:
             self._bar.update(self._task, **fields)
 
     def note(self, message: str) -> None:
-        self.console.print(message, highlight=False, soft_wrap=True)
+        """A warning or note of a run, printed as plain text (no markup: it may quote paths and names)."""
+        self.console.print(message, highlight=False, soft_wrap=True, markup=False, emoji=False)
 
     def stop(self) -> None:
         if self._plain is not None:

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from mixcount.config import Config
-from mixcount.errors import AssetError, CompositionError, MixcountError, StorageError, os_error_line
+from mixcount.errors import AssetError, CompositionError, MixcountError, StoppedByUser, StorageError, os_error_line
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
 from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
@@ -123,6 +123,9 @@ def compose_scenes(
     bar.start("compose", n)
     try:
         run.drive(executor, on_outcome)
+    except KeyboardInterrupt:  # Ctrl-C: finished scenes are complete on disk, a rerun passes over them
+        raise StoppedByUser(f"stopped by the user; {summary.written} scene{'' if summary.written == 1 else 's'} "
+                            "finished and kept; rerun the same command to go on") from None
     finally:
         bar.stop()
         if own_executor:

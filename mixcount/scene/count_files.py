@@ -24,13 +24,18 @@ gigabytes of masks: give such a split as a text histogram instead, docs/scene.md
 from __future__ import annotations
 
 import json
+import math
 from collections import Counter
 from pathlib import Path
 from typing import Any, Mapping, NamedTuple
 
-import numpy as np
-
+from mixcount import json_input
 from mixcount.errors import ConfigError
+
+# The most visible objects one image may be asked for (and the largest imbalance): FSC-147's fullest image
+# holds 3,731 and the paper spawns at most 200, so a larger number is a typo, and ranges past it would
+# hold billions of support points (``uniform:1-99999999999999999999`` was an OverflowError).
+MAX_COUNT = 10_000
 
 
 class FileImage(NamedTuple):
@@ -49,26 +54,40 @@ def looks_like_json(path: Path) -> bool:
 
 
 def _load(path: Path) -> Any:
+    """The file's JSON (:mod:`mixcount.json_input`: too deep, too large or a number past the digit limit
+    is one ConfigError line, like malformed JSON)."""
     try:
-        with path.open(encoding="utf-8") as fh:
-            return json.load(fh)
+        return json_input.read(path, max_bytes=json_input.COUNT_FILE_BYTES, max_depth=None)
     except json.JSONDecodeError as exc:
         raise ConfigError(f"count target histogram {path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except json_input.JsonInputError as exc:
+        raise ConfigError(f"count target histogram {path}: not usable JSON: {exc}") from None
+    except OSError as exc:
         raise ConfigError(f"count target histogram {path}: cannot read it ({type(exc).__name__})") from None
-    except ValueError:  # e.g. a number past int's digit limit: the decoder's message quotes no text
-        raise ConfigError(f"count target histogram {path}: not valid JSON (a value it cannot decode)") from None
 
 
 def _object_area(ann: Mapping[str, Any]) -> float:
     """An annotation's area in pixels: its ``area``, else its ``bbox`` w x h, else 0 (unknown)."""
-    area = ann.get("area")
-    if isinstance(area, (int, float)) and area > 0:
-        return float(area)
+    area = _finite(ann.get("area"))
+    if area is not None and area > 0:
+        return area
     box = ann.get("bbox")
-    if isinstance(box, list) and len(box) == 4 and all(isinstance(v, (int, float)) for v in box):
-        return max(float(box[2]), 0.0) * max(float(box[3]), 0.0)
+    if isinstance(box, list) and len(box) == 4:
+        w, h = _finite(box[2]), _finite(box[3])
+        if w is not None and h is not None:
+            return _finite(max(w, 0.0) * max(h, 0.0)) or 0.0
     return 0.0
+
+
+def _finite(value: Any) -> float | None:
+    """``value`` as a finite float, None when it is not a number (a bool, a string, a 400-digit int)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        out = float(value)
+    except OverflowError:
+        return None
+    return out if math.isfinite(out) else None
 
 
 def _coco_images(doc: Mapping[str, Any], path: Path) -> list[FileImage]:
@@ -77,26 +96,50 @@ def _coco_images(doc: Mapping[str, Any], path: Path) -> list[FileImage]:
     images, annotations = doc.get("images"), doc.get("annotations")
     if not isinstance(images, list) or not isinstance(annotations, list):
         raise ConfigError(f"count target histogram {path}: a COCO file needs 'images' and 'annotations' lists")
-    ids = {img.get("id") for img in images if isinstance(img, dict)}
+    ids = {_key(img.get("id")) for img in images if isinstance(img, dict)} - {None}
     per_image: dict[Any, dict[Any, list[float]]] = {}
     for ann in annotations:
-        if not isinstance(ann, dict) or ann.get("image_id") not in ids:
+        if not isinstance(ann, dict) or _key(ann.get("image_id")) not in ids:
             continue
         if ann.get("is_distractor") or ann.get("iscrowd"):
             continue
-        per_image.setdefault(ann["image_id"], {}).setdefault(ann.get("category_id"), []).append(_object_area(ann))
+        cats = per_image.setdefault(ann["image_id"], {})
+        cats.setdefault(_key(ann.get("category_id")), []).append(_object_area(ann))
     out = []
-    for cats in per_image.values():
-        rows = sorted(((len(a), float(np.mean(a)) if min(a) > 0 else 0.0) for a in cats.values()),
-                      key=lambda r: -r[0])
+    for image_id, cats in per_image.items():
+        rows = sorted(((len(a), _mean(a)) for a in cats.values()), key=lambda r: -r[0])
+        _check_total(path, f"image {image_id!r}", sum(r[0] for r in rows))
         out.append(FileImage(tuple(r[0] for r in rows), tuple(r[1] for r in rows)))
     return out
 
 
-def _fsc147_images(doc: Mapping[str, Any]) -> list[FileImage]:
+def _key(value: Any) -> Any:
+    """An id as a key: an int or a string, else None (a list or an object id matches nothing)."""
+    return value if isinstance(value, (int, str)) and not isinstance(value, bool) else None
+
+
+def _mean(areas: list[float]) -> float:
+    """The mean object area, 0.0 when one is unknown (0) or the sum leaves the float range."""
+    if min(areas) <= 0:
+        return 0.0
+    mean = math.fsum(areas) / len(areas)
+    return mean if math.isfinite(mean) else 0.0
+
+
+def _check_total(path: Path, image: str, total: int) -> None:
+    if total > MAX_COUNT:
+        raise ConfigError(f"count target histogram {path}: {image} holds {total:,} objects, more than the "
+                          f"{MAX_COUNT:,} one image may be asked for")
+
+
+def _fsc147_images(doc: Mapping[str, Any], path: Path) -> list[FileImage]:
     """Per image with points: ``(len(points),)`` (FSC-147 names one class per image; no areas)."""
-    return [FileImage((len(v["points"]),), (0.0,)) for v in doc.values()
-            if isinstance(v, dict) and isinstance(v.get("points"), list) and v["points"]]
+    out = []
+    for name, v in doc.items():
+        if isinstance(v, dict) and isinstance(v.get("points"), list) and v["points"]:
+            _check_total(path, f"image {name!r}", len(v["points"]))
+            out.append(FileImage((len(v["points"]),), (0.0,)))
+    return out
 
 
 def read_annotation_file(path: Path) -> list[FileImage]:
@@ -107,7 +150,7 @@ def read_annotation_file(path: Path) -> list[FileImage]:
         kind, images = "COCO", _coco_images(doc, path)
         lacks = "no image with a counted annotation (crowd regions and distractors are not counted)"
     elif isinstance(doc, dict) and any(isinstance(v, dict) and "points" in v for v in doc.values()):
-        kind, images = "FSC-147", _fsc147_images(doc)
+        kind, images = "FSC-147", _fsc147_images(doc, path)
         lacks = "no image with 'points'"
     else:
         raise ConfigError(f"count target histogram {path}: JSON, but neither a COCO instances file ('images' and "

@@ -36,10 +36,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mixcount.errors import ConfigError
-from mixcount.scene.count_files import FileImage, histogram_of, looks_like_json, read_annotation_file
+from mixcount.scene.count_files import MAX_COUNT, FileImage, histogram_of, looks_like_json, read_annotation_file
 
 COUNT_TARGET_STREAM = 37  # the count target's generator: default_rng([scene seed, COUNT_TARGET_STREAM])
 PAPER = "paper"
+_NUMBER = r"([0-9]+(?:\.[0-9]*)?|\.[0-9]+)"
 
 
 @dataclass(frozen=True)
@@ -71,10 +72,13 @@ class CountDistribution:
 
 
 def _range(text: str, what: str, integer: bool) -> tuple[float, float]:
-    m = re.fullmatch(r"\s*([0-9.]+)\s*-\s*([0-9.]+)\s*", text)
+    m = re.fullmatch(rf"\s*{_NUMBER}\s*-\s*{_NUMBER}\s*", text)
     if not m:
-        raise ConfigError(f"count target: {what} must be LOW-HIGH, got {text!r}")
+        raise ConfigError(f"count target: {what} must be LOW-HIGH, got {_shown(text)}")
     lo, hi = float(m.group(1)), float(m.group(2))
+    if max(lo, hi) > MAX_COUNT:  # inf included: 400 digits read as a float
+        raise ConfigError(f"count target: {what} {_shown(text)} goes past {MAX_COUNT:,}, the most this takes "
+                          "(FSC-147's fullest image holds 3,731 objects)")
     if integer and (lo != int(lo) or hi != int(hi)):
         raise ConfigError(f"count target: {what} takes whole numbers, got {text!r}")
     if lo > hi:
@@ -107,11 +111,16 @@ def read_histogram(path: Path) -> tuple[tuple[int, ...], tuple[float, ...]]:
                 raise ValueError
         except (ValueError, IndexError):
             raise ConfigError(f"{path}:{no}: expected 'count weight', got {_shown(line)}") from None
-        if count < 1 or weight < 0 or not math.isfinite(weight):
-            raise ConfigError(f"{path}:{no}: count must be >= 1 and weight >= 0, got {_shown(line)}")
+        if not 1 <= count <= MAX_COUNT or weight < 0 or not math.isfinite(weight):
+            raise ConfigError(f"{path}:{no}: count must be 1 to {MAX_COUNT:,} and weight a finite number >= 0, "
+                              f"got {_shown(line)}")
         table[count] = table.get(count, 0.0) + weight
-    if not table or sum(table.values()) <= 0:
+    total = math.fsum(table.values())
+    if not table or total <= 0:
         raise ConfigError(f"count target histogram {path} holds no positive weight")
+    if not math.isfinite(total):
+        raise ConfigError(f"count target histogram {path}: its weights add up past the largest number (use "
+                          "smaller weights: only their ratios count)")
     keys = tuple(sorted(table))
     return keys, tuple(table[k] for k in keys)
 
@@ -124,10 +133,10 @@ def parse_count_target(text: str, base_dir: Optional[Path] = None) -> CountDistr
     for part in rest:
         key, _, value = part.partition(":")
         if key != "imbalance":
-            raise ConfigError(f"count target: unknown part {part!r} (only imbalance:R1-R2 may follow)")
+            raise ConfigError(f"count target: unknown part {_shown(part)} (only imbalance:R1-R2 may follow)")
         imbalance = _range(value, "imbalance", integer=False)
         if imbalance[0] < 1.0:
-            raise ConfigError(f"count target: the imbalance is max/min per scene, >= 1; got {value!r}")
+            raise ConfigError(f"count target: the imbalance is max/min per scene, >= 1; got {_shown(value)}")
     kind, _, value = head.partition(":")
     if kind == PAPER and not value:
         if imbalance is not None:
@@ -136,7 +145,7 @@ def parse_count_target(text: str, base_dir: Optional[Path] = None) -> CountDistr
     if kind == "uniform":
         lo, hi = _range(value, "uniform", integer=True)
         if lo < 1:
-            raise ConfigError(f"count target: uniform counts start at 1, got {value!r}")
+            raise ConfigError(f"count target: uniform counts start at 1, got {_shown(value)}")
         counts = tuple(range(int(lo), int(hi) + 1))
         return CountDistribution("uniform", text, counts, (1.0,) * len(counts), imbalance)
     if kind in ("histogram", "hist"):
@@ -151,7 +160,7 @@ def parse_count_target(text: str, base_dir: Optional[Path] = None) -> CountDistr
             return CountDistribution("histogram", text, counts, weights, imbalance, tuple(images))
         counts, weights = read_histogram(path)
         return CountDistribution("histogram", text, counts, weights, imbalance)
-    raise ConfigError(f"count target {text!r}: expected paper, uniform:A-B or histogram:PATH "
+    raise ConfigError(f"count target {_shown(str(text))}: expected paper, uniform:A-B or histogram:PATH "
                       "(optionally followed by ,imbalance:R1-R2)")
 
 

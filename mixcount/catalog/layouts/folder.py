@@ -12,7 +12,6 @@ the same stem in several formats one model. Otherwise each model file is an obje
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from pathlib import Path
@@ -20,6 +19,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from mixcount import json_input
 from mixcount.catalog.layouts.companions import RobotDescription, companion_base, companion_kind, descriptions_in
 from mixcount.catalog.layouts.parts import auto_parts, check_parts, same_model_formats
 from mixcount.catalog.layouts.walker import (
@@ -51,7 +51,7 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
     meta_error: str | None = None
     if meta_path.is_file() and ctx.layout != "objaverse":
         try:
-            data = json.loads(meta_path.read_text(encoding="utf-8"))
+            data = json_input.read(meta_path)  # too deep / too large: a ValueError of one line
         except (OSError, ValueError) as exc:
             data, meta_error = None, f"metadata.json does not parse: {exc}"
         if data is not None and not isinstance(data, dict):

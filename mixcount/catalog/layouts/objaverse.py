@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import csv
 import gzip
-import json
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Optional
 
+from mixcount import json_input
 from mixcount.catalog.layouts.walker import (
     SOURCE_OBJAVERSE,
     Candidate,
@@ -83,14 +83,14 @@ class SideMetadata:
                 return
             text = fh.read()
         try:
-            data = None if base.endswith(".jsonl") else json.loads(text)
+            data = None if base.endswith(".jsonl") else json_input.side_loads(text)  # too deep: a ValueError
         except ValueError:
             data = None  # ABO names its JSON-lines listings *.json.gz
         if data is None:
             for line in text.splitlines():
                 line = line.strip()
                 if line:
-                    rec = json.loads(line)
+                    rec = json_input.side_loads(line)
                     if isinstance(rec, dict):
                         yield None, rec
             return

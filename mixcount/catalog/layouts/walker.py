@@ -4,13 +4,13 @@ folders, metadata records and licence files."""
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from mixcount import json_input
 from mixcount.catalog.mesh import MESH_EXTENSIONS
 from mixcount.catalog.naming import DTC_NAME, category_from_name, category_text, safe_text, singular
 
@@ -179,7 +179,7 @@ def _read_licence(path: Path) -> str:
 
 def json_object(path: Path, cand: Candidate) -> dict[str, Any] | None:
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json_input.read(path)  # too deep / too large: a ValueError of one line
     except (OSError, ValueError) as exc:
         cand.error = f"{path.name} does not parse: {exc}"
         return None
