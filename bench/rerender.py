@@ -114,7 +114,7 @@ def main() -> int:
     from mixcount.cli import main as cli
     from mixcount.config import load_config
     from mixcount.dataset.scene_writer import tmp_dir_for
-    from mixcount.run.rerender import finished_scenes, link_assets, new_views, own_views
+    from mixcount.run.rerender import copy_scene_files, finished_scenes, link_assets, new_views, own_views
     from mixcount.scene.spec import SceneSpec
     from mixcount.worker.client import BlenderWorker
     from mixcount.worker.contract import RerenderRequest, SceneOutputs, SceneRequest
@@ -148,6 +148,7 @@ def main() -> int:
         tmp = tmp_dir_for(out, f"{spec.scene_id}-{tag}", tag)
         tmp.mkdir(parents=True)
         shutil.copyfile(scene_dir / "settled.usda", tmp / "scene.usda")
+        copy_scene_files(scene_dir, tmp)  # the floor's textures/ beside the copied stage, as `mixcount render` does
         return RerenderRequest(stage=str(tmp / "scene.usda"), out_dir=str(tmp), threads=0, oracle=False,
                                passes=outputs.passes, depth_format=outputs.depth_format,
                                normal_format=outputs.normal_format, mesh_cache=outputs.mesh_cache, poses=poses,
@@ -160,6 +161,7 @@ def main() -> int:
         fresh_tmp = tmp_dir_for(out, f"{spec.scene_id}-fresh", "fresh")
         fresh_tmp.mkdir(parents=True)
         shutil.copyfile(scene_dir / "scene.usda", fresh_tmp / "scene.usda")
+        copy_scene_files(scene_dir, fresh_tmp)
         fresh_req = SceneRequest.for_outputs(outputs, stage=str(fresh_tmp / "scene.usda"), out_dir=str(fresh_tmp),
                                              threads=0, oracle=False)
         fresh_result, fresh_s = _request(worker, fresh_req, 3600)

@@ -67,7 +67,7 @@ def test_device_auto_renders_on_the_cpu_said_once_and_each_scene_records_it(
     summary = json.loads(captured.out)
     assert summary["device"] == "cpu"
     assert [w for w in summary["warnings"] if "rendering on the CPU" in w] == [
-        'compose.device = "auto": no usable GPU (Cycles found ' + summary["warnings"][-1].split("found ", 1)[1]]
+        'compose.device = "auto": no usable GPU (Cycles found ' + [w for w in summary["warnings"] if "rendering on the CPU" in w][0].split("found ", 1)[1]]
     assert len([ln for ln in said if not ln.startswith("{")]) == 1  # the note, once (besides the JSON summary)
     scenes = sorted((out / "scenes").glob("scene_*"))
     assert len(scenes) == 2

@@ -31,8 +31,17 @@ REAL = [("prusa-slicer", "PrusaSlicer/shapes/torus.stl"),
 
 
 def _analyse(path: Path, tmp: Path, budget: int) -> dict:
-    return analyse_model(str(path), collision_dir=str(tmp / f"col{budget}"), face_budget=300, units="m", up_axis="Y",
-                         proxy_max_vertices=32, facts_face_budget=budget)
+    """In a fresh process, as ingest's analysis workers run it: a pytest process of the suite may have
+    imported bpy (test_code_shape imports every module), and pymeshlab's decimation then stops at 2-3 x
+    its target face count (seen in the suite, not in a process without bpy)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from functools import partial
+
+    task = partial(analyse_model, str(path), collision_dir=str(tmp / f"col{budget}"), face_budget=300, units="m",
+                   up_axis="Y", proxy_max_vertices=32, facts_face_budget=budget)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(task).result()
 
 
 def _same(a: dict, b: dict) -> list[str]:

@@ -53,9 +53,11 @@ def test_png_pages_borders_and_selection(catalog, curated, tmp_path):
         n_decide = sum(1 for e in collect(s) if any(severity(f.kind, f.reason) == "decide" for f in e.flags))
         n_excluded = s.query(CatalogObject).filter_by(status="excluded").count()
     # --only flagged: what needs a decision (a look-alike, a usable mesh warning is information only)
-    assert flagged["objects"] == n_decide == 8 and n_flagged == 9
-    # box copy, one of the two balls, the flat sheet (the recoloured cylinder is a colour variant: active)
-    assert write_sheets(catalog, tmp_path / "ex", only="excluded")["objects"] == n_excluded == 3
+    # (the two plain grey balls, one rescaled, are a look-alike for information since issue 57: a plain surface
+    # is no evidence of a copy; box and box copy, the cylinders, the flat sheet and the giant are to decide)
+    assert flagged["objects"] == n_decide == 6 and n_flagged == 9
+    # box copy and the flat sheet (the recoloured cylinder is a colour variant: active; the balls stay)
+    assert write_sheets(catalog, tmp_path / "ex", only="excluded")["objects"] == n_excluded == 2
     one_cat = write_sheets(catalog, tmp_path / "cat", category=curated["cone"].category)
     assert one_cat["objects"] == 1
     empty = write_sheets(catalog, tmp_path / "none", category="no-such-category")

@@ -29,7 +29,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Mapping, NamedTuple
 
-from mixcount import json_input
+import mixcount.json_input as json_input
 from mixcount.errors import ConfigError
 
 # The most visible objects one image may be asked for (and the largest imbalance): FSC-147's fullest image

@@ -173,7 +173,7 @@ def descriptions_in(folder_files: list[Path]) -> list[RobotDescription]:
     if model is not None:
         first = model.parts[0][0] if model.parts else None
         desc = RobotDescription(model.files[0], model.name, first, model.collision[0] if model.collision else None,
-                                mesh_scale=model.scale, up_axis="Z", warnings=list(model.warnings),
+                                mesh_scale=model.mesh_scale, up_axis="Z", warnings=list(model.warnings),
                                 parts=model.parts, collision_files=tuple(model.collision), kind="MJCF")
         found.append(desc)
     return found

@@ -19,7 +19,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from mixcount import json_input
+import mixcount.json_input as json_input
 from mixcount.catalog.layouts.companions import RobotDescription, companion_base, companion_kind, descriptions_in
 from mixcount.catalog.layouts.parts import auto_parts, check_parts, same_model_formats
 from mixcount.catalog.layouts.walker import (

@@ -36,7 +36,7 @@ class MjcfModel:
     name: str | None
     parts: list[tuple[str, np.ndarray]] = field(default_factory=list)  # visual meshes, placed
     collision: list[str] = field(default_factory=list)  # mesh files used only by collision geoms
-    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    mesh_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)  # the meshes' <mesh scale>, metres per unit
     warnings: list[str] = field(default_factory=list)
 
 
@@ -133,7 +133,7 @@ def read_mjcf(paths: list[Path]) -> MjcfModel | None:
     scales = {tuple(meshes[n][1] or (1.0, 1.0, 1.0)) for n in meshes if meshes[n][0] in used_visual}
     if len(scales) == 1:
         s = next(iter(scales))
-        model.scale = (s[0], s[1], s[2]) if len(s) == 3 else (s[0],) * 3  # type: ignore[assignment]
+        model.mesh_scale = (s[0], s[1], s[2]) if len(s) == 3 else (s[0],) * 3  # type: ignore[assignment]
     elif len(scales) > 1:
         model.warnings.append("the MJCF scales its meshes differently: not applied (state the units in a "
                               "metadata.json beside it)")

@@ -14,7 +14,7 @@ import gzip
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Optional
 
-from mixcount import json_input
+import mixcount.json_input as json_input
 from mixcount.catalog.layouts.walker import (
     SOURCE_OBJAVERSE,
     Candidate,

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from mixcount import json_input
+import mixcount.json_input as json_input
 from mixcount.catalog.mesh import MESH_EXTENSIONS
 from mixcount.catalog.naming import DTC_NAME, category_from_name, category_text, safe_text, singular
 
