@@ -1,0 +1,236 @@
+"""The house's figures (issue 58), printed as one JSON line: how far compose settings travel, private names
+imported across modules, import circles, the longest files and functions, docs/performance.md's length and
+the repeated blocks the ``duplicates`` tool finds.
+
+Why a bench and not a test: these are figures to compare before and after a change; the rules they stand
+for (no private import across modules, no circle, no file over 520 lines without a reason) are asserted
+in ``tests/test_code_shape.py``.
+
+The config path is measured, not read: compose runs one scene of the given catalog under ``sys.settrace``
+in this process, and every mixcount function entered while one of its locals *is* the run's ``Config``
+(or one of its sections) is a place visited. A climb is a step from a module in a lower room back up to
+one in a higher room (rooms as tests/test_code_shape.py orders them).
+
+    python bench/house.py                       # static figures only
+    python bench/house.py --db catalog/catalog.db --config-path   # and the config path (composes 1 scene)
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "mixcount"
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+FILE_LIMIT = 520
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    return ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+
+
+def modules() -> dict[str, tuple[Path, ast.Module]]:
+    return {module_name(p): (p, ast.parse(p.read_text(), filename=str(p))) for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def _resolve(importer: str, node: ast.ImportFrom, is_pkg: bool) -> str:
+    if node.level == 0:
+        return node.module or ""
+    base = importer.split(".") if is_pkg else importer.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def private_imports(mods: dict[str, tuple[Path, ast.Module]]) -> list[str]:
+    """``importer -> module._name`` for every private name one mixcount module takes from another: by
+    ``from m import _x`` or as ``m._x`` on a module it imported."""
+    found = []
+    for name, (path, tree) in mods.items():
+        aliases: dict[str, str] = {}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                target = _resolve(name, node, path.name == "__init__.py")
+                if not target.startswith("mixcount"):
+                    continue
+                for a in node.names:
+                    full = f"{target}.{a.name}"
+                    if full in mods:
+                        aliases[a.asname or a.name] = full
+                    elif a.name.startswith("_") and not a.name.startswith("__") and target != name:
+                        found.append(f"{name} -> {target}.{a.name}")
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith("mixcount") and a.asname:
+                        aliases[a.asname] = a.name
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases
+                    and node.attr.startswith("_") and not node.attr.startswith("__")
+                    and aliases[node.value.id] != name):
+                found.append(f"{name} -> {aliases[node.value.id]}.{node.attr}")
+    return sorted(set(found))
+
+
+def import_graph(mods: dict[str, tuple[Path, ast.Module]]) -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for name, (path, tree) in mods.items():
+        for node in ast.walk(tree):
+            targets: list[str] = []
+            if isinstance(node, ast.ImportFrom):
+                target = _resolve(name, node, path.name == "__init__.py")
+                targets = [f"{target}.{a.name}" if f"{target}.{a.name}" in mods else target for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            for t in targets:
+                while t and t not in mods:
+                    t = t.rpartition(".")[0]
+                if t and t != name and t.startswith("mixcount."):
+                    graph[name].add(t)
+    return graph
+
+
+def import_circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected groups of more than one module (Tarjan), lazy imports included."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = [0]
+    sys.setrecursionlimit(10000)
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                out.append(sorted(group))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def long_files(limit: int = FILE_LIMIT) -> dict[str, int]:
+    sizes = {str(p.relative_to(ROOT)): len(p.read_text().splitlines()) for p in PACKAGE.rglob("*.py")}
+    return dict(sorted(((k, v) for k, v in sizes.items() if v > limit), key=lambda kv: -kv[1]))
+
+
+def duplicate_pairs() -> Any:
+    if shutil.which("duplicates") is None:
+        return None
+    text = subprocess.run(["duplicates", "--most", "200", "--seconds", "120"], cwd=ROOT, capture_output=True,
+                          text=True).stdout
+    first = text.splitlines()[0] if text else ""
+    rows = [ln for ln in text.splitlines() if ln.startswith("D")]
+    return {"summary": first, "not_boilerplate": sum("boilerplate" not in r and "migrations/" not in r for r in rows)}
+
+
+def config_path(db: str) -> dict[str, Any]:
+    """Compose one scene of ``db``'s train split under a tracer; the mixcount places that hold the config."""
+    from test_code_shape import LEVEL, _room  # the rooms, lowest first
+
+    def room_level(module: str) -> int:
+        return LEVEL[_room(module)]
+
+    from mixcount import api
+    from mixcount.catalog.db import Catalog
+
+    visits: list[tuple[str, str]] = []
+    watched: list[int] = []
+
+    def tracer(frame: Any, event: str, arg: Any) -> Any:
+        if event != "call":
+            return None
+        mod = frame.f_globals.get("__name__", "")
+        if not mod.startswith("mixcount") or not watched:
+            return None
+        if any(id(v) in watched for v in frame.f_locals.values()):
+            place = (mod, frame.f_code.co_name)
+            if not visits or visits[-1] != place:
+                visits.append(place)
+        return None
+
+    import mixcount.config as config_module
+
+    real_load = config_module.load_config
+
+    def load_and_watch(*a: Any, **k: Any) -> Any:
+        cfg = real_load(*a, **k)
+        watched.extend(id(getattr(cfg, f)) for f in vars(cfg) if not f.startswith("_"))
+        watched.append(id(cfg))
+        return cfg
+
+    config_module.load_config = load_and_watch
+    with tempfile.TemporaryDirectory() as tmp:
+        sys.settrace(tracer)
+        try:
+            api.compose(Catalog(db), Path(tmp) / "out", n=1, split="train", config=["quick"], resolution=64,
+                        samples=2)
+        finally:
+            sys.settrace(None)
+            config_module.load_config = real_load
+    mods_seen = []
+    for mod, _ in visits:
+        if not mods_seen or mods_seen[-1] != mod:
+            mods_seen.append(mod)
+    climbs = sum(1 for a, b in zip(mods_seen, mods_seen[1:]) if room_level(b) > room_level(a))
+    return {"places": len(set(visits)), "modules": len({m for m, _ in visits}), "steps": len(mods_seen),
+            "climbs": climbs, "path": [f"{m}:{f}" for m, f in visits]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--db", help="a catalog with captioned, split objects (for --config-path)")
+    ap.add_argument("--config-path", action="store_true", help="trace compose's config (composes 1 scene)")
+    ap.add_argument("--no-duplicates", action="store_true", help="skip the duplicates tool")
+    args = ap.parse_args()
+    mods = modules()
+    graph = import_graph(mods)
+    perf = ROOT / "docs" / "performance.md"
+    figures: dict[str, Any] = {
+        "private_imports": private_imports(mods),
+        "import_circles": import_circles(graph),
+        "files_over_520": long_files(),
+        "longest_files": dict(sorted(((str(mods[m][0].relative_to(ROOT)), len(mods[m][0].read_text().splitlines()))
+                                      for m in mods), key=lambda kv: -kv[1])[:5]),
+        "performance_md_lines": len(perf.read_text().splitlines()) if perf.exists() else None,
+    }
+    figures["private_import_count"] = len(figures["private_imports"])
+    if not args.no_duplicates:
+        figures["duplicates"] = duplicate_pairs()
+    if args.config_path:
+        if not args.db:
+            ap.error("--config-path needs --db")
+        figures["config_path"] = config_path(args.db)
+    print(json.dumps(figures))
+
+
+if __name__ == "__main__":
+    main()
