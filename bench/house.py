@@ -11,7 +11,8 @@ in this process, and every mixcount function entered while one of its locals *is
 (or one of its sections) is a place visited. A climb is a step from a module in a lower room back up to
 one in a higher room (rooms as tests/test_code_shape.py orders them).
 
-    python bench/house.py                       # static figures only
+    python bench/house.py --smoke               # static figures only (what tests/test_benches.py runs)
+    python bench/house.py                       # and the duplicates tool's count
     python bench/house.py --db catalog/catalog.db --config-path   # and the config path (composes 1 scene)
 """
 
@@ -210,7 +211,10 @@ def main() -> None:
     ap.add_argument("--db", help="a catalog with captioned, split objects (for --config-path)")
     ap.add_argument("--config-path", action="store_true", help="trace compose's config (composes 1 scene)")
     ap.add_argument("--no-duplicates", action="store_true", help="skip the duplicates tool")
+    ap.add_argument("--smoke", action="store_true", help="the static figures only (no duplicates tool, no compose)")
     args = ap.parse_args()
+    if args.smoke:
+        args.no_duplicates, args.config_path = True, False
     mods = modules()
     graph = import_graph(mods)
     perf = ROOT / "docs" / "performance.md"

@@ -268,3 +268,16 @@ def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     tested = {name[len("test_"):-len("_bench")] for name in globals() if name.startswith("test_") and name.endswith("_bench")}
     assert [b for b in benches if '"--smoke"' not in (BENCH / f"{b}.py").read_text()] == []
     assert [b for b in benches if b not in tested] == []
+
+
+def test_house_bench() -> None:
+    """The house's static figures (issue 58): every list and count is there and agrees with itself, and the
+    rules tests/test_code_shape.py asserts read the same here (no file over the limit is missing its entry)."""
+    (figures,) = run_smoke("house", None)
+    assert figures["private_import_count"] == len(figures["private_imports"])
+    assert all(" -> " in line for line in figures["private_imports"])
+    assert all(len(group) > 1 for group in figures["import_circles"])
+    assert all(lines > 520 for lines in figures["files_over_520"].values())
+    longest = list(figures["longest_files"].values())
+    assert longest == sorted(longest, reverse=True) and len(longest) == 5
+    assert figures["performance_md_lines"] > 0 and "config_path" not in figures
