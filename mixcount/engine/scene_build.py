@@ -22,7 +22,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.annotate import scene_decisions as D
+import mixcount.scene_decisions as D
 from mixcount.scene.spec import SceneSpec
 from mixcount.worker.contract import DROPPED, MeshCacheRequest, MeshCacheResult, ObjectResult, SceneRequest
 
@@ -118,7 +118,7 @@ class AssetCache:
         return self.hull_vertices[key]
 
     def hull(self, path: Path) -> np.ndarray:
-        from mixcount.annotate.scene_decisions import hull_equations
+        from mixcount.scene_decisions import hull_equations
 
         key = str(path)
         if key not in self.hulls:  # the proxy is the shape that collided (and a hull of <= proxy_max_vertices points)
