@@ -139,7 +139,7 @@ class Run:
 
     def __init__(self, counts: str, args: Any, work: Path, worker: Any, pool: list[Any], label: str) -> None:
         from mixcount.config import load_config
-        from mixcount.scene.count_targets import parse_count_target
+        from mixcount.counts.targets import parse_count_target
 
         self.counts, self.args, self.work, self.worker, self.pool, self.label = counts, args, work, worker, pool, label
         self.cfg = load_config([], [f"compose.resolution={args.resolution}", f"compose.samples={args.samples}",
@@ -259,8 +259,8 @@ def summarise_logs(logs: list[Path], work: Path, counts: str) -> list[dict[str, 
     """The figures of runs already made (several runs' stderr logs, e.g. one stopped and one continued),
     from their per-scene lines and the scene folders under ``work``: one result per run label, then the
     time ratio when the paper's rule ran too (over the seeds both runs kept)."""
+    from mixcount.counts.targets import parse_count_target
     from mixcount.evaluate.count_stats import rejected_record, scene_record, summarise_counts
-    from mixcount.scene.count_targets import parse_count_target
 
     lines = [json.loads(ln) for log in logs for ln in log.read_text().splitlines()
              if ln.startswith('{"bench": "counts.scene"')]

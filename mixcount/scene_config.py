@@ -137,7 +137,7 @@ class SceneConfig:
     floor_pile_margin: float
     n_objects: IntRange
     n_classes: IntRange
-    count_target: str  # paper | uniform:A-B | histogram:PATH [,imbalance:R1-R2] (scene/count_targets.py)
+    count_target: str  # paper | uniform:A-B | histogram:PATH [,imbalance:R1-R2] (counts/targets.py)
     count_spawn_factor: tuple[float, float]  # spawned per visible target: floor scenes, container scenes
     count_container_need: float  # x target per class: the pile a target's container (floor: camera) is fitted to
     count_spawn_extra: int

@@ -52,7 +52,7 @@ def canonical(req: dict[str, Any]) -> dict[str, Any]:
 def border_check(req: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
 
-    from mixcount.annotate import scene_decisions as D
+    import mixcount.scene_decisions as D
     from mixcount.engine import render_passes as P
     from mixcount.engine import scene_build as B
     from mixcount.engine import scene_job as J

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from mixcount.annotate import scene_decisions as D
+import mixcount.scene_decisions as D
 from mixcount.annotate.raster import PinholeCamera
 from mixcount.worker.contract import (
     CameraView,
@@ -198,7 +198,7 @@ def test_contract_json_round_trip() -> None:
 
 
 def test_contract_and_decisions_import_no_engine() -> None:
-    code = ("import sys, mixcount, mixcount.engine, mixcount.worker.contract, mixcount.annotate.scene_decisions; "
+    code = ("import sys, mixcount, mixcount.engine, mixcount.worker.contract, mixcount.scene_decisions; "
             "assert 'bpy' not in sys.modules and 'pxr' not in sys.modules, sorted(m for m in sys.modules if m in ('bpy', 'pxr'))")
     subprocess.run([sys.executable, "-c", code], check=True)
 

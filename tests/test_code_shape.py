@@ -14,7 +14,9 @@ MAX_FUNCTION_LINES = 120
 
 ROOMS: tuple[tuple[str, ...], ...] = (
     ("version", "errors", "progress", "resources", "frame", "sizes", "atomic", "json_input", "scene_config", "config"),  # the foundation
-    ("annotate",),  # pure annotation maths, pass formats and the scene job's numpy decisions
+    ("annotate",),  # pure annotation maths and pass formats
+    ("counts",),  # count targets, engine-free: parsed and drawn, read from benchmark files, the worker's decisions
+    ("scene_decisions",),  # the worker's engine-free decisions about one scene (uses annotate's camera)
     ("scene",),  # engine-free scene sampling
     ("catalog",),
     ("usd",),

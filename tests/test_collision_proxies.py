@@ -208,7 +208,7 @@ def settled_scene(proxy_library, tmp_path_factory: pytest.TempPathFactory) -> It
 def test_settling_through_proxies_is_no_worse_on_the_same_seeds(settled_scene) -> None:
     """Same seeds, proxies on and off: no more settle drops, nothing sinks, nothing interpenetrates beyond
     the worker's checks, and bodies are at rest at the end."""
-    from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
+    from mixcount.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
 
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}
     results: dict[bool, list[dict]] = {True: [], False: []}
@@ -242,7 +242,7 @@ def test_settling_through_proxies_is_no_worse_on_the_same_seeds(settled_scene) -
 def test_deep_floor_collider_settles_as_well_as_the_thin_floor(proxy_library, settled_scene) -> None:
     """The default physics (8 substeps, floor colliding 0.5·s deep, containers through convex parts)
     against the bare 0.5 m floor, same seeds: no more settle drops, nothing sinking, a pile at rest."""
-    from mixcount.annotate.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
+    from mixcount.scene_decisions import BELOW_FLOOR, FLUNG_OUT, INTERPENETRATION, UNSTABLE
 
     pool, _root = proxy_library
     settle_reasons = {BELOW_FLOOR, FLUNG_OUT, UNSTABLE, INTERPENETRATION}

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from mixcount.cli import main
+from mixcount.counts.targets import draw_total, parse_count_target, split_total
 from mixcount.errors import ConfigError
-from mixcount.scene.count_targets import draw_total, parse_count_target, split_total
 
 
 def _coco(path: Path) -> Path:

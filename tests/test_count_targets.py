@@ -13,11 +13,9 @@ import numpy as np
 import pytest
 from library_pool import library_pool
 
-from mixcount.annotate import count_decisions as C
 from mixcount.config import load_config
-from mixcount.errors import ConfigError
-from mixcount.evaluate.count_stats import count_lines, dataset_count_stats, ks_distance, plot_counts, summarise_counts
-from mixcount.scene.count_targets import (
+from mixcount.counts import worker_decisions as C
+from mixcount.counts.targets import (
     draw_elevations,
     draw_total,
     elevation_factor,
@@ -27,6 +25,8 @@ from mixcount.scene.count_targets import (
     spawn_counts,
     split_total,
 )
+from mixcount.errors import ConfigError
+from mixcount.evaluate.count_stats import count_lines, dataset_count_stats, ks_distance, plot_counts, summarise_counts
 from mixcount.scene.sampler import sample_scene
 
 
@@ -132,7 +132,7 @@ def test_hull_contact_is_tighter_than_boxes() -> None:
     # two unit cubes whose boxes overlap in XY, the upper one 0.3 above the lower one: boxes say "may
     # rest" (tolerance 0.5), the hulls are 0.3 apart, more than a tolerance of 0.1
     cube = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-    from mixcount.annotate.scene_decisions import hull_equations
+    from mixcount.scene_decisions import hull_equations
 
     eq = hull_equations(cube)
     mats = [np.eye(4), np.eye(4)]

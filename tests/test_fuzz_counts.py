@@ -15,9 +15,9 @@ from fuzz_settings import NUMBER_TEXT, deep, dumps_loose, fuzz, json_values
 from hypothesis import given
 from hypothesis import strategies as st
 
+from mixcount.counts.benchmark_files import MAX_COUNT
+from mixcount.counts.targets import CountDistribution, draw_total, parse_count_target, split_total
 from mixcount.errors import ConfigError
-from mixcount.scene.count_files import MAX_COUNT
-from mixcount.scene.count_targets import CountDistribution, draw_total, parse_count_target, split_total
 
 
 def check_usable(dist: CountDistribution, seed: int = 3) -> None:

@@ -14,8 +14,8 @@ import typer
 
 from mixcount.commands.common import RichProgress, console, json_option, out, result, state
 from mixcount.config import Config
+from mixcount.counts.targets import parse_count_target
 from mixcount.errors import CompositionError
-from mixcount.scene.count_targets import parse_count_target
 
 
 def plan_scenes(catalog: Any, config: Config, *, n: int, out_dir: Optional[Path] = None,

@@ -16,7 +16,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 
 from mixcount.annotate.coco import build_scene_coco, category_id, class_map, ground_truth_pairs
-from mixcount.scene.count_targets import per_category
+from mixcount.counts.targets import per_category
 from mixcount.scene.spec import SceneSpec
 from mixcount.usd.settled_stage import decompose, write_settled_stage
 from mixcount.worker.contract import KEPT, SceneResult

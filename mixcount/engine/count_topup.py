@@ -14,7 +14,7 @@ of the first settle, the top-up of a short class and the rest check after the ta
   measured, and the round repeats (at most ``topup_rounds``). The largest displacement goes into the
   ``count_rest`` diagnostic; :func:`verify_rest` (benches) checks the finished pile once more, whole.
 
-The decisions are :mod:`mixcount.annotate.count_decisions`'; this module moves objects and runs Bullet.
+The decisions are :mod:`mixcount.counts.worker_decisions`'; this module moves objects and runs Bullet.
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ from typing import Any, Optional
 import numpy as np
 from numpy.typing import NDArray
 
-from mixcount.annotate import count_decisions as C
-from mixcount.annotate import scene_decisions as D
+import mixcount.scene_decisions as D
 from mixcount.annotate.raster import PinholeCamera
+from mixcount.counts import worker_decisions as C
 from mixcount.engine.scene_build import SceneState, pose_with_scale, scaled_proxy_collider
 from mixcount.worker.contract import DROPPED, KEPT
 
@@ -50,7 +50,7 @@ def set_reserves_aside(state: SceneState) -> Reserves:
     """Take each class's reserve bodies out of the scene and the simulation (see the module docstring)."""
     import bpy
 
-    from mixcount.scene.count_targets import reserve_instances
+    from mixcount.counts.targets import reserve_instances
 
     out = Reserves()
     target = state.spec.count_target
@@ -148,7 +148,7 @@ def top_up(state: SceneState, reserves: Reserves, short: dict[int, int], round_n
     poses: the bodies landing on it are light and the rest check after the top-up wakes the bodies near
     them); returns the bodies dropped (none: no body of those classes left out of the scene).
     ``factors``: bodies per lacking object, per class (default :data:`TOPUP_FACTOR`)."""
-    from mixcount.annotate.count_decisions import drop_spots, topup_draw
+    from mixcount.counts.worker_decisions import drop_spots, topup_draw
 
     available: dict[int, list[int]] = {}
     # the reserve first, then the class's bodies dropped so far (occluded, out of view, taken out): a class
@@ -417,7 +417,7 @@ def bring_to_target(state: SceneState, reserves: Reserves, cameras: list[Pinhole
     then one visibility loop re-renders only the boxes where the bodies taken out were seen and where the
     fallen ones were and are. If that loop drops a body (a fallen one now occluded), the rest check runs
     again. Then a class still short is topped up (its reserve, then its bodies dropped so far, at a factor
-    from its yield so far: :func:`mixcount.annotate.count_decisions.topup_factors`): its bodies land on the
+    from its yield so far: :func:`mixcount.counts.worker_decisions.topup_factors`): its bodies land on the
     pile, only they are measured (their silhouettes, the boxes where they are) and the round repeats, at
     most ``topup_rounds`` times."""
     from mixcount.engine.count_trim import count_outcome, kept_per_class, remove_surplus

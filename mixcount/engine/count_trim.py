@@ -1,7 +1,7 @@
 """A scene brought to its count target in the worker (issue 37): after the visibility loop, the surplus
 counted bodies that support nothing are taken out of the Blender scene, visibility is measured again and
 the scene's count verdict recorded (a ``count_target`` diagnostic; ``count_short`` / ``count_over`` when the
-scene cannot be kept). The decisions are :mod:`mixcount.annotate.count_decisions`'; this module only reads
+scene cannot be kept). The decisions are :mod:`mixcount.counts.worker_decisions`'; this module only reads
 the state and removes objects (bpy through :class:`~mixcount.engine.scene_build.SceneState`)."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.annotate import count_decisions as C
-from mixcount.annotate import scene_decisions as D
+import mixcount.scene_decisions as D
+from mixcount.counts import worker_decisions as C
 from mixcount.engine.scene_build import SceneState
 
 # two bodies whose collision hulls come this close (x the larger size) may touch. Lax on purpose: bodies at
@@ -33,7 +33,7 @@ def kept_per_class(state: SceneState, n_classes: int) -> dict[int, int]:
 def resting_graph(state: SceneState, indices: list[int]) -> np.ndarray:
     """(N, N) bool over the bodies ``indices`` at their recorded poses (``matrix_world``; a body dropped
     since keeps the pose it had): ``out[a, b]`` when body b may rest on body a
-    (:func:`mixcount.annotate.count_decisions.rests_on_hulls` of the shapes that collided: the proxies'
+    (:func:`mixcount.counts.worker_decisions.rests_on_hulls` of the shapes that collided: the proxies'
     points, else the hull of the mesh, kept per asset)."""
     n = len(indices)
     lo = np.zeros((n, 3))

@@ -334,7 +334,7 @@ def render_id_passes(scene: Any, path: Path, region: Optional[tuple[int, int, in
     ``region`` = (row0, col0, row1, col1), inclusive, top-down: render only a border around those pixels
     (``render.use_border``, not cropped). Pixels inside the region are exactly those of a full render
     (each pixel is one ray through its centre; checked in tests/test_blender_worker.py); pixels outside
-    it are undefined, so the caller takes the region alone (:func:`mixcount.annotate.scene_decisions.paste_region`).
+    it are undefined, so the caller takes the region alone (:func:`mixcount.scene_decisions.paste_region`).
     """
     configure_id_pass(scene)
     r = scene.render

@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mixcount.annotate import scene_decisions as D
+import mixcount.scene_decisions as D
 from mixcount.engine import devices
 from mixcount.engine.cameras import Placement, camera_record, set_matrix
 from mixcount.engine.scene_build import SceneState, load_scene

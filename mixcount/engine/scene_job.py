@@ -13,7 +13,7 @@ request, :func:`reference_check`. A request whose ``settled_poses_file`` names a
 rendered as ``mixcount render`` does). The steps after the poses live in :mod:`mixcount.engine.scene_steps`
 and the camera code in :mod:`mixcount.engine.cameras` (shared with the count target's steps and the re-render,
 so the engine's files import each other in no circle). Every decision between them is a pure function of
-:mod:`mixcount.annotate.scene_decisions`. What describes the scene (samples, denoise, visibility threshold,
+:mod:`mixcount.scene_decisions`. What describes the scene (samples, denoise, visibility threshold,
 physics) is read from the stage's SceneSpec only; the :class:`~mixcount.worker.contract.SceneRequest`
 adds run-time settings (threads, oracle, passes and their formats, mesh cache).
 
@@ -36,7 +36,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from mixcount.annotate import scene_decisions as D
+import mixcount.scene_decisions as D
 from mixcount.annotate.raster import PinholeCamera
 from mixcount.engine.cameras import Placement, camera_record, frame_cameras, set_matrix
 from mixcount.engine.scene_build import SceneState, load_scene, pose_with_scale

@@ -15,7 +15,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.annotate import scene_decisions as D
+import mixcount.scene_decisions as D
 from mixcount.annotate.raster import PinholeCamera
 from mixcount.engine.cameras import set_matrix
 from mixcount.engine.scene_build import SceneState

@@ -9,7 +9,7 @@ answered ``{"ok": true, "result": <result>.to_dict(), "seconds": ...}``:
 * ``scene``: SceneRequest -> SceneResult (:func:`mixcount.engine.scene_job.run_scene`)
 * ``canonical``: CanonicalRequest -> CanonicalResult (:func:`mixcount.engine.canonical_render.render_object`)
 * ``cache_meshes``: MeshCacheRequest -> MeshCacheResult
-  (:func:`mixcount.engine.scene_build.cache_asset_meshes`)
+  (:func:`mixcount.engine.asset_meshes.cache_asset_meshes`)
 * ``settle``: SceneRequest -> SettleResult (:func:`mixcount.engine.scene_job.settle_ahead`)
 * ``rerender``: RerenderRequest -> SceneResult, ``devices``: DevicesRequest -> DevicesResult
   (:mod:`mixcount.engine.rerender_job`)
@@ -78,7 +78,7 @@ def _canonical(req: Any) -> Any:
 
 
 def _cache_meshes(req: Any) -> Any:
-    from mixcount.engine.scene_build import cache_asset_meshes
+    from mixcount.engine.asset_meshes import cache_asset_meshes
 
     return cache_asset_meshes(req)
 

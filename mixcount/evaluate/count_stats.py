@@ -193,8 +193,8 @@ def dataset_count_stats(dataset: Path) -> Optional[dict[str, Any]]:
     """:func:`summarise_counts` of a dataset's scenes with a count target (None when none has one). The KS
     distance is taken against the target distribution when every scene names the same one and it can be
     read here (a histogram file may not travel with the dataset), else against the drawn targets."""
+    from mixcount.counts.targets import parse_count_target
     from mixcount.errors import ConfigError
-    from mixcount.scene.count_targets import parse_count_target
 
     rows, rejected = read_dataset(dataset)
     if not rows:

@@ -151,7 +151,7 @@ def more_views_of(config: Config) -> Optional[MoreViews]:
     """``compose --views K`` / ``--trajectory orbit``: the new cameras each scene gets in its own worker request
     (``[rerender]``'s views, rule and persistent data); None for none. Under the paper's all-cameras rule the
     new views can remove objects a count target (``scene.count_target``) was met with: that pair is refused."""
-    from mixcount.scene.count_targets import parse_count_target
+    from mixcount.counts.targets import parse_count_target
 
     more = MoreViews.from_config(config.rerender, config.scene)
     if more is not None and more.rule == "all_cameras" and not parse_count_target(config.scene.count_target).is_paper:

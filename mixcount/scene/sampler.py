@@ -30,16 +30,7 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from mixcount.errors import CompositionError
-from mixcount.scene.class_draws import (
-    ClassDraft,
-    build_classes,
-    caption_keys,
-    distinct_caption_picks,
-    qualify,
-    split_counts,
-)
-from mixcount.scene.count_targets import (
+from mixcount.counts.targets import (
     PAPER,
     CountDistribution,
     count_distribution,
@@ -50,6 +41,15 @@ from mixcount.scene.count_targets import (
     spawn_counts,
     split_total,
     target_record,
+)
+from mixcount.errors import CompositionError
+from mixcount.scene.class_draws import (
+    ClassDraft,
+    build_classes,
+    caption_keys,
+    distinct_caption_picks,
+    qualify,
+    split_counts,
 )
 from mixcount.scene.environment_sampling import sample_environment, sample_floor_material
 from mixcount.scene.framing import camera_position, look_at_rotation
@@ -365,7 +365,7 @@ def _physics_spec(config: SceneConfig) -> PhysicsSpec:
 def _target_spawn(seed: int, config: SceneConfig, target: CountDistribution, n: int, drafts: list[ClassDraft],
                   in_container: bool) -> tuple[list[float], list[int], dict[str, Any]]:
     """A count target's draws: the cameras' elevations, the bodies spawned per class (reserve included)
-    and the spec's ``count_target`` record (scene/count_targets.py; docs/scene.md "Count targets")."""
+    and the spec's ``count_target`` record (counts/targets.py; docs/scene.md "Count targets")."""
     aims, ratio = split_total(target, seed, n, len(drafts), [shown_area(d) for d in drafts])
     # the cameras' elevations first (their own stream): a low camera sees the pile from the side and
     # loses more to occlusion, so the spawn is sized for the lowest one

@@ -319,7 +319,7 @@ class PhysicsSpec:
     solver_iterations: int
     collision_shape: str
     gravity: float
-    settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.annotate.scene_decisions)
+    settle_below_floor_fraction: float  # the worker's settle checks (see mixcount.scene_decisions)
     settle_penetration_fraction: float
     collision_proxies: bool  # counted objects / distractors collide through their convex proxy
     rest_speed: float  # m/s: stop the simulation once every body is slower (0 = all frames)
@@ -410,7 +410,7 @@ class SceneSpec:
     assets: tuple[AssetRef, ...]
     version: int = 1
     placement: Optional[PlacementSpec] = None  # None: a spec written before after-physics placement
-    # the visible counts asked for (scene/count_targets.py target_record); None: the paper's spawned-count rule
+    # the visible counts asked for (counts/targets.py target_record); None: the paper's spawned-count rule
     count_target: Optional[Mapping[str, Any]] = None
 
     @property

@@ -34,14 +34,14 @@ import json
 from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar, Mapping, Optional
 
-from mixcount.annotate.scene_decisions import STATUS_EMPTY as STATUS_EMPTY  # defined beside the rule that decides them
-from mixcount.annotate.scene_decisions import STATUS_OK as STATUS_OK
-from mixcount.annotate.scene_decisions import STATUS_REJECTED as STATUS_REJECTED
 from mixcount.config import MESH_CACHE_MODES as MESH_CACHE_MODES  # re-exported for the worker side
 from mixcount.config import CanonicalRenderConfig, ComposeConfig
 from mixcount.errors import CompositionError
 from mixcount.scene.views import NewView, ViewPlan
 from mixcount.scene_config import RerenderConfig, SceneConfig
+from mixcount.scene_decisions import STATUS_EMPTY as STATUS_EMPTY  # defined beside the rule that decides them
+from mixcount.scene_decisions import STATUS_OK as STATUS_OK
+from mixcount.scene_decisions import STATUS_REJECTED as STATUS_REJECTED
 
 KEPT = "kept"
 DROPPED = "dropped"

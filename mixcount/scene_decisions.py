@@ -2,6 +2,11 @@
 objects are in the frame and visible enough, what a scene's status is, and how Cycles' passes become the
 stored depth / normal / instance maps. :mod:`mixcount.engine.scene_job` calls these between Blender steps;
 tests/test_blender_decisions.py checks them without Blender.
+
+A room of its own (issue 58), not under ``annotate/``: these are what the worker decides about a scene,
+not annotation maths. It sits above ``annotate/`` (whose camera model it uses) and below ``worker/`` (whose
+contract re-exports its statuses); the count target's own worker decisions are
+:mod:`mixcount.counts.worker_decisions`.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 A user asks for counts to match the benchmark they evaluate on; the benchmark's annotation file already
 holds them, so ``histogram:`` takes, besides a text file of ``count weight`` lines
-(:func:`mixcount.scene.count_targets.read_histogram`), a JSON file of one of these kinds, told apart by
+(:func:`mixcount.counts.targets.read_histogram`), a JSON file of one of these kinds, told apart by
 their keys:
 
 - a COCO instances file (``images`` + ``annotations``): one count per image, the annotations whose
@@ -11,7 +11,7 @@ their keys:
   ``annotations/instances_<split>.json`` gives its counted objects); per image and ``category_id`` too,
   so a two-class benchmark's file also gives its class ratios, and per category the mean ``area`` of one
   object (``bbox`` w x h when an annotation has no area), so the scene's larger class takes the count of the
-  image's larger objects (:func:`mixcount.scene.count_targets.split_total`);
+  image's larger objects (:func:`mixcount.counts.targets.split_total`);
 - FSC-147's annotation JSON (``annotation_FSC147_384.json``: image name -> ``{"points": [[x, y], ...],
   ...}``): ``len(points)`` per image, one class.
 

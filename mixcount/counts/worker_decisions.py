@@ -7,6 +7,9 @@ conservatively (more pairs than real contacts, never fewer): their XY boxes over
 centre is higher than A's and B's bottom is no higher than A's top + ``tol``. Taking a body out never lowers
 another body's visibility (the id pass records the first surface along each ray), so the kept objects
 stay above v_t; the worker measures them again anyway.
+
+The engine-side steps that act on these decisions: :mod:`mixcount.engine.count_trim` (the take-out) and
+:mod:`mixcount.engine.count_topup` (the reserve, the rest check and the top-up).
 """
 
 from __future__ import annotations

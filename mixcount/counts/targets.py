@@ -8,7 +8,7 @@ follows from physics and occlusion. A count target instead names a distribution 
 - ``histogram:PATH``: the total drawn from a text file of ``count weight`` lines (``#`` comments,
   commas or spaces), e.g. shaped like a benchmark's per-image counts, or from a benchmark's own annotation
   JSON (COCO instances, FSC-147's ``points``, a mixcount dataset's ``instances_<split>.json``:
-  :mod:`mixcount.scene.count_files`), whose per-image per-category counts also give the class split;
+  :mod:`mixcount.counts.benchmark_files`), whose per-image per-category counts also give the class split;
 
 optionally followed by ``,imbalance:R1-R2`` for the per-class split: each scene draws a ratio R in
 [R1, R2] and splits the total so the largest class holds about R times the smallest (class weights
@@ -19,7 +19,7 @@ Everything is drawn from ``numpy.random.default_rng([scene seed, COUNT_TARGET_ST
 own, so the target is reproducible by seed and the sampler's main stream draws what it always drew.
 :func:`spawn_counts` turns a class's visible target into the number spawned (the retention prior of the
 config: ``count_spawn_factor`` per floor / container scene); the worker then takes out the surplus
-(:mod:`mixcount.annotate.count_decisions`), or tops a short class up from the bodies
+(:mod:`mixcount.counts.worker_decisions`), or tops a short class up from the bodies
 :func:`reserve_counts` holds out of the first settle (:mod:`mixcount.engine.count_topup`).
 """
 
@@ -35,8 +35,8 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from mixcount.counts.benchmark_files import MAX_COUNT, FileImage, histogram_of, looks_like_json, read_annotation_file
 from mixcount.errors import ConfigError
-from mixcount.scene.count_files import MAX_COUNT, FileImage, histogram_of, looks_like_json, read_annotation_file
 
 COUNT_TARGET_STREAM = 37  # the count target's generator: default_rng([scene seed, COUNT_TARGET_STREAM])
 PAPER = "paper"
