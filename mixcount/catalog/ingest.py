@@ -12,10 +12,15 @@ Flow (see docs/ingest.md):
    textures/buffers, then ``content_hash`` (model + resources) and ``ingest_hash`` (+ sidecars, the
    identity read from metadata and the settings that change facts). An object whose stored ``ingest_hash`` matches is *unchanged* and costs no
    database write; one whose content hash matches but sidecars changed gets a metadata-only update.
-3. **Analyse** the rest in a process pool (:func:`mixcount.catalog.mesh.analyse_model`).
+3. **Analyse** the rest in a process pool (:mod:`mixcount.catalog.analysis_pool`,
+   :func:`mixcount.catalog.mesh.analyse_model`).
 4. **Commit each object on its own**, keyed by the unique (source, source_id): a killed run leaves whole
    objects, and a rerun skips them by hash, so it finishes the job with no duplicates. An existing row is
    updated in place, which keeps its id, flags, captions, split and review history.
+
+:func:`ingest_paths` reads as these steps: ``_discover`` (1), ``_start_run`` (the IngestRun row),
+``_triage`` (2), ``_analyse_all`` (3 and 4), ``_turn_containers`` (containers whose opening faces another
+axis are turned and analysed again) and ``_finish_run``.
 """
 
 from __future__ import annotations
