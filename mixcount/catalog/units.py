@@ -96,12 +96,14 @@ def basis(reason: str | None) -> str:
 
 
 def size_prior(reason: str | None) -> str | None:
-    """What the size prior may do to a unit decided for this reason, the one place that says it:
-    ``"reread"`` for a format's assumed unit (an STL's millimetres: a largest side no everyday object has
-    is re-read in the unit that makes it plausible), ``"say"`` for a default (an OBJ/PLY read by
-    ``ingest.assume_units`` whose size is implausible is said, its reason naming the unit that would fit,
-    not re-read: the configured assumption is the user's word for the library) or a description's or a
-    format's own unit, None for a stated unit (never second-guessed) or no reason."""
+    """What the size prior may do to a unit decided for this ``reason`` (the one place that decides it):
+
+    * ``"reread"``: an STL's assumed millimetres; a largest side no everyday object has is re-read in the
+      unit that makes it plausible;
+    * ``"say"``: any other unit not stated (an OBJ/PLY read by ``ingest.assume_units``, a description's, a
+      format's); an implausible size is said, the reason naming the unit that would fit, not re-read: the
+      configured assumption is the user's word for the library;
+    * None: a stated unit (never second-guessed), or no reason."""
     if not reason or reason.startswith("stated"):
         return None
     return "reread" if reason.startswith("format: STL") else "say"
