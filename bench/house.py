@@ -33,6 +33,8 @@ PACKAGE = ROOT / "mixcount"
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+from import_graph import import_circles, import_graph, resolve_import  # noqa: E402  (tests/import_graph.py)
+
 FILE_LIMIT = 520
 
 
@@ -45,14 +47,6 @@ def modules() -> dict[str, tuple[Path, ast.Module]]:
     return {module_name(p): (p, ast.parse(p.read_text(), filename=str(p))) for p in sorted(PACKAGE.rglob("*.py"))}
 
 
-def _resolve(importer: str, node: ast.ImportFrom, is_pkg: bool) -> str:
-    if node.level == 0:
-        return node.module or ""
-    base = importer.split(".") if is_pkg else importer.split(".")[:-1]
-    base = base[: len(base) - (node.level - 1)]
-    return ".".join(base + ([node.module] if node.module else []))
-
-
 def private_imports(mods: dict[str, tuple[Path, ast.Module]]) -> list[str]:
     """``importer -> module._name`` for every private name one mixcount module takes from another: by
     ``from m import _x`` or as ``m._x`` on a module it imported."""
@@ -61,7 +55,7 @@ def private_imports(mods: dict[str, tuple[Path, ast.Module]]) -> list[str]:
         aliases: dict[str, str] = {}
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom):
-                target = _resolve(name, node, path.name == "__init__.py")
+                target = resolve_import(name, node, path.name == "__init__.py")
                 if not target.startswith("mixcount"):
                     continue
                 for a in node.names:
@@ -80,62 +74,6 @@ def private_imports(mods: dict[str, tuple[Path, ast.Module]]) -> list[str]:
                     and aliases[node.value.id] != name):
                 found.append(f"{name} -> {aliases[node.value.id]}.{node.attr}")
     return sorted(set(found))
-
-
-def import_graph(mods: dict[str, tuple[Path, ast.Module]]) -> dict[str, set[str]]:
-    graph: dict[str, set[str]] = {m: set() for m in mods}
-    for name, (path, tree) in mods.items():
-        for node in ast.walk(tree):
-            targets: list[str] = []
-            if isinstance(node, ast.ImportFrom):
-                target = _resolve(name, node, path.name == "__init__.py")
-                targets = [f"{target}.{a.name}" if f"{target}.{a.name}" in mods else target for a in node.names]
-            elif isinstance(node, ast.Import):
-                targets = [a.name for a in node.names]
-            for t in targets:
-                while t and t not in mods:
-                    t = t.rpartition(".")[0]
-                if t and t != name and t.startswith("mixcount."):
-                    graph[name].add(t)
-    return graph
-
-
-def import_circles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """Strongly connected groups of more than one module (Tarjan), lazy imports included."""
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on: set[str] = set()
-    out: list[list[str]] = []
-    counter = [0]
-    sys.setrecursionlimit(10000)
-
-    def visit(v: str) -> None:
-        index[v] = low[v] = counter[0]
-        counter[0] += 1
-        stack.append(v)
-        on.add(v)
-        for w in graph[v]:
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            group = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                group.append(w)
-                if w == v:
-                    break
-            if len(group) > 1:
-                out.append(sorted(group))
-
-    for v in graph:
-        if v not in index:
-            visit(v)
-    return out
 
 
 def long_files(limit: int = FILE_LIMIT) -> dict[str, int]:

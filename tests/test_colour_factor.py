@@ -16,7 +16,7 @@ from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
 from mixcount.captions.colours import colours_from_model
 from mixcount.catalog.materials import base_colour_factor
-from mixcount.usd.assets import _load_parts
+from mixcount.usd.model_parts import load_parts
 
 
 def _box(path: Path, material, texture: bool) -> Path:
@@ -41,8 +41,8 @@ def test_gltf_without_factor_and_obj_kd_beside_a_map(tmp_path):
     assert loaded.visual.material.baseColorFactor is None
     np.testing.assert_allclose(base_colour_factor(loaded.visual), 1.0)
     assert colours_from_model(glb).names == ("green",)
-    assert _load_parts(glb, 1.0, "Y")[0].material["base_color_factor"] == [1.0, 1.0, 1.0, 1.0]
+    assert load_parts(glb, 1.0, "Y")[0].material["base_color_factor"] == [1.0, 1.0, 1.0, 1.0]
     obj = _box(tmp_path / "duck.obj", SimpleMaterial(image=green, diffuse=[163, 163, 163, 255]), texture=True)
-    assert _load_parts(obj, 1.0, "Y")[0].material["base_color_factor"] == [1.0, 1.0, 1.0, 1.0]  # the map alone
+    assert load_parts(obj, 1.0, "Y")[0].material["base_color_factor"] == [1.0, 1.0, 1.0, 1.0]  # the map alone
     plain = _box(tmp_path / "plain.obj", SimpleMaterial(diffuse=[204, 51, 51, 255]), texture=False)
-    np.testing.assert_allclose(_load_parts(plain, 1.0, "Y")[0].material["base_color_factor"][:3], [0.8, 0.2, 0.2])
+    np.testing.assert_allclose(load_parts(plain, 1.0, "Y")[0].material["base_color_factor"][:3], [0.8, 0.2, 0.2])

@@ -12,7 +12,7 @@ from fuzz_settings import NUMBER_TEXT, deep, dumps_loose, fuzz, json_values
 from hypothesis import example, given
 from hypothesis import strategies as st
 
-from mixcount.catalog.layouts.walk import discover
+from mixcount.catalog.layouts.discovery import discover
 from mixcount.config import load_config
 from mixcount.errors import ConfigError
 

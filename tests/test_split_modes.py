@@ -11,8 +11,9 @@ import pytest
 from sqlalchemy import select
 
 from mixcount.catalog.models import CatalogObject, ReviewDecision, Split
+from mixcount.catalog.split_classes import FscTable
 from mixcount.catalog.split_units import category_key
-from mixcount.catalog.splits import FscTable, assign_splits, check_splits, split_report
+from mixcount.catalog.splits import assign_splits, check_splits, split_report
 from mixcount.cli import main
 from mixcount.config import load_config
 

@@ -9,7 +9,8 @@ import pytest
 from sqlalchemy import select
 
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, Split
-from mixcount.catalog.splits import FscTable, assign_splits, check_splits, normalise, singular
+from mixcount.catalog.split_classes import FscTable, normalise, singular
+from mixcount.catalog.splits import assign_splits, check_splits
 from mixcount.cli import main
 from mixcount.config import load_config
 

@@ -15,7 +15,7 @@ import pytest
 import trimesh
 
 from mixcount.catalog.ingest import ingest_paths
-from mixcount.catalog.layouts.walk import discover
+from mixcount.catalog.layouts.discovery import discover
 from mixcount.config import load_config
 from tests.public_packages import deb_tree, wheel_tree
 

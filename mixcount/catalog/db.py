@@ -76,7 +76,7 @@ def _sqlite_pragmas(dbapi_conn, _record) -> None:  # type: ignore[no-untyped-def
     cur.close()
 
 
-def _sqlite_file(url: str) -> Optional[Path]:
+def sqlite_file(url: str) -> Optional[Path]:
     """The database file of a SQLite URL (None for another backend or an in-memory database)."""
     parsed = make_url(url)
     if parsed.get_backend_name() != "sqlite" or not parsed.database or parsed.database == ":memory:":
@@ -137,7 +137,7 @@ def _damaged_as_catalog_error(context: Any) -> None:
     if is_damage(orig):
         url = str(context.engine.url) if context.engine is not None else ""
         text = str(orig).strip().splitlines()[0] if str(orig).strip() else type(orig).__name__
-        raise CatalogError(damaged_line(_sqlite_file(url) or "database", text))
+        raise CatalogError(damaged_line(sqlite_file(url) or "database", text))
 
 
 def alembic_config(url: str):  # type: ignore[no-untyped-def]
@@ -187,7 +187,7 @@ def migrate(engine: Engine, *, wait_s: float = MIGRATION_WAIT_S) -> None:
     check_known_catalog(engine, head)
     if current_revision(engine) == head:
         return
-    if _sqlite_file(url) is None:
+    if sqlite_file(url) is None:
         try:
             with engine.begin() as conn:
                 _upgrade(conn)
@@ -207,10 +207,10 @@ def migrate(engine: Engine, *, wait_s: float = MIGRATION_WAIT_S) -> None:
                 return
             except OperationalError as exc:
                 if not _is_locked(exc):
-                    raise CatalogError(f"cannot migrate catalog database {_sqlite_file(url)}: {exc.orig}") from None
+                    raise CatalogError(f"cannot migrate catalog database {sqlite_file(url)}: {exc.orig}") from None
                 if time.monotonic() > deadline:
                     raise CatalogError(
-                        f"catalog database {_sqlite_file(url)} stayed locked by another process for "
+                        f"catalog database {sqlite_file(url)} stayed locked by another process for "
                         f"{wait_s:.0f} s while this one waited to migrate it; try again when that one is done"
                     ) from None
                 time.sleep(0.2)
@@ -229,7 +229,7 @@ def check_known_catalog(engine: Engine, head: Optional[str]) -> None:
     with engine.connect() as conn:
         tables = set(inspect(conn).get_table_names())
         revisions = MigrationContext.configure(conn).get_current_heads() if "alembic_version" in tables else ()
-    _refuse_unknown(str(_sqlite_file(str(engine.url)) or engine.url), tables, tuple(revisions), head)
+    _refuse_unknown(str(sqlite_file(str(engine.url)) or engine.url), tables, tuple(revisions), head)
 
 
 def check_sqlite_file(path: Path, head: Optional[str]) -> None:
@@ -368,7 +368,7 @@ def describe_database_error(url: str, exc: BaseException) -> str:
     """One line for a database error at open time: the file and what is wrong with it."""
     orig = getattr(exc, "orig", None) or exc
     text = str(orig).strip().splitlines()[0] if str(orig).strip() else type(orig).__name__
-    where = _sqlite_file(url) or make_url(url).render_as_string(hide_password=True)
+    where = sqlite_file(url) or make_url(url).render_as_string(hide_password=True)
     low = text.lower()
     if "file is not a database" in low or "not a database" in low:
         return f"{where} is not a SQLite database ({text}): give --db a catalog file or a new path"
@@ -386,7 +386,7 @@ def open_catalog(db: str | None, *, data_dir: str, migrate_to_head: bool = True)
     default). ``data_dir``: ``catalog.data_dir`` ("" = beside the SQLite file). A database that is not a
     usable mixcount catalog raises :class:`CatalogError` with one line naming the file and the problem."""
     url = resolve_db_url(db)
-    path = _sqlite_file(url)
+    path = sqlite_file(url)
     if path is not None and path.is_file():
         check_sqlite_file(path, head_revision())
     engine = make_engine(url)
@@ -404,7 +404,7 @@ def open_catalog(db: str | None, *, data_dir: str, migrate_to_head: bool = True)
     except Exception as exc:  # alembic's CommandError (e.g. an unknown revision) and the like
         engine.dispose()
         if type(exc).__module__.startswith("alembic"):
-            raise CatalogError(f"cannot migrate catalog {_sqlite_file(url) or url}: {exc}") from None
+            raise CatalogError(f"cannot migrate catalog {sqlite_file(url) or url}: {exc}") from None
         raise
     sessions = sessionmaker(bind=engine, expire_on_commit=False)
     return Catalog(url=url, engine=engine, sessions=sessions, data_dir=data_dir_for(url, data_dir),

@@ -12,27 +12,31 @@ Flow (see docs/ingest.md):
    textures/buffers, then ``content_hash`` (model + resources) and ``ingest_hash`` (+ sidecars, the
    identity read from metadata and the settings that change facts). An object whose stored ``ingest_hash`` matches is *unchanged* and costs no
    database write; one whose content hash matches but sidecars changed gets a metadata-only update.
-3. **Analyse** the rest in a process pool (:func:`mixcount.catalog.mesh.analyse_model`).
+3. **Analyse** the rest in a process pool (:mod:`mixcount.catalog.analysis_pool`,
+   :func:`mixcount.catalog.mesh.analyse_model`).
 4. **Commit each object on its own**, keyed by the unique (source, source_id): a killed run leaves whole
    objects, and a rerun skips them by hash, so it finishes the job with no duplicates. An existing row is
    updated in place, which keeps its id, flags, captions, split and review history.
+
+:func:`ingest_paths` reads as these steps: ``_discover`` (1), ``_start_run`` (the IngestRun row),
+``_triage`` (2), ``_analyse_all`` (3 and 4), ``_turn_containers`` (containers whose opening faces another
+axis are turned and analysed again) and ``_finish_run``.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from mixcount.catalog import hashing, layouts
+from mixcount.catalog.analysis_pool import analyse_all, analysis_kwargs
 from mixcount.catalog.containers import opening_warnings, refresh_containers
 from mixcount.catalog.derived import derive
 from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
@@ -56,10 +60,10 @@ from mixcount.catalog.orientation import (  # noqa: F401  (check_up_axis re-expo
 from mixcount.catalog.proxies import refresh_proxy
 from mixcount.catalog.stale import Before, StoreContext, invalidate
 from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  # noqa: F401  (re-exported)
-from mixcount.catalog.units import check_units, decide_frame, note_units, prior_applies, units_summary
+from mixcount.catalog.units import check_units, decide_frame, note_units, units_summary
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
-from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
+from mixcount.frame import GLTF_EXTENSIONS
 from mixcount.progress import ProgressReporter, as_reporter
 
 # Fact columns copied from the analysis dict onto the row.
@@ -322,36 +326,6 @@ def _facts_of(obj: CatalogObject) -> dict[str, Any]:
 # --------------------------------------------------------------------------- the run
 
 
-def _analyse_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "model_path": str(cand.model_path),
-        "collision_dir": str(catalog_collision_dir),
-        "face_budget": settings["collision_face_budget"],
-        "units": (cand.units or settings["assume_units"]),
-        "units_reason": cand.units_reason or "",
-        "size_prior": prior_applies(cand.units_reason),
-        "up_axis": (cand.up_axis or (GLTF_UP_AXIS if Path(str(cand.model_path)).suffix.lower() in GLTF_EXTENSIONS
-                                     else settings["assume_up_axis"])),
-        "proxy_max_vertices": settings["proxy_max_vertices"],
-        "collision_source": str(cand.collision_source) if cand.collision_source else None,
-        "facts_face_budget": settings["facts_face_budget"],
-    }
-
-
-def _run_analysis(kwargs: dict[str, Any]) -> tuple[dict[str, Any] | None, str | None]:
-    """Process-pool task: (facts, None) or (None, reason). Never raises for a bad model."""
-    from mixcount.catalog.mesh import analyse_model
-
-    try:
-        return analyse_model(**kwargs), None
-    except IngestError as exc:
-        return None, exc.reason
-    except MemoryError:
-        return None, "out of memory while analysing the mesh"
-    except Exception as exc:  # a library bug on a weird file must not stop the batch
-        return None, f"mesh analysis failed: {type(exc).__name__}: {str(exc)[:200]}"
-
-
 def ingest_paths(
     catalog: Any,
     paths: Iterable[Path | str],
@@ -375,9 +349,62 @@ def ingest_paths(
     :mod:`mixcount.catalog.units`, :mod:`mixcount.catalog.layouts.parts`.
     """
     paths = list(paths)
+    candidates = _discover(catalog, paths, config.ingest, layout=layout, metadata_files=metadata_files,
+                           up_axis=up_axis, units=units, parts=parts)
+    run = _start_run(catalog, paths, candidates, config.ingest)
+    bar = as_reporter(progress)
+    status = "interrupted"
+    try:
+        bar.start("ingest", len(candidates))
+        with catalog.session() as session:
+            known = _existing_rows(session, candidates)
+            pending: list[Prepared] = []
+            for cand in candidates:
+                prep = _triage(session, run, cand, known.get((cand.source, cand.source_id)))
+                if prep is None:
+                    bar.advance()
+                else:
+                    pending.append(prep)
+            if pending:
+                _analyse_all(session, pending, run, run.workers, run.count, bar)
+            _turn_containers(session, run, candidates, known, config)
+        status = "done"
+    finally:
+        bar.stop()
+        _finish_run(catalog, run.summary, status)
+    return run.summary
+
+
+@dataclass
+class _Run:
+    """What the steps of one ingest run share: its summary and store context, and the settings."""
+
+    summary: IngestSummary
+    ctx: StoreContext
+    settings: dict[str, Any]
+    max_bytes: float
+    max_vertices: int
+    workers: int
+    collision_dir: Path
+
+    def count(self, outcome: str, prep: Prepared, error: str | None = None) -> None:
+        summary = self.summary
+        setattr(summary, outcome, getattr(summary, outcome) + 1)
+        if outcome == "broken":
+            summary.broken_objects.append((prep.cand.name, error or prep.error or ""))
+        else:
+            summary.warnings.extend((prep.cand.name, w) for w in prep.cand.warnings)
+
+    def prepare(self, cand: Candidate) -> Prepared:
+        return prepare(cand, settings=self.settings, max_bytes=self.max_bytes)
+
+
+def _discover(catalog: Any, paths: list[Path | str], ing: IngestConfig, *, layout: str,
+              metadata_files: Iterable[Path | str], up_axis: str | None, units: str | None,
+              parts: str) -> list[Candidate]:
+    """Step 1: every object under ``paths``, oriented, staged, its unit decided and derived models made."""
     stated_units = check_units(units)
     candidates = discover(paths, layout=layout, metadata_files=metadata_files, parts=check_parts(parts))
-    ing = config.ingest
     for cand in candidates:
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units
@@ -389,134 +416,98 @@ def ingest_paths(
         layouts.stage(cand, catalog.staged_dir)
         decide_frame(cand, stated=stated_units, assume=ing.assume_units)  # the unit and why (mixcount.catalog.units)
         derive(cand, catalog.staged_dir)  # STEP or parts: one GLB in the sources' numbers
-    settings = settings_of(ing)
-    max_vertices = proxy_budget(ing)
-    max_bytes = ing.max_file_mb * 2**20
-    n_workers = max(1, ing.workers)
+    return candidates
+
+
+def _start_run(catalog: Any, paths: list[Path | str], candidates: list[Candidate], ing: IngestConfig) -> _Run:
+    """The run's settings and summary (objects found per layout), and its IngestRun row (status running)."""
     summary = IngestSummary()
     for cand in candidates:
         summary.layouts[cand.layout] = summary.layouts.get(cand.layout, 0) + 1
-    collision_dir = catalog.collision_dir
-    ctx = StoreContext(summary, catalog.renders_dir, catalog.data_dir / "descriptors")
-
+    run = _Run(summary, StoreContext(summary, catalog.renders_dir, catalog.data_dir / "descriptors"),
+               settings_of(ing), ing.max_file_mb * 2**20, proxy_budget(ing), max(1, ing.workers),
+               catalog.collision_dir)
     with catalog.session() as session:
-        run = IngestRun(paths=json.dumps([str(p) for p in paths]), status="running")
-        session.add(run)
+        row = IngestRun(paths=json.dumps([str(p) for p in paths]), status="running")
+        session.add(row)
         session.commit()
-        summary.run_id = run.id
+        summary.run_id = row.id
+    return run
 
-    def count(outcome: str, prep: Prepared, error: str | None = None) -> None:
-        setattr(summary, outcome, getattr(summary, outcome) + 1)
-        if outcome == "broken":
-            summary.broken_objects.append((prep.cand.name, error or prep.error or ""))
+
+def _triage(session: Session, run: _Run, cand: Candidate, existing: CatalogObject | None) -> Prepared | None:
+    """Step 2 for one candidate: pre-checked and hashed; a broken, unchanged or metadata-only object is
+    counted (and stored) here and None returned; the Prepared returned needs the mesh analysis."""
+    if existing is not None:
+        kept_evidence(cand, existing.source_up_axis, _ingest_info(existing).get("up_axis_reason"))
+    prep = run.prepare(cand)
+    if prep.error:
+        if (existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error
+                and _same_identity(existing, cand)):
+            run.count("broken", prep)  # still broken the same way, same name: nothing to write
         else:
-            summary.warnings.extend((prep.cand.name, w) for w in prep.cand.warnings)
-
-    bar = as_reporter(progress)
-    pending: list[Prepared] = []
-    status = "interrupted"
-    try:
-        bar.start("ingest", len(candidates))
-        with catalog.session() as session:
-            known = _existing_rows(session, candidates)
-            for cand in candidates:
-                existing = known.get((cand.source, cand.source_id))
-                if existing is not None:
-                    kept_evidence(cand, existing.source_up_axis, _ingest_info(existing).get("up_axis_reason"))
-                prep = prepare(cand, settings=settings, max_bytes=max_bytes)
-                if prep.error:
-                    if (existing is not None and existing.status == STATUS_BROKEN and existing.error == prep.error
-                            and _same_identity(existing, cand)):
-                        count("broken", prep)  # still broken the same way, same name: nothing to write
-                    else:
-                        count(_store(session, prep, None, prep.error, summary.run_id, ctx), prep)
-                    bar.advance()
-                    continue
-                if existing is not None and existing.status != STATUS_BROKEN:
-                    info = _ingest_info(existing)
-                    same_path = existing.model_path == _stored_path(cand.model_path)  # type: ignore[arg-type]
-                    if info.get("ingest_hash") == prep.ingest_hash and same_path:
-                        refresh_proxy(session, existing, collision_dir, max_vertices)
-                        summary.note_units(existing.name, existing.source_units, info.get("units_reason"))
-                        count("unchanged", prep)
-                        bar.advance()
-                        continue
-                    if (
-                        existing.content_hash == prep.content_hash
-                        and info.get("settings_hash") == prep.settings_hash
-                        and existing.geometry_hash
-                        and Path(existing.collision_path or "").is_file()
-                    ):
-                        # only sidecars or the location changed: keep the measured facts
-                        refresh_proxy(session, existing, collision_dir, max_vertices)
-                        count(_store(session, prep, _facts_of(existing), None, summary.run_id, ctx), prep)
-                        bar.advance()
-                        continue
-                pending.append(prep)
-            if pending:
-                _analyse_all(session, pending, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
-                             n_workers, ctx, count, bar)
-            summary.containers = refresh_containers(session, config).containers
-            turned = turn_by_openings(session, candidates, assume=ing.assume_up_axis)
-            if turned:  # containers read by ingest.assume_up_axis whose opening faces another axis of the file
-                fresh = {c.name for c in turned if (c.source, c.source_id) not in known}
-                mark = len(summary.invalidated)
-                again = [prepare(c, settings=settings, max_bytes=max_bytes) for c in turned]
-                _analyse_all(session, again, collision_dir, {**settings, "proxy_max_vertices": max_vertices},
-                             1, ctx, lambda *_a, **_k: None, as_reporter(None))
-                summary.invalidated[mark:] = [e for e in summary.invalidated[mark:] if e[0] not in fresh]
-                summary.containers = refresh_containers(session, config).containers
-            summary.container_warnings = opening_warnings(session)
-        status = "done"
-    finally:
-        bar.stop()
-        with catalog.session() as session:
-            run = session.get(IngestRun, summary.run_id)
-            if run is not None:
-                run.status = status
-                run.finished_at = utcnow()
-                run.n_new, run.n_unchanged = summary.new, summary.unchanged
-                run.n_updated, run.n_broken = summary.updated, summary.broken
-                session.commit()
-    return summary
+            run.count(_store(session, prep, None, prep.error, run.summary.run_id, run.ctx), prep)
+        return None
+    if existing is None or existing.status == STATUS_BROKEN:
+        return prep
+    info = _ingest_info(existing)
+    same_path = existing.model_path == _stored_path(cand.model_path)  # type: ignore[arg-type]
+    if info.get("ingest_hash") == prep.ingest_hash and same_path:
+        refresh_proxy(session, existing, run.collision_dir, run.max_vertices)
+        run.summary.note_units(existing.name, existing.source_units, info.get("units_reason"))
+        run.count("unchanged", prep)
+        return None
+    if (
+        existing.content_hash == prep.content_hash
+        and info.get("settings_hash") == prep.settings_hash
+        and existing.geometry_hash
+        and Path(existing.collision_path or "").is_file()
+    ):
+        # only sidecars or the location changed: keep the measured facts
+        refresh_proxy(session, existing, run.collision_dir, run.max_vertices)
+        run.count(_store(session, prep, _facts_of(existing), None, run.summary.run_id, run.ctx), prep)
+        return None
+    return prep
 
 
-def _analyse_all(session, pending, collision_dir, settings, n_workers, ctx, count, bar):  # type: ignore[no-untyped-def]
-    """Run mesh analysis for ``pending`` (process pool when > 1 worker), storing each as it finishes."""
+def _turn_containers(session: Session, run: _Run, candidates: list[Candidate],
+                     known: dict[tuple[str, str], CatalogObject], config: Config) -> None:
+    """Step 5: the catalog's containers; those read by ``ingest.assume_up_axis`` whose opening faces another
+    axis of the file are turned and analysed again (:func:`mixcount.catalog.orientation.turn_by_openings`)."""
+    summary = run.summary
+    summary.containers = refresh_containers(session, config).containers
+    turned = turn_by_openings(session, candidates, assume=config.ingest.assume_up_axis)
+    if turned:
+        fresh = {c.name for c in turned if (c.source, c.source_id) not in known}
+        mark = len(summary.invalidated)
+        again = [run.prepare(c) for c in turned]
+        _analyse_all(session, again, run, 1, lambda *_a, **_k: None, as_reporter(None))
+        summary.invalidated[mark:] = [e for e in summary.invalidated[mark:] if e[0] not in fresh]
+        summary.containers = refresh_containers(session, config).containers
+    summary.container_warnings = opening_warnings(session)
+
+
+def _finish_run(catalog: Any, summary: IngestSummary, status: str) -> None:
+    """The IngestRun row closed with its status (done or interrupted) and counts."""
+    with catalog.session() as session:
+        row = session.get(IngestRun, summary.run_id)
+        if row is not None:
+            row.status = status
+            row.finished_at = utcnow()
+            row.n_new, row.n_unchanged = summary.new, summary.unchanged
+            row.n_updated, row.n_broken = summary.updated, summary.broken
+            session.commit()
+
+
+def _analyse_all(session: Session, pending: list[Prepared], run: _Run, n_workers: int,
+                 count: Callable[..., None], bar: ProgressReporter) -> None:
+    """Step 3 and 4: the mesh analysis of ``pending`` (:mod:`mixcount.catalog.analysis_pool`), each object
+    stored and counted as its analysis finishes."""
 
     def finish(prep: Prepared, facts: dict[str, Any] | None, error: str | None) -> None:
-        outcome = _store(session, prep, facts, error, ctx.summary.run_id, ctx)
+        outcome = _store(session, prep, facts, error, run.summary.run_id, run.ctx)
         count(outcome, prep, error)
         bar.advance(info=prep.cand.name[:40])
 
-    if n_workers <= 1 or len(pending) == 1:
-        for prep in pending:
-            facts, error = _run_analysis(_analyse_kwargs(prep.cand, collision_dir, settings))
-            finish(prep, facts, error)
-        return
-
-    retry: list[Prepared] = []
-    pool = ProcessPoolExecutor(max_workers=min(n_workers, len(pending)))
-    try:
-        futures: dict[Future, Prepared] = {
-            pool.submit(_run_analysis, _analyse_kwargs(p.cand, collision_dir, settings)): p for p in pending
-        }
-        for fut in as_completed(futures):
-            prep = futures[fut]
-            try:
-                facts, error = fut.result()
-            except BrokenProcessPool:
-                retry.append(prep)
-                continue
-            finish(prep, facts, error)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-    # A worker died (segfault, OOM kill): retry the affected objects one per fresh process so the
-    # one that crashes is identified and recorded as broken, and the others still get ingested.
-    for prep in retry:
-        with ProcessPoolExecutor(max_workers=1) as solo:
-            try:
-                facts, error = solo.submit(_run_analysis, _analyse_kwargs(prep.cand, collision_dir, settings)).result()
-            except BrokenProcessPool:
-                facts, error = None, "mesh analysis crashed its worker process"
-        finish(prep, facts, error)
+    settings = {**run.settings, "proxy_max_vertices": run.max_vertices}
+    analyse_all([(p, analysis_kwargs(p.cand, run.collision_dir, settings)) for p in pending], n_workers, finish)

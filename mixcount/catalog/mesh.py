@@ -12,8 +12,9 @@ Conventions (see docs/ingest.md):
 * USD/USDZ carry ``metersPerUnit`` and ``upAxis`` on the stage; mesh prims are placed by their
   local-to-world transform.
 * OBJ/PLY/STL carry neither: the caller passes the units and up axis ingest decided
-  (:func:`mixcount.catalog.units.decide_units`); with ``size_prior`` a largest side that is implausible in
-  that unit is re-read in the unit that makes it plausible (:func:`mixcount.sizes.plausible_unit`).
+  (:func:`mixcount.catalog.units.decide_units`); where :func:`mixcount.catalog.units.size_prior` allows it
+  (an STL), a largest side that is implausible in that unit is re-read in the unit that makes it plausible
+  (:func:`mixcount.sizes.plausible_unit`).
 * STEP (``.step``/``.stp``) is read through trimesh's loader, which converts it with cascadio
   (OpenCASCADE) into metres, whatever length unit the file states; CAD is Z-up.
 * Y-up becomes Z-up the way Blender's glTF importer does it: (x, y, z) -> (x, -z, y).
@@ -32,6 +33,7 @@ import numpy as np
 from mixcount.atomic import atomic_path
 from mixcount.catalog.mesh_bounds import FullFacts, check_coordinates, cluster_copy, full_facts
 from mixcount.catalog.model_files import GLB_MAGIC, Relinked, model_resources, relink_textures  # noqa: F401  (re-exported)
+from mixcount.catalog.units import size_prior
 from mixcount.errors import IngestError
 from mixcount.frame import STEP_EXTENSIONS, UNIT_SCALE, to_metres_z_up, unit_scale, walk_geometry
 from mixcount.sizes import plausible_unit
@@ -333,13 +335,13 @@ def analyse_model(
     facts_face_budget: int,
     collision_source: str | None = None,
     units_reason: str = "",
-    size_prior: bool = False,
 ) -> dict[str, Any]:
     """Worker entry point: all facts of one model as a plain dict (raises IngestError).
 
-    ``units``/``units_reason``: the unit ingest decided and why; with ``size_prior`` (a unit assumed, not
-    stated) a largest side implausible in it is re-read in the unit that makes it plausible, and the facts
-    say so (``units_reason`` starts with ``size prior``).
+    ``units``/``units_reason``: the unit ingest decided and why; where the reason lets the size prior re-read
+    it (:func:`mixcount.catalog.units.size_prior`: an STL's assumed millimetres) a largest side implausible in
+    it is re-read in the unit that makes it plausible, and the facts say so (``units_reason`` starts with
+    ``size prior``); an assumed unit of another kind is only said to be implausible.
 
     ``collision_source``: a collision mesh shipped beside the model (``mug_col.obj``, ``duck_vhacd.obj``),
     read in the model's frame; the collision mesh and proxy are built from it instead of the visual mesh
@@ -352,7 +354,7 @@ def analyse_model(
         warnings.simplefilter("always", RuntimeWarning)
         facts = _analyse(model_path, collision_dir=collision_dir, face_budget=face_budget, units=units,
                          up_axis=up_axis, proxy_max_vertices=proxy_max_vertices, collision_source=collision_source,
-                         facts_face_budget=facts_face_budget, units_reason=units_reason, size_prior=size_prior)
+                         facts_face_budget=facts_face_budget, units_reason=units_reason)
     said = sorted({f"{w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught
                    if issubclass(w.category, RuntimeWarning)})
     if said:  # not on stderr: on the object, where the user looks for what ingest met
@@ -362,11 +364,12 @@ def analyse_model(
 
 def _analyse(model_path: str, *, collision_dir: str, face_budget: int, units: str, up_axis: str,
              proxy_max_vertices: int, collision_source: str | None, facts_face_budget: int,
-             units_reason: str, size_prior: bool) -> dict[str, Any]:
+             units_reason: str) -> dict[str, Any]:
     path = Path(model_path)
     norm = load_normalised(path, units=units, up_axis=up_axis, face_budget=facts_face_budget)
-    if units_reason and not units_reason.startswith("stated"):  # what the user said is never second-guessed
-        norm, units_reason = _size_prior(norm, units_reason, apply=size_prior)
+    prior = size_prior(units_reason)  # None for what the user said: never second-guessed
+    if prior is not None:
+        norm, units_reason = _size_prior(norm, units_reason, apply=prior == "reread")
         units = norm.source_units
     mesh, full = norm.mesh, norm.full
     ghash = geometry_hash(mesh)

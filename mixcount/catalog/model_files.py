@@ -5,7 +5,7 @@ into its content hash), with the pre-checks ingest makes before hashing (GLB hea
 missing glTF buffer or image is an error; an OBJ's missing material or texture is a warning (the model
 loads with a default material), and a texture not where its material points is looked up by its file name
 in the model's folder. ``relink_textures`` rewrites such materials so that the staged model finds them
-(:func:`mixcount.catalog.layouts.walk.stage`).
+(:func:`mixcount.catalog.layouts.discovery.stage`).
 """
 
 from __future__ import annotations

@@ -26,8 +26,8 @@ from typing import Iterable
 
 import numpy as np
 
+from mixcount.catalog.split_classes import HELD_OUT_RANK, SPLITS, FscTable
 from mixcount.catalog.split_units import SplitFacts
-from mixcount.catalog.splits import HELD_OUT_RANK, SPLITS, FscTable
 from mixcount.config import SplitConfig
 
 Decision = tuple[str, str, "str | None"]  # (split, method, FSC-147 class)

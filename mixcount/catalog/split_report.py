@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+from mixcount.catalog.split_classes import HELD_OUT_RANK, FscTable
 from mixcount.catalog.split_units import PAIR_KINDS, SplitFacts
-from mixcount.catalog.splits import HELD_OUT_RANK, FscTable
 from mixcount.config import SPLIT_NAMES
 
 UNSEEN_KINDS = ("train", "val", "test", "test_categories")  # categories mode: each category in one of these

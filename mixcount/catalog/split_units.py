@@ -1,7 +1,7 @@
 """What `catalog split` calls one category, and what it keeps together (docs/splits.md).
 
 A **category** (a kind) is what the FSC-147 matching makes of the object (:meth:`FscTable.match`: its
-category, then its name, then its short caption, each through :func:`mixcount.catalog.splits.normalise`:
+category, then its name, then its short caption, each through :func:`mixcount.catalog.split_classes.normalise`:
 lower case, singular, synonyms): the matched class when there is one (so "Mug", "mugs" and "coffee mug" are
 all the class "cups", key ``cup``, and a "Soccer ball" filed under the broad category "sports" is a
 ``ball`` like the one filed under "ball"). Else the head noun of the active short caption (the captioner
@@ -37,7 +37,7 @@ from mixcount.catalog.decisions import latest_pair_decisions
 from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import STATUS_ACTIVE, CaptionSet, CatalogObject, Flag
 from mixcount.catalog.naming import GENERIC_STEMS
-from mixcount.catalog.splits import FscTable, normalise
+from mixcount.catalog.split_classes import FscTable, normalise
 
 TOGETHER_KINDS = ("variant", "copy", "collision")  # pair kinds that must never cross splits
 PAIR_KINDS = TOGETHER_KINDS + ("look_alike",)

@@ -34,12 +34,11 @@ USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 @dataclass(frozen=True)
 class UnitDecision:
-    """``unit`` (a name or metres per unit as text), ``reason`` (a sentence that starts with its basis:
-    stated, description, format, default) and whether the size prior may re-read it."""
+    """``unit`` (a name or metres per unit as text) and ``reason`` (a sentence that starts with its basis:
+    stated, description, format, default; :func:`size_prior` reads what the size prior may do from it)."""
 
     unit: str
     reason: str
-    size_prior: bool
 
 
 def check_units(value: str | None) -> str | None:
@@ -64,20 +63,20 @@ def decide_units(source: Path, *, units: str | None, units_reason: str | None, s
     carries = suffix in USD_SUFFIXES or suffix in STEP_EXTENSIONS  # the file states its unit
     from_metadata = bool(units) and (units_reason or "").startswith("stated")
     if from_metadata and not carries:
-        return UnitDecision(str(units), f"stated: units {units} in the object's metadata.json", False)
+        return UnitDecision(str(units), f"stated: units {units} in the object's metadata.json")
     if stated and not carries:
-        return UnitDecision(stated, f"stated: catalog ingest --units {stated}", False)
+        return UnitDecision(stated, f"stated: catalog ingest --units {stated}")
     if units:
-        return UnitDecision(str(units), units_reason or f"description: the {layout} layout's convention", False)
+        return UnitDecision(str(units), units_reason or f"description: the {layout} layout's convention")
     if suffix in USD_SUFFIXES:
-        return UnitDecision("m", "format: USD states metersPerUnit", False)
+        return UnitDecision("m", "format: USD states metersPerUnit")
     if suffix in GLTF_EXTENSIONS:
-        return UnitDecision("m", "format: glTF is metres by its specification", False)
+        return UnitDecision("m", "format: glTF is metres by its specification")
     if suffix in STEP_EXTENSIONS:
-        return UnitDecision("m", "format: STEP states its length unit (read into metres by OpenCASCADE)", False)
+        return UnitDecision("m", "format: STEP states its length unit (read into metres by OpenCASCADE)")
     if suffix == ".stl":
-        return UnitDecision("mm", "format: STL from CAD and 3D-printing tools is millimetres", True)
-    return UnitDecision(assume, f"default: ingest.assume_units ({assume}) for {suffix.lstrip('.').upper()}", True)
+        return UnitDecision("mm", "format: STL from CAD and 3D-printing tools is millimetres")
+    return UnitDecision(assume, f"default: ingest.assume_units ({assume}) for {suffix.lstrip('.').upper()}")
 
 
 def decide_frame(cand: Any, *, stated: str | None, assume: str) -> None:
@@ -96,12 +95,18 @@ def basis(reason: str | None) -> str:
     return (reason or "").split(":", 1)[0] or "unknown"
 
 
-def prior_applies(reason: str | None) -> bool:
-    """Whether the size prior may re-read a unit decided for this reason: a format's assumed unit (an
-    STL's millimetres), never a stated one, a description's or one a format states. An OBJ/PLY read by
-    ``ingest.assume_units`` whose size is implausible is said (its reason names the unit that would fit),
-    not re-read: the configured assumption is the user's word for the library."""
-    return (reason or "").startswith("format: STL")
+def size_prior(reason: str | None) -> str | None:
+    """What the size prior may do to a unit decided for this ``reason`` (the one place that decides it):
+
+    * ``"reread"``: an STL's assumed millimetres; a largest side no everyday object has is re-read in the
+      unit that makes it plausible;
+    * ``"say"``: any other unit not stated (an OBJ/PLY read by ``ingest.assume_units``, a description's, a
+      format's); an implausible size is said, the reason naming the unit that would fit, not re-read: the
+      configured assumption is the user's word for the library;
+    * None: a stated unit (never second-guessed), or no reason."""
+    if not reason or reason.startswith("stated"):
+        return None
+    return "reread" if reason.startswith("format: STL") else "say"
 
 
 def note_units(rescaled: list[tuple[str, str, str]], implausible: list[tuple[str, str]], name: str,

@@ -120,7 +120,8 @@ def split_cmd(
     """Assign a split per object (mode paper / objects / categories); exit non-zero on any leak."""
     from rich.table import Table
 
-    from mixcount.catalog.splits import FscTable, assign_splits, check_splits, split_report
+    from mixcount.catalog.split_classes import FscTable
+    from mixcount.catalog.splits import assign_splits, check_splits, split_report
 
     st = state(ctx)
     conf = st.config(values={"split.seed": seed, "split.mode": mode, "split.test_objects_fraction": test_objects,

@@ -135,9 +135,9 @@ class AppState:
 
 def check_catalog_file(db: str | None) -> None:
     """A CatalogError when ``db`` is an existing SQLite file that is not a usable catalog (read only)."""
-    from mixcount.catalog.db import _sqlite_file, check_sqlite_file, head_revision, resolve_db_url
+    from mixcount.catalog.db import check_sqlite_file, head_revision, resolve_db_url, sqlite_file
 
-    path = _sqlite_file(resolve_db_url(db))
+    path = sqlite_file(resolve_db_url(db))
     if path is not None and path.is_file():
         check_sqlite_file(path, head_revision())
 
@@ -146,10 +146,10 @@ def require_existing_catalog(db: str | None) -> None:
     """A CatalogError when ``db`` resolves to a SQLite file that does not exist (other backends pass)."""
     import os
 
-    from mixcount.catalog.db import _sqlite_file, resolve_db_url
+    from mixcount.catalog.db import resolve_db_url, sqlite_file
     from mixcount.errors import CatalogError
 
-    path = _sqlite_file(resolve_db_url(db))
+    path = sqlite_file(resolve_db_url(db))
     if path is None or path.exists():
         return
     given = ("--db" if db else "MIXCOUNT_DB") if (db or os.environ.get("MIXCOUNT_DB")) else "the default catalog/catalog.db"

@@ -122,7 +122,7 @@ def _check_inputs(paths: list[Path], layout: str, metadata: list[Path],
     reported on stderr by name, with a count per format, as are the links not followed again (loops,
     repeated targets: appended to ``repeats``). Returns the skipped (path, reason) pairs."""
     from mixcount.catalog.ingest import discover
-    from mixcount.catalog.layouts.walk import UNREAD_MODEL_FORMATS
+    from mixcount.catalog.layouts.discovery import UNREAD_MODEL_FORMATS
     from mixcount.catalog.mesh import MESH_EXTENSIONS
     from mixcount.catalog.naming import safe_text
 

@@ -25,37 +25,39 @@ def _lines(summary: Any) -> list[str]:
     return lines
 
 
-def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
-    @app.command("render")
-    def render(
-        ctx: typer.Context,
-        dataset: Path = typer.Argument(..., help="A composed dataset (DATASET/scenes/<scene_id>/settled.usda)."),
-        out_dir: Path = typer.Option(..., "--out", help="New dataset folder (must not exist or be empty)."),
-        resolution: Optional[int] = typer.Option(None, "--resolution", min=16, help="Image side in pixels (rerender.resolution; default: each scene's own)."),
-        samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Cycles samples of the RGB render (rerender.samples; default: each scene's own)."),
-        views: Optional[int] = typer.Option(None, "--views", min=0, help="New cameras by the paper's camera rule around each settled pile (rerender.new_views)."),
-        trajectory: Optional[str] = typer.Option(None, "--trajectory", help="none or orbit (rerender.trajectory)."),
-        frames: Optional[int] = typer.Option(None, "--frames", min=1, help="Cameras along the orbit (rerender.frames)."),
-        rule: Optional[str] = typer.Option(None, "--rule", help="all_cameras (the paper's) or per_view (rerender.annotation_rule)."),
-        device: Optional[str] = typer.Option(None, "--device", help="cpu, gpu or auto (rerender.device)."),
-        passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes besides rgb.png (compose.passes)."),
-        oracle: bool = typer.Option(False, "--oracle", help="Also run the one-render-per-object reference per view (slow; oracle_masks*.npz)."),
-        no_merge: bool = typer.Option(False, "--no-merge", help="Skip the merge at the end."),
-        json_out: bool = json_option("the run's summary"),
-    ) -> None:
-        """Render the finished scenes of DATASET again into a new dataset: no physics, no re-placement."""
-        from mixcount.run.rerender import rerender_dataset
-        from mixcount.worker.client import BlenderWorker
+def render_cmd(
+    ctx: typer.Context,
+    dataset: Path = typer.Argument(..., help="A composed dataset (DATASET/scenes/<scene_id>/settled.usda)."),
+    out_dir: Path = typer.Option(..., "--out", help="New dataset folder (must not exist or be empty)."),
+    resolution: Optional[int] = typer.Option(None, "--resolution", min=16, help="Image side in pixels (rerender.resolution; default: each scene's own)."),
+    samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Cycles samples of the RGB render (rerender.samples; default: each scene's own)."),
+    views: Optional[int] = typer.Option(None, "--views", min=0, help="New cameras by the paper's camera rule around each settled pile (rerender.new_views)."),
+    trajectory: Optional[str] = typer.Option(None, "--trajectory", help="none or orbit (rerender.trajectory)."),
+    frames: Optional[int] = typer.Option(None, "--frames", min=1, help="Cameras along the orbit (rerender.frames)."),
+    rule: Optional[str] = typer.Option(None, "--rule", help="all_cameras (the paper's) or per_view (rerender.annotation_rule)."),
+    device: Optional[str] = typer.Option(None, "--device", help="cpu, gpu or auto (rerender.device)."),
+    passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes besides rgb.png (compose.passes)."),
+    oracle: bool = typer.Option(False, "--oracle", help="Also run the one-render-per-object reference per view (slow; oracle_masks*.npz)."),
+    no_merge: bool = typer.Option(False, "--no-merge", help="Skip the merge at the end."),
+    json_out: bool = json_option("the run's summary"),
+) -> None:
+    """Render the finished scenes of DATASET again into a new dataset: no physics, no re-placement."""
+    from mixcount.run.rerender import rerender_dataset
+    from mixcount.worker.client import BlenderWorker
 
-        cfg = state(ctx).config(values={
-            "rerender.resolution": resolution, "rerender.samples": samples, "rerender.new_views": views,
-            "rerender.trajectory": trajectory, "rerender.frames": frames, "rerender.annotation_rule": rule,
-            "rerender.device": device,
-            "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()]})
-        worker = BlenderWorker(name="rerender", log_dir=Path(tempfile.gettempdir()))
-        try:
-            summary = rerender_dataset(dataset, out_dir, cfg, worker, oracle=oracle, merge=not no_merge,
-                                       progress=lambda k, n: console.print(f"scene {k}/{n}", highlight=False))
-        finally:
-            worker.close()
-        result(_lines(summary), summary.to_dict(), json_out)
+    cfg = state(ctx).config(values={
+        "rerender.resolution": resolution, "rerender.samples": samples, "rerender.new_views": views,
+        "rerender.trajectory": trajectory, "rerender.frames": frames, "rerender.annotation_rule": rule,
+        "rerender.device": device,
+        "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()]})
+    worker = BlenderWorker(name="rerender", log_dir=Path(tempfile.gettempdir()))
+    try:
+        summary = rerender_dataset(dataset, out_dir, cfg, worker, oracle=oracle, merge=not no_merge,
+                                   progress=lambda k, n: console.print(f"scene {k}/{n}", highlight=False))
+    finally:
+        worker.close()
+    result(_lines(summary), summary.to_dict(), json_out)
+
+
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    app.command("render")(render_cmd)

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from mixcount.errors import PredictionError
-from mixcount.evaluate.metrics import PredictionRow, _is_int, parse_predictions, read_json
+from mixcount.evaluate.metrics import PredictionRow, is_int, parse_predictions, read_json
 
 DEFAULT_SCORE_THRESHOLD = 0.5
 _COUNT_KEYS = ("count", "boxes", "points")
@@ -56,7 +56,7 @@ def detection_rows(doc: Any, score_threshold: float = DEFAULT_SCORE_THRESHOLD,
     for i, r in enumerate(_rows(doc)):
         where = f"{source}: detection {i}"
         img_id, cat_id = r.get("image_id"), r.get("category_id")
-        if not _is_int(img_id) or not _is_int(cat_id):
+        if not is_int(img_id) or not is_int(cat_id):
             raise PredictionError(f"{where}: needs integer 'image_id' and 'category_id'")
         if not _finite(r["score"]):
             raise PredictionError(f"{where}: 'score' must be a finite number, got {r['score']!r}")

@@ -61,7 +61,8 @@ class GroundTruth:
         return "counted" if pair in self.counted else "distractor"
 
 
-def _is_int(value: Any) -> bool:
+def is_int(value: Any) -> bool:
+    """An int as JSON ids are (``True`` is not an id): shared by the COCO and detection readers."""
     return isinstance(value, int) and not isinstance(value, bool)
 
 
@@ -113,12 +114,12 @@ def ground_truth_from_coco(doc: Any, source: str = "<memory>") -> GroundTruth:
             raise GroundTruthError(f"{source}: COCO key {key!r} is missing or not a list")
     images: dict[int, Mapping[str, Any]] = {}
     for i, img in enumerate(doc["images"]):
-        if not isinstance(img, dict) or not _is_int(img.get("id")):
+        if not isinstance(img, dict) or not is_int(img.get("id")):
             raise GroundTruthError(f"{source}: images[{i}] has no integer 'id'")
         images[img["id"]] = img
     categories: dict[int, Mapping[str, Any]] = {}
     for i, cat in enumerate(doc["categories"]):
-        if not isinstance(cat, dict) or not _is_int(cat.get("id")):
+        if not isinstance(cat, dict) or not is_int(cat.get("id")):
             raise GroundTruthError(f"{source}: categories[{i}] has no integer 'id'")
         categories[cat["id"]] = cat
     counts: dict[Pair, int] = defaultdict(int)
@@ -127,7 +128,7 @@ def ground_truth_from_coco(doc: Any, source: str = "<memory>") -> GroundTruth:
         if not isinstance(ann, dict):
             raise GroundTruthError(f"{source}: annotations[{i}] is not an object")
         img_id, cat_id = ann.get("image_id"), ann.get("category_id")
-        if not _is_int(img_id) or not _is_int(cat_id):
+        if not is_int(img_id) or not is_int(cat_id):
             raise GroundTruthError(f"{source}: annotations[{i}] needs integer 'image_id' and 'category_id'")
         if img_id not in images:
             raise GroundTruthError(f"{source}: annotations[{i}] refers to unknown image_id {img_id}")
@@ -200,7 +201,7 @@ def parse_predictions(doc: Any, source: str = "<memory>") -> list[PredictionRow]
         if not isinstance(row, dict):
             raise PredictionError(f"{where}: must be an object, got {type(row).__name__}")
         img_id, cat_id = row.get("image_id"), row.get("category_id")
-        if not _is_int(img_id) or not _is_int(cat_id):
+        if not is_int(img_id) or not is_int(cat_id):
             raise PredictionError(f"{where}: needs integer 'image_id' and 'category_id'")
         extra = {k: v for k, v in row.items() if k not in ("image_id", "category_id", "count", "boxes", "points")}
         rows.append(PredictionRow(int(img_id), int(cat_id), _row_count(row, where), extra))  # type: ignore[arg-type]

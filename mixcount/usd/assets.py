@@ -14,15 +14,16 @@ When the object has a convex collision proxy (:mod:`mixcount.catalog.proxies`), 
 prims unless asked) and ``UsdPhysics.CollisionAPI`` + ``MeshCollisionAPI`` (approximation
 ``convexHull``), the collider of every instance of the asset.
 
-Geometry comes from trimesh (GLB/GLTF/OBJ/PLY/STL): every node of the scene graph is placed by its
-world transform, scaled to metres and turned Z-up exactly as ingest does (glTF Y-up: (x, y, z) ->
-(x, -z, y)), so the asset's size equals the catalog's dims. Materials become UsdPreviewSurface with
-UsdUVTexture readers for base colour, metallic-roughness (glTF packing: G = roughness, B = metallic)
-and normal maps; vertex or face colours become ``displayColor``. A part with none of these (an STL or
-PLY CAD export) gets the object's palette look (``look``: :func:`mixcount.catalog.materials.object_look`)
-as a plain UsdPreviewSurface instead of the renderer's default near-white; the look is recorded in the
-layer, so a changed look converts the asset again. USD/USDZ sources are wrapped: the asset references the
-source file under a transform to metres, Z-up and centred.
+Geometry comes from trimesh (GLB/GLTF/OBJ/PLY/STL; read into parts by :mod:`mixcount.usd.model_parts`):
+every node of the scene graph is placed by its world transform, scaled to metres and turned Z-up exactly
+as ingest does (glTF Y-up: (x, y, z) -> (x, -z, y)), so the asset's size equals the catalog's dims.
+Materials become UsdPreviewSurface with UsdUVTexture readers for base colour, metallic-roughness (glTF
+packing: G = roughness, B = metallic) and normal maps; vertex or face colours become ``displayColor``.
+A part with none of these (an STL or PLY CAD export) gets the object's palette look (``look``:
+:func:`mixcount.catalog.materials.object_look`) as a plain UsdPreviewSurface instead of the renderer's
+default near-white; the look is recorded in the layer, so a changed look converts the asset again.
+USD/USDZ sources are wrapped: the asset references the source file under a transform to metres, Z-up
+and centred.
 """
 
 from __future__ import annotations
@@ -37,10 +38,10 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.catalog.materials import material_vertex_colours, srgb_to_linear
 from mixcount.errors import AssetError, CompositionError
-from mixcount.frame import source_frame, to_metres_z_up, up_axis_rotation, walk_geometry
+from mixcount.frame import source_frame, up_axis_rotation
 from mixcount.usd.mesh_clean import add_counts, clean_triangles
+from mixcount.usd.model_parts import Part, load_parts, look_tag
 from mixcount.usd.read import CONVEX_PARTS_PRIM
 from mixcount.usd.usd_source import override_invalid_faces, usd_bounds
 
@@ -63,113 +64,6 @@ class AssetPaths:
 
 def asset_key(content_hash: str, model_path: str) -> str:
     return content_hash or hashlib.sha256(str(model_path).encode()).hexdigest()
-
-
-# ------------------------------------------------------------------------------------ trimesh side
-
-
-@dataclass
-class _Part:
-    points: np.ndarray
-    faces: np.ndarray
-    normals: Optional[np.ndarray]
-    uv: Optional[np.ndarray]
-    material: Optional[dict[str, Any]]  # base_color_factor, images, metallic, roughness
-    display_color: Optional[np.ndarray]
-    color_interp: str = "vertex"
-
-
-def _image(obj: Any) -> Any:
-    try:
-        from PIL import Image
-
-        return obj if isinstance(obj, Image.Image) else None
-    except Exception:  # pragma: no cover
-        return None
-
-
-def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarray], str]:
-    visual = getattr(geom, "visual", None)
-    kind = getattr(visual, "kind", None)
-    if kind == "texture" or (visual is not None and hasattr(visual, "material") and kind is None):
-        mat = visual.material
-        info: dict[str, Any] = {"base_color_factor": [0.8, 0.8, 0.8, 1.0], "metallic": 0.0, "roughness": 0.5}
-        factor = getattr(mat, "baseColorFactor", None)
-        if factor is not None or type(mat).__name__ == "PBRMaterial":  # unset: glTF's default, 1
-            factor = [1.0, 1.0, 1.0, 1.0] if factor is None else factor
-            f = np.asarray(factor, dtype=float).ravel()
-            info["base_color_factor"] = list((f / 255.0 if f.max() > 1.0 else f).tolist()) + [1.0] * (4 - len(f))
-        elif getattr(mat, "diffuse", None) is not None:  # an .mtl's Kd; with a map_Kd the map alone, as Blender
-            d = np.asarray(mat.diffuse, dtype=float).ravel() if _image(getattr(mat, "image", None)) is None else 255.0
-            info["base_color_factor"] = list((np.broadcast_to(d / 255.0, (4,))).tolist())
-        if getattr(mat, "metallicFactor", None) is not None:
-            info["metallic"] = float(mat.metallicFactor)
-        if getattr(mat, "roughnessFactor", None) is not None:
-            info["roughness"] = float(mat.roughnessFactor)
-        info["base_color_tex"] = _image(getattr(mat, "baseColorTexture", None)) or _image(getattr(mat, "image", None))
-        info["mr_tex"] = _image(getattr(mat, "metallicRoughnessTexture", None))
-        info["normal_tex"] = _image(getattr(mat, "normalTexture", None))
-        return info, None, "vertex"
-    if kind == "vertex":
-        return None, np.asarray(visual.vertex_colors, dtype=float)[:, :3] / 255.0, "vertex"
-    if kind == "face":
-        return None, np.asarray(visual.face_colors, dtype=float)[:, :3] / 255.0, "uniform"
-    return None, None, "vertex"
-
-
-def _load_parts(model_path: Path, scale: float, up: str, look: Optional[tuple[float, ...]] = None) -> list[_Part]:
-    import trimesh
-
-    try:
-        scene = trimesh.load(str(model_path), force="scene", process=False)
-    except Exception as exc:
-        raise CompositionError(f"cannot load model {model_path} for USD conversion: {exc}") from None
-    rot = up_axis_rotation(up)
-    parts: list[_Part] = []
-    for _node, transform, geom in walk_geometry(scene):
-        pts = to_metres_z_up(trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform),
-                             scale, up)
-        lin = np.asarray(transform)[:3, :3]
-        normals = None
-        try:
-            vn = np.asarray(geom.vertex_normals, dtype=np.float64)
-            if len(vn) == len(pts):
-                normals = vn @ np.linalg.inv(lin) @ rot.T  # row vectors: n (inverse-transpose of L)
-                normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-        except Exception:
-            normals = None
-        mat, colors, interp = _material_of(geom)
-        if mat is not None and colors is None:
-            colors = material_vertex_colours(geom.visual, len(pts))
-            if colors is not None:
-                mat["vertex_color"] = True  # glTF COLOR_0 under a material: base = factor x colour
-        if mat is None and colors is not None:  # plain vertex/face colours: a material that reads them
-            mat = {"base_color_factor": [1.0, 1.0, 1.0, 1.0], "metallic": 0.0, "roughness": 0.5,
-                   "vertex_color": True}
-        if mat is None and colors is None and look is not None:  # no colour of its own: the palette look
-            mat = look_material(look)
-        uv = getattr(geom.visual, "uv", None) if mat is not None else None
-        if uv is not None and len(uv) != len(pts):
-            uv = None
-        if mat is not None and mat.get("vertex_color") and colors is not None:
-            colors = colors * np.asarray(mat["base_color_factor"][:3], dtype=np.float64)
-        parts.append(_Part(pts, np.asarray(geom.faces, dtype=np.int64), normals,
-                           None if uv is None else np.asarray(uv, dtype=np.float64), mat, colors, interp))
-    if not parts:
-        raise CompositionError(f"model {model_path} has no triangle geometry to convert")
-    return parts
-
-
-def look_material(look: tuple[float, ...]) -> dict[str, Any]:
-    """The material of a part without a colour: ``look`` = (sRGB r, g, b, metallic, roughness)."""
-    linear = srgb_to_linear(look[:3])
-    return {"base_color_factor": [float(c) for c in linear] + [1.0], "metallic": float(look[3]),
-            "roughness": float(look[4]), "base_color_tex": None, "mr_tex": None, "normal_tex": None}
-
-
-def look_tag(look: Optional[tuple[float, ...]]) -> str:
-    """How a layer records the look it was converted with ("" = none)."""
-    return "" if look is None else ",".join(f"{float(v):.4f}" for v in look)
 
 
 # ------------------------------------------------------------------------------------ pxr side
@@ -249,7 +143,7 @@ def _define_material(stage: Any, mat_path: str, info: dict[str, Any], tex_dir: P
     return material
 
 
-def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray,
+def _define_mesh(stage: Any, path: str, part: Part, center: np.ndarray,
                  removed: Optional[dict[str, int]] = None) -> Any:
     """One Mesh prim of ``part`` without degenerate or invalid triangles (their counts added to ``removed``)."""
     from pxr import UsdGeom, Vt
@@ -257,7 +151,7 @@ def _define_mesh(stage: Any, path: str, part: _Part, center: np.ndarray,
     per_face = part.display_color if part.color_interp != "vertex" else None
     faces, per_face, counts = clean_triangles(part.points, part.faces, per_face)
     if counts:
-        part = _Part(part.points, faces, part.normals, part.uv, part.material,
+        part = Part(part.points, faces, part.normals, part.uv, part.material,
                      per_face if part.color_interp != "vertex" else part.display_color, part.color_interp)
         add_counts(removed if removed is not None else {}, counts)
     mesh = UsdGeom.Mesh.Define(stage, path)
@@ -385,7 +279,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
             check_proxy_fits(proxy, lo, hi, model)
         _write_layer_atomically(lambda p, _t: _wrap_usd(p, key, model, center, proxy), visual, None)
     else:
-        parts = _load_parts(model, scale, up, look)
+        parts = load_parts(model, scale, up, look)
         allpts = np.vstack([p.points for p in parts])
         center = (allpts.min(0) + allpts.max(0)) / 2
         if proxy is not None:
@@ -447,7 +341,7 @@ def _define_proxy(stage: Any, ply: Path, center: np.ndarray) -> None:
     from mixcount.catalog.proxies import read_proxy
 
     verts, faces = read_proxy(ply)
-    mesh = _define_mesh(stage, PROXY_PRIM, _Part(verts, faces, None, None, None, None), center)
+    mesh = _define_mesh(stage, PROXY_PRIM, Part(verts, faces, None, None, None, None), center)
     mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)
     UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
     UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
@@ -470,7 +364,7 @@ def _write_collision(path: Path, key: str, ply: Path, center: np.ndarray) -> Non
         raise CompositionError(f"collision mesh {ply} does not exist")
     mesh = trimesh.load(str(ply), force="mesh", process=False)
     stage, _root = _start_stage(path, key, str(ply), center, "")
-    part = _Part(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64),
+    part = Part(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64),
                  None, None, None, None)
     _define_mesh(stage, "/Asset/collision", part, center)
     _define_convex_parts(stage, mesh, center)
@@ -502,7 +396,7 @@ def _define_convex_parts(stage: Any, mesh: Any, center: np.ndarray) -> None:
         if len(verts) < 4 or len(faces) < 4:
             continue
         usd_mesh = _define_mesh(stage, f"{CONVEX_PARTS_PRIM}/part_{k:03d}",
-                                _Part(verts, faces, None, None, None, None), center)
+                                Part(verts, faces, None, None, None, None), center)
         usd_mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)
         UsdPhysics.CollisionAPI.Apply(usd_mesh.GetPrim())
         UsdPhysics.MeshCollisionAPI.Apply(usd_mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)

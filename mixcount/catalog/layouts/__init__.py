@@ -28,13 +28,11 @@ reading: folders that look like an object of that layout but lack its model beco
 layout-specific reason, and other layouts' folder rules are not applied.
 
 One module per layout (``dtc``, ``gso``, ``omniobject3d``: folder layouts with ``detect`` / ``read``;
-``objaverse`` and ``folder``: file-level readers), shared pieces in :mod:`.base`, the walk in :mod:`.walk`.
+``objaverse`` and ``folder``: file-level readers), what every reader shares (the :class:`Candidate`, folder, metadata and licence readers)
+in :mod:`.candidates`, the walk over a tree and the staging in :mod:`.discovery`.
 """
 
-from mixcount.catalog.layouts.gso import gso_identity, parse_pbtxt
-from mixcount.catalog.layouts.objaverse import SideMetadata
-from mixcount.catalog.layouts.walk import LAYOUTS, discover, stage
-from mixcount.catalog.layouts.walker import (
+from mixcount.catalog.layouts.candidates import (
     SOURCE_DTC,
     SOURCE_FOLDER,
     SOURCE_GSO,
@@ -44,6 +42,9 @@ from mixcount.catalog.layouts.walker import (
     broken_path_candidate,
     record_identity,
 )
+from mixcount.catalog.layouts.discovery import LAYOUTS, discover, stage
+from mixcount.catalog.layouts.gso import gso_identity, parse_pbtxt
+from mixcount.catalog.layouts.objaverse import SideMetadata
 
 __all__ = ["LAYOUTS", "SOURCE_DTC", "SOURCE_FOLDER", "SOURCE_GSO", "SOURCE_OBJAVERSE", "SOURCE_OMNI", "Candidate",
            "SideMetadata", "broken_path_candidate", "discover", "gso_identity", "parse_pbtxt", "record_identity",

@@ -7,15 +7,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from mixcount.catalog.layouts.walker import (
+from mixcount.catalog.layouts.candidates import (
     SOURCE_DTC,
     Candidate,
     Walker,
-    _licence_file,
-    _model_files,
-    _preferred,
     is_dir,
     json_object,
+    licence_file_in,
+    model_files_in,
+    preferred_model,
     read_licence_into,
     record_identity,
 )
@@ -46,7 +46,7 @@ def detect(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> bool:
         return True
     if DTC_NAME.match(folder.name) and not dirs:
         return True
-    return lay == "dtc" and not dirs and ("metadata.json" in names or bool(_model_files(entries)))
+    return lay == "dtc" and not dirs and ("metadata.json" in names or bool(model_files_in(entries)))
 
 
 def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
@@ -60,9 +60,9 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
     if reason:
         cand.error = reason
         return cand
-    models = _model_files(entries)
+    models = model_files_in(entries)
     own = [p for p in models if p.stem == DTC_MODEL]
-    cand.model_path = _preferred(own) if own else (_preferred(models) if models else None)
+    cand.model_path = preferred_model(own) if own else (preferred_model(models) if models else None)
     if cand.model_path is None:
         cand.error = f"DTC folder has no {DTC_MODEL}.glb (and no other model file)"
         return cand
@@ -80,7 +80,7 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
             cand.category = category_text(ident["category"])
         cand.units, cand.up_axis = ident["units"], ident["up_axis"]
         cand.license = ident["license"]
-    lic = _licence_file(entries)  # a licence file beats a licence field
+    lic = licence_file_in(entries)  # a licence file beats a licence field
     if lic is not None:
         read_licence_into(cand, lic)
     ctx.apply_licence(cand, folder)

@@ -20,17 +20,17 @@ from typing import Any, Iterator
 import numpy as np
 
 import mixcount.json_input as json_input
-from mixcount.catalog.layouts.companions import RobotDescription, companion_base, companion_kind, descriptions_in
-from mixcount.catalog.layouts.parts import auto_parts, check_parts, same_model_formats
-from mixcount.catalog.layouts.walker import (
+from mixcount.catalog.layouts.candidates import (
     MODEL_PREFERENCE,
     SOURCE_FOLDER,
     Candidate,
     Walker,
-    _preferred,
     apply_identity,
+    preferred_model,
     record_identity,
 )
+from mixcount.catalog.layouts.companions import RobotDescription, companion_base, companion_kind, descriptions_in
+from mixcount.catalog.layouts.parts import auto_parts, check_parts, same_model_formats
 from mixcount.catalog.naming import GENERIC_FOLDERS, GENERIC_STEMS, category_from_name, category_from_stem, safe_text
 from mixcount.errors import IngestError
 
@@ -86,7 +86,7 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
     if len(main) > 1 and len(described) == 1 and record is None:
         main = [m for m in main if m.name == described[0].visual]  # the URDF names the model
     if len(main) == 1 or (record is not None and rule != "separate") or meta_error:
-        model = main[0] if len(main) == 1 else _preferred(main)
+        model = main[0] if len(main) == 1 else preferred_model(main)
         desc = next((d for d in described if d.visual == model.name), None)
         yield _folder_object(ctx, folder, model, models, record, meta_error, meta_path, companions, desc,
                              parts_rule=why, copies=copies)

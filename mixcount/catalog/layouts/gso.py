@@ -10,14 +10,14 @@ import re
 from pathlib import Path
 from typing import Any
 
-from mixcount.catalog.layouts.walker import (
+from mixcount.catalog.layouts.candidates import (
     SOURCE_GSO,
     Candidate,
     Walker,
-    _model_files,
-    _preferred,
-    _scan,
     is_dir,
+    model_files_in,
+    preferred_model,
+    scan_folder,
 )
 from mixcount.catalog.naming import category_from_name, category_text, odd_name_reason, safe_text
 
@@ -46,12 +46,12 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
         return cand
     meshes = folder / "meshes"
     try:
-        models = _model_files(_scan(meshes)) if meshes.is_dir() else []
+        models = model_files_in(scan_folder(meshes)) if meshes.is_dir() else []
     except OSError as exc:
         cand.error = f"unreadable folder meshes/: {exc.strerror or exc}"
         return cand
     objs = [p for p in models if p.name == "model.obj"] or [p for p in models if p.suffix.lower() == ".obj"]
-    cand.model_path = objs[0] if objs else (_preferred(models) if models else None)
+    cand.model_path = objs[0] if objs else (preferred_model(models) if models else None)
     pbtxt = folder / "metadata.pbtxt"
     if pbtxt.is_file():
         cand.sidecars["metadata.pbtxt"] = pbtxt

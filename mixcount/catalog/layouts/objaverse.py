@@ -15,14 +15,14 @@ from pathlib import Path
 from typing import Any, Iterable, Iterator, Optional
 
 import mixcount.json_input as json_input
-from mixcount.catalog.layouts.walker import (
+from mixcount.catalog.layouts.candidates import (
     SOURCE_OBJAVERSE,
     Candidate,
     Walker,
-    _model_files,
-    _scan,
     apply_identity,
+    model_files_in,
     record_identity,
+    scan_folder,
 )
 from mixcount.catalog.naming import category_from_stem, safe_text
 from mixcount.errors import CatalogError
@@ -128,7 +128,7 @@ class SideMetadata:
         if folder not in self._dir_files:
             files = []
             try:
-                for e in _scan(folder):
+                for e in scan_folder(folder):
                     if e.name.startswith(".") or e.name == "metadata.json" and _has_single_model(folder):
                         continue
                     if e.name.lower().endswith(SIDE_SUFFIXES) and e.is_file():
@@ -163,6 +163,6 @@ class SideMetadata:
 
 def _has_single_model(folder: Path) -> bool:
     try:
-        return len(_model_files(_scan(folder))) == 1
+        return len(model_files_in(scan_folder(folder))) == 1
     except OSError:
         return False

@@ -7,7 +7,15 @@ import os
 import re
 from pathlib import Path
 
-from mixcount.catalog.layouts.walker import SOURCE_OMNI, Candidate, Walker, _model_files, _preferred, _scan, is_dir
+from mixcount.catalog.layouts.candidates import (
+    SOURCE_OMNI,
+    Candidate,
+    Walker,
+    is_dir,
+    model_files_in,
+    preferred_model,
+    scan_folder,
+)
 from mixcount.catalog.naming import category_text, odd_name_reason, safe_text
 
 NAME = SOURCE_OMNI
@@ -31,7 +39,7 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
         return cand
     scan = folder / "Scan"
     try:
-        models = _model_files(_scan(scan))
+        models = model_files_in(scan_folder(scan))
     except OSError as exc:
         cand.error = f"unreadable folder Scan/: {exc.strerror or exc}"
         return cand
@@ -39,6 +47,6 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
     if not objs:
         cand.error = "OmniObject3D folder has no Scan/Scan.obj"
         return cand
-    cand.model_path = _preferred(objs)
+    cand.model_path = preferred_model(objs)
     ctx.apply_licence(cand, folder)
     return cand

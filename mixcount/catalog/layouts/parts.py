@@ -16,7 +16,7 @@ models. The rule (recorded with the object as ``parts_rule``):
    not either: ``chair_1.obj`` ... ``chair_9.obj`` may be nine chairs side by side.
 
 The same stem in several formats (``nut.step`` + ``nut.stl``) is one model exported twice, never two
-parts: the preferred format is kept (:data:`mixcount.catalog.layouts.walker.MODEL_PREFERENCE`).
+parts: the preferred format is kept (:data:`mixcount.catalog.layouts.candidates.MODEL_PREFERENCE`).
 The folder given to ``catalog ingest`` itself is a folder of loose files: rule 3 does not apply there.
 """
 

@@ -21,13 +21,13 @@ from typing import Iterable, Iterator
 from mixcount.atomic import write_text_atomic
 from mixcount.catalog.layouts import folder as folder_layout
 from mixcount.catalog.layouts import objaverse
-from mixcount.catalog.layouts.walker import (
+from mixcount.catalog.layouts.candidates import (
     LICENCE_NAMES,
     SOURCE_FOLDER,
     Candidate,
-    _read_licence,
-    _scan,
     broken_path_candidate,
+    read_licence,
+    scan_folder,
 )
 from mixcount.catalog.mesh import MESH_EXTENSIONS
 from mixcount.catalog.model_files import relink_textures
@@ -37,11 +37,10 @@ from mixcount.errors import CatalogError
 
 def _folder_layouts() -> tuple[ModuleType, ...]:
     """The layout modules that recognise an object folder by itself, in ``PRIORITY`` order."""
-    import mixcount.catalog.layouts as package
-
+    package = __name__.rpartition(".")[0]  # by name and folder: the package imports this module (no circle)
     found = []
-    for info in pkgutil.iter_modules(package.__path__):
-        module = importlib.import_module(f"{package.__name__}.{info.name}")
+    for info in pkgutil.iter_modules([str(Path(__file__).parent)]):
+        module = importlib.import_module(f"{package}.{info.name}")
         if hasattr(module, "detect") and hasattr(module, "read"):
             found.append(module)
     return tuple(sorted(found, key=lambda m: m.PRIORITY))
@@ -78,9 +77,9 @@ class TreeWalker:
         if folder not in self._licences:
             found = None
             try:
-                for e in _scan(folder):
+                for e in scan_folder(folder):
                     if LICENCE_NAMES.match(e.name) and e.is_file():
-                        found = (_read_licence(Path(e.path)), Path(e.path))
+                        found = (read_licence(Path(e.path)), Path(e.path))
                         break
             except OSError:
                 pass
@@ -130,7 +129,7 @@ class TreeWalker:
     def object_at(self, folder: Path) -> Candidate | None:
         """The object a folder is by itself (a path given directly), or None to walk it."""
         try:
-            entries = _scan(folder)
+            entries = scan_folder(folder)
         except OSError as exc:
             return broken_path_candidate(folder, exc)
         return self.folder_object(folder, entries)
@@ -152,7 +151,7 @@ class TreeWalker:
         """The objects of one folder; its sub-folders are appended to ``subdirs`` (``linked`` for links)."""
         try:
             st = os.stat(folder)
-            entries = [e for e in _scan(folder) if not e.name.startswith(".")]
+            entries = [e for e in scan_folder(folder) if not e.name.startswith(".")]
         except OSError as exc:
             yield broken_path_candidate(folder, exc)
             return

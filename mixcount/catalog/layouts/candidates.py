@@ -66,7 +66,7 @@ class Candidate:
 
 
 class Walker(Protocol):
-    """What a layout reader may ask of the walk (:class:`mixcount.catalog.layouts.walk.TreeWalker`)."""
+    """What a layout reader may ask of the walk (:class:`mixcount.catalog.layouts.discovery.TreeWalker`)."""
 
     root: Path  # the path given; licences are inherited up to it
     layout: str  # the forced layout, or "auto"
@@ -77,7 +77,7 @@ class Walker(Protocol):
     def file_object(self, path: Path) -> Candidate: ...
 
 
-def _model_files(entries: list[os.DirEntry]) -> list[Path]:
+def model_files_in(entries: list[os.DirEntry]) -> list[Path]:
     out = []
     for e in entries:
         if e.name.startswith(".") or Path(e.name).suffix.lower() not in MESH_EXTENSIONS:
@@ -90,12 +90,12 @@ def _model_files(entries: list[os.DirEntry]) -> list[Path]:
     return out
 
 
-def _preferred(files: list[Path]) -> Path:
+def preferred_model(files: list[Path]) -> Path:
     """The main model among several files of one object: GLB first, STL last, then by name."""
     return min(files, key=lambda p: (MODEL_PREFERENCE.index(p.suffix.lower()), p.name))
 
 
-def _scan(folder: Path) -> list[os.DirEntry]:
+def scan_folder(folder: Path) -> list[os.DirEntry]:
     return sorted(os.scandir(folder), key=lambda e: e.name)
 
 
@@ -173,7 +173,7 @@ def apply_identity(cand: Candidate, ident: dict[str, str | None]) -> None:
     cand.units_reason = "stated in the object's metadata" if ident["units"] else None
 
 
-def _read_licence(path: Path) -> str:
+def read_licence(path: Path) -> str:
     return path.read_text(encoding="utf-8", errors="replace")[:LICENCE_CHARS].strip()
 
 
@@ -192,12 +192,12 @@ def json_object(path: Path, cand: Candidate) -> dict[str, Any] | None:
 def read_licence_into(cand: Candidate, path: Path) -> None:
     cand.sidecars[path.name] = path
     try:
-        cand.license = _read_licence(path)
+        cand.license = read_licence(path)
     except OSError as exc:
         cand.error = f"unreadable licence file {path.name}: {exc.strerror}"
 
 
-def _licence_file(entries: list[os.DirEntry]) -> Path | None:
+def licence_file_in(entries: list[os.DirEntry]) -> Path | None:
     for e in entries:
         if LICENCE_NAMES.match(e.name):
             try:

@@ -1,0 +1,86 @@
+"""Step 3 of `catalog ingest`: the mesh analysis of many models (:func:`mixcount.catalog.mesh.analyse_model`),
+in a process pool when more than one worker is set, each result handed to the caller as it finishes.
+
+Kept apart from :mod:`mixcount.catalog.ingest` (which stores each result) because it is the one part that
+deals with processes: a worker that dies (segfault, OOM kill) takes its pool with it, so the models it held
+are retried one per fresh process, and the one that crashes is the one recorded as broken."""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any, Callable, TypeVar
+
+from mixcount.catalog.layouts import Candidate
+from mixcount.errors import IngestError
+from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
+
+Job = TypeVar("Job")
+Facts = tuple[dict[str, Any] | None, str | None]  # (facts, None) or (None, why the model is broken)
+
+
+def analysis_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :func:`mixcount.catalog.mesh.analyse_model` for one candidate."""
+    return {
+        "model_path": str(cand.model_path),
+        "collision_dir": str(catalog_collision_dir),
+        "face_budget": settings["collision_face_budget"],
+        "units": (cand.units or settings["assume_units"]),
+        "units_reason": cand.units_reason or "",
+        "up_axis": (cand.up_axis or (GLTF_UP_AXIS if Path(str(cand.model_path)).suffix.lower() in GLTF_EXTENSIONS
+                                     else settings["assume_up_axis"])),
+        "proxy_max_vertices": settings["proxy_max_vertices"],
+        "collision_source": str(cand.collision_source) if cand.collision_source else None,
+        "facts_face_budget": settings["facts_face_budget"],
+    }
+
+
+def run_analysis(kwargs: dict[str, Any]) -> Facts:
+    """Process-pool task: (facts, None) or (None, reason). Never raises for a bad model."""
+    from mixcount.catalog.mesh import analyse_model
+
+    try:
+        return analyse_model(**kwargs), None
+    except IngestError as exc:
+        return None, exc.reason
+    except MemoryError:
+        return None, "out of memory while analysing the mesh"
+    except Exception as exc:  # a library bug on a weird file must not stop the batch
+        return None, f"mesh analysis failed: {type(exc).__name__}: {str(exc)[:200]}"
+
+
+def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
+                finish: Callable[[Job, dict[str, Any] | None, str | None], None]) -> None:
+    """Analyse each ``(job, kwargs)`` (process pool when > 1 worker and > 1 job) and call
+    ``finish(job, facts, error)`` for each as it finishes, in this process."""
+    if n_workers <= 1 or len(jobs) == 1:
+        for job, kwargs in jobs:
+            facts, error = run_analysis(kwargs)
+            finish(job, facts, error)
+        return
+
+    retry: list[tuple[Job, dict[str, Any]]] = []
+    pool = ProcessPoolExecutor(max_workers=min(n_workers, len(jobs)))
+    try:
+        futures: dict[Future, tuple[Job, dict[str, Any]]] = {pool.submit(run_analysis, kw): (job, kw)
+                                                              for job, kw in jobs}
+        for fut in as_completed(futures):
+            job, kwargs = futures[fut]
+            try:
+                facts, error = fut.result()
+            except BrokenProcessPool:
+                retry.append((job, kwargs))
+                continue
+            finish(job, facts, error)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    # A worker died (segfault, OOM kill): retry the affected objects one per fresh process so the
+    # one that crashes is identified and recorded as broken, and the others still get ingested.
+    for job, kwargs in retry:
+        with ProcessPoolExecutor(max_workers=1) as solo:
+            try:
+                facts, error = solo.submit(run_analysis, kwargs).result()
+            except BrokenProcessPool:
+                facts, error = None, "mesh analysis crashed its worker process"
+        finish(job, facts, error)
