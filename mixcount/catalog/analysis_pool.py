@@ -1,5 +1,5 @@
 """Step 3 of `catalog ingest`: the mesh analysis of many models (:func:`mixcount.catalog.mesh.analyse_model`),
-in a process pool when more than one worker is set, each result handed to the caller as it finishes.
+in a process pool when more than one worker is set, each result handed to the caller in the order of the jobs.
 
 Kept apart from :mod:`mixcount.catalog.ingest` (which stores each result) because it is the one part that
 deals with processes: a worker that dies (segfault, OOM kill) takes its pool with it, so the models it held
@@ -7,7 +7,7 @@ are retried one per fresh process, and the one that crashes is the one recorded 
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable, TypeVar
@@ -53,34 +53,36 @@ def run_analysis(kwargs: dict[str, Any]) -> Facts:
 def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
                 finish: Callable[[Job, dict[str, Any] | None, str | None], None]) -> None:
     """Analyse each ``(job, kwargs)`` (process pool when > 1 worker and > 1 job) and call
-    ``finish(job, facts, error)`` for each as it finishes, in this process."""
+    ``finish(job, facts, error)`` for each, in this process and in the order of ``jobs``.
+
+    In order, not as each finishes: the caller stores each result as a new catalog row, so the row ids (which
+    the compositor draws by) are the same whichever worker finishes first; the same library ingested twice is
+    the same catalog. The workers still run ahead; only the storing waits for the earliest job."""
     if n_workers <= 1 or len(jobs) == 1:
         for job, kwargs in jobs:
             facts, error = run_analysis(kwargs)
             finish(job, facts, error)
         return
 
-    retry: list[tuple[Job, dict[str, Any]]] = []
     pool = ProcessPoolExecutor(max_workers=min(n_workers, len(jobs)))
     try:
-        futures: dict[Future, tuple[Job, dict[str, Any]]] = {pool.submit(run_analysis, kw): (job, kw)
-                                                              for job, kw in jobs}
-        for fut in as_completed(futures):
-            job, kwargs = futures[fut]
+        futures: list[tuple[Future, Job, dict[str, Any]]] = [(pool.submit(run_analysis, kw), job, kw)
+                                                             for job, kw in jobs]
+        for fut, job, kwargs in futures:
             try:
                 facts, error = fut.result()
             except BrokenProcessPool:
-                retry.append((job, kwargs))
-                continue
+                facts, error = _solo(kwargs)
             finish(job, facts, error)
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-    # A worker died (segfault, OOM kill): retry the affected objects one per fresh process so the
-    # one that crashes is identified and recorded as broken, and the others still get ingested.
-    for job, kwargs in retry:
-        with ProcessPoolExecutor(max_workers=1) as solo:
-            try:
-                facts, error = solo.submit(run_analysis, kwargs).result()
-            except BrokenProcessPool:
-                facts, error = None, "mesh analysis crashed its worker process"
-        finish(job, facts, error)
+
+
+def _solo(kwargs: dict[str, Any]) -> Facts:
+    """A worker died (segfault, OOM kill) and took the pool with it: analyse this model alone in a fresh
+    process, so the one that crashes is identified and recorded as broken and the others still get ingested."""
+    with ProcessPoolExecutor(max_workers=1) as solo:
+        try:
+            return solo.submit(run_analysis, kwargs).result()
+        except BrokenProcessPool:
+            return None, "mesh analysis crashed its worker process"
