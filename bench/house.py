@@ -160,7 +160,6 @@ def config_path(db: str) -> dict[str, Any]:
         return LEVEL[_room(module)]
 
     from mixcount import api
-    from mixcount.catalog.db import Catalog
 
     visits: list[tuple[str, str]] = []
     watched: list[int] = []
@@ -191,7 +190,7 @@ def config_path(db: str) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         sys.settrace(tracer)
         try:
-            api.compose(Catalog(db), Path(tmp) / "out", n=1, split="train", config=["quick"], resolution=64,
+            api.compose(api.open_catalog(db), Path(tmp) / "out", n=1, split="train", config=["quick"], resolution=64,
                         samples=2)
         finally:
             sys.settrace(None)
