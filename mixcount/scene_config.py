@@ -295,6 +295,12 @@ class RerenderConfig:
     persistent_data: bool  # keep Cycles' scene data between the views' RGB renders
     timeout_s: float  # one scene's re-render, all views
 
+    @property
+    def adds_views(self) -> bool:
+        """Whether it adds cameras to a scene (``new_views`` or an orbit): without, compose renders each
+        scene's own cameras only and builds no view plan."""
+        return self.new_views > 0 or self.trajectory == "orbit"
+
     def validate(self) -> None:
         from mixcount.errors import ConfigError
 

@@ -58,9 +58,9 @@ class ComposeSummary:
         return dict(self.__dict__)
 
 
-def render_threads(config: Config, workers: int) -> int:
-    """Cycles threads per worker: ``compose.render_threads``, or CPU count / workers when it is 0."""
-    return config.compose.render_threads or max(1, (os.cpu_count() or 1) // max(1, workers))
+def render_threads(threads: int, workers: int) -> int:
+    """Cycles threads per worker: ``compose.render_threads`` (``threads``), or CPU count / workers when it is 0."""
+    return threads or max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
 def compose_scenes(
@@ -231,7 +231,7 @@ class _ComposeRun:
         self.split = comp.split
         self.next_seed = comp.seed
         self.max_attempts = int(math.ceil(self.n * comp.max_attempts_factor)) + 4
-        self.threads = render_threads(self.config, comp.workers)
+        self.threads = render_threads(comp.render_threads, comp.workers)
         self.captions = {int(o.object_id): o.captions.to_dict() for o in self.pool}
         self.renders = {int(o.object_id): o.render_path for o in self.pool}
 

@@ -160,10 +160,9 @@ class MoreViews:
     @classmethod
     def from_config(cls, rerender: RerenderConfig, scene: SceneConfig) -> Optional["MoreViews"]:
         """``[rerender]``'s views, rule and persistent data (``[scene]``'s camera rule); None when it adds no view."""
-        plan = ViewPlan.from_config(rerender, scene)
-        if not plan.adds_views:
+        if not rerender.adds_views:
             return None
-        return cls(plan=plan, rule=rerender.annotation_rule, persistent_data=rerender.persistent_data)
+        return cls(plan=ViewPlan.from_config(rerender, scene), rule=rerender.annotation_rule, persistent_data=rerender.persistent_data)
 
     def to_dict(self) -> dict[str, Any]:
         return {"plan": self.plan.to_dict(), "rule": self.rule, "persistent_data": self.persistent_data}
