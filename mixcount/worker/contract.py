@@ -130,13 +130,6 @@ class SceneRequest:
                    more_views=more_views, device=device)
 
     @classmethod
-    def from_config(cls, compose: ComposeConfig, *, stage: str, out_dir: str, threads: int,
-                    oracle: bool) -> "SceneRequest":
-        """A request with ``[compose]``'s outputs (:meth:`SceneOutputs.from_config`; tests and benchmarks)."""
-        return cls.for_outputs(SceneOutputs.from_config(compose), stage=stage, out_dir=out_dir, threads=threads,
-                               oracle=oracle)
-
-    @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneRequest":
         v = known_fields(cls, d)
         return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
@@ -162,7 +155,8 @@ class MoreViews:
         """``[rerender]``'s views, rule and persistent data (``[scene]``'s camera rule); None when it adds no view."""
         if not rerender.adds_views:
             return None
-        return cls(plan=ViewPlan.from_config(rerender, scene), rule=rerender.annotation_rule, persistent_data=rerender.persistent_data)
+        return cls(plan=ViewPlan.from_config(rerender, scene), rule=rerender.annotation_rule,
+                   persistent_data=rerender.persistent_data)
 
     def to_dict(self) -> dict[str, Any]:
         return {"plan": self.plan.to_dict(), "rule": self.rule, "persistent_data": self.persistent_data}
