@@ -86,9 +86,7 @@ def compose_scenes(
 
     comp = config.compose
     out_dir = Path(out_dir)
-    if not any(getattr(o, "split", None) == comp.split for o in pool):  # before anything is made on disk
-        raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog "
-                               "first; nothing was written")
+    require_split(pool, comp.split)  # before anything is made on disk
     more_views = more_views_of(config, count_target)  # a refused pair stops here, before OUT is made
     # the executor's own device (Ray: from its cluster) or compose.device resolved here with one bpy probe
     # (none for cpu): --device gpu without one stops here, before OUT is made
@@ -144,6 +142,24 @@ def compose_scenes(
     if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
         _merge(out_dir, config, summary, bar)
     return summary
+
+
+def require_split(pool: list[Any], split: str) -> None:
+    """A CompositionError, before anything is written, when no active object of the pool is in ``split``:
+    it says how many objects each split holds, so a small library's empty val split is plain."""
+    if any(getattr(o, "split", None) == split for o in pool):
+        return
+    from mixcount.config import SPLIT_NAMES
+
+    held = {s: sum(1 for o in pool if getattr(o, "split", None) == s) for s in SPLIT_NAMES}
+    held = {s: k for s, k in held.items() if k or s in ("train", "val", "test", split)}
+    unsplit = sum(1 for o in pool if getattr(o, "split", None) is None)
+    raise CompositionError(
+        f"no active objects in split {split!r} (active objects per split: "
+        + ", ".join(f"{s} {n}" for s, n in held.items()) + (f", no split {unsplit}" if unsplit else "")
+        + "): " + ("run `mixcount catalog split` (after ingest and caption); nothing was written" if not pool or unsplit
+                   else "compose another split, or add objects or change split.fractions and run `mixcount catalog "
+                        "split` again; nothing was written"))
 
 
 def count_target_of(config: Config) -> Any:

@@ -20,9 +20,8 @@ from pathlib import Path
 from typing import Any, Optional
 
 from mixcount.config import Config
-from mixcount.errors import CompositionError
 from mixcount.progress import ProgressReporter
-from mixcount.run.compose import ComposeSummary, compose_scenes, count_target_of
+from mixcount.run.compose import ComposeSummary, compose_scenes, count_target_of, require_split
 
 
 @dataclass(frozen=True)
@@ -54,24 +53,6 @@ def load_inputs(catalog: Any, config: Config) -> ComposeInputs:
                                load_materials(session))
     require_split(inputs.pool, config.compose.split)
     return inputs
-
-
-def require_split(pool: list[Any], split: str) -> None:
-    """A CompositionError, before anything is written, when no active object of the pool is in ``split``:
-    it says how many objects each split holds, so a small library's empty val split is plain."""
-    if any(getattr(o, "split", None) == split for o in pool):
-        return
-    from mixcount.config import SPLIT_NAMES
-
-    held = {s: sum(1 for o in pool if getattr(o, "split", None) == s) for s in SPLIT_NAMES}
-    held = {s: k for s, k in held.items() if k or s in ("train", "val", "test", split)}
-    unsplit = sum(1 for o in pool if getattr(o, "split", None) is None)
-    raise CompositionError(
-        f"no active objects in split {split!r} (active objects per split: "
-        + ", ".join(f"{s} {n}" for s, n in held.items()) + (f", no split {unsplit}" if unsplit else "")
-        + "): " + ("run `mixcount catalog split` (after ingest and caption); nothing was written" if not pool or unsplit
-                   else "compose another split, or add objects or change split.fractions and run `mixcount catalog "
-                        "split` again; nothing was written"))
 
 
 @dataclass(frozen=True)
