@@ -8,8 +8,14 @@ in ``tests/test_code_shape.py``.
 
 The config path is measured, not read: compose runs one scene of the given catalog under ``sys.settrace``
 in this process, and every mixcount function entered while one of its locals *is* the run's ``Config``
-(or one of its sections) is a place visited. A climb is a step from a module in a lower room back up to
-one in a higher room (rooms as tests/test_code_shape.py orders them).
+(or one of its sections), or holds it one attribute down (``self`` of a ``ComposeJob`` or of the run's
+loop state: the config travels inside it), is a place visited. Not places: a comprehension's own frame
+(``<genexpr>``, ``<listcomp>``: part of its function) and the config's own methods in the modules that
+type it (:data:`HOME`: ``to_dict``, ``hash``, a property: the config answering about itself went nowhere).
+A climb is a step from a module in a lower room back up to one in a higher room (rooms as
+tests/test_code_shape.py orders them): the configuration picked up again higher up after a lower room had
+it. A handoff is one (caller module -> callee module) pair across which the config was passed, the caller
+being the nearest enclosing frame that holds it too; ``handoff_pairs`` lists them.
 
     python bench/house.py --smoke               # static figures only (what tests/test_benches.py runs)
     python bench/house.py                       # and the duplicates tool's count
@@ -36,6 +42,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from import_graph import import_circles, import_graph, resolve_import  # noqa: E402  (tests/import_graph.py)
 
 FILE_LIMIT = 520
+HOME = ("mixcount.config", "mixcount.scene_config")  # where the config is typed: its own methods are not places
 
 
 def module_name(path: Path) -> str:
@@ -99,10 +106,10 @@ def config_path(db: str) -> dict[str, Any]:
         return LEVEL[_room(module)]
 
     from mixcount import api
-    from mixcount.catalog.db import Catalog
 
     visits: list[tuple[str, str]] = []
     watched: list[int] = []
+    handoffs: set[str] = set()  # "caller module -> callee module": the config handed across a module line
 
     def tracer(frame: Any, event: str, arg: Any) -> Any:
         if event != "call":
@@ -110,11 +117,26 @@ def config_path(db: str) -> dict[str, Any]:
         mod = frame.f_globals.get("__name__", "")
         if not mod.startswith("mixcount") or not watched:
             return None
-        if any(id(v) in watched for v in frame.f_locals.values()):
+        if frame.f_code.co_name.startswith("<"):  # a comprehension's frame is part of its function, not a place
+            return None
+        if mod in HOME:  # the config answering about itself (to_dict, hash, a property): it went nowhere
+            return None
+        if holds_config(frame):
             place = (mod, frame.f_code.co_name)
             if not visits or visits[-1] != place:
                 visits.append(place)
+            caller = frame.f_back
+            while caller is not None and not (caller.f_globals.get("__name__", "").startswith("mixcount")
+                                              and caller.f_globals["__name__"] not in HOME
+                                              and not caller.f_code.co_name.startswith("<") and holds_config(caller)):
+                caller = caller.f_back
+            if caller is not None and caller.f_globals["__name__"] != mod:
+                handoffs.add(f"{caller.f_globals['__name__']} -> {mod}")
         return None
+
+    def holds_config(frame: Any) -> bool:
+        return any(id(v) in watched or any(id(a) in watched for a in getattr(v, "__dict__", {}).values())
+                   for v in frame.f_locals.values())
 
     import mixcount.config as config_module
 
@@ -130,7 +152,7 @@ def config_path(db: str) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         sys.settrace(tracer)
         try:
-            api.compose(Catalog(db), Path(tmp) / "out", n=1, split="train", config=["quick"], resolution=64,
+            api.compose(api.open_catalog(db), Path(tmp) / "out", n=1, split="train", config=["quick"], resolution=64,
                         samples=2)
         finally:
             sys.settrace(None)
@@ -141,7 +163,8 @@ def config_path(db: str) -> dict[str, Any]:
             mods_seen.append(mod)
     climbs = sum(1 for a, b in zip(mods_seen, mods_seen[1:]) if room_level(b) > room_level(a))
     return {"places": len(set(visits)), "modules": len({m for m, _ in visits}), "steps": len(mods_seen),
-            "climbs": climbs, "path": [f"{m}:{f}" for m, f in visits]}
+            "climbs": climbs, "handoffs": len(handoffs), "handoff_pairs": sorted(handoffs),
+            "path": [f"{m}:{f}" for m, f in visits]}
 
 
 def main() -> None:

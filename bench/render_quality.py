@@ -234,7 +234,7 @@ def main() -> int:
 
     from mixcount.config import load_config
     from mixcount.scene.spec import CYCLES_BEFORE
-    from mixcount.worker.contract import SceneRequest
+    from mixcount.worker.contract import SceneOutputs, SceneRequest
 
     work = args.work or Path(tempfile.mkdtemp(prefix="mixcount-rq-"))
     threads = args.threads or os.cpu_count() or 1
@@ -253,8 +253,8 @@ def main() -> int:
         n = args.objects or n
         stage, stage_hash = build_stage(label, seed, n, container, extra, work, pool, args.resolution)
         out = work / "renders" / label
-        request = SceneRequest.from_config(cfg.compose, stage=str(stage), out_dir=str(stage.parent),
-                                           threads=threads, oracle=False)
+        request = SceneRequest.for_outputs(SceneOutputs.from_config(cfg.compose), stage=str(stage),
+                                           out_dir=str(stage.parent), threads=threads, oracle=False)
         # keyed by what shapes the reference image; ``once`` only schedules it (one round of --repeats)
         ref_key = {"scene_sha256": stage_hash, "reference": {k: v for k, v in reference.items() if k != "once"}}
         ref_json = out / "reference.json"

@@ -117,7 +117,8 @@ def main() -> int:
     from mixcount.run.rerender import copy_scene_files, finished_scenes, link_assets, new_views, own_views
     from mixcount.scene.spec import SceneSpec
     from mixcount.worker.client import BlenderWorker
-    from mixcount.worker.contract import RerenderRequest, SceneOutputs, SceneRequest
+    from mixcount.worker.contract import SceneOutputs, SceneRequest
+    from mixcount.worker.rerender_contract import RerenderRequest
 
     work = args.work or Path(tempfile.mkdtemp(prefix="bench-rerender-"))
     work.mkdir(parents=True, exist_ok=True)

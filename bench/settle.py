@@ -60,9 +60,9 @@ def _settle_one(args: Any) -> dict[str, Any]:
     from mixcount.engine import scene_job as J
     from mixcount.engine.scene_build import load_scene
     from mixcount.engine.visibility import camera_model
-    from mixcount.worker.contract import SceneRequest
+    from mixcount.worker.contract import SceneOutputs, SceneRequest
 
-    state = load_scene(SceneRequest.from_config(load_config().compose, stage=args.run_stage,
+    state = load_scene(SceneRequest.for_outputs(SceneOutputs.from_config(load_config().compose), stage=args.run_stage,
                                                 out_dir=tempfile.mkdtemp(prefix="settle-"), threads=2, oracle=False))
     camera = camera_model(state.scene, state.cam_objs[0])
     spawn = np.array([np.array(o.spawn_matrix)[:3, 3] for o in state.objects])

@@ -48,20 +48,17 @@ def compose(catalog: "Catalog", out: str | Path, *, n: int, split: Optional[str]
     """Render until ``n`` scenes of ``split`` are complete in ``out`` and merge them, as ``mixcount compose``
     does; returns its summary (``written``, ``failed``, ``outputs`` ...). ``config``: files or names layered
     over configs/default.toml (``"quick"``); ``overrides``: ``"section.key=value"`` strings like ``--set``.
-    ``package_assets`` copies the assets into ``out/assets/`` at the end (:func:`package`)."""
-    from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
+    ``package_assets`` copies the assets into ``out/assets/`` at the end (:func:`package`). The checks, the
+    pool loading and the run are the CLI's own (:class:`mixcount.run.compose_entry.ComposeJob`): a bad count
+    target or an empty split is a one-line error before anything is written."""
     from mixcount.config import load_config
-    from mixcount.run.compose import compose_scenes
+    from mixcount.run.compose_entry import ComposeJob
 
     cfg = load_config(list(config), list(overrides), values={k: v for k, v in {
         "compose.split": split, "compose.seed": seed, "compose.resolution": resolution,
         "compose.samples": samples}.items() if v is not None})
-    with catalog.session() as session:
-        pool, envs, mats = load_pool(session, palette=cfg.palette), load_environments(session), load_materials(session)
     out = Path(out).resolve()
-    summary = compose_scenes(pool=pool, config=cfg, out_dir=out, assets_dir=Path(catalog.usd_assets_dir).resolve(),
-                             n=n, environments=tuple(envs), materials=tuple(mats), progress=progress,
-                             catalog=catalog.url)
+    summary = ComposeJob.checked(cfg, n=n, out_dir=out).run(catalog, progress=progress)
     if package_assets:
         package(out, search=[Path(catalog.usd_assets_dir)])
     return summary

@@ -25,7 +25,7 @@ from typing import Any, Mapping, Optional, Sequence
 
 from mixcount.errors import ConfigError
 from mixcount.resources import data_dir
-from mixcount.scene_config import CyclesConfig, RerenderConfig, SceneConfig
+from mixcount.scene_config import DEVICES, CyclesConfig, RerenderConfig, SceneConfig
 
 CONFIG_DIR = data_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"
@@ -346,8 +346,6 @@ PASSES = ("instance", "class", "depth", "normal")
 # how the worker keeps imported asset meshes between scenes (mixcount.engine.mesh_cache): a compressed
 # or uncompressed .blend beside each converted asset, or no cache (every scene imports from USD)
 MESH_CACHE_MODES = ("zstd", "raw", "off")
-# where compose's Cycles renders (mixcount.engine.devices; `compose --device`)
-COMPOSE_DEVICES = ("cpu", "gpu", "auto")
 
 
 @dataclass(frozen=True)
@@ -391,8 +389,8 @@ class ComposeConfig:
         unknown = [p for p in self.passes if p not in PASSES]
         if unknown:
             raise ConfigError(f"compose.passes: unknown pass(es) {', '.join(unknown)}; expected some of {', '.join(PASSES)}")
-        if self.device not in COMPOSE_DEVICES:
-            raise ConfigError(f"compose.device must be one of {', '.join(COMPOSE_DEVICES)}, got {self.device!r}")
+        if self.device not in DEVICES:
+            raise ConfigError(f"compose.device must be one of {', '.join(DEVICES)}, got {self.device!r}")
         if not self.ray_gpus_per_worker > 0:
             raise ConfigError(f"compose.ray_gpus_per_worker must be > 0, got {self.ray_gpus_per_worker!r}")
 

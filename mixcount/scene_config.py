@@ -18,6 +18,13 @@ BUNDLED_HDRI = "bundled_hdri"
 SKY = "sky"
 DEFAULT_ENVIRONMENTS = (BUNDLED_HDRI, SKY)  # scene.default_environment: the light without ingested HDRIs
 
+# where Cycles renders (compose.device, rerender.device; mixcount.engine.devices): the one list of the names
+DEVICES = ("cpu", "gpu", "auto")
+# how the views of a scene rendered from more cameras are annotated (rerender.annotation_rule)
+RULE_ALL_CAMERAS = "all_cameras"  # the paper's rule: kept when occluded less than v_t in every view (others removed)
+RULE_PER_VIEW = "per_view"  # each view annotates the objects occluded less than v_t in it (none removed)
+ANNOTATION_RULES = (RULE_ALL_CAMERAS, RULE_PER_VIEW)
+
 
 # ``[cycles]``: the RGB render's Cycles settings, recorded in every spec as they are (RenderSpec.cycles)
 DENOISING_QUALITIES = ("HIGH", "BALANCED", "FAST")
@@ -288,12 +295,17 @@ class RerenderConfig:
     persistent_data: bool  # keep Cycles' scene data between the views' RGB renders
     timeout_s: float  # one scene's re-render, all views
 
+    @property
+    def adds_views(self) -> bool:
+        """Whether it adds cameras to a scene (``new_views`` or an orbit): without, compose renders each
+        scene's own cameras only and builds no view plan."""
+        return self.new_views > 0 or self.trajectory == "orbit"
+
     def validate(self) -> None:
         from mixcount.errors import ConfigError
 
         checks = {"denoise": (self.denoise, ("scene", "on", "off")), "trajectory": (self.trajectory, ("none", "orbit")),
-                  "annotation_rule": (self.annotation_rule, ("all_cameras", "per_view")),
-                  "device": (self.device, ("cpu", "gpu", "auto"))}
+                  "annotation_rule": (self.annotation_rule, ANNOTATION_RULES), "device": (self.device, DEVICES)}
         for key, (value, allowed) in checks.items():
             if value not in allowed:
                 raise ConfigError(f"rerender.{key} = {value!r}: choose one of {', '.join(allowed)}")

@@ -56,10 +56,10 @@ def border_check(req: dict[str, Any]) -> dict[str, Any]:
     from mixcount.engine import render_passes as P
     from mixcount.engine import scene_build as B
     from mixcount.engine import scene_job as J
-    from mixcount.worker.contract import SceneRequest
+    from mixcount.worker.contract import SceneOutputs, SceneRequest
 
-    state = B.load_scene(SceneRequest.from_config(load_config().compose, stage=req["stage"], out_dir=req["out_dir"],
-                                                  threads=2, oracle=False))
+    state = B.load_scene(SceneRequest.for_outputs(SceneOutputs.from_config(load_config().compose), stage=req["stage"],
+                                                  out_dir=req["out_dir"], threads=2, oracle=False))
     settled = J.settle(state)
     J.place_settled(state, settled)
     J.check_frame(state, J.place_after_physics(state, settled.poses, J.Timer()).cameras)
@@ -207,13 +207,13 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
     from mixcount.engine import render_passes as P
     from mixcount.engine import scene_build as B
     from mixcount.engine.mesh_cache import CACHE_DIR, cache_file
-    from mixcount.worker.contract import SceneRequest
+    from mixcount.worker.contract import SceneOutputs, SceneRequest
 
     out = Path(req["out_dir"])
 
     def load(mode: str) -> tuple[Any, dict[str, Any]]:
-        request = SceneRequest.from_config(load_config().compose, stage=req["stage"], out_dir=str(out), threads=2,
-                                           oracle=False)
+        request = SceneRequest.for_outputs(SceneOutputs.from_config(load_config().compose), stage=req["stage"],
+                                           out_dir=str(out), threads=2, oracle=False)
         state = B.load_scene(dataclasses.replace(request, mesh_cache=mode))
         state.scene.render.resolution_percentage = 50
         ids = P.render_id_passes(state.scene, out / "_ids.exr")

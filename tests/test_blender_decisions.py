@@ -12,12 +12,9 @@ import pytest
 
 import mixcount.scene_decisions as D
 from mixcount.annotate.raster import PinholeCamera
+from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalResult, CanonicalSettings, CanonicalView
 from mixcount.worker.contract import (
     CameraView,
-    CanonicalRequest,
-    CanonicalResult,
-    CanonicalSettings,
-    CanonicalView,
     MeshCacheRequest,
     MeshCacheResult,
     ObjectResult,

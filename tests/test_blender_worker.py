@@ -508,7 +508,7 @@ def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     from mixcount.config import load_config
     from mixcount.errors import RenderError
     from mixcount.worker.client import BlenderWorker
-    from mixcount.worker.contract import SceneRequest
+    from mixcount.worker.contract import SceneOutputs, SceneRequest
 
     monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # adds op "sleep"
     with BlenderWorker(name="t", log_dir=tmp_path) as w:
@@ -519,8 +519,9 @@ def test_worker_timeout_and_restart(tmp_path: Path, monkeypatch: pytest.MonkeyPa
         second = w.request({"op": "ping"}, timeout=120)["pid"]
         assert second != first and w.restarts == 1
         with pytest.raises(RenderError, match="scene failed"):
-            w.run_scene_job(SceneRequest.from_config(load_config().compose, stage=str(tmp_path / "missing.usda"),
-                                                    out_dir=str(tmp_path / "x"), threads=1, oracle=False), timeout=60)
+            w.run_scene_job(SceneRequest.for_outputs(SceneOutputs.from_config(load_config().compose),
+                                                    stage=str(tmp_path / "missing.usda"), out_dir=str(tmp_path / "x"),
+                                                    threads=1, oracle=False), timeout=60)
         assert w.request({"op": "ping"}, timeout=60)["pid"] == second  # a failed scene keeps the worker
         assert (tmp_path / f"mixcount-t-{os.getpid()}-{first}-timeout.log").is_file()  # the hung worker's log, kept
         os.kill(second, signal.SIGSEGV)  # a crash between requests: its log is kept at the next start

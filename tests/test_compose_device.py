@@ -89,7 +89,7 @@ def test_resolve_device_probes_only_off_the_cpu_and_says_why_once() -> None:
     """The decision on the probe's answer (the real probe runs in the bpy tests above)."""
     from mixcount.errors import RenderError
     from mixcount.run.devices import resolve_device
-    from mixcount.worker.contract import DevicesResult
+    from mixcount.worker.rerender_contract import DevicesResult
 
     asked: list[str] = []
 

@@ -98,8 +98,8 @@ def test_render_catalog_white_centred_resumable(tmp_path, catalog):
 
 def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
     from mixcount.curation.renders import canonical_request
+    from mixcount.worker.canonical_contract import CanonicalRequest
     from mixcount.worker.canonical_runner import run_jobs
-    from mixcount.worker.contract import CanonicalRequest
 
     monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # hang / crash hooks
     glb = tmp_path / "box.glb"

@@ -1,8 +1,10 @@
 """``mixcount compose`` (plan, USD stages, render), ``mixcount merge`` (dataset files from the finished
 scenes) and ``mixcount catalog ingest-env`` / ``ingest-materials``.
 
-``plan_scenes`` is the one place that turns (catalog, config, n) into SceneSpecs; the
-dry run prints them, ``--stage-only`` writes ``OUT/scenes/<scene_id>/scene.usda`` for each.
+``compose_cmd`` is thin: its options become one :class:`~mixcount.config.Config`, then
+:class:`mixcount.run.compose_entry.ComposeJob` (shared with :func:`mixcount.api.compose`) checks, plans or
+runs, and this module prints: the dry run's plan, ``--stage-only``'s ``OUT/scenes/<scene_id>/scene.usda``
+files, the run's summary.
 """
 
 from __future__ import annotations
@@ -14,65 +16,7 @@ import typer
 
 from mixcount.commands.common import RichProgress, console, json_option, out, result, state
 from mixcount.config import Config
-from mixcount.counts.targets import parse_count_target
 from mixcount.errors import CompositionError
-
-
-def plan_scenes(catalog: Any, config: Config, *, n: int, out_dir: Optional[Path] = None,
-                notes: Optional[list[str]] = None) -> list[Any]:
-    """SceneSpecs of the ``n`` scenes a run of ``compose.split`` would draw into ``out_dir``: the seeds from
-    ``compose.seed`` that the run draws (:func:`mixcount.run.seed_plan.planned_seeds`: finished and
-    thrown-away scenes already in ``out_dir`` are passed over, as the run passes them; a seed that cannot
-    be sampled is replaced by the next, as in the run). What the run will say at its start (objects never
-    captioned or rendered, seeds passed over) is printed once, on stderr, and appended to ``notes``."""
-    from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
-    from mixcount.run.readiness import missing_steps
-    from mixcount.run.seed_plan import describe_passed, dry_plan
-    from mixcount.scene.sampler import container_warning, sample_scene
-
-    split, base = config.compose.split, config.compose.seed
-    with catalog.session() as session:
-        pool = load_pool(session, palette=config.palette)
-        envs = load_environments(session)
-        mats = load_materials(session)
-    require_split(pool, split)
-    lines = [w for w in [container_warning(pool, split, config.scene)] if w] + missing_steps(pool, split)
-    plan = dry_plan(out_dir, split, base, n,
-                    lambda seed: sample_scene(seed, split, config, pool, environments=envs, materials=mats),
-                    int(n * config.compose.max_attempts_factor) + 4)
-    lines += [f"seed {seed} cannot be sampled ({err}): the run records it as failed and draws the next seed"
-              for seed, err in plan.unsampled]
-    lines += describe_passed(plan.passed)
-    specs = plan.specs
-    if specs:
-        lines.append(f"the run draws {', '.join(s.scene_id for s in specs[:8])}"
-                     + (f" and {len(specs) - 8} more" if len(specs) > 8 else "")
-                     + "; a scene that comes out empty at render is replaced by the next seed")
-    elif plan.kept >= n:
-        lines.append(f"nothing to draw: {plan.kept} finished scene(s) of split {split!r} in {out_dir} already make --n {n}")
-    for line in lines:
-        console.print(f"[yellow]note:[/] {line}", highlight=False, soft_wrap=True)
-    if notes is not None:
-        notes.extend(lines)
-    return specs
-
-
-def require_split(pool: list[Any], split: str) -> None:
-    """A CompositionError, before anything is written, when no active object of the pool is in ``split``:
-    it says how many objects each split holds, so a small library's empty val split is plain."""
-    if any(getattr(o, "split", None) == split for o in pool):
-        return
-    from mixcount.config import SPLIT_NAMES
-
-    held = {s: sum(1 for o in pool if getattr(o, "split", None) == s) for s in SPLIT_NAMES}
-    held = {s: k for s, k in held.items() if k or s in ("train", "val", "test", split)}
-    unsplit = sum(1 for o in pool if getattr(o, "split", None) is None)
-    raise CompositionError(
-        f"no active objects in split {split!r} (active objects per split: "
-        + ", ".join(f"{s} {n}" for s, n in held.items()) + (f", no split {unsplit}" if unsplit else "")
-        + "): " + ("run `mixcount catalog split` (after ingest and caption); nothing was written" if not pool or unsplit
-                   else "compose another split, or add objects or change split.fractions and run `mixcount catalog "
-                        "split` again; nothing was written"))
 
 
 def summarise(spec: Any) -> dict[str, Any]:
@@ -105,6 +49,13 @@ def write_stages(specs: list[Any], out_dir: Path, catalog: Any, *, progress: boo
             paths.append(write_stage(spec, out_dir, catalog))
             bar.advance(task)
     return paths
+
+
+def _print_notes(notes: list[str]) -> None:
+    """What the run will say at its start (objects never captioned or rendered, seeds passed over), once, on
+    stderr: before a dry run's plan or ``--stage-only``'s stages."""
+    for line in notes:
+        console.print(f"[yellow]note:[/] {line}", highlight=False, soft_wrap=True)
 
 
 def _print_dry_run(specs: list[Any]) -> None:
@@ -177,88 +128,74 @@ def absolute_counts(counts: Optional[str]) -> Optional[str]:
     return head + sep + rest
 
 
-def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
-    @app.command("compose")
-    def compose(
-        ctx: typer.Context,
-        n: int = typer.Option(1, "--n", min=1, help="Number of scenes."),
-        out_dir: Path = typer.Option(Path("out"), "--out", help="Output folder (scenes/<scene_id>/...)."),
-        split: Optional[str] = typer.Option(None, "--split", help="Split to draw objects from: train, val, test, test_objects or test_categories (default: config compose.split)."),
-        seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the first scene (default: config compose.seed)."),
-        dry_run: bool = typer.Option(False, "--dry-run", help="Print classes, counts and sizes; write nothing."),
-        stage_only: bool = typer.Option(False, "--stage-only", help="Write scene.usda stages, no rendering."),
-        workers: Optional[int] = typer.Option(None, "--workers", min=1, help="bpy worker processes (default: config compose.workers)."),
-        resolution: Optional[int] = typer.Option(None, "--resolution", min=16, help="Image side in pixels (compose.resolution)."),
-        samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Cycles samples of the RGB render (compose.samples)."),
-        config_file: Optional[Path] = typer.Option(None, "--config", help="Extra config file (after the global --config files)."),
-        executor_kind: str = typer.Option("local", "--executor", help="local (bpy worker processes here) or ray (one task per scene on a Ray cluster)."),
-        address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor ray (default: start a local cluster)."),
-        passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes written besides rgb.png: instance, class, depth, normal (default: config compose.passes, all four)."),
-        no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
-        package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
-        mixed_settings: bool = typer.Option(False, "--mixed-settings", help="Add scenes to an OUT whose scenes were composed with other settings (resolution, samples, scene rules, catalog): recorded as another variant in OUT/settings.json; without it such a run is refused."),
-        views: Optional[int] = typer.Option(None, "--views", min=0, help="New cameras per scene by the paper's camera rule around its settled pile, rendered in the same worker pass as its own (rerender.new_views; default 0)."),
-        trajectory: Optional[str] = typer.Option(None, "--trajectory", help="none or orbit: --frames more cameras on a circle around each pile (rerender.trajectory)."),
-        frames: Optional[int] = typer.Option(None, "--frames", min=1, help="Cameras along the orbit (rerender.frames)."),
-        rule: Optional[str] = typer.Option(None, "--rule", help="How the views are annotated: all_cameras (the paper's) or per_view (rerender.annotation_rule)."),
-        counts: Optional[str] = typer.Option(None, "--counts", help="Visible counted objects per image (scene.count_target): paper (spawned n ~ scene.n_objects, the default), uniform:A-B or histogram:PATH ('count weight' lines, or a COCO instances / FSC-147 annotation JSON: a COCO file's per-category counts also give the class split, matched to the classes by object size), optionally followed by ,imbalance:R1-R2 (largest / smallest class per scene); docs/scene.md."),
-        device: Optional[str] = typer.Option(None, "--device", help="Where Cycles renders: cpu (the default), gpu (CUDA / OptiX / HIP / oneAPI; exit 2 before anything is written when none is usable) or auto (a GPU when one works, else the CPU, said once); compose.device, docs/faults.md."),
-        json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
-    ) -> None:
-        """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
-        st = state(ctx)
-        # --config, --split, --seed, --workers, --resolution and --samples are config overrides: applied in
-        # the one build of the configuration, so dataset.json records what was run.
-        cfg = st.config(files=[config_file] if config_file is not None else [], values={
-            "compose.split": split, "compose.seed": seed, "compose.workers": workers,
-            "compose.resolution": resolution, "compose.samples": samples,
-            "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()],
-            "compose.merge": False if no_merge else None, "scene.count_target": absolute_counts(counts),
-            "rerender.new_views": views, "rerender.trajectory": trajectory, "rerender.frames": frames,
-            "rerender.annotation_rule": rule, "compose.device": device})
-        parse_count_target(cfg.scene.count_target)  # a bad target stops here, before anything is written
-        catalog = st.catalog()
-        if dry_run:
-            specs = plan_scenes(catalog, cfg, n=n, out_dir=out_dir)
-            if json_out:
-                result("", [summarise(s) for s in specs], True)
-            else:
-                _print_dry_run(specs)
-            return
+def compose_cmd(
+    ctx: typer.Context,
+    n: int = typer.Option(1, "--n", min=1, help="Number of scenes."),
+    out_dir: Path = typer.Option(Path("out"), "--out", help="Output folder (scenes/<scene_id>/...)."),
+    split: Optional[str] = typer.Option(None, "--split", help="Split to draw objects from: train, val, test, test_objects or test_categories (default: config compose.split)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Seed of the first scene (default: config compose.seed)."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Print classes, counts and sizes; write nothing."),
+    stage_only: bool = typer.Option(False, "--stage-only", help="Write scene.usda stages, no rendering."),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="bpy worker processes (default: config compose.workers)."),
+    resolution: Optional[int] = typer.Option(None, "--resolution", min=16, help="Image side in pixels (compose.resolution)."),
+    samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Cycles samples of the RGB render (compose.samples)."),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="Extra config file (after the global --config files)."),
+    executor_kind: str = typer.Option("local", "--executor", help="local (bpy worker processes here) or ray (one task per scene on a Ray cluster)."),
+    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor ray (default: start a local cluster)."),
+    passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes written besides rgb.png: instance, class, depth, normal (default: config compose.passes, all four)."),
+    no_merge: bool = typer.Option(False, "--no-merge", help="Skip the dataset merge at the end (run `mixcount merge OUT` later)."),
+    package_assets: bool = typer.Option(False, "--package-assets", help="At the end, copy the assets the stages use into OUT/assets/ (as `mixcount package OUT`): the dataset then opens and re-renders anywhere."),
+    mixed_settings: bool = typer.Option(False, "--mixed-settings", help="Add scenes to an OUT whose scenes were composed with other settings (resolution, samples, scene rules, catalog): recorded as another variant in OUT/settings.json; without it such a run is refused."),
+    views: Optional[int] = typer.Option(None, "--views", min=0, help="New cameras per scene by the paper's camera rule around its settled pile, rendered in the same worker pass as its own (rerender.new_views; default 0)."),
+    trajectory: Optional[str] = typer.Option(None, "--trajectory", help="none or orbit: --frames more cameras on a circle around each pile (rerender.trajectory)."),
+    frames: Optional[int] = typer.Option(None, "--frames", min=1, help="Cameras along the orbit (rerender.frames)."),
+    rule: Optional[str] = typer.Option(None, "--rule", help="How the views are annotated: all_cameras (the paper's) or per_view (rerender.annotation_rule)."),
+    counts: Optional[str] = typer.Option(None, "--counts", help="Visible counted objects per image (scene.count_target): paper (spawned n ~ scene.n_objects, the default), uniform:A-B or histogram:PATH ('count weight' lines, or a COCO instances / FSC-147 annotation JSON: a COCO file's per-category counts also give the class split, matched to the classes by object size), optionally followed by ,imbalance:R1-R2 (largest / smallest class per scene); docs/scene.md."),
+    device: Optional[str] = typer.Option(None, "--device", help="Where Cycles renders: cpu (the default), gpu (CUDA / OptiX / HIP / oneAPI; exit 2 before anything is written when none is usable) or auto (a GPU when one works, else the CPU, said once); compose.device, docs/faults.md."),
+    json_out: bool = json_option("the plan (--dry-run), the stages (--stage-only) or the run's summary"),
+) -> None:
+    """Compose counting scenes: sample them by the paper's rules, write USD stages, render."""
+    st = state(ctx)
+    # --config, --split, --seed, --workers, --resolution and --samples are config overrides: applied in
+    # the one build of the configuration, so dataset.json records what was run.
+    cfg = st.config(files=[config_file] if config_file is not None else [], values={
+        "compose.split": split, "compose.seed": seed, "compose.workers": workers,
+        "compose.resolution": resolution, "compose.samples": samples,
+        "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()],
+        "compose.merge": False if no_merge else None, "scene.count_target": absolute_counts(counts),
+        "rerender.new_views": views, "rerender.trajectory": trajectory, "rerender.frames": frames,
+        "rerender.annotation_rule": rule, "compose.device": device})
+    from mixcount.run.compose_entry import ComposeJob
+
+    job = ComposeJob.checked(cfg, n=n, out_dir=out_dir)  # a bad count target stops here, before anything is written
+    catalog = st.catalog()
+    if dry_run or stage_only:
+        plan = job.plan(catalog)
+        _print_notes(plan.notes)
         if stage_only:
-            paths = write_stages(plan_scenes(catalog, cfg, n=n, out_dir=out_dir), out_dir, catalog)
+            paths = write_stages(plan.specs, out_dir, catalog)
             result(f"wrote {len(paths)} stage(s) under {out_dir / 'scenes'}", {"stages": [str(p) for p in paths]},
                    json_out)
-            return
-        from mixcount.run.compose import compose_scenes
+        elif json_out:
+            result("", [summarise(s) for s in plan.specs], True)
+        else:
+            _print_dry_run(plan.specs)
+        return
+    summary = job.run(catalog, executor_kind=executor_kind, workers=workers, address=address,
+                      progress=RichProgress(), mixed_settings=mixed_settings)
+    if package_assets:
+        from mixcount.dataset.package import package_assets as copy_assets
 
-        with catalog.session() as session:
-            from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
+        packaged = copy_assets(out_dir, assets_dirs=[Path(catalog.usd_assets_dir)])
+        console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB)", highlight=False)
+    result(_compose_lines(summary, out_dir, merge=cfg.compose.merge) + _views_lines(cfg), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
+           json_out)
+    if summary.written < n:
+        raise CompositionError(f"only {summary.written} of {n} scenes could be written (see failures above)")
 
-            pool, envs, mats = load_pool(session, palette=cfg.palette), load_environments(session), load_materials(session)
-        require_split(pool, cfg.compose.split)  # before OUT is made: a failed start leaves nothing behind
-        executor = None  # local: compose_scenes starts its own pool; ray: mixcount.run.factory
-        if executor_kind != "local" or address:
-            from mixcount.run.factory import make_executor
 
-            executor = make_executor(executor_kind, workers, address, config=cfg.compose, log_dir=out_dir.resolve() / "logs")
-        try:
-            summary = compose_scenes(pool=pool, config=cfg, out_dir=out_dir.resolve(),
-                                     assets_dir=Path(catalog.usd_assets_dir).resolve(), n=n,
-                                     environments=tuple(envs), materials=tuple(mats), executor=executor,
-                                     progress=RichProgress(), mixed_settings=mixed_settings, catalog=catalog.url)
-        finally:
-            if executor is not None:
-                executor.close()
-        if package_assets:
-            from mixcount.dataset.package import package_assets as copy_assets
-
-            packaged = copy_assets(out_dir, assets_dirs=[Path(catalog.usd_assets_dir)])
-            console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB)", highlight=False)
-        result(_compose_lines(summary, out_dir, merge=cfg.compose.merge) + _views_lines(cfg), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
-               json_out)
-        if summary.written < n:
-            raise CompositionError(f"only {summary.written} of {n} scenes could be written (see failures above)")
+def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
+    app.command("compose")(compose_cmd)
 
     @app.command("merge")
     def merge(

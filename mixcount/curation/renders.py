@@ -31,7 +31,7 @@ from mixcount.catalog.materials import object_look
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
 from mixcount.config import CanonicalRenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
-from mixcount.worker.contract import CANONICAL, CanonicalRequest, CanonicalSettings, canonical_views
+from mixcount.worker.canonical_contract import CANONICAL, CanonicalRequest, CanonicalSettings, canonical_views
 
 RENDER_VERSION = "canonical-v3"  # bump when the renderer changes what a render looks like (v2: vertex colours;
 # v3: palette looks for uncoloured parts, the albedo pass written beside each view)

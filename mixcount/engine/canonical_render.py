@@ -33,7 +33,7 @@ import numpy as np
 
 from mixcount.atomic import atomic_path
 from mixcount.engine.render_passes import require_images
-from mixcount.worker.contract import CANONICAL, CanonicalRequest, CanonicalResult, CanonicalView
+from mixcount.worker.canonical_contract import CANONICAL, CanonicalRequest, CanonicalResult, CanonicalView
 
 IMPORTERS = {
     ".glb": "gltf", ".gltf": "gltf", ".obj": "obj", ".ply": "ply", ".stl": "stl",

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 from typing import Any, Optional
 
-from mixcount.config import COMPOSE_DEVICES as DEVICES
-from mixcount.worker.contract import DevicesResult
+from mixcount.scene_config import DEVICES
+from mixcount.worker.rerender_contract import DevicesResult
 
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI")  # tried in this order; the first with a device is used
 

@@ -45,20 +45,9 @@ from mixcount.engine.scene_steps import (
     write_amodal_masks,
     write_passes,
 )
-from mixcount.worker.contract import (
-    RULE_ALL_CAMERAS,
-    RULE_PER_VIEW,
-    STATUS_EMPTY,
-    STATUS_OK,
-    CameraView,
-    DevicesRequest,
-    DevicesResult,
-    RenderView,
-    RerenderRequest,
-    SceneRequest,
-    SceneResult,
-    view_suffix,
-)
+from mixcount.scene_config import RULE_ALL_CAMERAS, RULE_PER_VIEW
+from mixcount.worker.contract import STATUS_EMPTY, STATUS_OK, CameraView, SceneRequest, SceneResult, view_suffix
+from mixcount.worker.rerender_contract import DevicesRequest, DevicesResult, RenderView, RerenderRequest
 
 # an occlusion threshold no object reaches (D.occluded drops visibility <= 1 - threshold = -1): the
 # per-view rule measures every view with the visibility loop and drops nothing

@@ -106,14 +106,9 @@ def _devices(req: Any) -> Any:
 
 
 def _handlers() -> dict[str, Handler]:
-    from mixcount.worker.contract import (
-        CanonicalRequest,
-        DevicesRequest,
-        MeshCacheRequest,
-        RerenderRequest,
-        SceneRequest,
-        SettleResult,
-    )
+    from mixcount.worker.canonical_contract import CanonicalRequest
+    from mixcount.worker.contract import MeshCacheRequest, SceneRequest, SettleResult
+    from mixcount.worker.rerender_contract import DevicesRequest, RerenderRequest
 
     return {SceneRequest.OP: _typed(SceneRequest, _scene), CanonicalRequest.OP: _typed(CanonicalRequest, _canonical),
             MeshCacheRequest.OP: _typed(MeshCacheRequest, _cache_meshes),

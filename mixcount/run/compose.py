@@ -32,6 +32,7 @@ from mixcount.errors import AssetError, CompositionError, MixcountError, Stopped
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
 from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
+from mixcount.scene_config import RULE_ALL_CAMERAS
 from mixcount.worker.contract import MoreViews, SceneOutputs
 
 
@@ -57,9 +58,9 @@ class ComposeSummary:
         return dict(self.__dict__)
 
 
-def render_threads(config: Config, workers: int) -> int:
-    """Cycles threads per worker: ``compose.render_threads``, or CPU count / workers when it is 0."""
-    return config.compose.render_threads or max(1, (os.cpu_count() or 1) // max(1, workers))
+def render_threads(threads: int, workers: int) -> int:
+    """Cycles threads per worker: ``compose.render_threads`` (``threads``), or CPU count / workers when it is 0."""
+    return threads or max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
 def compose_scenes(
@@ -67,6 +68,7 @@ def compose_scenes(
     environments: tuple = (), materials: tuple = (), progress: ProgressReporter | bool | None = None, oracle: bool = False,
     on_outcome: Optional[Callable[[SceneOutcome], None]] = None, passes: Optional[str | list[str]] = None,
     merge: Optional[bool] = None, catalog: Optional[str] = None, mixed_settings: bool = False,
+    count_target: Any = None,
 ) -> ComposeSummary:
     """Render until ``n`` scenes of ``compose.split`` are complete in ``out_dir`` (see module docstring).
 
@@ -76,18 +78,21 @@ def compose_scenes(
 
     ``catalog`` (the catalog's URL) and the run's dataset settings are checked against those of the scenes
     already in ``out_dir`` (:mod:`mixcount.dataset.settings`): other settings are a CompositionError unless
-    ``mixed_settings``, which records them as another variant."""
+    ``mixed_settings``, which records them as another variant. ``count_target``: ``scene.count_target``
+    as :class:`~mixcount.run.compose_entry.ComposeJob` parsed it (None: parsed here when views need it)."""
     from mixcount.dataset.settings import check_settings, dataset_settings
     from mixcount.scene.environment_sampling import environments_to_draw
     from mixcount.scene.sampler import container_warning
 
     comp = config.compose
     out_dir = Path(out_dir)
-    if not any(getattr(o, "split", None) == comp.split for o in pool):  # before anything is made on disk
-        raise CompositionError(f"no active objects in split {comp.split!r}: ingest, caption and split the catalog "
-                               "first; nothing was written")
-    more_views = more_views_of(config)  # a refused pair stops here, before OUT is made
-    device = _run_device(config, executor)  # --device gpu without one stops here, before OUT is made
+    require_split(pool, comp.split)  # before anything is made on disk
+    more_views = more_views_of(config, count_target)  # a refused pair stops here, before OUT is made
+    # the executor's own device (Ray: from its cluster) or compose.device resolved here with one bpy probe
+    # (none for cpu): --device gpu without one stops here, before OUT is made
+    from mixcount.run.devices import executor_device, resolve_device
+
+    device = executor_device(executor) or resolve_device(comp.device)
     _prepare_output(out_dir)
     # bpy's bundled HDRIs when none were ingested (scene.default_environment): found once, so a bpy
     # without them stops the run here with one clear error instead of failing every scene's sampling
@@ -139,22 +144,42 @@ def compose_scenes(
     return summary
 
 
-def _run_device(config: Config, executor: Optional[Executor]) -> Any:
-    """The run's :class:`~mixcount.run.devices.RunDevice`: the executor's own (Ray: from its cluster) or
-    ``compose.device`` resolved here with one bpy probe (none for ``cpu``)."""
-    from mixcount.run.devices import executor_device, resolve_device
+def require_split(pool: list[Any], split: str) -> None:
+    """A CompositionError, before anything is written, when no active object of the pool is in ``split``:
+    it says how many objects each split holds, so a small library's empty val split is plain."""
+    if any(getattr(o, "split", None) == split for o in pool):
+        return
+    from mixcount.config import SPLIT_NAMES
 
-    return executor_device(executor) or resolve_device(config.compose.device)
+    held = {s: sum(1 for o in pool if getattr(o, "split", None) == s) for s in SPLIT_NAMES}
+    held = {s: k for s, k in held.items() if k or s in ("train", "val", "test", split)}
+    unsplit = sum(1 for o in pool if getattr(o, "split", None) is None)
+    raise CompositionError(
+        f"no active objects in split {split!r} (active objects per split: "
+        + ", ".join(f"{s} {n}" for s, n in held.items()) + (f", no split {unsplit}" if unsplit else "")
+        + "): " + ("run `mixcount catalog split` (after ingest and caption); nothing was written" if not pool or unsplit
+                   else "compose another split, or add objects or change split.fractions and run `mixcount catalog "
+                        "split` again; nothing was written"))
 
 
-def more_views_of(config: Config) -> Optional[MoreViews]:
-    """``compose --views K`` / ``--trajectory orbit``: the new cameras each scene gets in its own worker request
-    (``[rerender]``'s views, rule and persistent data); None for none. Under the paper's all-cameras rule the
-    new views can remove objects a count target (``scene.count_target``) was met with: that pair is refused."""
+def count_target_of(config: Config) -> Any:
+    """``scene.count_target`` parsed (:class:`~mixcount.counts.targets.CountDistribution`): the one place
+    a run reads it (a bad target is its error, before anything is written); the sampler keeps its own
+    cached copy per scene."""
     from mixcount.counts.targets import parse_count_target
 
+    return parse_count_target(config.scene.count_target)
+
+
+def more_views_of(config: Config, count_target: Any = None) -> Optional[MoreViews]:
+    """``compose --views K`` / ``--trajectory orbit``: the new cameras each scene gets in its own worker request
+    (``[rerender]``'s views, rule and persistent data); None for none. Under the paper's all-cameras rule the
+    new views can remove objects a count target (``scene.count_target``, or ``count_target`` already parsed)
+    was met with: that pair is refused."""
     more = MoreViews.from_config(config.rerender, config.scene)
-    if more is not None and more.rule == "all_cameras" and not parse_count_target(config.scene.count_target).is_paper:
+    if more is None or more.rule != RULE_ALL_CAMERAS:
+        return more
+    if not (count_target if count_target is not None else count_target_of(config)).is_paper:
         raise CompositionError("compose --views with a count target (--counts): the all_cameras rule would remove "
                                "objects the target counted in the new views; use --rule per_view (nothing is "
                                "removed), or compose then `mixcount render --views`; nothing was written")
@@ -222,7 +247,7 @@ class _ComposeRun:
         self.split = comp.split
         self.next_seed = comp.seed
         self.max_attempts = int(math.ceil(self.n * comp.max_attempts_factor)) + 4
-        self.threads = render_threads(self.config, comp.workers)
+        self.threads = render_threads(comp.render_threads, comp.workers)
         self.captions = {int(o.object_id): o.captions.to_dict() for o in self.pool}
         self.renders = {int(o.object_id): o.render_path for o in self.pool}
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from mixcount.errors import RenderError
-from mixcount.worker.contract import DevicesRequest, DevicesResult
+from mixcount.worker.rerender_contract import DevicesRequest, DevicesResult
 
 SETTING = "compose.device"
 PROBE_TIMEOUT_S = 180.0

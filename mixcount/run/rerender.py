@@ -4,7 +4,7 @@ For each complete scene of ``SRC/scenes/`` (in scene-id order): its ``settled.us
 temporary folder of ``NEW/scenes/`` as the new scene's ``scene.usda`` (the stage it is rendered from),
 with every scene-local file it names (the floor's ``textures/``: :func:`copy_scene_files`),
 the poses and camera records of its ``metadata.json`` (float64, exactly what the original render used)
-go into a :class:`~mixcount.worker.contract.RerenderRequest` with the new settings and any new views
+go into a :class:`~mixcount.worker.rerender_contract.RerenderRequest` with the new settings and any new views
 (:mod:`mixcount.scene.views`), one bpy worker renders it (:mod:`mixcount.engine.rerender_job`), and the
 scene writer finishes the folder exactly as compose does (``finalize_scene``: PNGs, coco.json, a new
 settled.usda, metadata.json last). ``NEW/assets/`` holds relative links to ``SRC/assets/``'s entries, so
@@ -34,15 +34,8 @@ from mixcount.config import Config
 from mixcount.errors import CompositionError, RenderError
 from mixcount.scene.spec import SceneSpec
 from mixcount.worker.client import Worker
-from mixcount.worker.contract import (
-    STATUS_OK,
-    DevicesRequest,
-    DevicesResult,
-    RenderView,
-    RerenderRequest,
-    SceneOutputs,
-    SceneResult,
-)
+from mixcount.worker.contract import STATUS_OK, SceneOutputs, SceneResult
+from mixcount.worker.rerender_contract import DevicesRequest, DevicesResult, RenderView, RerenderRequest
 
 
 @dataclass

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
-from mixcount.worker.contract import CanonicalRequest, CanonicalResult
+from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalResult
 from mixcount.worker.pool import WorkerPool, error_text
 
 Job = tuple[str, CanonicalRequest]  # (the caller's key, the request)

@@ -29,14 +29,8 @@ from pathlib import Path
 from typing import Any, Optional, Protocol
 
 from mixcount.errors import RenderError
-from mixcount.worker.contract import (
-    CanonicalRequest,
-    CanonicalResult,
-    MeshCacheRequest,
-    MeshCacheResult,
-    SceneRequest,
-    SceneResult,
-)
+from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalResult
+from mixcount.worker.contract import MeshCacheRequest, MeshCacheResult, SceneRequest, SceneResult
 
 STARTUP_TIMEOUT_S = 180.0
 WORKER_MODULE = "mixcount.engine.worker_main"  # the entry module the worker process runs

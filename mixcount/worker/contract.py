@@ -1,8 +1,12 @@
-"""The typed contract between the parent process and the bpy worker (imports neither bpy nor pxr).
+"""The typed contract of the ``scene``, ``settle`` and ``cache_meshes`` operations between the parent
+process and the bpy worker (imports neither bpy nor pxr); the ``canonical`` op's pair is in
+:mod:`mixcount.worker.canonical_contract`, the ``rerender`` and ``devices`` ops' in
+:mod:`mixcount.worker.rerender_contract` (split by operation so each file holds one concern).
 
 One frozen request / result pair per worker operation, each with a JSON round-trip (``to_dict`` /
-``from_dict``); :class:`~mixcount.worker.client.BlenderWorker` sends ``{"op": <request>.OP, "request":
-...}`` and the worker answers ``{"ok": true, "result": ...}`` (:mod:`mixcount.engine.worker_main`):
+``from_dict``, fields checked by :func:`known_fields`); :class:`~mixcount.worker.client.BlenderWorker`
+sends ``{"op": <request>.OP, "request": ...}`` and the worker answers ``{"ok": true, "result": ...}``
+(:mod:`mixcount.engine.worker_main`):
 
 * ``scene`` - :class:`SceneRequest` -> :class:`SceneResult`. The request carries the stage and the output
   folder plus RUN-TIME settings only (render threads, the one-render-per-object reference, which passes
@@ -10,20 +14,14 @@ One frozen request / result pair per worker operation, each with a JSON round-tr
   threshold, physics) travels in the stage (its SceneSpec), never here. The result (answered over the
   pipe; the parent keeps it in metadata.json) holds status, camera, lights, the physics values actually used,
   one :class:`ObjectResult` per counted object / distractor, one :class:`CameraView` per camera with the
-  pass files it wrote, diagnostics and timings.
-* ``canonical`` - :class:`CanonicalRequest` -> :class:`CanonicalResult`: one catalog object's white-
-  background renders, one :class:`CanonicalView` per view (:func:`canonical_views` names them, for
-  both sides of the process boundary).
-* ``cache_meshes`` - :class:`MeshCacheRequest` -> :class:`MeshCacheResult`: each converted asset's .blend
-  mesh cache made ahead of the scenes.
+  pass files it wrote, diagnostics and timings. A ``scene`` request with ``more_views`` (:class:`MoreViews`,
+  ``compose --views``) renders the new cameras in the same request, right after the scene's own.
 * ``settle`` - :class:`SceneRequest` -> :class:`SettleResult`: only the scene's rigid-body settle, its
   poses written to ``settled.json`` in the request's out_dir, so a second bpy process can settle the next
   scene while the first renders (``compose.settle_ahead``, :class:`~mixcount.worker.settle_ahead.SettleAheadWorker`);
   a ``scene`` request whose ``settled_poses_file`` names that file applies the poses instead of simulating.
-* ``rerender`` - :class:`RerenderRequest` -> :class:`SceneResult`: a settled stage rendered again from
-  recorded poses and cameras (``mixcount render``); ``devices`` - :class:`DevicesRequest` ->
-  :class:`DevicesResult`. A ``scene`` request with ``more_views`` (:class:`MoreViews`, ``compose --views``)
-  renders the new cameras in the same request, right after the scene's own.
+* ``cache_meshes`` - :class:`MeshCacheRequest` -> :class:`MeshCacheResult`: each converted asset's .blend
+  mesh cache made ahead of the scenes.
 
 No request field has a default: every setting comes from the caller (from the configuration, read once).
 """
@@ -35,9 +33,9 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar, Mapping, Optional
 
 from mixcount.config import MESH_CACHE_MODES as MESH_CACHE_MODES  # re-exported for the worker side
-from mixcount.config import CanonicalRenderConfig, ComposeConfig
+from mixcount.config import ComposeConfig
 from mixcount.errors import CompositionError
-from mixcount.scene.views import NewView, ViewPlan
+from mixcount.scene.views import ViewPlan
 from mixcount.scene_config import RerenderConfig, SceneConfig
 from mixcount.scene_decisions import STATUS_EMPTY as STATUS_EMPTY  # defined beside the rule that decides them
 from mixcount.scene_decisions import STATUS_OK as STATUS_OK
@@ -46,16 +44,15 @@ from mixcount.scene_decisions import STATUS_REJECTED as STATUS_REJECTED
 KEPT = "kept"
 DROPPED = "dropped"
 
-CANONICAL = "canonical"  # the first canonical render's view name (the external exemplar)
-
 Matrix = tuple[tuple[float, ...], ...]
 
 
-def _matrix(m: Any) -> Optional[Matrix]:
+def as_matrix(m: Any) -> Optional[Matrix]:
+    """A 4x4 (or any nested sequence) as a tuple of float tuples; None stays None."""
     return None if m is None else tuple(tuple(float(v) for v in row) for row in m)
 
 
-def _known(cls: type, d: Mapping[str, Any]) -> dict[str, Any]:
+def known_fields(cls: type, d: Mapping[str, Any]) -> dict[str, Any]:
     """``d`` checked against ``cls``'s fields: a missing or unknown one is a ValueError that names it."""
     names = [f.name for f in fields(cls)]
     missing, unknown = [n for n in names if n not in d], sorted(set(d) - set(names))
@@ -133,15 +130,8 @@ class SceneRequest:
                    more_views=more_views, device=device)
 
     @classmethod
-    def from_config(cls, compose: ComposeConfig, *, stage: str, out_dir: str, threads: int,
-                    oracle: bool) -> "SceneRequest":
-        """A request with ``[compose]``'s outputs (:meth:`SceneOutputs.from_config`; tests and benchmarks)."""
-        return cls.for_outputs(SceneOutputs.from_config(compose), stage=stage, out_dir=out_dir, threads=threads,
-                               oracle=oracle)
-
-    @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneRequest":
-        v = _known(cls, d)
+        v = known_fields(cls, d)
         return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
                    oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
                    depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
@@ -154,7 +144,7 @@ class SceneRequest:
 class MoreViews:
     """``compose --views K``: the cameras ``plan`` adds to a scene once its own are rendered, in the same
     ``scene`` request (the pile settled and imported once), annotated over all views by ``rule`` (one of
-    ANNOTATION_RULES), with Cycles' scene data kept between the views' RGB renders when ``persistent_data``."""
+    mixcount.scene_config.ANNOTATION_RULES), with Cycles' scene data kept between the views' RGB renders when ``persistent_data``."""
 
     plan: ViewPlan
     rule: str
@@ -163,17 +153,17 @@ class MoreViews:
     @classmethod
     def from_config(cls, rerender: RerenderConfig, scene: SceneConfig) -> Optional["MoreViews"]:
         """``[rerender]``'s views, rule and persistent data (``[scene]``'s camera rule); None when it adds no view."""
-        plan = ViewPlan.from_config(rerender, scene)
-        if not plan.adds_views:
+        if not rerender.adds_views:
             return None
-        return cls(plan=plan, rule=rerender.annotation_rule, persistent_data=rerender.persistent_data)
+        return cls(plan=ViewPlan.from_config(rerender, scene), rule=rerender.annotation_rule,
+                   persistent_data=rerender.persistent_data)
 
     def to_dict(self) -> dict[str, Any]:
         return {"plan": self.plan.to_dict(), "rule": self.rule, "persistent_data": self.persistent_data}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "MoreViews":
-        v = _known(cls, d)
+        v = known_fields(cls, d)
         return cls(plan=ViewPlan.from_dict(v["plan"]), rule=str(v["rule"]), persistent_data=bool(v["persistent_data"]))
 
 
@@ -195,7 +185,7 @@ class SettleResult:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SettleResult":
-        v = _known(cls, d)
+        v = known_fields(cls, d)
         return cls(poses_file=str(v["poses_file"]), frames_run=int(v["frames_run"]),
                    seconds={str(k): float(x) for k, x in v["seconds"].items()})
 
@@ -251,8 +241,8 @@ class ObjectResult:
         if unknown:
             raise ValueError(f"unknown ObjectResult fields {sorted(unknown)}")
         v = dict(d)
-        v["spawn_matrix"] = _matrix(v["spawn_matrix"])
-        v["matrix_world"] = _matrix(v.get("matrix_world"))
+        v["spawn_matrix"] = as_matrix(v["spawn_matrix"])
+        v["matrix_world"] = as_matrix(v.get("matrix_world"))
         if v.get("origin_px") is not None:
             v["origin_px"] = (float(v["origin_px"][0]), float(v["origin_px"][1]))
         v["views"] = tuple(dict(x) for x in v.get("views", ()))
@@ -275,7 +265,7 @@ class CameraView:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "CameraView":
-        v = _known(cls, d)
+        v = known_fields(cls, d)
         return cls(name=str(v["name"]), suffix=str(v["suffix"]), camera=dict(v["camera"]),
                    framing=dict(v["framing"]), passes={str(k): dict(r) for k, r in dict(v["passes"]).items()})
 
@@ -307,7 +297,7 @@ class SceneResult:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SceneResult":
-        v = _known(cls, d)
+        v = known_fields(cls, d)
         v["objects"] = tuple(ObjectResult.from_dict(o) for o in d["objects"])
         v["diagnostics"] = tuple(dict(x) for x in d["diagnostics"])
         v["timings"] = dict(d["timings"])
@@ -328,96 +318,7 @@ def view_suffix(k: int) -> str:
     return "" if k == 0 else f"_cam_{k}"
 
 
-# ------------------------------------------------------------------------------ canonical renders
-
-
-def canonical_views(extra_views: int, azimuth_deg: float) -> tuple[tuple[str, float], ...]:
-    """(view name, camera azimuth in degrees) of each canonical render: ``canonical`` at the configured
-    azimuth, then ``view_<k>`` spread evenly around the object."""
-    return ((CANONICAL, float(azimuth_deg)),) + tuple(
-        (f"view_{k}", float(azimuth_deg) + 360.0 * k / (extra_views + 1)) for k in range(1, extra_views + 1))
-
-
-@dataclass(frozen=True)
-class CanonicalSettings:
-    """How every canonical render looks: ``[canonical_render]``'s image settings, carried as one object
-    (:meth:`from_config` is the one place the config section becomes them; workers and threads stay the
-    runner's)."""
-
-    resolution: int
-    samples: int
-    denoise: bool
-    elevation_deg: float
-    azimuth_deg: float
-    extra_views: int
-    margin: float
-    world_strength: float
-    sun_strength: float
-
-    @classmethod
-    def from_config(cls, config: CanonicalRenderConfig) -> "CanonicalSettings":
-        return cls(**{f.name: getattr(config, f.name) for f in fields(cls)})
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalSettings":
-        return cls(**_known(cls, d))
-
-
-@dataclass(frozen=True)
-class CanonicalRequest:
-    """One ``canonical`` request: render the model at ``model_path`` into ``out_dir`` as ``<stem>.png``
-    (+ ``<stem>_<view>.png`` for extra views), each with a ``_mask.png``, with ``settings``."""
-
-    OP: ClassVar[str] = "canonical"
-
-    model_path: str
-    out_dir: str
-    stem: str
-    threads: int  # Cycles threads (0 = Blender's automatic choice)
-    settings: CanonicalSettings
-    # the up axis the catalog reads the model with (objects.source_up_axis); the render turns the import
-    # into that frame. "" = as Blender's importer reads it (glTF/OBJ Y-up, PLY/STL Z-up, USD its own)
-    up_axis: str
-    # (sRGB r, g, b, metallic, roughness) for the model's parts without texture, vertex colours or material
-    # ([palette], mixcount.catalog.materials.object_look); None: they keep the importer's default
-    look: Optional[tuple[float, ...]] = None
-
-    def views(self) -> tuple[tuple[str, float], ...]:
-        return canonical_views(self.settings.extra_views, self.settings.azimuth_deg)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalRequest":
-        v = _known(cls, d)
-        look = None if v["look"] is None else tuple(float(x) for x in v["look"])
-        return cls(**{**v, "settings": CanonicalSettings.from_dict(v["settings"]), "look": look})
-
-
-@dataclass(frozen=True)
-class CanonicalView:
-    """One written canonical render: RGB on white at ``path``, its coverage mask at ``mask_path``."""
-
-    view: str
-    path: str
-    mask_path: str
-    coverage: float  # share of pixels the object covers (alpha > 127)
-    width: int
-    height: int
-
-
-@dataclass(frozen=True)
-class CanonicalResult:
-    views: tuple[CanonicalView, ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"views": [asdict(v) for v in self.views]}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalResult":
-        v = _known(cls, d)
-        return cls(views=tuple(CanonicalView(**_known(CanonicalView, x)) for x in v["views"]))
+# ------------------------------------------------------------------------------ mesh-cache warm-up
 
 
 # ------------------------------------------------------------------------------ mesh-cache warm-up
@@ -437,7 +338,7 @@ class MeshCacheRequest:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "MeshCacheRequest":
-        v = _known(cls, d)
+        v = known_fields(cls, d)
         return cls(assets=tuple(str(a) for a in v["assets"]), mode=str(v["mode"]))
 
 
@@ -450,143 +351,4 @@ class MeshCacheResult:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "MeshCacheResult":
-        return cls(assets=dict(_known(cls, d)["assets"]))
-
-
-# ------------------------------------------------------------------------------ re-render of a settled scene
-
-RULE_ALL_CAMERAS = "all_cameras"  # the paper's rule: kept when occluded less than v_t in every view (others removed)
-RULE_PER_VIEW = "per_view"  # each view annotates the objects occluded less than v_t in it (none removed)
-ANNOTATION_RULES = (RULE_ALL_CAMERAS, RULE_PER_VIEW)
-DEVICES = ("cpu", "gpu", "auto")
-
-
-@dataclass(frozen=True)
-class RenderView:
-    """One camera of a re-render: its pose (4x4 camera-to-world, Blender's -Z forward) and lens."""
-
-    name: str
-    cam_to_world: Matrix
-    focal_length_mm: float
-    sensor_width_mm: float
-    clip_range: tuple[float, float]
-    framing: dict[str, Any]  # how it was chosen ("stage", "paper", "orbit"), recorded in metadata.json
-
-    @classmethod
-    def of(cls, view: NewView) -> "RenderView":
-        """A drawn camera (:class:`mixcount.scene.views.NewView`) as the worker places it."""
-        m = _matrix(view.cam_to_world)
-        assert m is not None
-        return cls(name=view.name, cam_to_world=m, focal_length_mm=view.focal_length_mm,
-                   sensor_width_mm=view.sensor_width_mm, clip_range=view.clip_range, framing=view.framing)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "cam_to_world": [list(r) for r in self.cam_to_world],
-                "focal_length_mm": self.focal_length_mm, "sensor_width_mm": self.sensor_width_mm,
-                "clip_range": list(self.clip_range), "framing": dict(self.framing)}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "RenderView":
-        v = _known(cls, d)
-        m = _matrix(v["cam_to_world"])
-        assert m is not None
-        return cls(name=str(v["name"]), cam_to_world=m, focal_length_mm=float(v["focal_length_mm"]),
-                   sensor_width_mm=float(v["sensor_width_mm"]),
-                   clip_range=(float(v["clip_range"][0]), float(v["clip_range"][1])), framing=dict(v["framing"]))
-
-
-@dataclass(frozen=True)
-class RerenderRequest:
-    """One ``rerender`` request: render a settled stage again (no physics, no placement) -> SceneResult.
-
-    ``poses`` are the settled matrices by instance prim path as the source scene's metadata.json holds them
-    (float64; settled.usda's orientations are float32 quaternions), ``views`` every camera to render (the
-    scene's own first, at their recorded poses, then any new ones). ``resolution`` / ``samples`` 0 and
-    ``denoise`` "scene" keep the stage's values."""
-
-    OP: ClassVar[str] = "rerender"
-
-    stage: str
-    out_dir: str
-    threads: int
-    oracle: bool
-    passes: tuple[str, ...]
-    depth_format: str
-    normal_format: str
-    mesh_cache: str
-    poses: dict[str, Matrix]
-    views: tuple[RenderView, ...]
-    resolution: int
-    samples: int
-    denoise: str  # "scene" | "on" | "off"
-    rule: str  # one of ANNOTATION_RULES
-    device: str  # one of DEVICES
-    persistent_data: bool  # keep Cycles' scene data (BVH, images) between the views' RGB renders
-
-    def scene_request(self) -> SceneRequest:
-        """The fields the stage loader shares with a ``scene`` request."""
-        return SceneRequest(stage=self.stage, out_dir=self.out_dir, threads=self.threads, oracle=self.oracle,
-                            passes=self.passes, depth_format=self.depth_format, normal_format=self.normal_format,
-                            mesh_cache=self.mesh_cache, settled_poses_file="", more_views=None)
-
-    def to_dict(self) -> dict[str, Any]:
-        d = {f.name: getattr(self, f.name) for f in fields(self)}
-        d["passes"] = list(self.passes)
-        d["poses"] = {p: [list(r) for r in m] for p, m in self.poses.items()}
-        d["views"] = [v.to_dict() for v in self.views]
-        return d
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "RerenderRequest":
-        v = _known(cls, d)
-        poses = {str(p): _matrix(m) for p, m in v["poses"].items()}
-        return cls(stage=str(v["stage"]), out_dir=str(v["out_dir"]), threads=int(v["threads"]),
-                   oracle=bool(v["oracle"]), passes=tuple(str(p) for p in v["passes"]),
-                   depth_format=str(v["depth_format"]), normal_format=str(v["normal_format"]),
-                   mesh_cache=str(v["mesh_cache"]), poses={p: m for p, m in poses.items() if m is not None},
-                   views=tuple(RenderView.from_dict(x) for x in v["views"]), resolution=int(v["resolution"]),
-                   samples=int(v["samples"]), denoise=str(v["denoise"]), rule=str(v["rule"]),
-                   device=str(v["device"]), persistent_data=bool(v["persistent_data"]))
-
-
-@dataclass(frozen=True)
-class DevicesRequest:
-    """One ``devices`` request: which Cycles devices ``device`` ("cpu" | "gpu" | "auto") gives here."""
-
-    OP: ClassVar[str] = "devices"
-
-    device: str
-    # the setting asked about, named in the error line ("compose.device": answered by
-    # mixcount.engine.devices; None: ``mixcount render``'s rerender.device, mixcount.engine.rerender_job)
-    setting: Optional[str] = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"device": self.device, "setting": self.setting}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "DevicesRequest":
-        v = _known(cls, d)
-        return cls(device=str(v["device"]), setting=None if v.get("setting") is None else str(v["setting"]))
-
-
-@dataclass(frozen=True)
-class DevicesResult:
-    """What Cycles would render on: ``used`` "CPU" or "GPU", the backend (CUDA / OPTIX / ...), the devices
-    enabled, and every device Cycles found (``found``, "TYPE: name"). ``error`` is non-empty when ``gpu`` was
-    asked for and none exists (one line naming what was found)."""
-
-    used: str
-    backend: str
-    devices: tuple[str, ...]
-    found: tuple[str, ...]
-    error: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"used": self.used, "backend": self.backend, "devices": list(self.devices), "found": list(self.found),
-                "error": self.error}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "DevicesResult":
-        v = _known(cls, d)
-        return cls(used=str(v["used"]), backend=str(v["backend"]), devices=tuple(str(x) for x in v["devices"]),
-                   found=tuple(str(x) for x in v["found"]), error=str(v["error"]))
+        return cls(assets=dict(known_fields(cls, d)["assets"]))

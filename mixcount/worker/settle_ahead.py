@@ -14,16 +14,9 @@ from pathlib import Path
 from typing import Any, Optional
 
 from mixcount.errors import RenderError
+from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalResult
 from mixcount.worker.client import STARTUP_TIMEOUT_S, BlenderWorker
-from mixcount.worker.contract import (
-    CanonicalRequest,
-    CanonicalResult,
-    MeshCacheRequest,
-    MeshCacheResult,
-    SceneRequest,
-    SceneResult,
-    SettleResult,
-)
+from mixcount.worker.contract import MeshCacheRequest, MeshCacheResult, SceneRequest, SceneResult, SettleResult
 
 
 class SettleAheadWorker:
