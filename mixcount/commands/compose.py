@@ -197,32 +197,7 @@ def compose_cmd(
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
     app.command("compose")(compose_cmd)
 
-    @app.command("merge")
-    def merge(
-        ctx: typer.Context,
-        out_dir: Path = typer.Argument(Path("out"), help="Compose output folder (OUT/scenes/<scene_id>/...)."),
-        json_out: bool = json_option("the merge's result"),
-    ) -> None:
-        """Merge the finished scenes of OUT into annotations/instances_<split>.json, dataset.json and
-        preview.png (one streaming pass; unchanged scenes' summaries come from the merge index)."""
-        import time
-
-        from mixcount.dataset.merge import finalize_dataset
-
-        if not (out_dir / "scenes").is_dir():
-            raise CompositionError(f"{out_dir} holds no scenes/ folder: nothing to merge")
-        cfg = state(ctx).config()
-        t0 = time.perf_counter()
-        res = finalize_dataset(out_dir.resolve(), config=cfg.to_dict(), config_hash=cfg.hash,
-                               preview_scenes=cfg.compose.preview_scenes)
-        for line in res.get("damaged", []):
-            console.print(f"[yellow]damaged scene left out:[/] {line}", highlight=False)
-        result(f"merged in {time.perf_counter() - t0:.1f} s: {res['dataset']}", res, json_out)
-        if res.get("damaged"):
-            console.print(f"{len(res['damaged'])} damaged scene(s) left out of the merge: run the same `mixcount "
-                          "compose` to render them again (`mixcount verify` lists every problem)", highlight=False)
-            raise typer.Exit(1)
-
+    app.command("merge")(merge_cmd)
     catalog_app.command("ingest-env")(ingest_env_cmd)
     catalog_app.command("ingest-materials")(ingest_materials_cmd)
 
@@ -245,3 +220,29 @@ def ingest_materials_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(
     summary = ingest_materials(state(ctx).catalog(create=True), paths)
     result(f"materials: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped",
            summary.to_dict(), json_out)
+
+
+def merge_cmd(
+    ctx: typer.Context,
+    out_dir: Path = typer.Argument(Path("out"), help="Compose output folder (OUT/scenes/<scene_id>/...)."),
+    json_out: bool = json_option("the merge's result"),
+) -> None:
+    """Merge the finished scenes of OUT into annotations/instances_<split>.json, dataset.json and
+    preview.png (one streaming pass; unchanged scenes' summaries come from the merge index)."""
+    import time
+
+    from mixcount.dataset.merge import finalize_dataset
+
+    if not (out_dir / "scenes").is_dir():
+        raise CompositionError(f"{out_dir} holds no scenes/ folder: nothing to merge")
+    cfg = state(ctx).config()
+    t0 = time.perf_counter()
+    res = finalize_dataset(out_dir.resolve(), config=cfg.to_dict(), config_hash=cfg.hash,
+                           preview_scenes=cfg.compose.preview_scenes)
+    for line in res.get("damaged", []):
+        console.print(f"[yellow]damaged scene left out:[/] {line}", highlight=False)
+    result(f"merged in {time.perf_counter() - t0:.1f} s: {res['dataset']}", res, json_out)
+    if res.get("damaged"):
+        console.print(f"{len(res['damaged'])} damaged scene(s) left out of the merge: run the same `mixcount "
+                      "compose` to render them again (`mixcount verify` lists every problem)", highlight=False)
+        raise typer.Exit(1)
