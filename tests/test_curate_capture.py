@@ -44,11 +44,11 @@ def capture_library(root):
     ball = L.build_ball(0, np.random.default_rng(2))  # tennis
     die = L.build_die(0, np.random.default_rng(3))  # a cube: principal axes left to the colour
     write(root, "can", can.parts)
-    write(root, "can_turned", L._baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 2.0))  # other up axis, 2x
+    write(root, "can_turned", L.baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 2.0))  # other up axis, 2x
     write(root, "ball", ball.parts)
     write(root, "ball_retessellated", L.subdivide(ball.parts))
     write(root, "die", die.parts)
-    write(root, "die_turned_retessellated", L.subdivide(L._baked(die.parts, L.rotation_xyz((0.0, 90.0, 45.0)), 0.7)))
+    write(root, "die_turned_retessellated", L.subdivide(L.baked(die.parts, L.rotation_xyz((0.0, 90.0, 45.0)), 0.7)))
     other = root / "can_scan"
     other.mkdir()
     L.export_obj(can.parts, other, scale=125.0)  # centimetres, 1.25x, Z-up read as Y-up
@@ -133,7 +133,7 @@ def test_surface_look_known_answers(tmp_path):
         return A.surface_look(*A.surface_samples(path))
 
     base = look(can.parts, "a")
-    turned = look(L._baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 3.0), "b")
+    turned = look(L.baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 3.0), "b")
     finer = look(L.subdivide(can.parts), "c")
     beans = look(other.parts, "d")
     assert A.colour_distance(base, turned) < 1e-9 and A.layout_distance(base, turned) < 1e-6  # same samples, turned
@@ -183,7 +183,7 @@ def test_real_scan_republished_by_other_sources_is_paired(catalog, tmp_path):
                                              rotation=turn((-90.0, 0.0, 200.0)), scale=0.001, seed=2),
         "bunny_split": T.republish([bunny], method=None, target_faces=0, texture_px=512, pieces=4,
                                    rotation=turn((90.0, 0.0, 0.0)), scale=1.0, seed=3),
-        "bunny_recoloured": L._recolour([bunny], 0.4),
+        "bunny_recoloured": L.recolour([bunny], 0.4),
     }
     for name, parts in copies.items():
         write(lib, name, parts)
