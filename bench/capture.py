@@ -30,7 +30,7 @@ from mixcount.catalog.db import open_catalog  # noqa: E402
 from mixcount.catalog.ingest import ingest_paths  # noqa: E402
 from mixcount.catalog.models import CatalogObject, Flag  # noqa: E402
 from mixcount.config import load_config  # noqa: E402
-from mixcount.curation.flags import run_filter  # noqa: E402
+from mixcount.curation.finding.catalog_filter import run_filter  # noqa: E402
 from mixcount.demo import library as L  # noqa: E402
 from mixcount.demo import traps as T  # noqa: E402
 

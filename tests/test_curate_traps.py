@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import pdist
 
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import descriptors as D
 from mixcount.demo import library as L
 from mixcount.demo import traps as T
 
