@@ -212,7 +212,7 @@ def items_of(entries: list[Entry]) -> list[Any]:
         obj = CatalogObject(id=oid, name=name, content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
         plain = float(np.abs(colours - colours.mean(axis=0)).sum(axis=1).mean()) < 0.05
         out.append(Item(obj, shape=shape, surface=A.surface_look(points, colours),
-                         appearance="material" if plain else "image"))
+                        appearance="material" if plain else "image"))
     return out
 
 

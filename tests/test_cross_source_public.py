@@ -56,7 +56,7 @@ def test_public_pairs_paired_and_nothing_else(tmp_path):
         obj = CatalogObject(id=oid, name=label, content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
         shape = D.shape_descriptor(v, f, watertight=False, volume=None, quality=False)
         items.append(Item(obj, shape=shape, surface=A.surface_look(points, np.tile(colour, (len(points), 1))),
-                           appearance="material"))
+                          appearance="material"))
         name[oid] = label
     th = load_config().filter
     found = pair_flags(items, th, LayoutCache(None), candidate_items(items, th.candidates))

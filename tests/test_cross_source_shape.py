@@ -44,7 +44,7 @@ def _items() -> tuple[list[Item], dict[int, str], dict[int, str]]:
         obj = CatalogObject(id=oid, name=label, content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
         shape = D.shape_descriptor(v, f, watertight=False, volume=None, quality=False)
         items.append(Item(obj, shape=shape, surface=A.surface_look(points, np.full((len(points), 3), 0.6)),
-                           appearance="material"))
+                          appearance="material"))
         group[oid], name[oid] = grp, label
     return items, group, name
 

@@ -39,7 +39,7 @@ def look_pair(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> list[
         if (a.geometry_hash and a.geometry_hash == b.geometry_hash and ph is not None and col is not None
                 and ph <= th.exact_phash and col <= th.exact_colour):
             found.append(Found(a.id, b.id, EXACT, 1.0,
-                                f"identical mesh and indistinguishable renders (pHash {ph:.3f}, colour {col:.3f})"))
+                               f"identical mesh and indistinguishable renders (pHash {ph:.3f}, colour {col:.3f})"))
             continue
         if x.shape is not None and y.shape is not None:
             d2 = D.d2_distance(x.shape, y.shape)
@@ -58,7 +58,7 @@ def look_pair(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> list[
                              or (surface is not None and surface <= th.look_colour))
                 if not same_look:  # one geometry in other colours: a class of its own, not a copy
                     found.append(Found(a.id, b.id, COLOUR_VARIANT, round(max(0.0, score), 4),
-                                        f"colour variant: {facts}"))
+                                       f"colour variant: {facts}"))
                     continue
                 found.append(Found(a.id, b.id, NEAR_GEOMETRY, round(max(0.0, score), 4), facts))
         if ph is not None and col is not None and ph <= th.appearance_phash and col <= th.appearance_colour:
@@ -67,7 +67,7 @@ def look_pair(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> list[
             if x.shape is not None and y.shape is not None:
                 extra = f"; real sizes differ {max(D.size_ratio(x.shape, y.shape), D.size_ratio(y.shape, x.shape)):.2f}x"
             found.append(Found(a.id, b.id, NEAR_APPEARANCE, round(max(0.0, score), 4),
-                                f"canonical renders look alike (pHash {ph:.3f}, colour {col:.3f}){extra}"))
+                               f"canonical renders look alike (pHash {ph:.3f}, colour {col:.3f}){extra}"))
             continue
         surface = _surface_match(x, y, th, layouts)
         if surface is not None:

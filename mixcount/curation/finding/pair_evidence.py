@@ -92,7 +92,7 @@ def weigh(x: Item, y: Item, found: list[Found], th: FilterConfig,
         figures = f"aligned shape distance {d:.3f}"
     else:
         return [Found(f.a, f.b, POSSIBLE_COPY, f.score,
-                       f"possible copy for review (the look agrees, the shape does not after alignment: {d:.3f}): {f.reason}")
+                      f"possible copy for review (the look agrees, the shape does not after alignment: {d:.3f}): {f.reason}")
                 if f.kind in EXCLUDING else f for f in found], None
     return [Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") if f.kind in EXCLUDING else f
             for f in found], None

@@ -45,9 +45,9 @@ def quality_flags(items: list[Item], broken: list[CatalogObject], th: FilterConf
             worst = max(s.nonmanifold_fraction, s.boundary_fraction, s.self_intersection_fraction)
             if worst > th.mesh_quality_min_fraction:
                 found.append(Found(o.id, None, MESH_QUALITY, mesh_quality_score(worst),
-                                    f"{100 * s.nonmanifold_fraction:.2f}% non-manifold edges, {100 * s.boundary_fraction:.2f}% "
-                                    f"open edges (holes), {100 * s.self_intersection_fraction:.2f}% self-intersecting faces; "
-                                    "usable: it renders and physics uses its convex hull"))
+                                   f"{100 * s.nonmanifold_fraction:.2f}% non-manifold edges, {100 * s.boundary_fraction:.2f}% "
+                                   f"open edges (holes), {100 * s.self_intersection_fraction:.2f}% self-intersecting faces; "
+                                   "usable: it renders and physics uses its convex hull"))
         if it.look is not None and it.look.coverage < th.min_render_coverage:
             reasons.append(f"blank render ({100 * it.look.coverage:.2f}% object pixels)")
         if reasons:
