@@ -2,11 +2,11 @@
 
 Usage: .venv/bin/python bench/candidates.py [--sizes 1500 15000] [--k 12] [--align-pairs 20] [--smoke]
 
-Synthetic descriptors stand in for a library: index vectors (:func:`mixcount.curation.candidates.feature`)
-and squash queries (:func:`~mixcount.curation.candidates.queries`) of surface samples drawn from random ellipsoids with lumps (one per object, seeded), plus a tenth of the
+Synthetic descriptors stand in for a library: index vectors (:func:`mixcount.curation.finding.candidates.feature`)
+and squash queries (:func:`~mixcount.curation.finding.candidates.queries`) of surface samples drawn from random ellipsoids with lumps (one per object, seeded), plus a tenth of the
 objects again as turned, squashed copies. For each size: the time to build the k-d index and find every
 object's ``k`` nearest (the candidate pairs), the number of pairs against all n(n-1)/2, and the time the
-shape alignment (:func:`mixcount.curation.shape_match.match`) would take on those pairs, from the mean of
+shape alignment (:func:`mixcount.curation.finding.shape_match.match`) would take on those pairs, from the mean of
 ``--align-pairs`` real alignments (the expensive rule runs on candidates only, after cheap gates that
 drop most of them: this is its upper bound). Also the recall of the planted copies among the candidates.
 Prints human lines to stderr and one JSON line to stdout:
@@ -26,8 +26,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mixcount.curation import shape_match as S  # noqa: E402
-from mixcount.curation.candidates import candidate_pairs, queries  # noqa: E402
+from mixcount.curation.finding import shape_match as S  # noqa: E402
+from mixcount.curation.finding.candidates import candidate_pairs, queries  # noqa: E402
 
 N_POINTS = 600  # samples per synthetic object for its index vector (the filter uses 6,000: same vector)
 

@@ -30,7 +30,7 @@ from mixcount.catalog.db import open_catalog  # noqa: E402
 from mixcount.catalog.ingest import ingest_paths  # noqa: E402
 from mixcount.catalog.models import CatalogObject, Flag  # noqa: E402
 from mixcount.config import load_config  # noqa: E402
-from mixcount.curation.flags import run_filter  # noqa: E402
+from mixcount.curation.finding.catalog_filter import run_filter  # noqa: E402
 from mixcount.demo import library as L  # noqa: E402
 from mixcount.demo import traps as T  # noqa: E402
 
@@ -49,7 +49,7 @@ def main() -> int:
         root = Path(tmp) / "lib"
         objects = {
             "scan": [part],
-            "scan_turned": L._baked([part], L.rotation_xyz((90.0, 0.0, 37.0)), 1.7),
+            "scan_turned": L.baked([part], L.rotation_xyz((90.0, 0.0, 37.0)), 1.7),
             "scan_retessellated": L.subdivide([part]),
             # another source: isotropically remeshed to a fifth of the faces, texture re-baked, x0.01, turned
             "scan_remeshed_scaled_turned": T.republish([part], method="isotropic", target_faces=len(part.faces) // 5,

@@ -211,7 +211,7 @@ def run_captures_step(args: argparse.Namespace) -> int:
 
             detail = render_catalog(catalog, config.canonical_render).as_dict()
         else:
-            from mixcount.curation.flags import run_filter
+            from mixcount.curation.finding.catalog_filter import run_filter
 
             res = run_filter(catalog, config)
             detail = {"objects": res.objects, "flags": res.flags}

@@ -26,7 +26,7 @@ from sqlalchemy import func, insert, select  # noqa: E402
 
 from mixcount.catalog.db import open_catalog  # noqa: E402
 from mixcount.catalog.models import CatalogObject  # noqa: E402
-from mixcount.curation.review import import_decisions  # noqa: E402
+from mixcount.curation.review.import_decisions import import_decisions  # noqa: E402
 
 
 def build(folder: Path, n: int, n_pairs: int) -> tuple[object, Path]:

@@ -36,8 +36,8 @@ import trimesh
 from public_packages import deb_tree, wheel_tree
 from scipy.spatial import cKDTree
 
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import descriptors as D
 from mixcount.sizes import metres_per_unit, plausible_unit
 
 PYBULLET = "pybullet==3.2.7"
@@ -203,16 +203,16 @@ def pool(parts: tuple[str, ...] = ("tuning", "held_out"), only: Optional[set[str
 
 
 def items_of(entries: list[Entry]) -> list[Any]:
-    """The filter's view of each entry (:class:`mixcount.curation.filter_items._Item`), ids from 1."""
+    """The filter's view of each entry (:class:`mixcount.curation.finding.filter_items.Item`), ids from 1."""
     from mixcount.catalog.models import CatalogObject
-    from mixcount.curation.filter_items import _Item
+    from mixcount.curation.finding.filter_items import Item
 
     out = []
     for oid, (name, _group, _part, points, colours, shape) in enumerate(entries, start=1):
         obj = CatalogObject(id=oid, name=name, content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
         plain = float(np.abs(colours - colours.mean(axis=0)).sum(axis=1).mean()) < 0.05
-        out.append(_Item(obj, shape=shape, surface=A.surface_look(points, colours),
-                         appearance="material" if plain else "image"))
+        out.append(Item(obj, shape=shape, surface=A.surface_look(points, colours),
+                        appearance="material" if plain else "image"))
     return out
 
 
@@ -221,9 +221,10 @@ def evaluate(entries: list[Entry], th: Any) -> dict[str, Any]:
     count: per part and kind, the copies among the candidates and the copies paired (a *decide* pairing:
     a duplicate kind, colour_variant or possible_copy); the decide pairs between different objects, the
     duplicates (which exclude) between different objects, and the look-alike pairs (info)."""
-    from mixcount.curation.filter_items import LayoutCache
+    from mixcount.curation.finding.catalog_filter import candidate_items
+    from mixcount.curation.finding.copy_rules import pair_flags
+    from mixcount.curation.finding.filter_items import LayoutCache
     from mixcount.curation.flag_kinds import DUPLICATE_KINDS, severity
-    from mixcount.curation.flags import candidate_items, pair_flags
 
     items = items_of(entries)
     group = {i: e[1] for i, e in enumerate(entries, start=1)}

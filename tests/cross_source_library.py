@@ -54,7 +54,7 @@ def _plain(name: str, rgb: tuple[int, int, int]) -> L.Part:
 def _flatten(parts: list[L.Part], axis: int, factor: float) -> list[L.Part]:
     s = np.ones(3)
     s[axis] = factor
-    return L._baked(parts, np.diag(s), 1.0)
+    return L.baked(parts, np.diag(s), 1.0)
 
 
 def objects() -> dict[str, list[L.Part]]:
@@ -69,16 +69,16 @@ def objects() -> dict[str, list[L.Part]]:
         "bunny_dec_flat_cm_dark": T.republish(_flatten([bunny], 0, 0.85), method="decimate", target_faces=300,
                                               texture_px=128, gain=0.9, rotation=turn((0.0, 0.0, 70.0)),
                                               scale=100.0, seed=2),
-        "bunny_dec_flat_recoloured": L._recolour(T.republish(_flatten([bunny], 1, 0.8), method="decimate",
-                                                             target_faces=400, texture_px=256,
-                                                             rotation=turn((20.0, 40.0, 0.0)), scale=1.0, seed=3), 0.4),
+        "bunny_dec_flat_recoloured": L.recolour(T.republish(_flatten([bunny], 1, 0.8), method="decimate",
+                                                            target_faces=400, texture_px=256,
+                                                            rotation=turn((20.0, 40.0, 0.0)), scale=1.0, seed=3), 0.4),
         "cow_yellow": [yellow],
         "cow_yellow_dec_flat_cm": T.republish(_flatten([yellow], 1, 0.78), method="decimate", target_faces=250,
                                               texture_px=64, rotation=turn((90.0, 0.0, 0.0)), scale=100.0, seed=5),
         "cow_olive_dec_flat": T.republish(_flatten([_plain("cow.obj", (110, 110, 40))], 2, 0.85), method="decimate",
                                           target_faces=300, texture_px=64, rotation=turn((0.0, 90.0, 0.0)),
                                           scale=1.0, seed=4),
-        "cow_red_turned_mm": L._baked([_plain("cow.obj", (190, 50, 45))], turn((0.0, 30.0, 120.0)), 1000.0),
+        "cow_red_turned_mm": L.baked([_plain("cow.obj", (190, 50, 45))], turn((0.0, 30.0, 120.0)), 1000.0),
         "airplane_grey": [_plain("airplane.obj", (150, 155, 160))],
         "bone_ivory": [_plain("bone.ply", (230, 220, 190))],
     }

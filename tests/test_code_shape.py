@@ -149,6 +149,83 @@ def test_the_circle_check_sees_a_planted_circle(tmp_path):
     assert import_circles(import_graph(package_modules(pkg))) == [["mixcount.scene.a", "mixcount.scene.b"]]
 
 
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def _dotted(node: ast.expr) -> str | None:
+    """``a.b.c`` for a chain of names and attributes, else None."""
+    parts = []
+    while isinstance(node, ast.Attribute):
+        parts.append(node.attr)
+        node = node.value
+    if not isinstance(node, ast.Name):
+        return None
+    return ".".join([node.id, *reversed(parts)])
+
+
+def private_imports() -> list[str]:
+    """``importer -> module._name`` for every private name (``_x``) one mixcount module takes from another:
+    ``from m import _x``, or ``m._x`` on a module it imported (``import m``, ``import m as M``,
+    ``from p import m``), lazy and TYPE_CHECKING imports included. A name shared across modules is public."""
+    modules = dict(_modules())
+    found = []
+    for name, tree in modules.items():
+        aliases: dict[str, str] = {}  # local name -> the module it stands for
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                if node.module.split(".")[0] != "mixcount":
+                    continue
+                for a in node.names:
+                    full = f"{node.module}.{a.name}"
+                    if full in modules:
+                        aliases[a.asname or a.name] = full
+                    elif _private(a.name) and node.module != name:
+                        found.append(f"{name} -> {full}")
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.split(".")[0] == "mixcount":
+                        local = a.asname or a.name.split(".")[0]
+                        aliases[local] = a.name if a.asname else local
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Attribute) and _private(node.attr)):
+                continue
+            owner = _dotted(node.value)
+            if owner is None:
+                continue
+            head, _, rest = owner.partition(".")
+            if head not in aliases:
+                continue
+            target = ".".join(p for p in (aliases[head], rest) if p)
+            if target in modules and target != name:
+                found.append(f"{name} -> {target}.{node.attr}")
+    return sorted(set(found))
+
+
+def test_no_private_name_imported_across_modules():
+    found = set(private_imports())
+    assert found == set(), f"private names imported across modules (make a shared name public): {sorted(found)}"
+
+
+def test_the_private_name_check_sees_every_form(tmp_path):
+    """``from m import _x``, ``M._x`` after ``import m as M`` / ``from p import m`` and ``m._x`` after a plain
+    ``import m``, lazy ones included, must all be reported; a module's own private names and dunders not."""
+    global PACKAGE
+    pkg = tmp_path / "mixcount"
+    (pkg / "scene").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "scene" / "__init__.py").write_text("")
+    (pkg / "scene" / "a.py").write_text("def _x():\n    return 1\n\n\ndef _own():\n    return _x()\n")
+    (pkg / "scene" / "b.py").write_text(
+        "from mixcount.scene.a import _x\nfrom mixcount.scene import a\nimport mixcount.scene.a as A\n\n\n"
+        "def f():\n    import mixcount.scene.a\n\n    return _x, a._y, A._z, mixcount.scene.a._w, A.__name__\n")
+    saved, PACKAGE = PACKAGE, pkg
+    try:
+        assert private_imports() == [f"mixcount.scene.b -> mixcount.scene.a.{n}" for n in ("_w", "_x", "_y", "_z")]
+    finally:
+        PACKAGE = saved
+
+
 def test_the_checks_see_what_they_look_for(tmp_path):
     """The two scanners on a planted long function and a planted upward import (they must report both)."""
     global PACKAGE

@@ -29,8 +29,7 @@ from sqlalchemy import select
 from mixcount.catalog.db import open_catalog
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.cli import main
-from mixcount.curation.flag_kinds import severity
-from mixcount.curation.flags import DUPLICATE_KINDS
+from mixcount.curation.flag_kinds import DUPLICATE_KINDS, severity
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 

@@ -22,11 +22,12 @@ from copy_pool import PUBLIC_PAIRS, originals, public_models
 
 from mixcount.catalog.models import CatalogObject
 from mixcount.config import load_config
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
-from mixcount.curation.filter_items import LayoutCache, _Item
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding.catalog_filter import candidate_items
+from mixcount.curation.finding.copy_rules import pair_flags
+from mixcount.curation.finding.filter_items import Item, LayoutCache
 from mixcount.curation.flag_kinds import DUPLICATE_KINDS, RELATION_KINDS, severity
-from mixcount.curation.flags import candidate_items, pair_flags
 from mixcount.sizes import metres_per_unit, plausible_unit
 
 pytestmark = pytest.mark.slow
@@ -46,7 +47,7 @@ def test_public_pairs_paired_and_nothing_else(tmp_path):
         unit = plausible_unit(float(np.ptp(v, axis=0).max()), "m")  # real sizes as ingest reads them (issue 57)
         shape = D.shape_descriptor(v * (metres_per_unit(unit) if unit else 1.0), np.asarray(mesh.faces),
                                    watertight=False, volume=None, quality=False)
-        items.append(_Item(obj, shape=shape, surface=A.surface_look(points, colours), appearance="image"))
+        items.append(Item(obj, shape=shape, surface=A.surface_look(points, colours), appearance="image"))
         name[oid] = label
     palette = np.random.default_rng(7)
     for oid, (label, (v, f)) in enumerate(sorted(originals().items()), start=100):
@@ -54,8 +55,8 @@ def test_public_pairs_paired_and_nothing_else(tmp_path):
         colour = palette.uniform(0.05, 0.95, 3) if GREY is None else np.full(3, GREY)
         obj = CatalogObject(id=oid, name=label, content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
         shape = D.shape_descriptor(v, f, watertight=False, volume=None, quality=False)
-        items.append(_Item(obj, shape=shape, surface=A.surface_look(points, np.tile(colour, (len(points), 1))),
-                           appearance="material"))
+        items.append(Item(obj, shape=shape, surface=A.surface_look(points, np.tile(colour, (len(points), 1))),
+                          appearance="material"))
         name[oid] = label
     th = load_config().filter
     found = pair_flags(items, th, LayoutCache(None), candidate_items(items, th.candidates))

@@ -21,12 +21,13 @@ from copy_pool import pool
 
 from mixcount.catalog.models import CatalogObject
 from mixcount.config import load_config
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
-from mixcount.curation import shape_match as S
-from mixcount.curation.filter_items import LayoutCache, _Item
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding import shape_match as S
+from mixcount.curation.finding.catalog_filter import candidate_items
+from mixcount.curation.finding.copy_rules import pair_flags
+from mixcount.curation.finding.filter_items import Item, LayoutCache
 from mixcount.curation.flag_kinds import DUPLICATE_KINDS, POSSIBLE_COPY, severity
-from mixcount.curation.flags import candidate_items, pair_flags
 
 pytestmark = pytest.mark.slow
 
@@ -34,7 +35,7 @@ CAPTURES = ("bunny", "cow", "airplane", "bone", "scan0", "scan1", "figurine", "m
 PRIMITIVES = ("can", "ball", "block")
 
 
-def _items() -> tuple[list[_Item], dict[int, str], dict[int, str]]:
+def _items() -> tuple[list[Item], dict[int, str], dict[int, str]]:
     items, group, name = [], {}, {}
     for oid, (label, grp, v, f) in enumerate(pool(seed=0), start=1):
         if grp not in CAPTURES + PRIMITIVES:
@@ -42,8 +43,8 @@ def _items() -> tuple[list[_Item], dict[int, str], dict[int, str]]:
         points = D.sample_surface(v, f, A.N_SAMPLES, np.random.default_rng(oid))
         obj = CatalogObject(id=oid, name=label, content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
         shape = D.shape_descriptor(v, f, watertight=False, volume=None, quality=False)
-        items.append(_Item(obj, shape=shape, surface=A.surface_look(points, np.full((len(points), 3), 0.6)),
-                           appearance="material"))
+        items.append(Item(obj, shape=shape, surface=A.surface_look(points, np.full((len(points), 3), 0.6)),
+                          appearance="material"))
         group[oid], name[oid] = grp, label
     return items, group, name
 

@@ -12,8 +12,9 @@ from sqlalchemy import select
 from test_curate_support import library_catalog, quick_config
 
 from mixcount.catalog.models import CatalogObject, Flag, ReviewDecision
-from mixcount.curation import descriptors as D
-from mixcount.curation.flags import DUPLICATE_KINDS, EXCLUDED_MARK, FILTER_KINDS, run_filter
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding.catalog_filter import run_filter
+from mixcount.curation.flag_kinds import DUPLICATE_KINDS, EXCLUDED_MARK, FILTER_KINDS
 
 
 def state(catalog):

@@ -22,10 +22,12 @@ from test_curate_support import quick_config
 
 from mixcount.catalog.ingest import ingest_paths
 from mixcount.catalog.models import CatalogObject, Flag
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import colour_layout as CL
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding.catalog_filter import run_filter
+from mixcount.curation.finding.quality_flags import mesh_quality_score
 from mixcount.curation.flag_kinds import severity
-from mixcount.curation.flags import mesh_quality_score, run_filter
 from mixcount.demo import library as L
 from mixcount.demo import traps as T
 
@@ -44,11 +46,11 @@ def capture_library(root):
     ball = L.build_ball(0, np.random.default_rng(2))  # tennis
     die = L.build_die(0, np.random.default_rng(3))  # a cube: principal axes left to the colour
     write(root, "can", can.parts)
-    write(root, "can_turned", L._baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 2.0))  # other up axis, 2x
+    write(root, "can_turned", L.baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 2.0))  # other up axis, 2x
     write(root, "ball", ball.parts)
     write(root, "ball_retessellated", L.subdivide(ball.parts))
     write(root, "die", die.parts)
-    write(root, "die_turned_retessellated", L.subdivide(L._baked(die.parts, L.rotation_xyz((0.0, 90.0, 45.0)), 0.7)))
+    write(root, "die_turned_retessellated", L.subdivide(L.baked(die.parts, L.rotation_xyz((0.0, 90.0, 45.0)), 0.7)))
     other = root / "can_scan"
     other.mkdir()
     L.export_obj(can.parts, other, scale=125.0)  # centimetres, 1.25x, Z-up read as Y-up
@@ -133,12 +135,12 @@ def test_surface_look_known_answers(tmp_path):
         return A.surface_look(*A.surface_samples(path))
 
     base = look(can.parts, "a")
-    turned = look(L._baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 3.0), "b")
+    turned = look(L.baked(can.parts, L.rotation_xyz((90.0, 0.0, 37.0)), 3.0), "b")
     finer = look(L.subdivide(can.parts), "c")
     beans = look(other.parts, "d")
-    assert A.colour_distance(base, turned) < 1e-9 and A.layout_distance(base, turned) < 1e-6  # same samples, turned
-    assert A.colour_distance(base, finer) < 0.02 and A.layout_distance(base, finer, search_above=0.06) < 0.04
-    assert A.colour_distance(base, beans) > 0.3 and A.layout_distance(base, beans, search_above=0.06) > 0.1
+    assert A.colour_distance(base, turned) < 1e-9 and CL.layout_distance(base, turned) < 1e-6  # same samples, turned
+    assert A.colour_distance(base, finer) < 0.02 and CL.layout_distance(base, finer, search_above=0.06) < 0.04
+    assert A.colour_distance(base, beans) > 0.3 and CL.layout_distance(base, beans, search_above=0.06) > 0.1
     hist = A.colour_histogram(np.array([[0.1, 0.5, 0.9]] * 10))
     assert hist.sum() == pytest.approx(1.0) and (hist > 0).sum() == 8  # soft: a colour between bins splits
 
@@ -183,7 +185,7 @@ def test_real_scan_republished_by_other_sources_is_paired(catalog, tmp_path):
                                              rotation=turn((-90.0, 0.0, 200.0)), scale=0.001, seed=2),
         "bunny_split": T.republish([bunny], method=None, target_faces=0, texture_px=512, pieces=4,
                                    rotation=turn((90.0, 0.0, 0.0)), scale=1.0, seed=3),
-        "bunny_recoloured": L._recolour([bunny], 0.4),
+        "bunny_recoloured": L.recolour([bunny], 0.4),
     }
     for name, parts in copies.items():
         write(lib, name, parts)
@@ -219,7 +221,9 @@ def test_capture_sized_scan_pairs_with_its_remeshed_scaled_turned_copy(catalog, 
     descriptors computed cold, then the comparison) is printed."""
     import time
 
-    from mixcount.curation import flags as F
+    from mixcount.curation.finding import catalog_filter as F
+    from mixcount.curation.finding.copy_rules import pair_flags
+    from mixcount.curation.finding.filter_items import Item
 
     scan = T.scan_like(300_000, np.random.default_rng(0))
     assert len(scan.faces) >= 300_000
@@ -231,11 +235,11 @@ def test_capture_sized_scan_pairs_with_its_remeshed_scaled_turned_copy(catalog, 
     assert summary.broken == 0, summary.broken_objects
     config = quick_config()
     with catalog.session() as s:
-        items = [F._Item(o) for o in s.scalars(select(CatalogObject).order_by(CatalogObject.id))]
+        items = [Item(o) for o in s.scalars(select(CatalogObject).order_by(CatalogObject.id))]
         t0 = time.perf_counter()
         F._describe(catalog, s, items, F.FilterSummary())
         t1 = time.perf_counter()
-        found = F._pair_flags(items, config.filter)
+        found = pair_flags(items, config.filter)
         t2 = time.perf_counter()
     assert [f.kind for f in found] == ["near_duplicate_appearance"], [(f.kind, f.reason) for f in found]
     assert "same surface colours and layout from every side" in found[0].reason

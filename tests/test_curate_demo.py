@@ -22,7 +22,8 @@ from mixcount.catalog.db import open_catalog
 from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.cli import main
-from mixcount.curation.flags import DUPLICATE_KINDS, TRAP_KINDS, VARIANT_TRAPS, evaluate_against_ground_truth
+from mixcount.curation.finding.ground_truth import TRAP_KINDS, VARIANT_TRAPS, evaluate_against_ground_truth
+from mixcount.curation.flag_kinds import DUPLICATE_KINDS
 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 

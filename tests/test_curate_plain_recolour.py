@@ -20,9 +20,12 @@ import trimesh
 
 from mixcount.catalog.models import CatalogObject
 from mixcount.config import load_config
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
-from mixcount.curation.flags import COLOUR_VARIANT, POSSIBLE_COPY, LayoutCache, _Item, _pair_flags
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import colour_layout as CL
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding.copy_rules import pair_flags
+from mixcount.curation.finding.filter_items import Item, LayoutCache
+from mixcount.curation.flag_kinds import COLOUR_VARIANT, POSSIBLE_COPY
 
 SAMPLES = Path(__import__("pymeshlab").__file__).parent / "tests" / "sample_meshes"
 
@@ -33,7 +36,7 @@ def _rotation(deg: tuple[float, float, float]) -> np.ndarray:
     return Rotation.from_euler("xyz", deg, degrees=True).as_matrix()
 
 
-def _item(oid: int, vertices: np.ndarray, faces: np.ndarray, rgb: tuple[int, int, int], tmp: Path) -> _Item:
+def _item(oid: int, vertices: np.ndarray, faces: np.ndarray, rgb: tuple[int, int, int], tmp: Path) -> Item:
     """A catalog item as ``catalog filter`` builds it, from a GLB written to disk (one plain colour)."""
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.tile([*rgb, 255], (len(vertices), 1)))
@@ -42,13 +45,13 @@ def _item(oid: int, vertices: np.ndarray, faces: np.ndarray, rgb: tuple[int, int
     points, colours = A.surface_samples(path)
     obj = CatalogObject(id=oid, name=f"obj {oid}", content_hash=f"{oid:032x}", geometry_hash=f"g{oid:031x}")
     shape = D.shape_descriptor(vertices, faces, watertight=False, volume=None, quality=False)
-    return _Item(obj, shape=shape, surface=A.surface_look(points, colours), appearance="vertex_color")
+    return Item(obj, shape=shape, surface=A.surface_look(points, colours), appearance="vertex_color")
 
 
-def _pairs(items: list[_Item]) -> dict[frozenset[int], dict[str, str]]:
+def _pairs(items: list[Item]) -> dict[frozenset[int], dict[str, str]]:
     th = load_config().filter
     out: dict[frozenset[int], dict[str, str]] = {}
-    for f in _pair_flags(items, th, LayoutCache(None)):
+    for f in pair_flags(items, th, LayoutCache(None)):
         assert f.b is not None
         out.setdefault(frozenset((f.a, f.b)), {})[f.kind] = f.reason
     return out
@@ -99,9 +102,9 @@ def test_symmetric_and_different_shapes_stay_apart(cow, tmp_path):
     assert "a plain solid's shape" in pairs[frozenset((3, 4))]["look_alike"]
     th = load_config().filter
     # what keeps the erasers apart is the asymmetry gate: scaled per axis, two boxes are one shape
-    assert A.occupancy_distance(items[2].shape_look(), items[3].shape_look()) <= th.cross_source_occupancy
+    assert CL.occupancy_distance(items[2].shape_look(), items[3].shape_look()) <= th.cross_source_occupancy
     assert sorted(items[2].asymmetry())[1] < th.cross_source_min_asymmetry
     assert not items[2].surface.tied and not items[3].surface.tied  # type: ignore[union-attr]
     # the cow and the airplane are both asymmetric enough; their axis-normalised shapes differ
     assert min(sorted(it.asymmetry())[1] for it in items[:2]) >= th.cross_source_min_asymmetry
-    assert A.occupancy_distance(items[0].shape_look(), items[1].shape_look()) > th.cross_source_occupancy
+    assert CL.occupancy_distance(items[0].shape_look(), items[1].shape_look()) > th.cross_source_occupancy

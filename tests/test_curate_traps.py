@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import pdist
 
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import descriptors as D
 from mixcount.demo import library as L
 from mixcount.demo import traps as T
 
@@ -90,7 +90,7 @@ def test_colour_transport_and_exposure(tmp_path):
     base = look(spec.parts, tmp_path, "base")
     darker = look([T.bake(v, f, colour, size=512, gain=0.85)], tmp_path, "darker")
     beans = look(L.build_can(3, np.random.default_rng(4)).parts, tmp_path, "beans")
-    recolour = look(L._recolour(spec.parts, 0.33), tmp_path, "recolour")
+    recolour = look(L.recolour(spec.parts, 0.33), tmp_path, "recolour")
     gain = A.exposure_gain(base, darker, 1.25)
     assert gain == pytest.approx(1 / 0.85, rel=0.03)
     plain = A.colour_transport(base, darker)

@@ -160,7 +160,7 @@ def test_full_library_layout_variety_and_traps(tmp_path):
                 assert len(mb.faces) == len(ma.faces) and by[b]["gain"] in (1.0, 0.88)
     (tote,) = truth["mesh_quality"]
     from mixcount.catalog.mesh import load_normalised
-    from mixcount.curation.descriptors import boundary_fraction, nonmanifold_fraction
+    from mixcount.curation.finding.descriptors import boundary_fraction, nonmanifold_fraction
 
     mesh = load_normalised(root / by[tote]["model"]).mesh
     assert nonmanifold_fraction(mesh.faces) > 0.05 and boundary_fraction(mesh.faces) > 0

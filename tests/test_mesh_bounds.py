@@ -107,7 +107,7 @@ def test_absurd_coordinates_are_broken_with_the_reason_and_nothing_on_stderr(tmp
     from mixcount.catalog.ingest import ingest_paths
     from mixcount.catalog.models import CatalogObject
     from mixcount.config import load_config
-    from mixcount.curation.quality_flags import _broken_kind
+    from mixcount.curation.finding.quality_flags import _broken_kind
 
     root, why = deb_tree("glmark2-data")
     if root is None:

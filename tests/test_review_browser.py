@@ -14,9 +14,9 @@ from test_curate_support import add_captions, library_catalog, quick_config
 
 from mixcount.catalog.models import CatalogObject, ReviewDecision
 from mixcount.cli import main
-from mixcount.curation.flags import run_filter
-from mixcount.curation.review import FORMAT
-from mixcount.curation.sheets import write_sheets
+from mixcount.curation.finding.catalog_filter import run_filter
+from mixcount.curation.review.decisions_file import FORMAT
+from mixcount.curation.review.review_page import write_sheets
 
 pytestmark = [pytest.mark.browser]
 

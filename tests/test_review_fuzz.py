@@ -18,7 +18,8 @@ from sqlalchemy import delete, func, insert, select, update
 
 from mixcount.catalog.db import open_catalog
 from mixcount.catalog.models import CatalogObject, ReviewDecision
-from mixcount.curation.review import FORMAT, import_decisions
+from mixcount.curation.review.decisions_file import FORMAT
+from mixcount.curation.review.import_decisions import import_decisions
 from mixcount.errors import CatalogError
 
 N = 6  # objects o1..o6 in the catalog

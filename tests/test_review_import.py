@@ -14,11 +14,11 @@ import pytest
 from sqlalchemy import func, insert, select
 
 import mixcount.catalog.decisions as decisions_mod
-import mixcount.curation.review as review_mod
+import mixcount.curation.review.import_decisions as review_mod
 from mixcount.catalog.models import CatalogObject, ReviewDecision
 from mixcount.cli import main
-from mixcount.curation.review import FORMAT, import_decisions
-from mixcount.curation.review_file import MAX_FILE_MB, same_catalog
+from mixcount.curation.review.decisions_file import FORMAT, MAX_FILE_MB, same_catalog
+from mixcount.curation.review.import_decisions import import_decisions
 from mixcount.errors import CatalogError
 
 N_OBJECTS = 40

@@ -17,10 +17,11 @@ from test_curate_support import add_captions, library_catalog, quick_config
 
 from mixcount.catalog.models import CatalogObject, ReviewDecision
 from mixcount.cli import main
+from mixcount.curation.finding.catalog_filter import run_filter
 from mixcount.curation.flag_kinds import severity
-from mixcount.curation.flags import run_filter
-from mixcount.curation.review import FORMAT, import_decisions
-from mixcount.curation.sheets import CELL_TEXT_H, STATUS_COLOURS, collect, safe_json, write_sheets
+from mixcount.curation.review.decisions_file import FORMAT
+from mixcount.curation.review.import_decisions import import_decisions
+from mixcount.curation.review.review_page import CELL_TEXT_H, STATUS_COLOURS, collect, safe_json, write_sheets
 from mixcount.errors import CatalogError
 
 HOSTILE = "</script><script>window.pwned=1</script><img src=x onerror=\"window.pwned=2\"> & \u2028 'q'"

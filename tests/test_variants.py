@@ -17,7 +17,7 @@ from mixcount.catalog.models import Flag
 from mixcount.catalog.pool_loader import colour_variants, load_pool
 from mixcount.catalog.splits import assign_splits, check_splits
 from mixcount.config import load_config
-from mixcount.curation.flags import run_filter
+from mixcount.curation.finding.catalog_filter import run_filter
 from mixcount.errors import ConfigError
 from mixcount.scene.class_draws import CONSTRUCTIONS, caption_keys, construction_weights
 from mixcount.scene.object_records import ObjectRecord

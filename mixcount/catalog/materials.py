@@ -4,7 +4,7 @@ glTF's base colour is ``baseColorFactor x texture(uv) x COLOR_0``. trimesh keeps
 texture on ``visual.material`` (``baseColorFactor`` / ``baseColorTexture`` for PBR materials,
 ``main_color`` / ``image`` for simple ones) and the COLOR_0 of a primitive that also has a material in
 ``visual.vertex_attributes["color"]``. The stub captioner's colours (:mod:`mixcount.captions.colours`),
-the orientation-free appearance descriptor (:mod:`mixcount.curation.appearance3d`) and the USD
+the orientation-free appearance descriptor (:mod:`mixcount.curation.finding.appearance3d`) and the USD
 converter (:mod:`mixcount.usd.assets`) all read them through these functions.
 """
 

@@ -30,7 +30,7 @@ from mixcount.catalog.models import (
 from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, ObjectRecord, fallback_captions
 from mixcount.scene.spec import Captions
 
-COLOUR_VARIANT = "colour_variant"  # mixcount.curation.flags.COLOUR_VARIANT (no import: scene side stays light)
+COLOUR_VARIANT = "colour_variant"  # mixcount.curation.flag_kinds.COLOUR_VARIANT (no import: scene side stays light)
 
 
 def colour_variants(session: Session) -> dict[int, set[int]]:

@@ -43,7 +43,7 @@ def filter_cmd(
     json_out: bool = json_option("the summary"),
 ) -> None:
     """Flag duplicates and degenerate/outlier objects, exclude all but one per duplicate group (idempotent)."""
-    from mixcount.curation.flags import run_filter
+    from mixcount.curation.finding.catalog_filter import run_filter
 
     st = state(ctx)
     catalog = st.catalog()
@@ -84,7 +84,7 @@ def sheet_cmd(
     json_out: bool = json_option("what was written"),
 ) -> None:
     """Write PNG contact sheets and one self-contained HTML review page."""
-    from mixcount.curation.sheets import write_sheets
+    from mixcount.curation.review.review_page import write_sheets
 
     catalog = state(ctx).catalog()
     try:
@@ -107,7 +107,7 @@ def review_import_cmd(
     json_out: bool = json_option("the summary"),
 ) -> None:
     """Record accept/reject decisions (with reviewer and time) and apply them to object statuses."""
-    from mixcount.curation.review import import_decisions
+    from mixcount.curation.review.import_decisions import import_decisions
 
     catalog = state(ctx).catalog()
     try:

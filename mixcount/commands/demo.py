@@ -19,7 +19,7 @@ def demo_library_cmd(
     json_out: bool = json_option("the ground truth's counts"),
 ) -> None:
     """Generate the demo library: everyday objects, containers and curation traps, plus ground_truth.json."""
-    from mixcount.curation.flags import TRAP_KINDS
+    from mixcount.curation.finding.ground_truth import TRAP_KINDS
     from mixcount.demo.library import generate_demo_library
 
     demo = state(ctx).config(values={"demo.seed": seed, "demo.n_objects": n}).demo

@@ -146,7 +146,7 @@ def rotation_xyz(degrees: tuple[float, float, float]) -> np.ndarray:
     return z @ y @ x
 
 
-def _baked(parts: list[Part], rotation: np.ndarray, scale: float) -> list[Part]:
+def baked(parts: list[Part], rotation: np.ndarray, scale: float) -> list[Part]:
     """The parts turned by ``rotation`` (3x3, about the origin) and scaled, offsets baked in."""
     out = []
     for p in parts:
@@ -178,7 +178,9 @@ def subdivide(parts: list[Part]) -> list[Part]:
     return out
 
 
-def _recolour(parts: list[Part], hue_shift: float) -> list[Part]:
+def recolour(parts: list[Part], hue_shift: float) -> list[Part]:
+    """The parts in another look, same shape: a texture's hue turned by ``hue_shift`` (saturation raised),
+    vertex colours inverted."""
     out = []
     for p in parts:
         q = Part(p.vertices, p.faces, p.uv, roughness=p.roughness, metallic=p.metallic, offset=p.offset)

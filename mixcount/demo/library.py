@@ -41,7 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from mixcount.demo.geometry import Part, _baked, _recolour, rotation_xyz, subdivide
+from mixcount.demo.geometry import Part, baked, recolour, rotation_xyz, subdivide
 from mixcount.demo.objects import (  # noqa: F401 - the builders are this module's public face too
     BUILDERS,
     CONTAINER_BUILDERS,
@@ -55,12 +55,12 @@ from mixcount.demo.objects import (  # noqa: F401 - the builders are this module
 from mixcount.demo.writers import (  # noqa: F401
     GENERATOR,
     LICENSE_TEXT,
-    _dtc_id,
-    _preview,
-    _write_object,
-    _zup_dims,
+    dtc_id,
     export_glb,
     export_obj,
+    preview,
+    write_object,
+    zup_dims,
 )
 
 CONTAINER_CATEGORIES = ("plate", "tray", "bowl")
@@ -129,7 +129,7 @@ def _republished_traps(root: Path, originals: list[tuple[str, Spec, bytes]], n_t
         factor = {"units": 1.0}.get(kind, float(rng.choice([rng.uniform(0.5, 0.8), rng.uniform(1.25, 2.0)])))
         parts = [Part(p.vertices, p.faces, p.uv, image=p.image, colors=p.colors, roughness=p.roughness, metallic=p.metallic,
                       offset=tuple(a + b for a, b in zip(p.offset, origin))) for p in parts]  # type: ignore[arg-type]
-        parts = _baked(parts, turn, factor)
+        parts = baked(parts, turn, factor)
         if kind == "split":  # each part its own origin: its centre, stored as the node's offset
             parts = [Part(p.vertices - p.vertices.mean(axis=0), p.faces, p.uv, image=p.image, roughness=p.roughness,
                           metallic=p.metallic, offset=tuple(float(x) for x in p.vertices.mean(axis=0)))  # type: ignore[arg-type]
@@ -175,7 +175,7 @@ class _Library:
 
     def folder_name(self, category: str, variant: str) -> str:
         while True:
-            name = f"{category.capitalize()}_{_dtc_id(self.id_rng)}_{variant}"
+            name = f"{category.capitalize()}_{dtc_id(self.id_rng)}_{variant}"
             if name not in self.seen:
                 self.seen.add(name)
                 return name
@@ -186,10 +186,10 @@ class _Library:
         parts = parts or spec.parts
         name = self.folder_name(spec.category, spec.variant if kind == "object" or kind == "container" else f"{spec.variant}{kind.title().replace('_', '')}")
         data = glb if glb is not None else export_glb(parts, scale)
-        dims = _zup_dims(parts, scale)
+        dims = zup_dims(parts, scale)
         meta = {"name": f"{spec.variant} {spec.category}", "category": spec.category, "description": spec.description,
                 "object_id": name.split("_")[1], "variant": spec.variant, "generator": GENERATOR, "seed": self.seed}
-        _write_object(self.root, name, data, meta, _preview(parts))
+        write_object(self.root, name, data, meta, preview(parts))
         entry = {"folder": name, "category": spec.category, "kind": kind, "container": spec.container,
                  "dims_m": dims, "textured": True, "model": f"{name}/3d-asset.glb", "source": "dtc",
                  "appearance": "image" if any(p.image is not None for p in parts) else "vertex_color",
@@ -233,7 +233,7 @@ def _plant_copies(lib: _Library, bases: list[tuple[str, Spec, bytes]], pick: np.
         exact.append([name, copy])
     for t in range(n_traps):
         name, spec, data = bases[int(pick[(n_traps + t) % len(bases)])]
-        twin = lib.emit(spec, "recolour", parts=_recolour(spec.parts, 0.33 + 0.2 * t), of=name)
+        twin = lib.emit(spec, "recolour", parts=recolour(spec.parts, 0.33 + 0.2 * t), of=name)
         recolours.append([name, twin])
     for t in range(n_traps):
         name, spec, data = bases[int(pick[(2 * n_traps + t) % len(bases)])]
@@ -244,7 +244,7 @@ def _plant_copies(lib: _Library, bases: list[tuple[str, Spec, bytes]], pick: np.
     for t in range(n_traps):  # turned over (another up axis and heading) and rescaled
         name, spec, data = bases[int(pick[(3 * n_traps + t) % len(bases)])]
         angles, factor = [((90.0, 0.0, 37.0), 2.0), ((-60.0, 120.0, 15.0), 0.5)][t % 2]
-        twin = lib.emit(spec, "turned", parts=_baked(spec.parts, rotation_xyz(angles), factor), of=name,
+        twin = lib.emit(spec, "turned", parts=baked(spec.parts, rotation_xyz(angles), factor), of=name,
                         extra={"scale": factor, "rotation_deg": list(angles)})
         turned.append([name, twin, factor])
     for t in range(n_traps):
@@ -292,7 +292,7 @@ def _plant_broken(lib: _Library) -> list[dict[str, str]]:
         name = lib.folder_name(category, variant)
         meta = {"name": f"{variant} {category}", "category": category, "description": "a deliberately broken file",
                 "object_id": name.split("_")[1], "variant": variant, "generator": GENERATOR, "seed": lib.seed}
-        _write_object(lib.root, name, payload, meta, _preview([Part(np.zeros((1, 3)), np.zeros((0, 3), int), np.zeros((1, 2)), colors=np.full((1, 4), 90, np.uint8))]))
+        write_object(lib.root, name, payload, meta, preview([Part(np.zeros((1, 3)), np.zeros((0, 3), int), np.zeros((1, 2)), colors=np.full((1, 4), 90, np.uint8))]))
         lib.objects.append({"folder": name, "category": category, "kind": "broken", "container": False, "dims_m": None,
                             "model": f"{name}/3d-asset.glb", "source": "dtc",
                             "textured": False, "appearance": None, "n_parts": 0, "of": None, "expected_error": reason})

@@ -69,12 +69,14 @@ def export_glb(parts: list[Part], scale: float = 1.0) -> bytes:
     return _patch_glb_materials(data, rough, metal)
 
 
-def _zup_dims(parts: list[Part], scale: float = 1.0) -> list[float]:
+def zup_dims(parts: list[Part], scale: float = 1.0) -> list[float]:
+    """The extent of the parts (offsets applied) along x, y, z, times ``scale``: a folder's ``metadata.json`` dimensions."""
     pts = np.vstack([p.vertices + np.asarray(p.offset) for p in parts]) * scale
     return [round(float(x), 6) for x in np.ptp(pts, axis=0)]
 
 
-def _preview(parts: list[Part]) -> bytes:
+def preview(parts: list[Part]) -> bytes:
+    """A folder's ``preview.png``: the first texture of the parts, else a swatch of the first part.s mean vertex colour."""
     img = next((p.image for p in parts if p.image is not None), None)
     if img is None:
         col = parts[0].colors[:, :3].mean(axis=0).astype(np.uint8) if parts[0].colors is not None else (128, 128, 128)
@@ -84,12 +86,14 @@ def _preview(parts: list[Part]) -> bytes:
     return buf.getvalue()
 
 
-def _dtc_id(rng: np.random.Generator) -> str:
+def dtc_id(rng: np.random.Generator) -> str:
+    """An Amazon-style id (``B0`` and 8 characters) as DTC folder names carry."""
     alphabet = np.array(list("ABCDEFGHJKLMNPQRSTUVWXYZ0123456789"))
     return "B0" + "".join(rng.choice(alphabet, 8))
 
 
-def _write_object(root: Path, folder: str, glb: bytes, meta: dict[str, Any], preview: bytes) -> None:
+def write_object(root: Path, folder: str, glb: bytes, meta: dict[str, Any], preview: bytes) -> None:
+    """One DTC-layout folder ``root/folder``: the model, its ``metadata.json`` and ``preview.png``."""
     path = root / folder
     path.mkdir(parents=True, exist_ok=True)
     (path / "3d-asset.glb").write_bytes(glb)

@@ -1,5 +1,5 @@
 """A person's pair decisions applied at once by `catalog review import` (the filter applies them again on
-every run, :func:`mixcount.curation.flags.run_filter`): ``same`` excludes the worse of the two in the
+every run, :func:`mixcount.curation.finding.catalog_filter.run_filter`): ``same`` excludes the worse of the two in the
 filter's quality order, ``variants`` / ``different`` re-activate a side the filter had excluded for
 this pairing; the pair's flags are marked as decided (severity *info*)."""
 

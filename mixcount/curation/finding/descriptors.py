@@ -27,7 +27,7 @@ Appearance, from a canonical render on white and its coverage mask:
 * **Edge structure**: gradient magnitude of the grey crop at 32x32, normalised; compares where edges are
   independently of their colour (a recolour keeps its texture's layout).
 
-The orientation-free appearance measured on the model's surface is :mod:`mixcount.curation.appearance3d`.
+The orientation-free appearance measured on the model's surface is :mod:`mixcount.curation.finding.appearance3d`.
 
 Mesh-quality facts (the ``mesh_quality`` warning; none of them makes a mesh unusable) come with the
 shape descriptor, on the mesh with coincident vertices merged: the fraction of edges shared by more

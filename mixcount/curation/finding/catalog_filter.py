@@ -2,7 +2,7 @@
 
 Flags (each with a score in [0, 1], a reason, and the paired object where it is a pairing; pairs are
 flagged in both directions). Thresholds are the ``[filter]`` section; descriptors in
-:mod:`mixcount.curation.descriptors`; the rationale is in docs/curation.md.
+:mod:`mixcount.curation.finding.descriptors`; the rationale is in docs/curation.md.
 
 * ``exact_duplicate``: identical model content (content hash), or the identical mesh (geometry hash) with
   indistinguishable canonical renders.
@@ -15,7 +15,7 @@ flagged in both directions). Thresholds are the ``[filter]`` section; descriptor
 * ``near_duplicate_appearance``: the same look, two ways. (a) Canonical renders that look alike (pHash
   and colour histogram): renders are framed scale-free, so a rescaled copy lands here. (b) Whatever the
   orientation: the same surface colours and the same colour layout in the principal frame
-  (:mod:`mixcount.curation.appearance3d`), *and* the same shape at any scale (D2 and second-moment
+  (:mod:`mixcount.curation.finding.appearance3d`), *and* the same shape at any scale (D2 and second-moment
   proportions): a copy turned over (another up axis), rescaled, re-tessellated or re-exported by another
   source lands here. (c) A copy from another source whose shape agrees only loosely (decimated to a few
   per cent of its faces, flattened by a re-export: ``cross_source_*``) with the same surface colours and
@@ -67,39 +67,27 @@ from mixcount.catalog.models import (
     Flag,
 )
 from mixcount.config import Config
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
-from mixcount.curation.candidates import candidate_pairs, queries
-from mixcount.curation.copy_rules import pair_flags
-from mixcount.curation.filter_items import LayoutCache, _appearance_kind, _Found, _Item, _label
-from mixcount.curation.flag_kinds import (  # noqa: F401 - the kinds' public home for callers of the filter
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import colour_layout as CL
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding.candidates import candidate_pairs, queries
+from mixcount.curation.finding.copy_rules import pair_flags
+from mixcount.curation.finding.filter_items import Found, Item, LayoutCache, appearance_kind, object_label
+from mixcount.curation.finding.ground_truth import evaluate_against_ground_truth
+from mixcount.curation.finding.quality_flags import quality_flags
+from mixcount.curation.flag_kinds import (
     APPEARANCE_RANK,
-    CAPTION_COLLISION,
-    COLOUR_VARIANT,
     DECIDE,
     DEGENERATE,
     DUPLICATE_KINDS,
-    EXACT,
     EXCLUDED_MARK,
     FILTER_KINDS,
     MESH_QUALITY,
-    NEAR_APPEARANCE,
-    NEAR_GEOMETRY,
     POSSIBLE_COPY,
     QUALITY_KINDS,
-    RELATION_KINDS,
-    SIZE_OUTLIER,
     decided_mark,
     severity,
 )
-from mixcount.curation.ground_truth import (  # noqa: F401 - re-exported
-    TRAP_KINDS,
-    VARIANT_TRAPS,
-    evaluate_against_ground_truth,
-    find_ground_truth,
-)
-from mixcount.curation.look_rules import pattern_strength  # noqa: F401 - re-exported
-from mixcount.curation.quality_flags import _quality_flags, mesh_quality_score  # noqa: F401 - re-exported
 from mixcount.curation.renders import canonical_render_path, mask_path_for
 
 
@@ -124,11 +112,11 @@ class FilterSummary:
 
 
 
-def _describe(catalog: Catalog, session: Session, items: list[_Item], summary: FilterSummary) -> None:
+def _describe(catalog: Catalog, session: Session, items: list[Item], summary: FilterSummary) -> None:
     cache = catalog.data_dir / "descriptors"
     for it in items:
         obj = it.obj
-        it.appearance = _appearance_kind(obj)
+        it.appearance = appearance_kind(obj)
         try:
             it.shape = D.load_shape(obj.model_path, units=obj.source_units, up_axis=obj.source_up_axis,
                                     cache_dir=cache, key=(obj.geometry_hash or "")[:32] or None)
@@ -151,11 +139,9 @@ def _describe(catalog: Catalog, session: Session, items: list[_Item], summary: F
 
 
 
-_pair_flags = pair_flags  # the name tests and benches use
 
-
-def candidate_items(items: list[_Item], k: int) -> list[tuple[_Item, _Item]]:
-    """The pairs the pair rules look at (:mod:`mixcount.curation.candidates`): each object's ``k``
+def candidate_items(items: list[Item], k: int) -> list[tuple[Item, Item]]:
+    """The pairs the pair rules look at (:mod:`mixcount.curation.finding.candidates`): each object's ``k``
     nearest in the descriptor index, objects sharing a hash, and every pair with an object whose
     surface samples are missing (nothing to index it by)."""
     indexed = [it for it in items if it.surface is not None]
@@ -208,13 +194,13 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
 
         live = [o for o in objects if o.status in (STATUS_ACTIVE, STATUS_EXCLUDED)]
         broken = [o for o in objects if o.status == STATUS_BROKEN]
-        items = [_Item(o) for o in live]
+        items = [Item(o) for o in live]
         _describe(catalog, session, items, summary)
         item_of = {it.obj.id: it for it in items}
-        layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{A.LAYOUT_VERSION}.json")
+        layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{CL.LAYOUT_VERSION}.json")
         compare = candidate_items(items, th.candidates)
         summary.candidate_pairs = len(compare)
-        found = pair_flags(items, th, layouts, compare) + _quality_flags(items, broken, th)
+        found = pair_flags(items, th, layouts, compare) + quality_flags(items, broken, th)
         layouts.save()
 
         decisions = latest_decisions(session)
@@ -235,7 +221,7 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
         for p, rd in pair_decisions.items():
             if rd.decision == "same" and p not in flagged_pairs:
                 a, b = sorted(p)
-                found.append(_Found(a, b, POSSIBLE_COPY, 1.0, "the same object, by a person's review"))
+                found.append(Found(a, b, POSSIBLE_COPY, 1.0, "the same object, by a person's review"))
         pairs = [(f.a, f.b) for f in found if f.b is not None and frozenset((f.a, f.b)) not in overruled
                  and (f.kind in DUPLICATE_KINDS or frozenset((f.a, f.b)) in pair_decisions)]
         for group in _groups(pairs):
@@ -248,7 +234,7 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
                                                              appearance=item_of[o.id].appearance))
             for o in candidates:
                 if o is not keep and o.id not in accepted:
-                    exclude[o.id] = f"{EXCLUDED_MARK} duplicate group keeps {_label(keep)}"
+                    exclude[o.id] = f"{EXCLUDED_MARK} duplicate group keeps {object_label(keep)}"
         for f in found:
             if f.a not in item_of or f.a in accepted or by_id[f.a].status != STATUS_ACTIVE:
                 continue
@@ -266,7 +252,7 @@ def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -
             for oid, other in ends:
                 reason = f.reason
                 if other is not None:
-                    reason = f"{reason}; pair {_label(by_id[other])}"
+                    reason = f"{reason}; pair {object_label(by_id[other])}"
                     rd = pair_decisions.get(frozenset((oid, other)))
                     if rd is not None:
                         reason = f"{reason} {decided_mark(rd.decision, rd.reviewer)}"

@@ -1,7 +1,7 @@
 """The pair rules of `catalog filter` that look at appearance: same content, same mesh, same shape and size
 with the same or other colours, the same look from the renders or from every side of the surface, and
-the loose cross-source rules (see the module doc of :mod:`mixcount.curation.flags`). The copy rule
-that needs shape evidence only is :mod:`mixcount.curation.copy_rules`."""
+the loose cross-source rules (see the module doc of :mod:`mixcount.curation.finding.catalog_filter`). The copy rule
+that needs shape evidence only is :mod:`mixcount.curation.finding.copy_rules`."""
 
 from __future__ import annotations
 
@@ -10,9 +10,10 @@ import math
 import numpy as np
 
 from mixcount.config import FilterConfig
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
-from mixcount.curation.filter_items import LayoutCache, _Found, _Item
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import colour_layout as CL
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding.filter_items import Found, Item, LayoutCache
 from mixcount.curation.flag_kinds import (
     COLOUR_VARIANT,
     EXACT,
@@ -22,14 +23,14 @@ from mixcount.curation.flag_kinds import (
 )
 
 
-def look_pair(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> list[_Found]:
+def look_pair(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> list[Found]:
     """The appearance rules on one pair, in order (the first that fires ends the search, but a
     ``near_duplicate_geometry`` pair may also get ``near_duplicate_appearance``)."""
-    found: list[_Found] = []
+    found: list[Found] = []
     for _ in (0,):  # one pass: `continue` ends the rules for this pair
         a, b = x.obj, y.obj
         if a.content_hash and a.content_hash == b.content_hash:
-            found.append(_Found(a.id, b.id, EXACT, 1.0, "identical model content (content hash {})".format(a.content_hash[:12])))
+            found.append(Found(a.id, b.id, EXACT, 1.0, "identical model content (content hash {})".format(a.content_hash[:12])))
             continue
         ph = col = edge = None
         if x.look is not None and y.look is not None:
@@ -37,8 +38,8 @@ def look_pair(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> lis
             edge = D.edge_similarity(x.look, y.look)
         if (a.geometry_hash and a.geometry_hash == b.geometry_hash and ph is not None and col is not None
                 and ph <= th.exact_phash and col <= th.exact_colour):
-            found.append(_Found(a.id, b.id, EXACT, 1.0,
-                                f"identical mesh and indistinguishable renders (pHash {ph:.3f}, colour {col:.3f})"))
+            found.append(Found(a.id, b.id, EXACT, 1.0,
+                               f"identical mesh and indistinguishable renders (pHash {ph:.3f}, colour {col:.3f})"))
             continue
         if x.shape is not None and y.shape is not None:
             d2 = D.d2_distance(x.shape, y.shape)
@@ -56,36 +57,36 @@ def look_pair(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> lis
                 same_look = ((col is not None and col <= th.appearance_colour)
                              or (surface is not None and surface <= th.look_colour))
                 if not same_look:  # one geometry in other colours: a class of its own, not a copy
-                    found.append(_Found(a.id, b.id, COLOUR_VARIANT, round(max(0.0, score), 4),
-                                        f"colour variant: {facts}"))
+                    found.append(Found(a.id, b.id, COLOUR_VARIANT, round(max(0.0, score), 4),
+                                       f"colour variant: {facts}"))
                     continue
-                found.append(_Found(a.id, b.id, NEAR_GEOMETRY, round(max(0.0, score), 4), facts))
+                found.append(Found(a.id, b.id, NEAR_GEOMETRY, round(max(0.0, score), 4), facts))
         if ph is not None and col is not None and ph <= th.appearance_phash and col <= th.appearance_colour:
             score = 1.0 - max(ph / th.appearance_phash, col / th.appearance_colour) / 2
             extra = ""
             if x.shape is not None and y.shape is not None:
                 extra = f"; real sizes differ {max(D.size_ratio(x.shape, y.shape), D.size_ratio(y.shape, x.shape)):.2f}x"
-            found.append(_Found(a.id, b.id, NEAR_APPEARANCE, round(max(0.0, score), 4),
-                                f"canonical renders look alike (pHash {ph:.3f}, colour {col:.3f}){extra}"))
+            found.append(Found(a.id, b.id, NEAR_APPEARANCE, round(max(0.0, score), 4),
+                               f"canonical renders look alike (pHash {ph:.3f}, colour {col:.3f}){extra}"))
             continue
         surface = _surface_match(x, y, th, layouts)
         if surface is not None:
-            found.append(_Found(a.id, b.id, NEAR_APPEARANCE, *surface))
+            found.append(Found(a.id, b.id, NEAR_APPEARANCE, *surface))
             continue
         other = _cross_source(x, y, th, layouts)
         if other is not None:
-            found.append(_Found(a.id, b.id, *other))
+            found.append(Found(a.id, b.id, *other))
     return found
 
 
-def _surface_colour(x: _Item, y: _Item, th: FilterConfig) -> float | None:
+def _surface_colour(x: Item, y: Item, th: FilterConfig) -> float | None:
     """Surface colour transport of two objects, after one bounded brightness factor where it helps."""
     if x.surface is None or y.surface is None:
         return None
-    return _colours(x.surface, y.surface, th)[0]
+    return relit_colour_transport(x.surface, y.surface, th)[0]
 
 
-def _colours(a: A.SurfaceLook, b: A.SurfaceLook, th: FilterConfig) -> tuple[float, float]:
+def relit_colour_transport(a: A.SurfaceLook, b: A.SurfaceLook, th: FilterConfig) -> tuple[float, float]:
     """(colour transport, brightness factor used): as stored, or after one bounded exposure factor (a
     re-bake under other light), whichever is closer (a factor estimated from two means is noisy near 1)."""
     gain = A.exposure_gain(a, b, th.look_exposure_gain)
@@ -104,7 +105,7 @@ def pattern_strength(look: A.SurfaceLook) -> float:
     return float(np.abs(colours - colours.mean(axis=0)).sum(axis=1).mean()) if len(colours) else 0.0
 
 
-def _surface_match(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, str] | None:
+def _surface_match(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, str] | None:
     """(score, reason) when two objects have the same shape at any scale and look the same from every
     side (the orientation-free rule), else None. Cheap tests first: shape numbers, then colours (after
     one bounded exposure factor), then the colour layout (with a rotation search where axes tie)."""
@@ -115,7 +116,7 @@ def _surface_match(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -
         return None
     # colours as stored, or after one bounded exposure factor (a re-bake under other light), whichever
     # is closer (a factor estimated from two means is noisy near 1)
-    col, gain = _colours(x.surface, y.surface, th)
+    col, gain = relit_colour_transport(x.surface, y.surface, th)
     if col > th.look_colour:
         return None
     first = A.relit(x.surface, 1.0 / gain) if gain > 1.0 else x.surface  # the brighter side darkened
@@ -132,7 +133,7 @@ def _surface_match(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -
             f"{exposure}) and the same shape at any scale (D2 {d2:.4f}, proportions {mom:.3f}); real sizes differ {size:.2f}x")
 
 
-def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> tuple[str, float, str] | None:
+def _cross_source(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tuple[str, float, str] | None:
     """(kind, score, reason) for a copy another source published, whose shape agrees only loosely (hard
     decimation, a re-export flattening one axis by 10-25 %, other units and up axis), else None.
 
@@ -146,7 +147,7 @@ def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) ->
     d2, mom = D.d2_distance(x.shape, y.shape), D.moment_distance(x.shape, y.shape)
     if d2 > th.cross_source_d2 or mom > th.cross_source_proportions:
         return None
-    col, gain = _colours(x.surface, y.surface, th)
+    col, gain = relit_colour_transport(x.surface, y.surface, th)
     if col > th.look_colour:
         return _recoloured_copy(x, y, th, d2, mom, col, layouts)
     first = A.relit(x.surface, 1.0 / gain) if gain > 1.0 else x.surface  # the brighter side darkened
@@ -167,10 +168,10 @@ def _cross_source(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) ->
     return POSSIBLE_COPY, score, f"possible copy for review (same plain colour, no pattern to confirm it): {facts}"
 
 
-def _recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float,
+def _recoloured_copy(x: Item, y: Item, th: FilterConfig, d2: float, mom: float,
                      col: float, layouts: LayoutCache) -> tuple[str, float, str] | None:
     """``possible_copy`` for a loosely agreeing shape in other colours whose colour *pattern* repeats
-    (:func:`~mixcount.curation.appearance3d.pattern_correlation` >= ``cross_source_pattern``): maybe a
+    (:func:`~mixcount.curation.finding.colour_layout.pattern_correlation` >= ``cross_source_pattern``): maybe a
     colour variant republished by another source. Only for patterned surfaces on shapes whose principal
     axes are all distinct: where moments tie (balls, cans, boxes, mugs, cookies) the frame is chosen by
     the colours themselves, and two objects of one mould in other prints correlate by construction.
@@ -184,7 +185,7 @@ def _recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float
     pattern = min(strengths)
     if pattern < th.cross_source_min_pattern:
         return None
-    corr = A.pattern_correlation(x.surface, y.surface)
+    corr = CL.pattern_correlation(x.surface, y.surface)
     if corr < th.cross_source_pattern:
         return None
     score = round(max(0.0, min(1.0, (corr - th.cross_source_pattern) / (1.0 - th.cross_source_pattern))), 4)
@@ -194,7 +195,7 @@ def _recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float
             f"(D2 {d2:.4f}, proportions {mom:.3f})")
 
 
-def _plain_recoloured_copy(x: _Item, y: _Item, th: FilterConfig, d2: float, mom: float,
+def _plain_recoloured_copy(x: Item, y: Item, th: FilterConfig, d2: float, mom: float,
                            col: float, layouts: LayoutCache) -> tuple[str, float, str] | None:
     """A copy from another source in another *plain* colour (the issue's olive duck against the yellow
     one): nothing but the shape to go on, and the loose gates pass whole shape families. A re-export's

@@ -9,7 +9,7 @@ import numpy as np
 
 from mixcount.catalog.models import CatalogObject
 from mixcount.config import FilterConfig
-from mixcount.curation.filter_items import _Found, _Item
+from mixcount.curation.finding.filter_items import Found, Item
 from mixcount.curation.flag_kinds import DEGENERATE, MESH_QUALITY, SIZE_OUTLIER
 
 
@@ -25,8 +25,8 @@ def _broken_kind(error: str | None) -> str:
     return "degenerate model" if text.startswith(("mesh is degenerate", "mesh has non-finite")) else "unreadable model"
 
 
-def _quality_flags(items: list[_Item], broken: list[CatalogObject], th: FilterConfig) -> list[_Found]:
-    found = [_Found(o.id, None, DEGENERATE, 1.0, f"{_broken_kind(o.error)}: {o.error or 'broken'}") for o in broken]
+def quality_flags(items: list[Item], broken: list[CatalogObject], th: FilterConfig) -> list[Found]:
+    found = [Found(o.id, None, DEGENERATE, 1.0, f"{_broken_kind(o.error)}: {o.error or 'broken'}") for o in broken]
     for it in items:
         o, s = it.obj, it.shape
         reasons: list[str] = []
@@ -44,14 +44,14 @@ def _quality_flags(items: list[_Item], broken: list[CatalogObject], th: FilterCo
                 reasons.append(f"flat beyond repair: {aspect} thin (> {th.max_aspect_ratio:g}:1)")
             worst = max(s.nonmanifold_fraction, s.boundary_fraction, s.self_intersection_fraction)
             if worst > th.mesh_quality_min_fraction:
-                found.append(_Found(o.id, None, MESH_QUALITY, mesh_quality_score(worst),
-                                    f"{100 * s.nonmanifold_fraction:.2f}% non-manifold edges, {100 * s.boundary_fraction:.2f}% "
-                                    f"open edges (holes), {100 * s.self_intersection_fraction:.2f}% self-intersecting faces; "
-                                    "usable: it renders and physics uses its convex hull"))
+                found.append(Found(o.id, None, MESH_QUALITY, mesh_quality_score(worst),
+                                   f"{100 * s.nonmanifold_fraction:.2f}% non-manifold edges, {100 * s.boundary_fraction:.2f}% "
+                                   f"open edges (holes), {100 * s.self_intersection_fraction:.2f}% self-intersecting faces; "
+                                   "usable: it renders and physics uses its convex hull"))
         if it.look is not None and it.look.coverage < th.min_render_coverage:
             reasons.append(f"blank render ({100 * it.look.coverage:.2f}% object pixels)")
         if reasons:
-            found.append(_Found(o.id, None, DEGENERATE, 1.0, "; ".join(reasons)))
+            found.append(Found(o.id, None, DEGENERATE, 1.0, "; ".join(reasons)))
     # size outliers: absolute bounds, then against the category's median (categories with enough members)
     sizes = {it.obj.id: (it.shape.extents_m[0] if it.shape is not None else max(it.obj.dims)) for it in items}
     by_cat: dict[str, list[float]] = defaultdict(list)
@@ -75,6 +75,6 @@ def _quality_flags(items: list[_Item], broken: list[CatalogObject], th: FilterCo
                               f"the {it.obj.category} median {median * 100:.1f} cm")
                     score = min(1.0, math.log(factor) / math.log(th.category_size_factor) / 2)
         if reason:
-            found.append(_Found(it.obj.id, None, SIZE_OUTLIER, round(score, 4), reason))
+            found.append(Found(it.obj.id, None, SIZE_OUTLIER, round(score, 4), reason))
     return found
 

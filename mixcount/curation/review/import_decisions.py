@@ -36,7 +36,7 @@ import getpass
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Iterable, cast
+from typing import Any, Iterable, Iterator, cast
 
 from sqlalchemy import Table, bindparam, insert, select, update
 from sqlalchemy.orm import Session
@@ -51,8 +51,7 @@ from mixcount.catalog.decisions import (
     latest_by_object,
 )
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_BROKEN, STATUS_EXCLUDED, CatalogObject, ReviewDecision, utcnow
-from mixcount.curation.review_file import (
-    FORMAT,
+from mixcount.curation.review.decisions_file import (
     check_catalog,
     entry_lines,
     is_id,
@@ -63,7 +62,7 @@ from mixcount.curation.review_file import (
 )
 from mixcount.errors import CatalogError
 
-__all__ = ["FORMAT", "ReviewSummary", "import_decisions", "load_decisions"]
+__all__ = ["ReviewSummary", "import_decisions"]
 
 OBJECTS = cast(Table, CatalogObject.__table__)  # Core tables: bulk statements without ORM objects
 DECISIONS = cast(Table, ReviewDecision.__table__)
@@ -121,14 +120,31 @@ def _note(entry: dict[str, Any]) -> str:
     return note[:NOTE_CHARS]
 
 
+def _objects_in(entries: list[Any], section: str, problems: list[Problem]) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(index, entry) for every entry of the file's ``section`` that is a JSON object; each other entry
+    is a problem (appended as the loop reaches it, so problems keep the file's order)."""
+    for k, entry in enumerate(entries):
+        if isinstance(entry, dict):
+            yield k, entry
+        else:
+            problems.append((section, k, None, "is not an object"))
+
+
+def _note_and_time(entry: dict[str, Any], section: str, k: int, default: datetime, now: datetime,
+                   problems: list[Problem]) -> tuple[str, datetime] | None:
+    """The entry's note and decision time; None, with the problem appended, where either is wrong."""
+    try:
+        return _note(entry), _when(entry, default, now)
+    except CatalogError as exc:
+        problems.append((section, k, "decided_at" if "time" in str(exc) else "note", str(exc)))
+        return None
+
+
 def _check_entries(entries: list[Any], objects: dict[int, _Obj], default: datetime, now: datetime,
                    problems: list[Problem]) -> list[tuple[int, str, str, datetime]]:
     """The file's object decisions, checked (problems appended), as (id, decision, note, time)."""
     planned = []
-    for k, entry in enumerate(entries):
-        if not isinstance(entry, dict):
-            problems.append(("decisions", k, None, "is not an object"))
-            continue
+    for k, entry in _objects_in(entries, "decisions", problems):
         oid, decision, container = entry.get("id"), entry.get("decision"), entry.get("container")
         if not is_id(oid):
             what = "is out of range" if isinstance(oid, int) and not isinstance(oid, bool) else "is not an integer"
@@ -151,11 +167,10 @@ def _check_entries(entries: list[Any], objects: dict[int, _Obj], default: dateti
         if name is not None and name != obj.name:
             problems.append(("decisions", k, "name", f"id {oid} is {short(obj.name)} here, the file says {short(name)}"))
             continue
-        try:
-            note, when = _note(entry), _when(entry, default, now)
-        except CatalogError as exc:
-            problems.append(("decisions", k, "decided_at" if "time" in str(exc) else "note", str(exc)))
+        got = _note_and_time(entry, "decisions", k, default, now, problems)
+        if got is None:
             continue
+        note, when = got
         if decision is not None:
             planned.append((oid, str(decision), note, when))
         if container is not None:
@@ -167,10 +182,7 @@ def _check_pairs(entries: list[Any], objects: dict[int, _Obj], default: datetime
                  problems: list[Problem]) -> list[tuple[int, int, str, str, datetime]]:
     """The file's pair decisions, checked (problems appended), as (a, b, decision, note, time)."""
     planned = []
-    for k, entry in enumerate(entries):
-        if not isinstance(entry, dict):
-            problems.append(("pairs", k, None, "is not an object"))
-            continue
+    for k, entry in _objects_in(entries, "pairs", problems):
         a, b, decision = entry.get("a"), entry.get("b"), entry.get("decision")
         if not (is_id(a) and is_id(b)) or a == b:
             problems.append(("pairs", k, "a", f"a {short(a)} and b {short(b)} are not two object ids"))
@@ -189,11 +201,10 @@ def _check_pairs(entries: list[Any], objects: dict[int, _Obj], default: datetime
             problems.append(("pairs", k, "a_name" if oid == a else "b_name",
                              f"id {oid} is {short(objects[oid].name)} here, the file says {short(said)}"))
             continue
-        try:
-            note, when = _note(entry), _when(entry, default, now)
-        except CatalogError as exc:
-            problems.append(("pairs", k, "decided_at" if "time" in str(exc) else "note", str(exc)))
+        got = _note_and_time(entry, "pairs", k, default, now, problems)
+        if got is None:
             continue
+        note, when = got
         planned.append((int(a), int(b), str(decision), note, when))  # type: ignore[arg-type]
     return planned
 
@@ -287,7 +298,7 @@ def import_decisions(catalog: Catalog, path: Path, *, reviewer: str | None = Non
         session.flush()
         touched = sorted({oid for oid, *_ in planned})
         if pair_plan:
-            from mixcount.curation.pair_review import apply_pair_decisions
+            from mixcount.curation.review.apply_pair_decisions import apply_pair_decisions
 
             summary.status_changes.extend(apply_pair_decisions(session))
             session.flush()

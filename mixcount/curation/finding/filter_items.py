@@ -9,13 +9,14 @@ from typing import Callable
 
 from mixcount.atomic import write_text_atomic
 from mixcount.catalog.models import CatalogObject
-from mixcount.curation import appearance3d as A
-from mixcount.curation import descriptors as D
-from mixcount.curation import shape_match as S
+from mixcount.curation.finding import appearance3d as A
+from mixcount.curation.finding import colour_layout as CL
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding import shape_match as S
 
 
 @dataclass
-class _Item:
+class Item:
     obj: CatalogObject
     shape: D.ShapeDescriptor | None = None
     look: D.AppearanceDescriptor | None = None
@@ -27,34 +28,34 @@ class _Item:
     _shape_look: A.SurfaceLook | None = None
 
     def shape_look(self) -> A.SurfaceLook:
-        """The surface samples without their colours (:func:`~mixcount.curation.appearance3d.shape_only`)."""
+        """The surface samples without their colours (:func:`~mixcount.curation.finding.colour_layout.shape_only`)."""
         assert self.surface is not None
         if self._shape_look is None:
-            self._shape_look = A.shape_only(self.surface)
+            self._shape_look = CL.shape_only(self.surface)
         return self._shape_look
 
     def normalised(self) -> S.Normalised:
-        """The surface samples in the principal frame (:func:`~mixcount.curation.shape_match.normalise`)."""
+        """The surface samples in the principal frame (:func:`~mixcount.curation.finding.shape_match.normalise`)."""
         assert self.surface is not None
         if self._normalised is None:
             self._normalised = S.normalise(self.surface.points)
         return self._normalised
 
     def primitive(self) -> float:
-        """:func:`~mixcount.curation.shape_match.primitive_distance`, computed once."""
+        """:func:`~mixcount.curation.finding.shape_match.primitive_distance`, computed once."""
         if self._primitive is None:
             self._primitive = S.primitive_distance(self.normalised())
         return self._primitive
 
     def asymmetry(self) -> list[float]:
-        """:func:`~mixcount.curation.appearance3d.mirror_asymmetry`, computed once."""
+        """:func:`~mixcount.curation.finding.colour_layout.mirror_asymmetry`, computed once."""
         if self._asymmetry is None:
-            self._asymmetry = A.mirror_asymmetry(self.shape_look())
+            self._asymmetry = CL.mirror_asymmetry(self.shape_look())
         return self._asymmetry
 
 
 @dataclass
-class _Found:
+class Found:
     a: int
     b: int | None
     kind: str
@@ -62,11 +63,11 @@ class _Found:
     reason: str
 
 
-def _label(obj: CatalogObject) -> str:
+def object_label(obj: CatalogObject) -> str:
     return f"#{obj.id} {obj.name!r}"
 
 
-def _appearance_kind(obj: CatalogObject) -> str:
+def appearance_kind(obj: CatalogObject) -> str:
     try:
         data = json.loads(obj.metadata_json or "{}")
         return str((data.get("ingest") or {}).get("appearance") or "none")
@@ -92,45 +93,45 @@ class LayoutCache:
                 self.values = {}
 
     @staticmethod
-    def key(x: _Item, y: _Item, gain: float) -> str | None:
+    def key(x: Item, y: Item, gain: float) -> str | None:
         a, b = (x.obj.content_hash or "")[:32], (y.obj.content_hash or "")[:32]
         return f"{a}:{b}:{gain:.4f}" if a and b else None
 
-    def layout(self, x: _Item, y: _Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float, search_above: float) -> float:
+    def layout(self, x: Item, y: Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float, search_above: float) -> float:
         key = self.key(x, y, gain)
         if key is not None and key in self.values:
             return self.values[key]
-        value = A.layout_distance(first, other, search_above=search_above)
+        value = CL.layout_distance(first, other, search_above=search_above)
         if key is not None:
             self.values[key] = round(value, 6)
             self.dirty = True
         return value
 
-    def refined(self, x: _Item, y: _Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float) -> float:
+    def refined(self, x: Item, y: Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float) -> float:
         """Layout distance after a local rotation refinement, both ways (cross-source copies), cached."""
         key = self.key(x, y, gain)
         key = f"refined:{key}" if key is not None else None
         if key is not None and key in self.values:
             return self.values[key]
-        value = min(A.refined_layout_distance(first, other), A.refined_layout_distance(other, first))
+        value = min(CL.refined_layout_distance(first, other), CL.refined_layout_distance(other, first))
         if key is not None:
             self.values[key] = round(value, 6)
             self.dirty = True
         return value
 
-    def occupancy(self, x: _Item, y: _Item) -> float:
-        """Axis-normalised shape distance (:func:`~mixcount.curation.appearance3d.occupancy_distance`), cached."""
+    def occupancy(self, x: Item, y: Item) -> float:
+        """Axis-normalised shape distance (:func:`~mixcount.curation.finding.colour_layout.occupancy_distance`), cached."""
         key = self.key(x, y, 1.0)
         key = f"occupancy:{key}" if key is not None else None
         if key is not None and key in self.values:
             return self.values[key]
-        value = A.occupancy_distance(x.shape_look(), y.shape_look())
+        value = CL.occupancy_distance(x.shape_look(), y.shape_look())
         if key is not None:
             self.values[key] = round(value, 6)
             self.dirty = True
         return value
 
-    def cached(self, x: _Item, y: _Item, tag: str, compute: Callable[[], float]) -> float:
+    def cached(self, x: Item, y: Item, tag: str, compute: Callable[[], float]) -> float:
         """``compute()`` for the pair (or one object when ``x is y``), cached under ``tag`` and the
         shape-match version."""
         key = self.key(x, y, 1.0)

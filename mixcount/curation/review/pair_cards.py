@@ -4,7 +4,7 @@ object's size, category, status and source) and one click for *same object* / *v
 *different*. Pairs to decide come first (highest score first); then, for information, the look-alikes
 (different objects that look alike: the hard pairs a counter must learn, most alike first) and the pairs
 a person already decided. The page's script exports the clicks as the decisions file's ``pairs``
-(:mod:`mixcount.curation.review`)."""
+(:mod:`mixcount.curation.review.import_decisions`)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Shape agreement of two objects whatever their resolution, units, pose and a squash along one axis.
 
-Used by the copy rule (:mod:`mixcount.curation.copy_rules`) on candidate pairs only (the index in
-:mod:`mixcount.curation.candidates` picks them). From each object's surface samples (the area-weighted
-points of :func:`mixcount.curation.appearance3d.load_samples`, colours ignored):
+Used by the copy rule (:mod:`mixcount.curation.finding.copy_rules`) on candidate pairs only (the index in
+:mod:`mixcount.curation.finding.candidates` picks them). From each object's surface samples (the area-weighted
+points of :func:`mixcount.curation.finding.appearance3d.load_samples`, colours ignored):
 
 1. **Normalise**: centre on the centroid, turn into the principal frame, divide by the RMS radius
    (units, size and pose out; resolution does not matter, the samples are area-weighted).

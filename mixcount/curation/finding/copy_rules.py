@@ -1,10 +1,10 @@
 """Copies found by their shape, and the look-alikes ranked apart (`catalog filter`, docs/curation.md).
 
-The appearance rules (:mod:`mixcount.curation.look_rules`) find copies whose colours agree; a copy from
+The appearance rules (:mod:`mixcount.curation.finding.look_rules`) find copies whose colours agree; a copy from
 another source may carry another print, another plain colour, another resolution, units, pose and a
 squash along one axis. Here the shape decides, by the alignment of
-:mod:`mixcount.curation.shape_match` (every principal-axis order and sign, ties turned, a bounded
-stretch along any axis), on candidate pairs only (:mod:`mixcount.curation.candidates`) whose cheap
+:mod:`mixcount.curation.finding.shape_match` (every principal-axis order and sign, ties turned, a bounded
+stretch along any axis), on candidate pairs only (:mod:`mixcount.curation.finding.candidates`) whose cheap
 shape numbers already agree loosely (``copy_gate_d2``, ``cross_source_proportions``).
 
 * **Shape evidence** needs more than agreement: two boxes, two cans, two balls agree as closely as a
@@ -32,15 +32,15 @@ from itertools import combinations
 from typing import Iterable
 
 from mixcount.config import FilterConfig
-from mixcount.curation import descriptors as D
-from mixcount.curation import pair_evidence as E
-from mixcount.curation.filter_items import LayoutCache, _Found, _Item
+from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding import pair_evidence as E
+from mixcount.curation.finding.filter_items import Found, Item, LayoutCache
+from mixcount.curation.finding.look_rules import look_pair, relit_colour_transport
 from mixcount.curation.flag_kinds import LOOK_ALIKE, POSSIBLE_COPY
-from mixcount.curation.look_rules import _colours, look_pair
 from mixcount.sizes import SizeEvidence
 
 
-def shape_facts(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, float, float] | None:
+def shape_facts(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, float, float] | None:
     """(aligned shape distance, nearer primitive distance, surface colour distance), or None when the
     cheap gates already tell the shapes apart (or a descriptor is missing)."""
     if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
@@ -49,12 +49,12 @@ def shape_facts(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> t
         return None
     d = E.aligned_distance(x, y, th, layouts)
     prim = min(E.primitive(x, th, layouts), E.primitive(y, th, layouts))
-    col = _colours(x.surface, y.surface, th)[0]
+    col = relit_colour_transport(x.surface, y.surface, th)[0]
     return d, prim, col
 
 
-def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, float] | None,
-               found: list[_Found], *, nearest: bool) -> list[_Found]:
+def shape_pair(x: Item, y: Item, th: FilterConfig, facts: tuple[float, float, float] | None,
+               found: list[Found], *, nearest: bool) -> list[Found]:
     """The flags of one pair: the appearance rules' ``found``, checked for shape evidence where they say
     ``possible_copy``, or the shape rule's ``possible_copy`` / ``look_alike`` where they found nothing.
     ``nearest``: one of the two is the other's nearest shape among its candidates."""
@@ -77,24 +77,24 @@ def shape_pair(x: _Item, y: _Item, th: FilterConfig, facts: tuple[float, float, 
     score = round(max(0.0, 1.0 - d / th.copy_loose), 4)
     if evidence or (loose and detailed and same_colour and nearest and d <= prim):
         if found:  # an appearance rule's possible copy, now with shape evidence
-            return [_Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") for f in found]
+            return [Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") for f in found]
         why = ("the shape carries evidence" if evidence else
                "the nearest shape of one of them, a loose agreement of detailed shapes in the same colours")
-        return [_Found(a, b, POSSIBLE_COPY, score, f"possible copy for review ({why}): {figures}")]
+        return [Found(a, b, POSSIBLE_COPY, score, f"possible copy for review ({why}): {figures}")]
     if loose:
         why = ("a plain solid's shape" if not detailed else
                "the same shape in clearly other colours: variants, or a hard pair" if shape_evidence and col > th.copy_colour
                else "other colours" if not same_colour else "loose agreement")
-        return [_Found(a, b, LOOK_ALIKE, score, f"look-alike, not a copy as far as the evidence goes ({why}): {figures}")]
+        return [Found(a, b, LOOK_ALIKE, score, f"look-alike, not a copy as far as the evidence goes ({why}): {figures}")]
     return []
 
 
-def pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None = None,
-               pairs: Iterable[tuple[_Item, _Item]] | None = None) -> list[_Found]:
+def pair_flags(items: list[Item], th: FilterConfig, layouts: LayoutCache | None = None,
+               pairs: Iterable[tuple[Item, Item]] | None = None) -> list[Found]:
     """Every pair flag of ``pairs`` (default: all pairs of ``items``): appearance rules, weighed by
-    :func:`mixcount.curation.pair_evidence.weigh` (size, plain surfaces, aligned geometry), then shape. Two passes: the shape facts of every pair first (each object's nearest shape), then the rules."""
+    :func:`mixcount.curation.finding.pair_evidence.weigh` (size, plain surfaces, aligned geometry), then shape. Two passes: the shape facts of every pair first (each object's nearest shape), then the rules."""
     layouts = layouts or LayoutCache(None)
-    looked: list[tuple[_Item, _Item, list[_Found], tuple[float, float, float] | None]] = []
+    looked: list[tuple[Item, Item, list[Found], tuple[float, float, float] | None]] = []
     nearest: dict[int, float] = {}
     against: dict[tuple[int, int], SizeEvidence] = {}
     for x, y in (pairs if pairs is not None else combinations(items, 2)):
@@ -108,7 +108,7 @@ def pair_flags(items: list[_Item], th: FilterConfig, layouts: LayoutCache | None
             for it in (x, y):
                 nearest[it.obj.id] = min(nearest.get(it.obj.id, facts[0]), facts[0])
         looked.append((x, y, found, facts))
-    out: list[_Found] = []
+    out: list[Found] = []
     for x, y, found, facts in looked:
         nearest_one = facts is not None and facts[0] <= max(nearest[x.obj.id], nearest[y.obj.id])
         flags = shape_pair(x, y, th, facts, found, nearest=nearest_one)

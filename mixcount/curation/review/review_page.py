@@ -5,7 +5,7 @@
   and the flags (``MESH 0.35`` prints the mesh_quality score;
   ``CONTAINER`` marks containers), framed in a colour per status (green active, orange excluded, red
   broken). Meant to be read at a glance.
-* ``review.html``: first the flagged *pairs* (:mod:`mixcount.curation.review_pairs`): both renders side
+* ``review.html``: first the flagged *pairs* (:mod:`mixcount.curation.review.pair_cards`): both renders side
   by side with the evidence and one click for same object / variants, keep both / different; the pairs
   to decide first, then the look-alikes and decided pairs for information. Then every selected object as a card with its thumbnail (inline base64 JPEG), all three
   captions, each flag with its reason and, for pairings, both objects' thumbnails side by side, and
@@ -39,8 +39,8 @@ from mixcount.catalog.models import CatalogObject, Flag
 from mixcount.catalog.records import active_captions
 from mixcount.curation.flag_kinds import DECIDE, severity
 from mixcount.curation.renders import canonical_render_path
-from mixcount.curation.review import FORMAT
-from mixcount.curation.review_pairs import PairView, pair_views, pairs_data, pairs_html
+from mixcount.curation.review.decisions_file import FORMAT
+from mixcount.curation.review.pair_cards import PairView, pair_views, pairs_data, pairs_html
 from mixcount.errors import CatalogError
 from mixcount.scene.spec import TIERS
 

@@ -1,11 +1,11 @@
 """What a pairing needs before it counts (issue 57): appearance is evidence only where there is some, a size
 ratio can be evidence against, and an exclusion needs geometry that agrees after alignment.
 
-The appearance rules (:mod:`mixcount.curation.look_rules`) pair objects whose renders or surface colours
+The appearance rules (:mod:`mixcount.curation.finding.look_rules`) pair objects whose renders or surface colours
 look alike. On an untextured library every object is the same grey: a hex nut's render and a hockey
 puck's look alike, a cup's and a mug's, a cone's and a pyramid's, and none of that says they are one
 object. :func:`weigh` checks each pairing the appearance rules found, before the shape rule
-(:mod:`mixcount.curation.copy_rules`) sees the pair:
+(:mod:`mixcount.curation.finding.copy_rules`) sees the pair:
 
 * **Size** (:func:`mixcount.sizes.size_ratio_evidence` on the square roots of the real surface areas): a ratio beyond a
   re-export's rescale (``size_rescale``) that no unit factor explains (``size_unit_tolerance``) is
@@ -14,7 +14,7 @@ object. :func:`weigh` checks each pairing the appearance rules found, before the
   (``exact_duplicate``) stays whatever the size.
 * **Plain surfaces**: two surfaces with less colour spread than ``appearance_min_pattern`` (untextured,
   one flat colour) carry no evidence in their look. Their ``near_duplicate_*`` flags stand only with
-  *shape evidence* after alignment (:mod:`mixcount.curation.shape_match`): the aligned distance at most
+  *shape evidence* after alignment (:mod:`mixcount.curation.finding.shape_match`): the aligned distance at most
   ``exclude_plain_shape`` (tight: a cone and a pyramid agree within 0.048) and ``copy_evidence`` x the nearer primitive distance, both objects at least
   ``copy_min_detail`` from a primitive. Otherwise the flags go and the shape rule decides (a
   ``possible_copy`` for a person with shape evidence, else a ``look_alike`` at most).
@@ -29,8 +29,9 @@ from __future__ import annotations
 import math
 
 from mixcount.config import FilterConfig
-from mixcount.curation import shape_match as S
-from mixcount.curation.filter_items import LayoutCache, _Found, _Item
+from mixcount.curation.finding import shape_match as S
+from mixcount.curation.finding.filter_items import Found, Item, LayoutCache
+from mixcount.curation.finding.look_rules import pattern_strength
 from mixcount.curation.flag_kinds import (
     COLOUR_VARIANT,
     LOOK_ALIKE,
@@ -38,14 +39,13 @@ from mixcount.curation.flag_kinds import (
     NEAR_GEOMETRY,
     POSSIBLE_COPY,
 )
-from mixcount.curation.look_rules import pattern_strength
 from mixcount.sizes import SizeEvidence, size_ratio_evidence
 
 EXCLUDING = (NEAR_APPEARANCE, NEAR_GEOMETRY)
 PAIRING = EXCLUDING + (COLOUR_VARIANT, POSSIBLE_COPY)
 
 
-def size_evidence(x: _Item, y: _Item, th: FilterConfig) -> SizeEvidence | None:
+def size_evidence(x: Item, y: Item, th: FilterConfig) -> SizeEvidence | None:
     """The real sizes of the two weighed: the square root of the surface area, which no pose changes (a
     bounding box's largest side does: a turned copy's grows up to 1.7x); None when a descriptor is missing."""
     if x.shape is None or y.shape is None or not (x.shape.area_m2 and y.shape.area_m2):
@@ -54,24 +54,24 @@ def size_evidence(x: _Item, y: _Item, th: FilterConfig) -> SizeEvidence | None:
                                tolerance=th.size_unit_tolerance)
 
 
-def is_plain(it: _Item, th: FilterConfig) -> bool:
+def is_plain(it: Item, th: FilterConfig) -> bool:
     """No colour pattern on the surface (untextured, or one flat colour): its look is no evidence."""
     return it.surface is None or pattern_strength(it.surface) < th.appearance_min_pattern
 
 
-def aligned_distance(x: _Item, y: _Item, th: FilterConfig, layouts: LayoutCache) -> float:
+def aligned_distance(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> float:
     """The shape rule's aligned distance of the pair (cached under the same key)."""
     return layouts.cached(x, y, "shape", lambda: S.match(x.normalised(), y.normalised(), max_squash=th.copy_max_squash,
                                                          quantile=th.match_quantile).distance)
 
 
-def primitive(x: _Item, th: FilterConfig, layouts: LayoutCache) -> float:
+def primitive(x: Item, th: FilterConfig, layouts: LayoutCache) -> float:
     """An object's distance to its nearest primitive (cached under the shape rule's key)."""
     return layouts.cached(x, x, "primitive", lambda: S.primitive_distance(x.normalised(), quantile=th.match_quantile))
 
 
-def weigh(x: _Item, y: _Item, found: list[_Found], th: FilterConfig,
-          layouts: LayoutCache) -> tuple[list[_Found], SizeEvidence | None]:
+def weigh(x: Item, y: Item, found: list[Found], th: FilterConfig,
+          layouts: LayoutCache) -> tuple[list[Found], SizeEvidence | None]:
     """The appearance rules' ``found`` flags of one pair that the evidence bears (see the module doc), and
     the size evidence when it is against a copy (the shape rule then ranks the pair a look-alike at most)."""
     size = size_evidence(x, y, th)
@@ -91,23 +91,23 @@ def weigh(x: _Item, y: _Item, found: list[_Found], th: FilterConfig,
     elif d <= th.exclude_shape:
         figures = f"aligned shape distance {d:.3f}"
     else:
-        return [_Found(f.a, f.b, POSSIBLE_COPY, f.score,
-                       f"possible copy for review (the look agrees, the shape does not after alignment: {d:.3f}): {f.reason}")
+        return [Found(f.a, f.b, POSSIBLE_COPY, f.score,
+                      f"possible copy for review (the look agrees, the shape does not after alignment: {d:.3f}): {f.reason}")
                 if f.kind in EXCLUDING else f for f in found], None
-    return [_Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") if f.kind in EXCLUDING else f
+    return [Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") if f.kind in EXCLUDING else f
             for f in found], None
 
 
-def cap_to_look_alike(flags: list[_Found], against: SizeEvidence | None) -> list[_Found]:
+def cap_to_look_alike(flags: list[Found], against: SizeEvidence | None) -> list[Found]:
     """With size evidence against a copy, every pairing the shape rule made is a look-alike at most."""
     if against is None:
         return flags
     out = []
     for f in flags:
         if f.kind in PAIRING:
-            f = _Found(f.a, f.b, LOOK_ALIKE, f.score, f"look-alike, not a copy ({against.describe()}): {f.reason}")
+            f = Found(f.a, f.b, LOOK_ALIKE, f.score, f"look-alike, not a copy ({against.describe()}): {f.reason}")
         elif f.kind == LOOK_ALIKE:
-            f = _Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {against.describe()}")
+            f = Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {against.describe()}")
         out.append(f)
     return out
 
