@@ -32,50 +32,42 @@ from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
+import public_packages as P
 import trimesh
-from public_packages import deb_tree, wheel_tree
 from scipy.spatial import cKDTree
 
 from mixcount.curation.finding import appearance3d as A
 from mixcount.curation.finding import descriptors as D
 from mixcount.sizes import metres_per_unit, plausible_unit
 
-PYBULLET = "pybullet==3.2.7"
-GENESIS = "genesis-world==1.4.5"
-METAWORLD = "metaworld==3.1.1"
-G = "genesis/assets/meshes"
-MW = "metaworld/assets/objects/meshes"
+G, MW = P.GENESIS_MESHES, P.METAWORLD_MESHES
 TUNING: dict[str, tuple[str, str]] = {
-    "duck_pybullet": (PYBULLET, "pybullet_data/duck.obj"),
-    "dragon_genesis": (GENESIS, f"{G}/dragon/dragon.obj"),
-    "worm_genesis": (GENESIS, f"{G}/worm/worm.obj"),
-    "mug_metaworld": (METAWORLD, f"{MW}/coffeemachine/mug.stl"),
-    "bunny_glmark2": ("glmark2-data", "usr/share/glmark2/models/bunny.obj"),
+    "duck_pybullet": (P.PYBULLET, "pybullet_data/duck.obj"),
+    "dragon_genesis": (P.GENESIS, f"{G}/dragon/dragon.obj"),
+    "worm_genesis": (P.GENESIS, f"{G}/worm/worm.obj"),
+    "mug_metaworld": (P.METAWORLD, f"{MW}/coffeemachine/mug.stl"),
+    "bunny_glmark2": (P.GLMARK2, "usr/share/glmark2/models/bunny.obj"),
 }
 HELD_OUT: dict[str, tuple[str, str]] = {
-    "spider_assimp": ("assimp-testmodels", "usr/share/assimp/models/OBJ/spider.obj"),
-    "wuson_assimp": ("assimp-testmodels", "usr/share/assimp/models/STL/Wuson.stl"),
-    "boat_genesis": (GENESIS, f"{G}/boat/boat.obj"),
-    "airplane_genesis": (GENESIS, f"{G}/Airplane/airplane.obj"),
-    "thermos_metaworld": (METAWORLD, f"{MW}/thermos/therm_body.stl"),
-    "hammer_metaworld": (METAWORLD, f"{MW}/hammer/hammerhead.stl"),
-    "bunny_prusa": ("prusa-slicer", "usr/share/PrusaSlicer/shapes/bunny.stl"),
-    "lego_pybullet": (PYBULLET, "pybullet_data/lego/lego.obj"),
+    "spider_assimp": (P.ASSIMP, "usr/share/assimp/models/OBJ/spider.obj"),
+    "wuson_assimp": (P.ASSIMP, "usr/share/assimp/models/STL/Wuson.stl"),
+    "boat_genesis": (P.GENESIS, f"{G}/boat/boat.obj"),
+    "airplane_genesis": (P.GENESIS, f"{G}/Airplane/airplane.obj"),
+    "thermos_metaworld": (P.METAWORLD, f"{MW}/thermos/therm_body.stl"),
+    "hammer_metaworld": (P.METAWORLD, f"{MW}/hammer/hammerhead.stl"),
+    "bunny_prusa": (P.PRUSA, "usr/share/PrusaSlicer/shapes/bunny.stl"),
+    "lego_pybullet": (P.PYBULLET, "pybullet_data/lego/lego.obj"),
 }
 LOOK_ALIKE_FILES: dict[str, tuple[str, str]] = {
-    "cup_metaworld": (METAWORLD, f"{MW}/coffeemachine/cup.stl"),
-    "mug_pybullet": (PYBULLET, "pybullet_data/objects/mug.obj"),
-    "bolt_genesis": (GENESIS, f"{G}/bolt_nut/bolt.stl"),
-    "nut_genesis": (GENESIS, f"{G}/bolt_nut/nut.stl"),
+    "cup_metaworld": (P.METAWORLD, f"{MW}/coffeemachine/cup.stl"),
+    "mug_pybullet": (P.PYBULLET, "pybullet_data/objects/mug.obj"),
+    "bolt_genesis": (P.GENESIS, f"{G}/bolt_nut/bolt.stl"),
+    "nut_genesis": (P.GENESIS, f"{G}/bolt_nut/nut.stl"),
 }
 DEMO_LOOK_ALIKES = (("mug", 1), ("mug", 2), ("bowl", 1), ("bowl", 2), ("bottle", 1), ("bottle", 2))
 KINDS = ("print", "resolution", "squash", "units", "pose", "reindex")
 UNITS = ("mm", "in", "cm", "m")
 Entry = tuple[str, str, str, np.ndarray, np.ndarray, Any]
-
-
-def _root(package: str) -> tuple[Optional[Path], str]:
-    return wheel_tree(package) if "==" in package else deb_tree(package)
 
 
 def _rotation(rng: np.random.Generator) -> np.ndarray:
@@ -174,7 +166,7 @@ def pool(parts: tuple[str, ...] = ("tuning", "held_out"), only: Optional[set[str
         for name, (package, rel) in chosen[part].items():
             if only is not None and name not in only:
                 continue
-            root, why = _root(package)
+            root, why = P.package_root(package)
             if root is None:
                 return None, why
             path = root / rel
@@ -187,7 +179,7 @@ def pool(parts: tuple[str, ...] = ("tuning", "held_out"), only: Optional[set[str
     for name, (package, rel) in LOOK_ALIKE_FILES.items():
         if only is not None and name not in only:
             continue
-        root, why = _root(package)
+        root, why = P.package_root(package)
         if root is None:
             return None, why
         v, f = _load(root / rel)

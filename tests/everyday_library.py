@@ -10,28 +10,21 @@ spheres), mugs and cups, two nuts of other designs. :data:`SAME` names the group
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Optional
 
-from untextured_library import package_root
+import public_packages as P
 
-PB = "pybullet==3.2.7"
-GW = "genesis-world==1.4.5"
-MW = "metaworld==3.1.1"
-PD = "pybullet_data"
-G = "genesis/assets/meshes"
-M = "metaworld/assets/objects/meshes"
-A = "usr/share/assimp/models"
+PB, GW, MW, PD, G, M, A = P.PYBULLET, P.GENESIS, P.METAWORLD, P.PYBULLET_DATA, P.GENESIS_MESHES, P.METAWORLD_MESHES, P.ASSIMP_MODELS
 
 MODELS: dict[str, tuple[str, str, tuple[str, ...]]] = {  # folder -> (package, model, files beside it)
     "Rubber duck (pybullet)": (PB, f"{PD}/duck.obj", (f"{PD}/duck.mtl", f"{PD}/duckCM.png")),
     "Rubber duck (genesis)": (GW, f"{G}/duck/duck.obj", (f"{G}/duck/material.mtl", f"{G}/duck/material_0.png")),
-    "Rubber duck (assimp)": ("assimp-testmodels", f"{A}/Collada/duck.dae", (f"{A}/Collada/duckCM.tga",)),
+    "Rubber duck (assimp)": (P.ASSIMP, f"{A}/Collada/duck.dae", (f"{A}/Collada/duckCM.tga",)),
     "Bunny (pybullet)": (PB, f"{PD}/bunny.obj", ()),
     "Bunny (genesis)": (GW, f"{G}/bunny.obj", ()),
-    "Bunny (glmark2)": ("glmark2-data", "usr/share/glmark2/models/bunny.obj", ()),
-    "Bunny (prusa)": ("prusa-slicer", "usr/share/PrusaSlicer/shapes/bunny.stl", ()),
+    "Bunny (glmark2)": (P.GLMARK2, "usr/share/glmark2/models/bunny.obj", ()),
+    "Bunny (prusa)": (P.PRUSA, "usr/share/PrusaSlicer/shapes/bunny.stl", ()),
     "Soccer ball": (PB, f"{PD}/soccerball.obj", (f"{PD}/soccerball.mtl",)),
     "Smooth sphere": (PB, f"{PD}/sphere_smooth.obj", (f"{PD}/sphere_smooth.mtl",)),
     "Textured sphere": (PB, f"{PD}/textured_sphere_smooth.obj", (f"{PD}/textured_sphere_smooth.mtl", f"{PD}/tex256.png")),
@@ -53,14 +46,14 @@ MODELS: dict[str, tuple[str, str, tuple[str, ...]]] = {  # folder -> (package, m
     "Bathtub": (GW, f"{G}/bathtub/bathtub.obj", (f"{G}/bathtub/material.mtl",)),
     "Bolt": (GW, f"{G}/bolt_nut/bolt.stl", ()),
     "Nut (genesis)": (GW, f"{G}/bolt_nut/nut.stl", ()),
-    "Hex nut (prusa)": ("prusa-slicer", "usr/share/PrusaSlicer/shapes/M3_hex_nut.stl", ()),
-    "Screw": ("prusa-slicer", "usr/share/PrusaSlicer/shapes/M3x10_screw.stl", ()),
+    "Hex nut (prusa)": (P.PRUSA, "usr/share/PrusaSlicer/shapes/M3_hex_nut.stl", ()),
+    "Screw": (P.PRUSA, "usr/share/PrusaSlicer/shapes/M3x10_screw.stl", ()),
     "Ice cream dispenser": (GW, f"{G}/icecream_dispenser.obj", ()),
     "Stirrer": (GW, f"{G}/stirrer.obj", ()),
-    "Spider": ("assimp-testmodels", f"{A}/OBJ/spider.obj", (f"{A}/OBJ/spider.mtl", f"{A}/OBJ/SpiderTex.jpg",
+    "Spider": (P.ASSIMP, f"{A}/OBJ/spider.obj", (f"{A}/OBJ/spider.mtl", f"{A}/OBJ/SpiderTex.jpg",
                                                           f"{A}/OBJ/drkwood2.jpg", f"{A}/OBJ/engineflare1.jpg",
                                                           f"{A}/OBJ/wal67ar_small.jpg", f"{A}/OBJ/wal69ar_small.jpg")),
-    "Wuson": ("assimp-testmodels", f"{A}/STL/Wuson.stl", ()),
+    "Wuson": (P.ASSIMP, f"{A}/STL/Wuson.stl", ()),
 }
 SAME = ({"Rubber duck (pybullet)", "Rubber duck (genesis)", "Rubber duck (assimp)"},
         {"Bunny (pybullet)", "Bunny (genesis)", "Bunny (glmark2)", "Bunny (prusa)"})
@@ -72,17 +65,4 @@ def same_object(a: str, b: str) -> bool:
 
 def write_library(root: Path) -> tuple[Optional[Path], str]:
     """Copy each model and the files beside it into ``root/<folder>/``; (None, why) when a package cannot be had."""
-    roots: dict[str, Path] = {}
-    for folder, (package, rel, extra) in MODELS.items():
-        if package not in roots:
-            got, why = package_root(package)
-            if got is None:
-                return None, why
-            roots[package] = got
-        for member in (rel, *extra):
-            source = roots[package] / member
-            if not source.is_file():
-                return None, f"{package} holds no {member}"
-            (root / folder).mkdir(parents=True, exist_ok=True)
-            shutil.copy2(source, root / folder / source.name)
-    return root, ""
+    return P.copy_models(root, MODELS)

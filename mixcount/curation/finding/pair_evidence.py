@@ -11,7 +11,8 @@ object. :func:`weigh` checks each pairing the appearance rules found, before the
   re-export's rescale (``size_rescale``) that no unit factor explains (``size_unit_tolerance``) is
   evidence against a copy: the pair keeps no duplicate, variant or possible-copy flag (the shape rule makes
   it a ``look_alike`` at most, the size sentence in its reason). An identical file or mesh
-  (``exact_duplicate``) stays whatever the size.
+  (``exact_duplicate``) stays whatever the size. A largest side no everyday object has
+  (:func:`mixcount.sizes.is_plausible`: a unit ingest could not read, a scan 15 m wide) is no evidence.
 * **Plain surfaces**: two surfaces with less colour spread than ``appearance_min_pattern`` (untextured,
   one flat colour) carry no evidence in their look. Their ``near_duplicate_*`` flags stand only with
   *shape evidence* after alignment (:mod:`mixcount.curation.finding.shape_match`): the aligned distance at most
@@ -39,7 +40,7 @@ from mixcount.curation.flag_kinds import (
     NEAR_GEOMETRY,
     POSSIBLE_COPY,
 )
-from mixcount.sizes import SizeEvidence, size_ratio_evidence
+from mixcount.sizes import SizeEvidence, is_plausible, size_ratio_evidence
 
 EXCLUDING = (NEAR_APPEARANCE, NEAR_GEOMETRY)
 PAIRING = EXCLUDING + (COLOUR_VARIANT, POSSIBLE_COPY)
@@ -47,8 +48,11 @@ PAIRING = EXCLUDING + (COLOUR_VARIANT, POSSIBLE_COPY)
 
 def size_evidence(x: Item, y: Item, th: FilterConfig) -> SizeEvidence | None:
     """The real sizes of the two weighed: the square root of the surface area, which no pose changes (a
-    bounding box's largest side does: a turned copy's grows up to 1.7x); None when a descriptor is missing."""
+    bounding box's largest side does: a turned copy's grows up to 1.7x); None when a descriptor is missing or
+    a largest side is implausible (its unit is unknown, so its size says nothing)."""
     if x.shape is None or y.shape is None or not (x.shape.area_m2 and y.shape.area_m2):
+        return None
+    if not (is_plausible(max(x.shape.extents_m, default=0.0)) and is_plausible(max(y.shape.extents_m, default=0.0))):
         return None
     return size_ratio_evidence(math.sqrt(x.shape.area_m2), math.sqrt(y.shape.area_m2), rescale_limit=th.size_rescale,
                                tolerance=th.size_unit_tolerance)
