@@ -69,6 +69,21 @@ def source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str])
     return unit_scale(name), name, (up_axis or "Y").upper()
 
 
+def load_model(path: Path | str, *, force: Optional[str] = None) -> Any:
+    """``trimesh.load`` of a model file (``process=False``) whose references (an OBJ's .mtl and its textures,
+    a glTF's buffers and images) are read where the file says, as Blender and MuJoCo read them, also
+    outside the model's own folder: robosuite ships ``objects/meshes/can.mtl`` naming
+    ``../../textures/soda.png``. trimesh refuses such a path by default and drops the texture with only a
+    log line, so those models were ingested, converted and captioned untextured without a word. Every
+    reader of a library's model file goes through here (ingest, the USD conversion, curation, captions)."""
+    import trimesh
+
+    resolver = trimesh.resolvers.FilePathResolver(str(path), allow_anywhere=True)
+    if force is None:
+        return trimesh.load(str(path), process=False, resolver=resolver)
+    return trimesh.load(str(path), force=force, process=False, resolver=resolver)
+
+
 def walk_geometry(scene: Any) -> Iterator[tuple[str, np.ndarray, Any]]:
     """(node name, 4x4 world transform, trimesh.Trimesh) for every triangle mesh of a trimesh Scene,
     in the file's node order (deterministic, and the same for ingest and conversion). Not sorted by

@@ -28,6 +28,7 @@ from mixcount.catalog.materials import (
     material_vertex_colours,
     srgb_to_linear,
 )
+from mixcount.frame import load_model
 
 # Hue bins (degrees, lower bound inclusive) for saturated colours; brightness variants are in _refine.
 _HUES: tuple[tuple[float, str], ...] = (
@@ -282,7 +283,7 @@ def colours_from_model(path: Path, *, samples: int = 4000, seed: int = 0,
     import trimesh
 
     try:
-        loaded = trimesh.load(str(path), process=False)
+        loaded = load_model(path)
     except Exception:  # noqa: BLE001 - unreadable model: no colours, caption from the other facts
         return EMPTY
     meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
@@ -306,7 +307,7 @@ def count_parts(path: Path) -> int | None:
     import trimesh
 
     try:
-        loaded = trimesh.load(str(path), process=False)
+        loaded = load_model(path)
     except Exception:  # noqa: BLE001 - unreadable model: the caption goes without the fact
         return None
     meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]

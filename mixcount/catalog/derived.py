@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from mixcount.atomic import atomic_path
-from mixcount.frame import STEP_EXTENSIONS
+from mixcount.frame import STEP_EXTENSIONS, load_model
 
 DERIVE_VERSION = 1
 
@@ -52,7 +52,7 @@ def build_glb(sources: list[tuple[Path, Any]], out: Path) -> None:
     scene = trimesh.Scene()
     for k, (path, matrix) in enumerate(sources):
         try:
-            part = trimesh.load(str(path), force="scene", process=False)
+            part = load_model(path, force="scene")
         except Exception as exc:  # trimesh raises many types for bad files
             raise ValueError(f"cannot read part {path.name}: {str(exc).strip()[:200] or type(exc).__name__}") from None
         place = np.eye(4) if matrix is None else np.asarray(matrix, dtype=np.float64)

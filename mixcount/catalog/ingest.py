@@ -172,6 +172,9 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> P
         frame: list[Any] = [settings, cand.units, cand.up_axis, cand.units_reason]
         if cand.up_axis and cand.model_path.suffix.lower() in GLTF_EXTENSIONS:
             frame.append("gltf up axis as stated")  # once ignored: such objects are measured again
+        folder = cand.model_path.resolve().parent
+        if any(folder not in Path(v).resolve().parents for v in resources.values()):
+            frame.append("files outside the model's folder read")  # once dropped (frame.load_model): measured again
         prep.settings_hash = hashing.json_hash(frame)
         prep.ingest_hash = hashing.combine([
             ("content", prep.content_hash), ("sidecars", sidecar_hash), ("identity", identity_hash),

@@ -35,7 +35,7 @@ from mixcount.catalog.mesh_bounds import FullFacts, check_coordinates, cluster_c
 from mixcount.catalog.model_files import GLB_MAGIC, Relinked, model_resources, relink_textures  # noqa: F401  (re-exported)
 from mixcount.catalog.units import size_prior
 from mixcount.errors import IngestError
-from mixcount.frame import STEP_EXTENSIONS, UNIT_SCALE, to_metres_z_up, unit_scale, walk_geometry
+from mixcount.frame import STEP_EXTENSIONS, UNIT_SCALE, load_model, to_metres_z_up, unit_scale, walk_geometry
 from mixcount.sizes import plausible_unit
 
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".usd", ".usda", ".usdc", ".usdz", ".step", ".stp")
@@ -110,7 +110,7 @@ def _load_trimesh(path: Path) -> _Parts:
     import trimesh
 
     try:
-        scene = trimesh.load(str(path), force="scene", process=False)
+        scene = load_model(path, force="scene")
     except IngestError:
         raise
     except Exception as exc:  # trimesh raises many types for bad files

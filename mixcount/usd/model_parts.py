@@ -15,7 +15,7 @@ import numpy as np
 
 from mixcount.catalog.materials import material_vertex_colours, srgb_to_linear
 from mixcount.errors import CompositionError
-from mixcount.frame import to_metres_z_up, up_axis_rotation, walk_geometry
+from mixcount.frame import load_model, to_metres_z_up, up_axis_rotation, walk_geometry
 
 
 @dataclass
@@ -75,7 +75,7 @@ def load_parts(model_path: Path, scale: float, up: str, look: Optional[tuple[flo
     import trimesh
 
     try:
-        scene = trimesh.load(str(model_path), force="scene", process=False)
+        scene = load_model(model_path, force="scene")
     except Exception as exc:
         raise CompositionError(f"cannot load model {model_path} for USD conversion: {exc}") from None
     rot = up_axis_rotation(up)

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from mixcount.errors import IngestError
+from mixcount.frame import load_model
 
 PARTS_CHOICES = ("auto", "merge", "separate")
 MAX_PARTS = 64  # more model files than this in one folder: a library, not an object
@@ -60,10 +61,9 @@ def names_say_parts(folder_name: str, stems: list[str]) -> bool:
 
 
 def _bounds(path: Path) -> np.ndarray | None:
-    import trimesh
 
     try:
-        scene = trimesh.load(str(path), force="scene", process=False)
+        scene = load_model(path, force="scene")
         bounds = scene.bounds
     except Exception:  # a file that does not load is judged (and reported) by its own analysis
         return None

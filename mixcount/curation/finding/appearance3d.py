@@ -38,8 +38,9 @@ import numpy as np
 
 from mixcount.atomic import atomic_path
 from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
+from mixcount.frame import load_model
 
-APPEARANCE_VERSION = "look3d-v1"  # the surface samples
+APPEARANCE_VERSION = "look3d-v2"  # the surface samples (v2: textures outside the model's folder read)
 SEED = 20240611
 N_SAMPLES = 6000
 HIST_BINS = 6
@@ -159,7 +160,7 @@ def surface_samples(model_path: str | Path, *, n: int = N_SAMPLES, seed: int = S
         mesh = load_normalised(path).mesh
         geoms = [(mesh, np.eye(4))]
     else:
-        scene = trimesh.load(str(path), force="scene", process=False)
+        scene = load_model(path, force="scene")
         geoms = []
         for node in scene.graph.nodes_geometry:
             transform, name = scene.graph[node]
