@@ -105,15 +105,23 @@ def pattern_strength(look: A.SurfaceLook) -> float:
     return float(np.abs(colours - colours.mean(axis=0)).sum(axis=1).mean()) if len(colours) else 0.0
 
 
+def _shape_gate(x: Item, y: Item, max_d2: float, max_proportions: float) -> tuple[float, float] | None:
+    """(D2 distance, proportions distance) of two objects that both have a surface and a shape and whose
+    shape numbers are within the bounds, else None: the first, cheap test of both look rules."""
+    if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
+        return None
+    d2, mom = D.d2_distance(x.shape, y.shape), D.moment_distance(x.shape, y.shape)
+    return None if d2 > max_d2 or mom > max_proportions else (d2, mom)
+
+
 def _surface_match(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, str] | None:
     """(score, reason) when two objects have the same shape at any scale and look the same from every
     side (the orientation-free rule), else None. Cheap tests first: shape numbers, then colours (after
     one bounded exposure factor), then the colour layout (with a rotation search where axes tie)."""
-    if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
+    gate = _shape_gate(x, y, th.look_d2, th.look_proportions)
+    if gate is None:
         return None
-    d2, mom = D.d2_distance(x.shape, y.shape), D.moment_distance(x.shape, y.shape)
-    if d2 > th.look_d2 or mom > th.look_proportions:
-        return None
+    d2, mom = gate
     # colours as stored, or after one bounded exposure factor (a re-bake under other light), whichever
     # is closer (a factor estimated from two means is noisy near 1)
     col, gain = relit_colour_transport(x.surface, y.surface, th)
@@ -142,11 +150,10 @@ def _cross_source(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> t
     tilt a few degrees). On a patterned surface that is a duplicate (``near_duplicate_appearance``); on
     a plain one the layout only repeats the loose shape, so the pair is a ``possible_copy`` for a person.
     Shape alone never pairs: every ball is a sphere, every box a box, every mug of one mould the same."""
-    if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
+    gate = _shape_gate(x, y, th.cross_source_d2, th.cross_source_proportions)
+    if gate is None:
         return None
-    d2, mom = D.d2_distance(x.shape, y.shape), D.moment_distance(x.shape, y.shape)
-    if d2 > th.cross_source_d2 or mom > th.cross_source_proportions:
-        return None
+    d2, mom = gate
     col, gain = relit_colour_transport(x.surface, y.surface, th)
     if col > th.look_colour:
         return _recoloured_copy(x, y, th, d2, mom, col, layouts)
