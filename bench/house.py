@@ -25,7 +25,6 @@ being the nearest enclosing frame that holds it too; ``handoff_pairs`` lists the
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import shutil
 import subprocess
@@ -39,48 +38,11 @@ PACKAGE = ROOT / "mixcount"
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from import_graph import import_circles, import_graph, resolve_import  # noqa: E402  (tests/import_graph.py)
+from import_graph import import_circles, import_graph, package_modules  # noqa: E402  (tests/import_graph.py)
+from test_code_shape import private_imports  # noqa: E402  (the rule the test asserts, every import form)
 
 FILE_LIMIT = 520
 HOME = ("mixcount.config", "mixcount.scene_config")  # where the config is typed: its own methods are not places
-
-
-def module_name(path: Path) -> str:
-    rel = path.relative_to(ROOT).with_suffix("")
-    return ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
-
-
-def modules() -> dict[str, tuple[Path, ast.Module]]:
-    return {module_name(p): (p, ast.parse(p.read_text(), filename=str(p))) for p in sorted(PACKAGE.rglob("*.py"))}
-
-
-def private_imports(mods: dict[str, tuple[Path, ast.Module]]) -> list[str]:
-    """``importer -> module._name`` for every private name one mixcount module takes from another: by
-    ``from m import _x`` or as ``m._x`` on a module it imported."""
-    found = []
-    for name, (path, tree) in mods.items():
-        aliases: dict[str, str] = {}
-        for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom):
-                target = resolve_import(name, node, path.name == "__init__.py")
-                if not target.startswith("mixcount"):
-                    continue
-                for a in node.names:
-                    full = f"{target}.{a.name}"
-                    if full in mods:
-                        aliases[a.asname or a.name] = full
-                    elif a.name.startswith("_") and not a.name.startswith("__") and target != name:
-                        found.append(f"{name} -> {target}.{a.name}")
-            elif isinstance(node, ast.Import):
-                for a in node.names:
-                    if a.name.startswith("mixcount") and a.asname:
-                        aliases[a.asname] = a.name
-        for node in ast.walk(tree):
-            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases
-                    and node.attr.startswith("_") and not node.attr.startswith("__")
-                    and aliases[node.value.id] != name):
-                found.append(f"{name} -> {aliases[node.value.id]}.{node.attr}")
-    return sorted(set(found))
 
 
 def long_files(limit: int = FILE_LIMIT) -> dict[str, int]:
@@ -176,11 +138,11 @@ def main() -> None:
     args = ap.parse_args()
     if args.smoke:
         args.no_duplicates, args.config_path = True, False
-    mods = modules()
+    mods = package_modules(PACKAGE)
     graph = import_graph(mods)
     perf = ROOT / "docs" / "performance.md"
     figures: dict[str, Any] = {
-        "private_imports": private_imports(mods),
+        "private_imports": private_imports(),
         "import_circles": import_circles(graph),
         "files_over_520": long_files(),
         "longest_files": dict(sorted(((str(mods[m][0].relative_to(ROOT)), len(mods[m][0].read_text().splitlines()))
