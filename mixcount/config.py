@@ -220,7 +220,7 @@ class FilterConfig:
     size_unit_tolerance: float
     min_faces: int
     min_area_ratio: float
-    min_volume_m3: float
+    min_volume_ratio: float
     max_aspect_ratio: float
     min_render_coverage: float
     min_size_m: float

@@ -36,8 +36,11 @@ def quality_flags(items: list[Item], broken: list[CatalogObject], th: FilterConf
         if s is not None:
             if s.area_m2 <= th.min_area_ratio * max(s.extents_m[0], 1e-12) ** 2:
                 reasons.append(f"(near) zero surface area ({s.area_m2:.3g} m^2 for a {s.extents_m[0] * 100:.1f} cm object)")
-            if s.watertight and (s.volume_m3 or 0.0) <= th.min_volume_m3:
-                reasons.append(f"closed mesh with zero volume ({s.volume_m3:.3g} m^3)")
+            # relative to the object's size, as the area test: an absolute floor in m^3 called every real
+            # part under a millimetre cube degenerate (FreeCAD's SOD-523 diode, 1.8 mm long)
+            if s.watertight and (s.volume_m3 or 0.0) <= th.min_volume_ratio * max(s.extents_m[0], 1e-12) ** 3:
+                reasons.append(f"closed mesh with zero volume ({s.volume_m3:.3g} m^3 for a "
+                               f"{s.extents_m[0] * 1000:.3g} mm object)")
             thin = s.ratios[1]  # thickness / length along the principal axes
             if thin <= 0 or 1.0 / thin > th.max_aspect_ratio:
                 aspect = "infinitely" if thin <= 0 else f"{1.0 / thin:.0f}:1"
