@@ -1,11 +1,14 @@
 """`catalog filter` on the generated demo library: time (cold and warm descriptor cache) and the ground-truth figures.
 
-Usage: .venv/bin/python bench/curation.py [--work DIR] [--reps 3] [--pythonpath TREE] [--smoke]
+Usage: .venv/bin/python bench/curation.py [--work DIR] [--reps 3] [--objects N] [--pythonpath TREE] [--smoke]
            [--compare-work DIR2 --compare-pythonpath OLD_TREE]
 
 ``--work DIR`` is reused when it already holds a rendered library (``DIR/db_rendered``); otherwise the demo
 library (seed 0) is generated there, ingested and rendered at 64 px / 2 spp as tests/test_curate_demo.py
-does (bpy, about a minute). Each repetition copies the rendered catalog, deletes its descriptor cache and
+does (bpy, about a minute); ``--objects N`` generates N ordinary objects instead of all 58 (``demo-library
+--n``; every trap is still planted). ``--smoke`` (the suite's run) is one repetition on 8 ordinary objects at
+16 px / 1 spp: 21 objects whose cold filter takes seconds, where the whole library's takes minutes (and
+tests/test_curate_demo.py already filters the whole library). Each repetition copies the rendered catalog, deletes its descriptor cache and
 runs ``mixcount catalog filter --json`` twice: ``cold`` (every descriptor computed, what a first
 ``make demo`` pays) and ``warm`` (descriptors cached). Wall and CPU seconds of the filter process are
 recorded. With ``--compare-work`` / ``--compare-pythonpath`` a second arm runs interleaved with the first
@@ -49,8 +52,9 @@ def _mixcount(db: Path, *args: str, env: dict[str, str] | None = None, cwd: Path
     return wall, cpu, proc.stdout
 
 
-def prepare(work: Path, env: dict[str, str], px: int = 64, spp: int = 2) -> Path:
-    """``work/db_rendered``: the demo library generated, ingested and rendered at ``px`` / ``spp`` (once)."""
+def prepare(work: Path, env: dict[str, str], px: int = 64, spp: int = 2, objects: int = 0) -> Path:
+    """``work/db_rendered``: the demo library (``objects`` ordinary objects, 0 = all) generated, ingested and
+    rendered at ``px`` / ``spp`` (once)."""
     rendered = work / "db_rendered"
     if (rendered / "catalog.db").is_file():
         return rendered
@@ -59,7 +63,7 @@ def prepare(work: Path, env: dict[str, str], px: int = 64, spp: int = 2) -> Path
     shutil.rmtree(db.parent, ignore_errors=True)
     db.parent.mkdir(parents=True)
     base = ["--config", str(QUICK), "--set", f"canonical_render.resolution={px}", "--set", f"canonical_render.samples={spp}"]
-    for step in (["demo-library", str(work / "demo")], ["catalog", "ingest", str(work / "demo")], ["catalog", "render"]):
+    for step in (["demo-library", str(work / "demo"), "--n", str(objects)], ["catalog", "ingest", str(work / "demo")], ["catalog", "render"]):
         wall, _, _ = _mixcount(db, *base, *step, env=env, cwd=work)
         print(f"{work}: {' '.join(step[:2])} {wall:.1f} s", file=sys.stderr)
     shutil.copytree(db.parent, rendered)
@@ -67,9 +71,9 @@ def prepare(work: Path, env: dict[str, str], px: int = 64, spp: int = 2) -> Path
 
 
 class Arm:
-    def __init__(self, label: str, work: Path, env: dict[str, str], px: int = 64, spp: int = 2) -> None:
+    def __init__(self, label: str, work: Path, env: dict[str, str], px: int = 64, spp: int = 2, objects: int = 0) -> None:
         self.label, self.work, self.env = label, work, env
-        self.rendered = prepare(work, env, px, spp)
+        self.rendered = prepare(work, env, px, spp, objects)
         self.times: dict[str, list[float]] = {"cold_wall_s": [], "warm_wall_s": [], "cold_cpu_s": [], "warm_cpu_s": []}
         self.summary: dict | None = None
         self.scratch: Path | None = None
@@ -105,20 +109,26 @@ def main() -> int:
     parser.add_argument("--pythonpath", type=Path, help="run the first arm from this tree too (a frozen copy)")
     parser.add_argument("--compare-work", type=Path)
     parser.add_argument("--compare-pythonpath", type=Path)
-    parser.add_argument("--smoke", action="store_true", help="seconds: renders at 16 px / 1 spp, one repetition (the suite)")
+    parser.add_argument("--objects", type=int, help="ordinary objects in the generated library (demo-library --n; "
+                        "default all 58, 8 with --smoke); the traps are planted whatever the number")
+    parser.add_argument("--smoke", action="store_true",
+                        help="seconds: 8 ordinary objects, renders at 16 px / 1 spp, one repetition (the suite)")
     args = parser.parse_args()
     px, spp = (16, 1) if args.smoke else (64, 2)
     if args.smoke:
         args.reps = 1
+    if args.objects is None:
+        args.objects = 8 if args.smoke else 0
     if (args.compare_work is None) != (args.compare_pythonpath is None):
         parser.error("--compare-work and --compare-pythonpath go together")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     first = env if args.pythonpath is None else {**env, "PYTHONPATH": str(args.pythonpath.resolve())}
-    arms = [Arm("current", args.work.resolve(), first, px, spp)]
+    arms = [Arm("current", args.work.resolve(), first, px, spp, args.objects)]
     if args.compare_work is not None:
         if not (args.compare_pythonpath / "mixcount" / "__init__.py").is_file():
             parser.error(f"{args.compare_pythonpath} holds no mixcount/ package")
-        arms.append(Arm("compare", args.compare_work.resolve(), {**env, "PYTHONPATH": str(args.compare_pythonpath.resolve())}))
+        arms.append(Arm("compare", args.compare_work.resolve(), {**env, "PYTHONPATH": str(args.compare_pythonpath.resolve())},
+                        objects=args.objects))
     with tempfile.TemporaryDirectory(prefix="mixcount-bench-curation-") as tmp:
         for _ in range(args.reps):
             for arm in arms:
@@ -128,7 +138,7 @@ def main() -> int:
                     arm.run(phase)
             for arm in arms:
                 shutil.rmtree(arm.scratch, ignore_errors=True)  # type: ignore[arg-type]
-    result: dict = {"arms": [arm.report() for arm in arms], "reps": args.reps}
+    result: dict = {"arms": [arm.report() for arm in arms], "reps": args.reps, "ordinary_objects": args.objects or 58}
     if len(arms) == 2:
         a, b = result["arms"]
         for key in ("cold_wall_s", "warm_wall_s", "cold_cpu_s", "warm_cpu_s"):

@@ -106,7 +106,7 @@ def rendered_demo_catalog(tmp_path_factory: pytest.TempPathFactory, demo_library
     """(catalog folder, ground truth): the whole seed-0 demo library (``demo_library``) ingested and rendered
     through the CLI at 64 px / 2 spp (``RENDERED_DEMO``: what ``make demo``'s curation sees, small), before
     any filter. Built once (bpy: the slow part); tests copy the folder (``catalog.db`` and its renders)
-    before they filter it, and bench/curation.py --smoke reads it as its ``db_rendered``."""
+    before they filter it."""
     from mixcount.cli import main
 
     library, truth = demo_library

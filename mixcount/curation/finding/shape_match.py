@@ -165,17 +165,24 @@ def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
-def _refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, max_squash: float) -> tuple[float, np.ndarray, np.ndarray]:
+def _refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, max_squash: float) -> tuple[np.ndarray, np.ndarray]:
     """ICP from ``rot`` with a linear map whose stretches are bounded: each step fits the least-squares
     linear map of b's points onto their nearest points of a, keeps its rotation parts and clips its
     singular values (relative to their geometric mean) to ``[1/max_squash, max_squash]``: a squash along
-    *any* axis, not only a principal one. Returns (chamfer, rotation, per-axis scale) where the map is
-    ``diag(scale) @ rotation`` expressed in a's frame (rotation = U V^T, scale along U's axes folded in)."""
+    *any* axis, not only a principal one. Returns (map, per-axis scale) where the map is
+    ``diag(scale) @ rotation`` expressed in a's frame (rotation = U V^T, scale along U's axes folded in).
+
+    A step is a function of the nearest-point pairing alone, so once a step pairs every point as the step
+    before did the map is final: the remaining steps would repeat it, and are skipped (same result)."""
     lo, hi = 1.0 / max_squash, max_squash
     m = rot.copy()
+    previous: np.ndarray | None = None
     for _ in range(ICP_STEPS):
         moved = pb @ m.T
         _, idx = tree_a.query(moved)
+        if previous is not None and np.array_equal(idx, previous):
+            break
+        previous = idx
         target = pa[idx]
         fit, *_ = np.linalg.lstsq(pb, target, rcond=None)  # pb @ fit ~ target
         u, s, vt = np.linalg.svd(fit.T)
@@ -183,26 +190,45 @@ def _refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, ma
             u[:, 2] *= -1
         s = s / np.exp(np.log(np.clip(s, 1e-6, None)).mean())
         m = u @ np.diag(np.clip(s, lo, hi)) @ vt
-    moved = pb @ m.T
-    return chamfer(pa, moved, tree_a), m, np.ones(3)
+    return m, np.ones(3)
+
+
+def best_starts(ca: np.ndarray, cb: np.ndarray, rotations: list[np.ndarray], spread: np.ndarray,
+                max_squash: float, keep: int) -> list[int]:
+    """Indices of the ``keep`` rotations with the lowest coarse :func:`chamfer` of ``ca`` against ``cb``
+    turned by the rotation and given a first per-axis scale from the spreads (bounded, so a squashed copy
+    starts close); ties keep the start order.
+
+    The same ``keep`` as scoring every start, for less: half of a chamfer is the mean distance of b's
+    points to a, which one query of a's k-d tree gives for every start at once, and the other half is never
+    negative. Starts are scored whole in the order of that half, and the rest are passed over once that
+    half alone exceeds the ``keep``-th best whole score (they could not enter the ``keep`` best)."""
+    tree_ca = cKDTree(ca)
+    moved = []
+    for rot in rotations:
+        m = cb @ rot.T
+        s = np.clip(spread / np.maximum(np.sqrt((m ** 2).mean(axis=0)), 1e-9), 1.0 / max_squash, max_squash)
+        moved.append(m * s)
+    to_a = tree_ca.query(np.concatenate(moved))[0].reshape(len(rotations), len(cb)).mean(axis=1)
+    scored: list[tuple[float, int]] = []
+    for k in sorted(range(len(rotations)), key=lambda k: to_a[k]):
+        if len(scored) >= keep and 0.5 * to_a[k] > scored[keep - 1][0] * (1.0 + 1e-9):
+            break
+        to_b = float(cKDTree(moved[k]).query(ca)[0].mean())
+        scored.append((0.5 * (to_b + float(to_a[k])), k))  # = chamfer(ca, moved[k], tree_ca)
+        scored.sort()
+    return [k for _, k in scored[:keep]]
 
 
 def match(a: Normalised, b: Normalised, *, max_squash: float, quantile: float = QUANTILE) -> Match:
     """Best alignment of ``b`` onto ``a`` (see the module doc)."""
-    ca, cb = a.points[:COARSE], b.points[:COARSE]
-    tree_ca = cKDTree(ca)
-    scored = []
-    for rot in starts(a, b):
-        moved = cb @ rot.T
-        # a first per-axis scale from the spreads (bounded) so a squashed copy starts close
-        s = np.clip(a.spread / np.maximum(np.sqrt((moved ** 2).mean(axis=0)), 1e-9), 1.0 / max_squash, max_squash)
-        scored.append((chamfer(ca, moved * s, tree_ca), rot))
-    scored.sort(key=lambda t: t[0])
+    rotations = starts(a, b)
+    top = best_starts(a.points[:COARSE], b.points[:COARSE], rotations, a.spread, max_squash, REFINE_TOP)
     fa, fb = a.points[:FINE], b.points[:FINE]
     tree_fa = cKDTree(fa)
     best: tuple[float, np.ndarray, np.ndarray] | None = None
-    for _, rot in scored[:REFINE_TOP]:
-        _, r, s = _refine(fa, tree_fa, fb, rot, max_squash)
+    for k in top:
+        r, s = _refine(fa, tree_fa, fb, rotations[k], max_squash)
         got = (surface_distance(a, b, r, s, quantile=quantile), r, s)
         if best is None or got[0] < best[0]:
             best = got
@@ -260,6 +286,6 @@ def primitive_distance(a: Normalised, *, quantile: float = QUANTILE) -> float:
         p = p * (a.spread / np.maximum(np.sqrt((p ** 2).mean(axis=0)), 1e-9))
         prim = normalise(p)
         start = min(turns, key=lambda t: chamfer(a.points[:COARSE], prim.points[:COARSE] @ t.T, coarse_tree))
-        _, r, s = _refine(fa, tree, prim.points[:FINE], start, 2.0)
+        r, s = _refine(fa, tree, prim.points[:FINE], start, 2.0)
         best = min(best, surface_distance(a, prim, r, s, quantile=quantile))
     return round(float(best), 6)
