@@ -28,17 +28,18 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check mixcount tests bench
 	$(VENV)/bin/mypy
 
-# Two pytest-xdist processes, each module's tests in one (--dist loadfile); session fixtures are built once
+# Two pytest-xdist processes, each module's tests in one (--dist loadfile), the slowest modules first (tests/conftest.py,
+# SLOWEST_MODULES_FIRST; --no-loadscope-reorder keeps that order); session fixtures are built once
 # for both (tests/conftest.py). TEST_WORKERS=0 runs in one process.
 TEST_WORKERS ?= 2
 # One BLAS thread per test process: two processes on two cores already fill them, and OpenBLAS's own threads
 # on the suite's small matrices only wait on each other (mixcount/threads.py has the figures).
 test: $(STAMP) browser lint
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # Engine-free tests only (no bpy, Ray, browser or slow ones), in the same two processes: 80-90 s on 2 cores.
 test-fast: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not blender and not ray and not browser and not slow"
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not blender and not ray and not browser and not slow"
 
 demo: $(STAMP)
 	$(MIX) demo-library catalog/demo
