@@ -66,11 +66,11 @@ def test_image_metrics_and_reference_window() -> None:
 
 @pytest.mark.blender
 def test_render_quality_bench_on_a_real_stage(tmp_path: Path) -> None:
-    """The bench end to end at 64 px on the light pool: one stage settled once and rendered with
+    """The bench end to end at 48 px on 8 objects of the light pool: one stage settled once and rendered with
     `previous`, `default`, a single change and the reference (a window of it); every setting is applied as
     asked (read back from Cycles) and compared with the reference."""
-    cmd = [sys.executable, str(PROJECT_ROOT / "bench" / "render_quality.py"), "--pool", "light", "--objects", "12",
-           "--resolution", "64", "--reference-spp", "16", "--reference-window", "0.5", "--stages", "tray_hdri",
+    cmd = [sys.executable, str(PROJECT_ROOT / "bench" / "render_quality.py"), "--pool", "light", "--objects", "8",
+           "--resolution", "48", "--reference-spp", "16", "--reference-window", "0.5", "--stages", "tray_hdri",
            "--only", "bounces_4", "--try", "few:samples=2", "--threads", "2", "--work", str(tmp_path)]
     proc = subprocess.run(cmd, cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
