@@ -204,12 +204,10 @@ def best_starts(ca: np.ndarray, cb: np.ndarray, rotations: list[np.ndarray], spr
     negative. Starts are scored whole in the order of that half, and the rest are passed over once that
     half alone exceeds the ``keep``-th best whole score (they could not enter the ``keep`` best)."""
     tree_ca = cKDTree(ca)
-    moved = []
-    for rot in rotations:
-        m = cb @ rot.T
-        s = np.clip(spread / np.maximum(np.sqrt((m ** 2).mean(axis=0)), 1e-9), 1.0 / max_squash, max_squash)
-        moved.append(m * s)
-    to_a = tree_ca.query(np.concatenate(moved))[0].reshape(len(rotations), len(cb)).mean(axis=1)
+    turned = np.matmul(cb[None], np.stack(rotations).transpose(0, 2, 1))  # cb @ rot.T for every rotation at once
+    scale = np.clip(spread / np.maximum(np.sqrt((turned ** 2).mean(axis=1)), 1e-9), 1.0 / max_squash, max_squash)
+    moved = turned * scale[:, None, :]  # (rotations, points, 3): the same values as one rotation at a time
+    to_a = tree_ca.query(moved.reshape(-1, 3))[0].reshape(len(rotations), len(cb)).mean(axis=1)
     scored: list[tuple[float, int]] = []
     for k in sorted(range(len(rotations)), key=lambda k: to_a[k]):
         if len(scored) >= keep and 0.5 * to_a[k] > scored[keep - 1][0] * (1.0 + 1e-9):
