@@ -138,7 +138,7 @@ def main() -> int:
                     arm.run(phase)
             for arm in arms:
                 shutil.rmtree(arm.scratch, ignore_errors=True)  # type: ignore[arg-type]
-    result: dict = {"arms": [arm.report() for arm in arms], "reps": args.reps, "ordinary_objects": args.objects or 58}
+    result: dict = {"arms": [arm.report() for arm in arms], "reps": args.reps, "ordinary_objects": args.objects}  # 0: all
     if len(arms) == 2:
         a, b = result["arms"]
         for key in ("cold_wall_s", "warm_wall_s", "cold_cpu_s", "warm_cpu_s"):

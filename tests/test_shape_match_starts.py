@@ -1,5 +1,5 @@
 """The shape alignment's two shortcuts (issue 58, the suite's time) give what the plain computation gives:
-``best_starts`` against scoring every start's coarse chamfer and sorting, ``_refine``'s early stop against all
+``best_starts`` against scoring every start's coarse chamfer and sorting, ``refine``'s early stop against all
 :data:`~mixcount.curation.finding.shape_match.ICP_STEPS` steps. Shapes with distinct and with tied principal
 moments (a box, a can, a ball: up to 384 starts), copies (turned, squashed, resampled) and strangers."""
 
@@ -73,7 +73,7 @@ def test_refine_stops_early_only_where_the_rest_would_change_nothing(shapes):
         tree = cKDTree(fa)
         for k in _every_start(a.points[:S.COARSE], b.points[:S.COARSE], S.starts(a, b), a.spread, 1.25, 2):
             rot = S.starts(a, b)[k]
-            m, _ = S._refine(fa, tree, fb, rot, 1.25)
+            m = S.refine(fa, tree, fb, rot, 1.25)
             assert np.array_equal(m, _all_steps(fa, tree, fb, rot, 1.25))
             stopped += 1
     assert stopped == 8

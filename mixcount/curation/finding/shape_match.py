@@ -12,9 +12,9 @@ points of :func:`mixcount.curation.finding.appearance3d.load_samples`, colours i
    :data:`TIE` the frame is also free to turn about the third axis, so those starts are repeated every
    :data:`TIE_STEP_DEG` degrees about it.
 3. **Coarse score** of every start on :data:`COARSE` points (a symmetric chamfer), then **refine** the
-   best :data:`REFINE_TOP` with a few ICP steps on :data:`FINE` points, alternating a rotation (Kabsch)
-   and a scale per principal axis of the first object, bounded to ``[1/max_squash, max_squash]`` relative
-   to the isotropic fit (a re-export that flattened one axis by up to 25 % is the same shape).
+   best :data:`REFINE_TOP` with a few ICP steps on :data:`FINE` points, each the least-squares linear map
+   onto the nearest points with its stretches bounded to ``[1/max_squash, max_squash]`` along any axis,
+   relative to their geometric mean (a re-export that flattened one axis by up to 25 % is the same shape).
 4. **Distance**: the symmetric chamfer, the mean distance from each point to the nearest point of the
    other sample, both ways, averaged, in units of the RMS radius (0 for one shape; a sphere against a
    cube of the same RMS radius is about 0.05).
@@ -26,6 +26,7 @@ agree much more closely than either object agrees with a primitive (its shape mu
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 from functools import lru_cache
 from itertools import permutations, product
@@ -43,6 +44,8 @@ TIE_STEP_DEG = 30.0
 SEED = 20261204
 NORMAL_NEIGHBOURS = 10
 POINT_SHARE = 0.2
+NO_SCALE = np.ones(3)  # refine folds the per-axis scale into its map; the scale applied after it is none
+NO_SCALE.flags.writeable = False
 QUANTILE = 0.5  # the default of [filter] match_quantile: the median of the point-to-plane distances
 
 
@@ -157,20 +160,12 @@ def surface_distance(a: Normalised, b: Normalised, rot: np.ndarray, scale: np.nd
     return 0.5 * float(np.quantile(plane_ab, quantile) + np.quantile(plane_ba, quantile))
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rotation R minimising |src @ R.T - dst| (both centred)."""
-    h = src.T @ dst
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-
-
-def _refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, max_squash: float) -> tuple[np.ndarray, np.ndarray]:
+def refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, max_squash: float) -> np.ndarray:
     """ICP from ``rot`` with a linear map whose stretches are bounded: each step fits the least-squares
     linear map of b's points onto their nearest points of a, keeps its rotation parts and clips its
     singular values (relative to their geometric mean) to ``[1/max_squash, max_squash]``: a squash along
-    *any* axis, not only a principal one. Returns (map, per-axis scale) where the map is
-    ``diag(scale) @ rotation`` expressed in a's frame (rotation = U V^T, scale along U's axes folded in).
+    *any* axis, not only a principal one. Returns the map, expressed in a's frame (rotation = U V^T, the
+    scale along U's axes folded in, so the per-axis scale it is used with is :data:`NO_SCALE`).
 
     A step is a function of the nearest-point pairing alone, so once a step pairs every point as the step
     before did the map is final: the remaining steps would repeat it, and are skipped (same result)."""
@@ -190,7 +185,7 @@ def _refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, ma
             u[:, 2] *= -1
         s = s / np.exp(np.log(np.clip(s, 1e-6, None)).mean())
         m = u @ np.diag(np.clip(s, lo, hi)) @ vt
-    return m, np.ones(3)
+    return m
 
 
 def best_starts(ca: np.ndarray, cb: np.ndarray, rotations: list[np.ndarray], spread: np.ndarray,
@@ -208,13 +203,12 @@ def best_starts(ca: np.ndarray, cb: np.ndarray, rotations: list[np.ndarray], spr
     scale = np.clip(spread / np.maximum(np.sqrt((turned ** 2).mean(axis=1)), 1e-9), 1.0 / max_squash, max_squash)
     moved = turned * scale[:, None, :]  # (rotations, points, 3): the same values as one rotation at a time
     to_a = tree_ca.query(moved.reshape(-1, 3))[0].reshape(len(rotations), len(cb)).mean(axis=1)
-    scored: list[tuple[float, int]] = []
+    scored: list[tuple[float, int]] = []  # (whole chamfer, start), kept sorted
     for k in sorted(range(len(rotations)), key=lambda k: to_a[k]):
         if len(scored) >= keep and 0.5 * to_a[k] > scored[keep - 1][0] * (1.0 + 1e-9):
             break
         to_b = float(cKDTree(moved[k]).query(ca)[0].mean())
-        scored.append((0.5 * (to_b + float(to_a[k])), k))  # = chamfer(ca, moved[k], tree_ca)
-        scored.sort()
+        bisect.insort(scored, (0.5 * (to_b + float(to_a[k])), k))  # = chamfer(ca, moved[k], tree_ca)
     return [k for _, k in scored[:keep]]
 
 
@@ -226,8 +220,8 @@ def match(a: Normalised, b: Normalised, *, max_squash: float, quantile: float = 
     tree_fa = cKDTree(fa)
     best: tuple[float, np.ndarray, np.ndarray] | None = None
     for k in top:
-        r, s = _refine(fa, tree_fa, fb, rotations[k], max_squash)
-        got = (surface_distance(a, b, r, s, quantile=quantile), r, s)
+        r = refine(fa, tree_fa, fb, rotations[k], max_squash)
+        got = (surface_distance(a, b, r, NO_SCALE, quantile=quantile), r, NO_SCALE)
         if best is None or got[0] < best[0]:
             best = got
     assert best is not None
@@ -284,6 +278,6 @@ def primitive_distance(a: Normalised, *, quantile: float = QUANTILE) -> float:
         p = p * (a.spread / np.maximum(np.sqrt((p ** 2).mean(axis=0)), 1e-9))
         prim = normalise(p)
         start = min(turns, key=lambda t: chamfer(a.points[:COARSE], prim.points[:COARSE] @ t.T, coarse_tree))
-        r, s = _refine(fa, tree, prim.points[:FINE], start, 2.0)
-        best = min(best, surface_distance(a, prim, r, s, quantile=quantile))
+        r = refine(fa, tree, prim.points[:FINE], start, 2.0)
+        best = min(best, surface_distance(a, prim, r, NO_SCALE, quantile=quantile))
     return round(float(best), 6)
