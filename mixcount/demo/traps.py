@@ -97,7 +97,8 @@ def surface_colour(parts: list[Part], *, seed: int, n: int = 200_000) -> Surface
             colours[sel] = np.einsum("nk,nkc->nc", bary[sel], p.colors[:, :3].astype(np.float64)[corners])
         else:
             colours[sel] = 178.0
-    return SurfaceColour(points, np.clip(colours.round(), 0, 255).astype(np.uint8), cKDTree(points))
+    return SurfaceColour(points, np.clip(colours.round(), 0, 255).astype(np.uint8),
+                         cKDTree(points, balanced_tree=False, compact_nodes=False))
 
 
 def weld(parts: list[Part], *, tolerance: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
