@@ -14,11 +14,13 @@ refused with one line naming the file and the problem (docs/faults.md).
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import os
 import re
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Optional
 
@@ -185,7 +187,7 @@ def migrate(engine: Engine, *, wait_s: float = MIGRATION_WAIT_S) -> None:
     url = engine.url.render_as_string(hide_password=False)
     head = head_revision()
     check_known_catalog(engine, head)
-    if current_revision(engine) == head:
+    if head is not None and current_revision(engine) == head:
         return
     if sqlite_file(url) is None:
         try:
@@ -224,11 +226,9 @@ SQLITE_HEADER = b"SQLite format 3\x00"
 def check_known_catalog(engine: Engine, head: Optional[str]) -> None:
     """Refuse, with one line, a database that is not a mixcount catalog this version can use: one of
     another program (tables but no mixcount schema version) or one with a newer schema revision."""
-    from alembic.runtime.migration import MigrationContext
-
     with engine.connect() as conn:
         tables = set(inspect(conn).get_table_names())
-        revisions = MigrationContext.configure(conn).get_current_heads() if "alembic_version" in tables else ()
+        revisions = _stored_revisions(conn) if "alembic_version" in tables else ()
     _refuse_unknown(str(sqlite_file(str(engine.url)) or engine.url), tables, tuple(revisions), head)
 
 
@@ -263,8 +263,6 @@ def check_sqlite_file(path: Path, head: Optional[str]) -> None:
 
 
 def _refuse_unknown(where: str, tables: set[str], revisions: tuple[str, ...], head: Optional[str]) -> None:
-    from alembic.script import ScriptDirectory
-
     tables = {t for t in tables if not t.startswith("sqlite_")}
     if not tables:
         return  # a new, empty catalog
@@ -272,7 +270,7 @@ def _refuse_unknown(where: str, tables: set[str], revisions: tuple[str, ...], he
         shown = ", ".join(sorted(tables)[:6]) + (", ..." if len(tables) > 6 else "")
         raise CatalogError(f"{where} is a database of another program, not a mixcount catalog "
                            f"(tables {shown}; no schema version): give --db a new path or a catalog file")
-    known = {rev.revision for rev in ScriptDirectory.from_config(alembic_config("sqlite://")).walk_revisions()}
+    known = migration_revisions()[0]
     unknown = [r for r in revisions if r not in known]
     if not unknown:
         return
@@ -283,17 +281,58 @@ def _refuse_unknown(where: str, tables: set[str], revisions: tuple[str, ...], he
                        f"{unknown[0]!r} is not mixcount's): give --db a new path or a catalog file")
 
 
-def current_revision(engine: Engine) -> str | None:
-    from alembic.runtime.migration import MigrationContext
+def _stored_revisions(conn: Any) -> tuple[str, ...]:
+    """The revisions in the database's ``alembic_version`` table (which must exist), as alembic's
+    ``MigrationContext.get_current_heads`` reads them."""
+    return tuple(str(r[0]) for r in conn.exec_driver_sql("SELECT version_num FROM alembic_version"))
 
+
+def current_revision(engine: Engine) -> str | None:
+    """The database's schema revision; None for a database without one (new). Read with plain SQL, as
+    alembic's ``MigrationContext.get_current_revision`` reads it (which raises for a branched database with
+    several: so does this)."""
     with engine.connect() as conn:
-        return MigrationContext.configure(conn).get_current_revision()
+        if "alembic_version" not in set(inspect(conn).get_table_names()):
+            return None
+        revisions = _stored_revisions(conn)
+    if len(revisions) > 1:
+        raise CatalogError(f"catalog database {sqlite_file(str(engine.url)) or engine.url} has several schema "
+                           f"revisions {list(revisions)}: it is not a catalog this mixcount can use")
+    return revisions[0] if revisions else None
+
+
+@lru_cache(maxsize=1)
+def migration_revisions() -> tuple[frozenset[str], Optional[str]]:
+    """(every revision, the head revision) of the migration scripts in ``migrations/versions``, from each
+    script's ``revision`` and ``down_revision`` assignments, once per process.
+
+    Alembic's own reading (``ScriptDirectory``) imports alembic (0.12 s) and compiles every script on each
+    call (30 ms): every command paid both to learn that its catalog is already at head, and an in-process
+    test run paid the scripts again on each open (41 CPU-seconds of the suite, docs/testing.md). Alembic
+    itself is still what migrates a catalog that is not at head. tests/test_migrations.py holds this equal
+    to ``ScriptDirectory``'s revisions and head. Several heads (a branch) give None, as no single head;
+    :func:`migrate` then hands the catalog to alembic, which says why."""
+    revisions: dict[str, tuple[str, ...]] = {}
+    for script in sorted((MIGRATIONS_DIR / "versions").glob("*.py")):
+        values: dict[str, Any] = {}
+        for node in ast.parse(script.read_text(encoding="utf-8")).body:
+            if (isinstance(node, (ast.Assign, ast.AnnAssign)) and len(targets := getattr(node, "targets", None)
+                                                                     or [node.target]) == 1
+                    and isinstance(targets[0], ast.Name) and targets[0].id in ("revision", "down_revision")
+                    and node.value is not None):
+                values[targets[0].id] = ast.literal_eval(node.value)
+        if "revision" not in values:
+            continue  # not a migration script
+        down = values.get("down_revision")
+        revisions[str(values["revision"])] = tuple(down) if isinstance(down, (tuple, list)) else ((down,) if down else ())
+    below = {d for downs in revisions.values() for d in downs}
+    heads = [r for r in revisions if r not in below]
+    return frozenset(revisions), (heads[0] if len(heads) == 1 else None)
 
 
 def head_revision() -> str | None:
-    from alembic.script import ScriptDirectory
-
-    return ScriptDirectory.from_config(alembic_config("sqlite://")).get_current_head()
+    """The newest migration's revision (:func:`migration_revisions`)."""
+    return migration_revisions()[1]
 
 
 @dataclass
