@@ -34,12 +34,16 @@ lint: $(STAMP)
 TEST_WORKERS ?= 2
 # One BLAS thread per test process: two processes on two cores already fill them, and OpenBLAS's own threads
 # on the suite's small matrices only wait on each other (mixcount/threads.py has the figures).
+# PYTHONDONTWRITEBYTECODE emptied for the run (this machine sets it): the suite starts ~300 Python processes
+# (CLI commands, bpy workers, benches) and each compiled every mixcount module it imported from source, and
+# each test process re-ran pytest's assertion rewrite of every test module: 39 CPU-seconds of the suite
+# (py-spy, docs/testing.md). The caches go to the gitignored __pycache__ folders.
 test: $(STAMP) browser lint
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+	PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # Engine-free tests only (no bpy, Ray, browser or slow ones), in the same two processes: 80-90 s on 2 cores.
 test-fast: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not blender and not ray and not browser and not slow"
+	PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not blender and not ray and not browser and not slow"
 
 demo: $(STAMP)
 	$(MIX) demo-library catalog/demo
