@@ -15,14 +15,17 @@ The Python API (:mod:`mixcount.api`, imported on first use)::
 
 import importlib
 
-from mixcount.version import __version__ as __version__  # one source of truth: pyproject.toml
-
 API = ("open_catalog", "compose", "package", "load_dataset", "Dataset", "Sample", "Exemplar")
 __all__ = ["__version__", *API]
 
 
 def __getattr__(name: str):  # type: ignore[no-untyped-def]
-    """The API names, imported from :mod:`mixcount.api` on first use (PEP 562)."""
+    """The API names, imported from :mod:`mixcount.api` on first use (PEP 562), and ``__version__``
+    (:mod:`mixcount.version`: one source of truth, pyproject.toml; read on first use)."""
+    if name == "__version__":
+        from mixcount.version import installed_version
+
+        return installed_version()
     if name in API:
         return getattr(importlib.import_module("mixcount.api"), name)
     raise AttributeError(f"module 'mixcount' has no attribute {name!r}")

@@ -55,3 +55,15 @@ def test_console_script_usage_error_has_no_traceback() -> None:
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert "Usage: mixcount compose" in proc.stderr and "Invalid value for '--n'" in proc.stderr
+
+
+def test_version_is_read_only_when_asked() -> None:
+    """Every mixcount process imports the package; the version lookup (importlib.metadata scanning the
+    installed distributions, ~25 ms) happens only for ``--version`` and the export manifests."""
+    import subprocess
+    import sys
+
+    code = ("import sys, mixcount.cli; print('importlib.metadata' in sys.modules); "
+            "from mixcount.version import __version__; print(__version__ == mixcount.__version__ != '')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["False", "True"]
