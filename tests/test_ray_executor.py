@@ -7,6 +7,9 @@
 * a cluster killed (SIGKILL of every Ray process) mid-run leaves no partial scene, and a rerun against
   a fresh cluster completes the set with no duplicate.
 
+Two clusters in all: the module's (``module_cluster``: the failure path, the clean compose run, then the run
+killed with it) and the fresh one the killed run is resumed on.
+
 Every Ray process a test starts is a descendant of its ``ray start --block`` process and is killed in a
 ``finally`` (not ``ray stop --force``, which would stop any other Ray on the machine); the test then
 checks none is left.
@@ -160,6 +163,19 @@ def cluster(cpus: int = 2) -> Iterator[Cluster]:
         assert not c.leftovers(), f"Ray processes left running: {c.leftovers()}"
 
 
+@pytest.fixture(scope="module")
+def module_cluster() -> Iterator[Cluster]:
+    """One cluster for the module's runs that leave it standing: the failure path's trivial tasks, then the
+    clean compose run and the run killed with it (starting a head costs a few seconds of the suite each time).
+    The test that kills it checks what it left itself; whatever still stands is killed and checked here."""
+    c = Cluster()
+    try:
+        yield c
+    finally:
+        c.kill()
+        assert not c.leftovers(), f"Ray processes left running: {c.leftovers()}"
+
+
 # ------------------------------------------------------------------------------------------ failure path
 
 
@@ -188,7 +204,7 @@ def fake_runner(task: SceneTask, worker: Any) -> SceneOutcome:
                         timings={"threads": float(task.threads)})
 
 
-def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, module_cluster: Cluster) -> None:
     import ray
     import ray.cloudpickle
 
@@ -199,20 +215,20 @@ def test_failed_calls_fail_one_scene_each(tmp_path: Path, monkeypatch: pytest.Mo
                        timeout_s=60, threads=2, outputs=SceneOutputs.from_config(load_config().compose)) for s in range(6)]
     missing = SceneTask(spec=FakeSpec("scene_000099", 99), out_dir=str(tmp_path / "nowhere"),
                         assets_dir=str(tmp_path), timeout_s=60, threads=2, outputs=SceneOutputs.from_config(load_config().compose))
-    with cluster() as c:
-        monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
-        ex = RayExecutor(address=c.address, slots=2, cpus_per_slot=1.0, threads=1, recycle_after=2, runner=fake_runner,
-                         worker_factory=FakeWorker)
-        try:
-            assert ex.slots == 2
-            for t in tasks + [missing]:
-                ex.submit(t)
-            outcomes = [ex.next_outcome(timeout=120) for _ in range(len(tasks) + 1)]
-            c.track()
-            info = ex.info()
-        finally:
-            ex.close()
-            ray.shutdown()
+    c = module_cluster  # left standing: the compose test below reuses it
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    ex = RayExecutor(address=c.address, slots=2, cpus_per_slot=1.0, threads=1, recycle_after=2, runner=fake_runner,
+                     worker_factory=FakeWorker)
+    try:
+        assert ex.slots == 2
+        for t in tasks + [missing]:
+            ex.submit(t)
+        outcomes = [ex.next_outcome(timeout=120) for _ in range(len(tasks) + 1)]
+        c.track()
+        info = ex.info()
+    finally:
+        ex.close()
+        ray.shutdown()
     by_seed = {o.seed: o for o in outcomes}
     assert sorted(by_seed) == [0, 1, 2, 3, 4, 5, 99]  # every task answered once
     assert by_seed[1].status == FAILED and "planted failure" in (by_seed[1].error or "")
@@ -251,7 +267,7 @@ def annotations(out: Path) -> list[tuple[Any, ...]]:
 
 @pytest.mark.blender
 @pytest.mark.slow
-def test_ray_cluster_matches_local_and_resumes_after_kill(demo_db: Path, tmp_path: Path) -> None:
+def test_ray_cluster_matches_local_and_resumes_after_kill(demo_db: Path, tmp_path: Path, module_cluster: Cluster) -> None:
     n = 3
     local = compose(demo_db, tmp_path / "local", n, "--workers", "1")
     assert local.returncode == 0, local.stderr[-3000:]
@@ -259,16 +275,17 @@ def test_ray_cluster_matches_local_and_resumes_after_kill(demo_db: Path, tmp_pat
     assert expected and len({a[0] for a in expected}) == n
 
     # 1) a clean run of n scenes through the cluster: same annotations as the local executor
-    with cluster() as c:
-        run = compose(demo_db, tmp_path / "ray", n, "--executor", "ray", "--address", c.address, "--workers", "2")
-        c.track()
+    c = module_cluster
+    assert not c.killed, "the module's cluster was killed before this test"
+    run = compose(demo_db, tmp_path / "ray", n, "--executor", "ray", "--address", c.address, "--workers", "2")
+    c.track()
     assert run.returncode == 0, run.stderr[-3000:]
     assert json.loads(run.stdout)["written"] == n
     assert annotations(tmp_path / "ray") == expected
 
-    # 2) kill the cluster while the run is going: no partial scene; a rerun on a new cluster completes the set
+    # 2) kill that cluster while the next run is going: no partial scene; a rerun on a new cluster completes the set
     out = tmp_path / "killed"
-    with cluster() as c:
+    try:
         driver = subprocess.Popen(
             [str(MIX), "--db", str(demo_db), "--config", "quick", "compose", "--n", str(n), "--out", str(out),
              "--resolution", "64", "--samples", "1", "--executor", "ray", "--address", c.address, "--workers", "2"],
@@ -283,6 +300,9 @@ def test_ray_cluster_matches_local_and_resumes_after_kill(demo_db: Path, tmp_pat
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(driver.pid, signal.SIGKILL)
             driver.wait(timeout=30)
+    finally:
+        c.kill()
+    assert not c.leftovers(), f"Ray processes left running: {c.leftovers()}"
     done_before = sorted(p.parent.name for p in (out / "scenes").glob("scene_*/metadata.json"))
     assert 1 <= len(done_before) < n
     for d in (out / "scenes").glob("scene_*"):  # whatever is in place is complete
