@@ -63,21 +63,50 @@ def catalog(db_url: str):
     cat.close()
 
 
+def convert_pool_assets(catalog) -> None:
+    """Every active object's USD asset in ``catalog.usd_assets_dir``, converted as compose converts the assets
+    of a scene (:func:`mixcount.usd.stage.convert_scene_assets`: the configs/quick.toml palette's look for an
+    untextured object, a container with its collision parts). A compose finds them current (same source,
+    frame, look and proxy) and converts nothing again; one with another look converts its own."""
+    from mixcount.catalog.pool_loader import load_pool
+    from mixcount.config import load_config
+    from mixcount.usd.assets import convert_asset
+
+    palette = load_config(["quick"]).palette
+    with catalog.session() as session:
+        pool = load_pool(session, palette=palette)
+    for o in pool:
+        convert_asset(o.model_path, Path(catalog.usd_assets_dir), content_hash=o.content_hash, units=o.source_units,
+                      up_axis=o.source_up_axis, collision_path=o.collision_path if o.container else None,
+                      proxy_path=o.proxy_path, look=o.look)
+
+
 @pytest.fixture(scope="session")
 def demo_catalog_copy(tmp_path_factory: pytest.TempPathFactory) -> Callable[[Path, int], Path]:
     """``copy(dest, n_objects)``: a copy at ``dest`` of a demo catalog folder (``build_demo_catalog``:
     the seed-0 demo library of ``n_objects`` in ``lib/``, ingested with configs/quick.toml, every active
-    object in train). Each size is built once per session into a folder no test touches; every caller gets
-    its own copy (catalog.db, library and ingest's files: a few MB, copied in milliseconds) that it may
-    change. Model paths are stored absolute: a copy reads the template's lib/ and proxies, which no test writes."""
+    object in train, and every object's USD asset converted as compose converts it: ``convert_pool_assets``).
+    Each size is built once per session into a folder no test touches; every caller gets its own copy
+    (catalog.db, library, ingest's files and ``usd_assets/``: a few MB, copied in milliseconds) that it may
+    change. Model paths are stored absolute: a copy reads the template's lib/ and proxies, which no test writes.
+    A compose from a copy finds its assets converted, as a user's second compose from one catalog does (the
+    conversion itself, a container's convex parts included, is tested on catalogs of their own:
+    tests/test_usd_assets.py, tests/test_collision_proxies.py, tests/test_missing_files.py)."""
     from test_usd_stage import build_demo_catalog
 
     built: dict[int, Path] = {}
 
+    def build(folder: Path, n_objects: int) -> None:
+        catalog = build_demo_catalog(folder, n_objects=n_objects)
+        try:
+            convert_pool_assets(catalog)
+        finally:
+            catalog.close()
+
     def copy(dest: Path, n_objects: int) -> Path:
         if n_objects not in built:
             built[n_objects] = _built_once(tmp_path_factory, f"demo_catalog_{n_objects}",
-                                           lambda folder: build_demo_catalog(folder, n_objects=n_objects).close())
+                                           lambda folder: build(folder, n_objects))
         shutil.copytree(built[n_objects], dest, symlinks=True, dirs_exist_ok=True)
         return dest
 
