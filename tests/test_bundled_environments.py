@@ -107,17 +107,25 @@ def _compose(out: Path, assets: Path, pool: list, strength: float, *extra: str) 
     return next(d for d in (out / "scenes").iterdir() if d.is_dir() and not d.name.startswith("."))
 
 
+@pytest.fixture(scope="module")
+def demo6(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The seed-0 demo library of 6 objects, generated once for the module's two renders (read only)."""
+    from mixcount.demo.library import generate_demo_library
+
+    root = tmp_path_factory.mktemp("demo6") / "demo"
+    generate_demo_library(root, seed=0, n_objects=6)
+    return root
+
+
 @pytest.mark.blender
 @pytest.mark.slow
-def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Path) -> None:
+def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Path, demo6: Path) -> None:
     from PIL import Image
 
     from mixcount.dataset.attribution import write_attribution
     from mixcount.demo.demo_pools import pool_from_demo_library
-    from mixcount.demo.library import generate_demo_library
 
-    generate_demo_library(tmp_path / "demo", seed=0, n_objects=6)
-    pool = pool_from_demo_library(tmp_path / "demo")
+    pool = pool_from_demo_library(demo6)
     dim = _compose(tmp_path / "dim", tmp_path / "assets", pool, 0.3)
     bright = _compose(tmp_path / "bright", tmp_path / "assets", pool, 2.0)
     meta = json.loads((dim / "metadata.json").read_text())
@@ -155,15 +163,13 @@ def test_real_render_lit_by_a_bundled_hdri_and_attribution_names_it(tmp_path: Pa
 
 @pytest.mark.blender
 @pytest.mark.slow
-def test_sky_config_still_renders_the_procedural_sky(tmp_path: Path) -> None:
+def test_sky_config_still_renders_the_procedural_sky(tmp_path: Path, demo6: Path) -> None:
     from PIL import Image
 
     from mixcount.dataset.attribution import collect_attribution
     from mixcount.demo.demo_pools import pool_from_demo_library
-    from mixcount.demo.library import generate_demo_library
 
-    generate_demo_library(tmp_path / "demo", seed=0, n_objects=6)
-    scene = _compose(tmp_path / "sky", tmp_path / "assets", pool_from_demo_library(tmp_path / "demo"), 1.0,
+    scene = _compose(tmp_path / "sky", tmp_path / "assets", pool_from_demo_library(demo6), 1.0,
                      "scene.default_environment=sky")
     meta = json.loads((scene / "metadata.json").read_text())
     env = meta["spec"]["environment"]
