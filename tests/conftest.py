@@ -65,20 +65,17 @@ def catalog(db_url: str):
 
 def convert_pool_assets(catalog) -> None:
     """Every active object's USD asset in ``catalog.usd_assets_dir``, converted as compose converts the assets
-    of a scene (:func:`mixcount.usd.stage.convert_scene_assets`: the configs/quick.toml palette's look for an
-    untextured object, a container with its collision parts). A compose finds them current (same source,
+    of a scene (:func:`mixcount.usd.stage.convert_object_asset`, with the configs/quick.toml palette's look for
+    an untextured object; a container with its collision parts). A compose finds them current (same source,
     frame, look and proxy) and converts nothing again; one with another look converts its own."""
     from mixcount.catalog.pool_loader import load_pool
     from mixcount.config import load_config
-    from mixcount.usd.assets import convert_asset
+    from mixcount.usd.stage import convert_object_asset
 
-    palette = load_config(["quick"]).palette
     with catalog.session() as session:
-        pool = load_pool(session, palette=palette)
+        pool = load_pool(session, palette=load_config(["quick"]).palette)
     for o in pool:
-        convert_asset(o.model_path, Path(catalog.usd_assets_dir), content_hash=o.content_hash, units=o.source_units,
-                      up_axis=o.source_up_axis, collision_path=o.collision_path if o.container else None,
-                      proxy_path=o.proxy_path, look=o.look)
+        convert_object_asset(o, Path(catalog.usd_assets_dir), container=o.container)
 
 
 @pytest.fixture(scope="session")

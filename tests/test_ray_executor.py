@@ -168,12 +168,8 @@ def module_cluster() -> Iterator[Cluster]:
     """One cluster for the module's runs that leave it standing: the failure path's trivial tasks, then the
     clean compose run and the run killed with it (starting a head costs a few seconds of the suite each time).
     The test that kills it checks what it left itself; whatever still stands is killed and checked here."""
-    c = Cluster()
-    try:
+    with cluster() as c:
         yield c
-    finally:
-        c.kill()
-        assert not c.leftovers(), f"Ray processes left running: {c.leftovers()}"
 
 
 # ------------------------------------------------------------------------------------------ failure path

@@ -24,7 +24,7 @@ import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Optional, Protocol
 
 import numpy as np
 
@@ -334,18 +334,41 @@ def _write_cameras(stage: Any, spec: SceneSpec) -> None:
     del parent.nameChildren["cam_template"]
 
 
+class ConvertibleAsset(Protocol):
+    """What a conversion reads of an object: a scene's :class:`~mixcount.scene.spec.AssetRef` or a pool's
+    :class:`~mixcount.scene.object_records.ObjectRecord` (the same fields)."""
+
+    @property
+    def model_path(self) -> str: ...
+    @property
+    def content_hash(self) -> str: ...
+    @property
+    def source_units(self) -> Optional[str]: ...
+    @property
+    def source_up_axis(self) -> Optional[str]: ...
+    @property
+    def collision_path(self) -> Optional[str]: ...
+    @property
+    def proxy_path(self) -> Optional[str]: ...
+    @property
+    def look(self) -> Optional[tuple[float, ...]]: ...
+
+
+def convert_object_asset(obj: ConvertibleAsset, assets_dir: Path, *, container: bool) -> AssetPaths:
+    """Convert (or find cached) one object's asset as a scene uses it: with its collision proxy when the
+    catalog has one; as the scene's ``container`` also with its decimated collision mesh."""
+    return convert_asset(
+        obj.model_path, assets_dir, content_hash=obj.content_hash, units=obj.source_units,
+        up_axis=obj.source_up_axis, collision_path=obj.collision_path if container else None,
+        proxy_path=obj.proxy_path, look=obj.look,
+    )
+
+
 def convert_scene_assets(spec: SceneSpec, assets_dir: Path) -> dict[int, AssetPaths]:
-    """Convert (or find cached) every asset the scene uses (with its collision proxy when the catalog has
-    one); the container also gets its decimated collision mesh."""
+    """Convert (or find cached) every asset the scene uses (:func:`convert_object_asset`)."""
     container_id = spec.container.object_id if spec.container else None
-    out: dict[int, AssetPaths] = {}
-    for a in spec.assets:
-        out[a.object_id] = convert_asset(
-            a.model_path, assets_dir, content_hash=a.content_hash, units=a.source_units,
-            up_axis=a.source_up_axis, collision_path=a.collision_path if a.object_id == container_id else None,
-            proxy_path=a.proxy_path, look=a.look,
-        )
-    return out
+    return {a.object_id: convert_object_asset(a, assets_dir, container=a.object_id == container_id)
+            for a in spec.assets}
 
 
 # usd-core used by one thread at a time in this process: asset conversion, stage and settled-stage writing
