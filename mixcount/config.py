@@ -126,6 +126,7 @@ class CatalogConfig:
     """``[catalog]``: where the catalog keeps its files."""
 
     data_dir: str
+    writer_wait_s: float  # seconds a catalog writer waits for another writer before it stops (one line)
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,8 @@ class IngestConfig:
     omniobject3d_up_axis: str
     proxy_max_vertices: int
     facts_face_budget: int  # above it: facts measured whole, hash and collision mesh from a copy
+    extra_roots: list[str]  # folders besides the library its references may reach (library_root.py)
+    max_image_pixels: int  # an image of more pixels is refused when it enters the catalog
 
     def validate(self) -> None:
         if self.facts_face_budget < 1000:
