@@ -246,6 +246,8 @@ class Environment(Base):
     path: Mapped[str] = mapped_column(Text)
     content_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    broken: Mapped[Optional[str]] = mapped_column(Text, nullable=True)  # why it did not decode; never drawn
+    checked_at: Mapped[Optional[datetime]] = mapped_column(DateTime, nullable=True)  # None: before 0009
 
 
 class Material(Base):
@@ -259,3 +261,5 @@ class Material(Base):
     maps_json: Mapped[str] = mapped_column(Text, default="{}")
     content_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    broken: Mapped[Optional[str]] = mapped_column(Text, nullable=True)  # why a map did not decode; never drawn
+    checked_at: Mapped[Optional[datetime]] = mapped_column(DateTime, nullable=True)  # None: before 0009
