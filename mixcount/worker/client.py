@@ -1,6 +1,6 @@
 """Parent side of the bpy worker: a long-lived subprocess that renders many scenes or canonical renders.
 
-:class:`BlenderWorker` starts ``python -m <WORKER_MODULE>`` (:mod:`mixcount.engine.worker_main`) lazily, sends one JSON request
+:class:`BlenderWorker` starts ``python -P -m <WORKER_MODULE>`` (:mod:`mixcount.engine.worker_main`) lazily, sends one JSON request
 per line and waits for the answer with a deadline. A worker that dies mid-scene (crash, OOM kill) or
 overruns the per-scene timeout is killed (its whole process group) and the request raises
 :class:`~mixcount.errors.RenderError`; the next request starts a fresh worker. The worker's stderr
@@ -13,6 +13,13 @@ Workers die with their run (docs/faults.md): each is started from one long-lived
 process, with ``MIXCOUNT_PARENT_PID`` set, so the worker's ``PR_SET_PDEATHSIG`` (Linux; set in
 :mod:`mixcount.engine.worker_main`, which also watches its parent's pid) fires when this process dies,
 not when the pool thread that asked for the worker ends.
+
+A worker's imports never depend on the caller's folder (:func:`worker_command`): ``python -m`` alone puts
+the current folder first on ``sys.path``, so a shell standing in a folder that holds a directory named
+``mixcount`` (the folder a user cloned into) made every render fail with ``ModuleNotFoundError: No
+module named 'mixcount.catalog.materials'``. The worker is started with ``-P`` (Python 3.11's safe path:
+no current folder on the path) and the folder holding the parent's own ``mixcount`` package first on
+``PYTHONPATH``, so it imports exactly the code of the process that started it, from any folder.
 """
 
 from __future__ import annotations
@@ -37,6 +44,23 @@ WORKER_MODULE = "mixcount.engine.worker_main"  # the entry module the worker pro
 PARENT_ENV = "MIXCOUNT_PARENT_PID"  # the pid the worker watches (it exits when that process is gone)
 TAIL_LINES = 20  # log lines a crash's error quotes
 TAIL_CHARS = 3000
+
+
+def package_root() -> str:
+    """The folder holding the ``mixcount`` package this process runs (a checkout, or site-packages)."""
+    return str(Path(__file__).resolve().parent.parent.parent)
+
+
+def worker_command(python: str, module: str = WORKER_MODULE,
+                   environ: Optional[dict[str, str]] = None) -> tuple[list[str], dict[str, str]]:
+    """``(argv, env)`` that start ``module`` in ``python`` with imports that never depend on the current
+    folder: ``-P`` keeps the folder off ``sys.path`` and :func:`package_root` leads ``PYTHONPATH`` (the
+    parent's own package, also when it runs from a checkout that is not installed)."""
+    env = dict(os.environ if environ is None else environ)
+    root = package_root()
+    rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and p != root]
+    env["PYTHONPATH"] = os.pathsep.join([root, *rest])
+    return [python, "-P", "-m", module], env
 
 
 class WorkerDied(RenderError):
@@ -154,11 +178,10 @@ class BlenderWorker:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log = open(self.log_path, "ab")  # O_APPEND: post() may truncate it under the running child
         log.truncate(0)  # this start's log (a crashed worker's was renamed and kept)
-        env = dict(os.environ)
+        args, env = worker_command(self.python, WORKER_MODULE)  # read now: tests swap the module
         env["PYTHONUNBUFFERED"] = "1"
         env["PYTHONFAULTHANDLER"] = "1"  # faulthandler from the interpreter's start (worker_main: all threads)
         env[PARENT_ENV] = str(os.getpid())
-        args = [self.python, "-m", WORKER_MODULE]
         try:
             self.proc = _SPAWNER.popen(lambda: subprocess.Popen(
                 args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env, start_new_session=True))
