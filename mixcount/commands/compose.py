@@ -16,7 +16,7 @@ import typer
 
 from mixcount.commands.common import RichProgress, console, json_option, out, result, state
 from mixcount.config import Config
-from mixcount.errors import CompositionError
+from mixcount.errors import CompositionError, PartialFailure
 
 
 def summarise(spec: Any) -> dict[str, Any]:
@@ -190,6 +190,25 @@ def compose_cmd(
         console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB)", highlight=False)
     result(_compose_lines(summary, out_dir, merge=cfg.compose.merge) + _views_lines(cfg), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
            json_out)
+    _fail_on_failed_seeds(st, ctx, summary, n, out_dir)
+
+
+def _fail_on_failed_seeds(st: Any, ctx: typer.Context, summary: Any, n: int, out_dir: Path) -> None:
+    """Exit 3 (:class:`PartialFailure`) when a seed failed, also when other seeds made up the count: one
+    line per failed scene, the way to compose each failed seed again; exit 2 when fewer than ``n`` scenes
+    were written without a failed seed to name."""
+    failures = list(summary.failures or [])
+    if failures:
+        failed = [(f"{f.get('scene_id')} (seed {f.get('seed')})", f"[{f.get('cause', 'unknown')}] {f.get('error') or ''}")
+                  for f in failures]
+        seeds = [str(f.get("seed")) for f in failures]
+        one = st.rerun(ctx=ctx, drop=("n", "seed", "dry_run", "stage_only"))
+        again = (f"{one} --n 1 --seed {seeds[0]}" if len(seeds) == 1 else
+                 f"for s in {' '.join(seeds)}; do {one} --n 1 --seed $s; done")
+        short = f", only {summary.written} of {n} written" if summary.written < n else ""
+        raise PartialFailure("scenes", failed, summary.written - summary.skipped + len(failures),
+                             log=str(out_dir / "logs" / "failures.jsonl"),
+                             headline=f"compose: {len(failures)} seed(s) failed{short}", rerun=again)
     if summary.written < n:
         raise CompositionError(f"only {summary.written} of {n} scenes could be written (see failures above)")
 
