@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 from mixcount.commands.common import HELP_MARKUP, AppState, console
-from mixcount.errors import MixcountError, StoppedByUser, one_line, os_error_line
+from mixcount.errors import MixcountError, PartialFailure, StoppedByUser, one_line, os_error_line
 
 app = typer.Typer(
     name="mixcount",
@@ -81,11 +81,36 @@ def print_error(message: str, *, label: str = "error:") -> None:  # label "": th
     console.print(line, highlight=False, soft_wrap=True, emoji=False, markup=False)
 
 
+FAILED_LINES = 50  # per-item lines of a PartialFailure printed; the log holds every one
+
+
+def first_line(text: str, limit: int = 200) -> str:
+    """The first non-empty line of ``text``, cut at ``limit`` characters: a worker's traceback or log tail
+    stays in the log file, the terminal gets what failed."""
+    line = next((ln.strip() for ln in str(text).splitlines() if ln.strip()), "")
+    return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+def print_partial(exc: PartialFailure) -> None:
+    """A :class:`PartialFailure`: one line per failed item (at most :data:`FAILED_LINES`), the count, and
+    the line that reruns only those."""
+    for label, reason in exc.failed[:FAILED_LINES]:
+        print_error(f"{label}: {first_line(reason)}", label="failed:")
+    if len(exc.failed) > FAILED_LINES:
+        print_error(f"... and {len(exc.failed) - FAILED_LINES} more" + (f" (every one in {exc.log})" if exc.log else ""),
+                    label="failed:")
+    print_error(str(exc))
+    print_error(exc.rerun, label="rerun only those:")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Console-script entry point: usage errors exit 2 with the usage line and one line of error,
-    a :class:`MixcountError` exits 2 with its message, as does an ``OSError`` (cause and path, one line),
-    Ctrl-C exits 130 with one line (:class:`StoppedByUser`: what a run kept and how to go on). Never a
-    traceback for any of them; every message is printed as plain text (:func:`print_error`)."""
+    """Console-script entry point. Exit codes (docs/faults.md, "Exit codes"): 0 everything done; 1 a check
+    found problems (``verify``; ``merge`` leaving damaged scenes out); 2 an error stopped the command:
+    usage errors (the usage line and one line of error), a :class:`MixcountError` (its message), an
+    ``OSError`` (cause and path, one line); 3 the command finished but items failed
+    (:class:`PartialFailure`: one line per failed item, the count, how to rerun only those; also when every
+    item failed); 130 Ctrl-C, with one line (:class:`StoppedByUser`: what a run kept and how to go on).
+    Never a traceback for any of them; every message is printed as plain text (:func:`print_error`)."""
     # typer vendors click as ``typer._click``: its exceptions are not ``click.exceptions`` classes.
     from typer._click import exceptions as click_exc
 
@@ -94,6 +119,9 @@ def main(argv: list[str] | None = None) -> int:
     except StoppedByUser as exc:
         print_error(str(exc), label="")
         return 130
+    except PartialFailure as exc:
+        print_partial(exc)
+        return exc.exit_code
     except MixcountError as exc:
         print_error(str(exc))
         return 2

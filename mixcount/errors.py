@@ -6,7 +6,8 @@ Like httpx's own list, each class says when it is raised; catch the narrowest on
     ├── ConfigError             unknown key, wrong type, unreadable config file
     ├── CatalogError            database unreachable / unwritable / another program's, missing object,
     │   │                       bad ingest path, unknown layout, unusable --metadata file
-    │   └── IngestError         one object could not be ingested (recorded as `broken`, batch goes on)
+    │   ├── IngestError         one object could not be ingested (recorded as `broken`, batch goes on)
+    │   └── CatalogBusyError    another process kept writing the catalog past catalog.writer_wait_s
     ├── CaptionError            a captioner could not caption one object (recorded, batch goes on)
     │   ├── CaptionRequestError an HTTP captioning request failed (``attempts``, ``retryable``)
     │   └── UnusableAnswerError a 200 answer that is not usable (malformed JSON, refusal): worth one repair
@@ -22,12 +23,17 @@ Like httpx's own list, each class says when it is raised; catch the narrowest on
     ├── EvaluationError         evaluation or statistics could not be computed from the given files
     │   ├── GroundTruthError    the ground-truth COCO file or dataset folder is missing or malformed
     │   └── PredictionError     the prediction file is missing or malformed
+    ├── PartialFailure          a command over many items finished, but some (or all) items failed:
+    │                           which, why (one line each), how to rerun only those (exit 3)
     └── StoppedByUser           Ctrl-C in a long run: what was finished and kept, how to go on (exit 130)
 
 StorageError and AssetError stop a compose run: no other seed could succeed (docs/faults.md).
 ``RayExecutorError`` is the old name of ExecutorError (mixcount.run.ray_executor keeps it).
 
-Only ``mixcount.cli`` turns these into messages and exit codes.
+Only ``mixcount.cli`` turns these into messages and exit codes. The exit codes (docs/faults.md,
+"Exit codes"): 0 everything done; 1 a check found problems (``verify``, ``merge`` leaving damaged scenes
+out); 2 an error stopped the command (any other MixcountError, an OSError, a usage error); 3
+:data:`EXIT_PARTIAL`, the command finished but items failed (:class:`PartialFailure`); 130 Ctrl-C.
 """
 
 from __future__ import annotations
@@ -119,6 +125,39 @@ class GroundTruthError(EvaluationError):
 
 class PredictionError(EvaluationError):
     """The prediction file is missing or malformed."""
+
+
+class CatalogBusyError(CatalogError):
+    """Another process held the catalog's writer lock (``<catalog>.writer``) for longer than
+    ``catalog.writer_wait_s``; ``holder`` is what that process wrote in the lock file (pid, command, since)."""
+
+    def __init__(self, message: str, holder: dict[str, object]) -> None:
+        super().__init__(message)
+        self.holder = holder
+
+
+EXIT_PARTIAL = 3  # "finished, but some items failed": the exit code of PartialFailure
+
+
+class PartialFailure(MixcountError):
+    """A command that processes many items (objects to render or caption, scenes to compose) finished,
+    but ``failed`` of its ``total`` items failed. ``failed`` holds one (label, reason) pair per item;
+    ``rerun`` is the command line that redoes only those; ``log`` where the full errors are (worker
+    tracebacks never reach the terminal); ``headline`` replaces the count line ("<what>: 2 of 9 failed"). The CLI prints one line per item, the count and the rerun line,
+    and exits :data:`EXIT_PARTIAL`, also when every item failed: no failed item exits 0."""
+
+    exit_code = EXIT_PARTIAL
+
+    def __init__(self, what: str, failed: list[tuple[str, str]], total: int, *, rerun: str,
+                 log: str | None = None, headline: str | None = None) -> None:
+        count = len(failed)
+        share = f"every one of {total}" if count >= total else f"{count} of {total}"
+        super().__init__((headline or f"{what}: {share} failed") + (f" (full errors: {log})" if log else ""))
+        self.what = what
+        self.failed = failed
+        self.total = total
+        self.rerun = rerun
+        self.log = log
 
 
 class StoppedByUser(MixcountError):

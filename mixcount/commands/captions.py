@@ -11,7 +11,7 @@ from rich.markup import escape
 
 from mixcount.commands.common import RichProgress, console, out, state
 from mixcount.config import CaptionsConfig
-from mixcount.errors import CaptionError, CatalogError, ConfigError
+from mixcount.errors import CatalogError, ConfigError, PartialFailure
 
 if TYPE_CHECKING:
     from mixcount.captions.captioning import CaptionSummary
@@ -61,7 +61,8 @@ def caption_cmd(
     ),
     json_out: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout instead of a line."),
 ) -> None:
-    """Caption every active object at three tiers (short / concise / detailed); resumable."""
+    """Caption every active object at three tiers (short / concise / detailed); resumable. Exits 3 when
+    any object failed to caption (one line each; a rerun captions only those)."""
     from mixcount.captions.captioning import caption_catalog
 
     st = state(ctx)
@@ -69,7 +70,7 @@ def caption_cmd(
     conf = cfg.captions
     cap = make_captioner(conf.captioner, conf)
     logging.getLogger("httpx").setLevel(logging.WARNING)
-    catalog = st.catalog()
+    catalog = st.catalog(write=True)
     try:
         summary = caption_catalog(
             catalog, cap, force=force, dedupe=dedupe, progress=RichProgress(),
@@ -79,6 +80,7 @@ def caption_cmd(
 
         with catalog.session() as session:  # captions may name containers ("a wooden tray")
             refresh_containers(session, cfg)
+        failed = _failed_items(catalog, summary.failures)
     finally:
         catalog.close()
         close = getattr(cap, "close", None)
@@ -92,12 +94,30 @@ def caption_cmd(
         out.print(json.dumps(summary.as_dict(), sort_keys=True))
     else:
         out.print(_summary_text(summary, dedupe), highlight=False, soft_wrap=True)
-    if summary.failed and summary.failed == summary.objects and not summary.captioned and not summary.skipped:
+    if failed:
+        every = summary.failed == summary.objects and not summary.captioned and not summary.skipped
         first = summary.failures[0]["error"] if summary.failures else ""
-        raise CaptionError(
-            f"every object failed to caption ({summary.failed} of {summary.objects}, captioner "
-            f"{summary.captioner}); first error: {first}"
-        )
+        headline = (f"every object failed to caption ({summary.failed} of {summary.objects}, captioner "
+                    f"{summary.captioner}); first error: {first}") if every else \
+            f"captions: {summary.failed} of {summary.captioned + summary.failed} failed (captioner {summary.captioner})"
+        rerun = st.rerun(ctx=ctx, drop=("force",))
+        raise PartialFailure("captions", failed, summary.captioned + summary.failed, headline=headline,
+                             rerun=f"{rerun} (resumable: captions only the objects without captions, the failed ones)")
+
+
+def _failed_items(catalog, failures: list[dict]) -> list[tuple[str, str]]:  # type: ignore[no-untyped-def]
+    """(``#id name``, error) of each object that failed to caption, in id order."""
+    from sqlalchemy import select
+
+    from mixcount.catalog.models import CatalogObject
+
+    if not failures:
+        return []
+    ids = [int(f["object_id"]) for f in failures]
+    with catalog.session() as session:
+        names = dict(session.execute(select(CatalogObject.id, CatalogObject.name).where(CatalogObject.id.in_(ids))).tuples())
+    return [(f"#{f['object_id']} {names.get(int(f['object_id']), '')}".rstrip(), str(f["error"]))
+            for f in sorted(failures, key=lambda f: int(f["object_id"]))]
 
 
 def split_cmd(
@@ -127,7 +147,7 @@ def split_cmd(
     conf = st.config(values={"split.seed": seed, "split.mode": mode, "split.test_objects_fraction": test_objects,
                              "split.test_categories_fraction": test_categories}).split
     table = FscTable.load()
-    catalog = st.catalog()
+    catalog = st.catalog(write=not check)
     try:
         if check:
             leaks = check_splits(catalog, table=table if conf.use_fsc147 else None)

@@ -107,6 +107,22 @@ class AppState:
     config_files: list[Path] = field(default_factory=list)
     overrides: list[str] = field(default_factory=list)
     _config: Config | None = None
+    command: str = "mixcount"  # the command being run ("mixcount catalog filter"), set by :func:`state`
+
+    def rerun(self, *args: str, ctx: Any = None, drop: Sequence[str] = ()) -> str:
+        """The command line that runs this invocation's command again with the same global options
+        (``--db``, ``--config``, ``--set``), with ``ctx`` the options and arguments it was given (those of
+        ``drop``, by parameter name, left out) and then ``args``: what a :class:`PartialFailure` says to
+        rerun."""
+        import shlex
+
+        words = ["mixcount"] + (["--db", self.db] if self.db else [])
+        words += [w for f in self.config_files for w in ("--config", str(f))]
+        words += [w for o in self.overrides for w in ("--set", o)]
+        words += self.command.split()[1:]
+        if ctx is not None:
+            words += given_options(ctx, drop)
+        return shlex.join(words + list(args))
 
     def config(self, *, files: Sequence[Path] = (), values: Optional[Mapping[str, Any]] = None) -> Config:
         """The invocation's configuration, built on the first call and then fixed.
@@ -121,16 +137,69 @@ class AppState:
             raise MixcountError("internal: command config options must be given on the first config() call")
         return self._config
 
-    def catalog(self, *, create: bool = False):  # type: ignore[no-untyped-def]
+    def catalog(self, *, create: bool = False, write: bool = False):  # type: ignore[no-untyped-def]
         """The catalog of ``--db`` / ``MIXCOUNT_DB`` / ``catalog/catalog.db``. Only commands that add to a
         catalog (the ingest commands) pass ``create``: any other command on a SQLite file that does not
-        exist stops with an error naming the path, instead of leaving an empty catalog behind."""
-        from mixcount.catalog.db import open_catalog
+        exist stops with an error naming the path, instead of leaving an empty catalog behind.
 
-        data_dir = self.config().catalog.data_dir  # a bad --config/--set is reported first
+        A command that writes the catalog passes ``write`` (``create`` implies it): it takes the catalog's
+        writer lock (:class:`mixcount.catalog.db.Writer`), waiting up to ``catalog.writer_wait_s`` for another
+        writer (said once on stderr), then stops with one line naming that process. Readers take no lock
+        and never wait (SQLite WAL)."""
+        from mixcount.catalog.db import Writer, open_catalog
+
+        conf = self.config().catalog  # a bad --config/--set is reported first
         if not create:
             require_existing_catalog(self.db)
-        return open_catalog(self.db, data_dir=data_dir)
+        writer = None
+        if write or create:
+            writer = Writer(command=self.command, wait_s=conf.writer_wait_s, on_wait=_say_waiting)
+        return open_catalog(self.db, data_dir=conf.data_dir, writer=writer)
+
+
+def given_options(ctx: Any, drop: Sequence[str] = ()) -> list[str]:
+    """The options (those not at their default) and arguments of the command of ``ctx`` as words of a
+    command line, in the order the command declares them; parameters named in ``drop`` left out."""
+    words: list[str] = []
+    for param in ctx.command.params:
+        name = param.name
+        if name in drop or name not in ctx.params:
+            continue
+        value = ctx.params[name]
+        if param.param_type_name == "argument":
+            words += [str(v) for v in (value if isinstance(value, (list, tuple)) else [value]) if v is not None]
+            continue
+        if value is None or value == param.default or (isinstance(value, (list, tuple)) and not value):
+            continue
+        if getattr(param, "is_flag", False):
+            flag = param.opts[0] if value else (param.secondary_opts or [None])[0]
+            words += [flag] if flag else []
+        elif isinstance(value, (list, tuple)):
+            words += [w for v in value for w in (param.opts[0], str(v))]
+        else:
+            words += [param.opts[0], str(value)]
+    return words
+
+
+def _say_waiting(line: str) -> None:
+    """What a writer says once when another process holds the catalog's writer lock."""
+    console.print(line, highlight=False, markup=False, soft_wrap=True, emoji=False)
+
+
+def failure_log(catalog: Any, step: str, failures: Sequence[tuple[str, str]]) -> Path:
+    """Append the full errors of a catalog step's failed items (worker tracebacks, log tails) to
+    ``<data dir>/logs/<catalog>/<step>.log``, one block per run headed by its time, and return the path:
+    the terminal gets one line per item (:class:`~mixcount.errors.PartialFailure`), the log the rest."""
+    import datetime
+
+    path = Path(catalog.data_dir) / "logs" / catalog.files_key / f"{step}.log"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    with path.open("a", encoding="utf-8") as fh:
+        fh.write(f"== {now} {step}: {len(failures)} failed\n")
+        for label, error in failures:
+            fh.write(f"-- {label}\n{error.rstrip()}\n")
+    return path
 
 
 def check_catalog_file(db: str | None) -> None:
@@ -162,4 +231,5 @@ def state(ctx: typer.Context) -> AppState:
     root = ctx.find_root()
     if not isinstance(root.obj, AppState):
         root.obj = AppState()
+    root.obj.command = ctx.command_path or root.obj.command
     return root.obj

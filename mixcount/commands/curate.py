@@ -8,7 +8,8 @@ from typing import Optional
 import typer
 from rich.markup import escape
 
-from mixcount.commands.common import RichProgress, console, json_option, result, state
+from mixcount.commands.common import RichProgress, console, failure_log, json_option, result, state
+from mixcount.errors import PartialFailure
 
 review_app = typer.Typer(help="Apply a person's accept/reject decisions from the HTML review page.",
                          no_args_is_help=True)
@@ -19,36 +20,63 @@ def render_cmd(
     force: bool = typer.Option(False, "--force", help="Render again even when the stored render is current."),
     include_excluded: bool = typer.Option(False, "--include-excluded", help="Also render excluded objects."),
     ids: list[int] = typer.Option([], "--id", help="Only these object ids (repeatable)."),
+    only_failed: bool = typer.Option(False, "--only-failed", help="Only the objects whose last render failed "
+                                     "(what a run with failures says to rerun)."),
     json_out: bool = json_option("the summary"),
 ) -> None:
-    """Canonical white-background renders of active objects (bpy worker processes; resumable)."""
+    """Canonical white-background renders of active objects (bpy worker processes; resumable). Exits 3
+    when any object failed to render: one line each, the full errors in the catalog's logs/ folder."""
     from mixcount.curation.renders import render_catalog
 
     st = state(ctx)
-    catalog = st.catalog()
+    catalog = st.catalog(write=True)
     try:
+        if only_failed:
+            ids = [i for i in failed_render_ids(catalog) if not ids or i in ids]
+            if not ids:
+                result("render: no object has a failed render", {"objects": 0, "failed": 0}, json_out)
+                return
         summary = render_catalog(catalog, st.config().canonical_render, object_ids=ids or None, include_excluded=include_excluded,
                                  force=force, progress=RichProgress(), palette=st.config().palette)
+        failed = [(f"#{f['id']} {f['name']}", str(f["error"])) for f in summary.failures]
+        log = failure_log(catalog, "catalog-render", failed) if failed else None
     finally:
         catalog.close()
-    for f in summary.failures:
-        console.print(f"[yellow]render failed[/] #{f['id']} {escape(f['name'])}: {escape(f['error'][:300])}",
-                      highlight=False, soft_wrap=True)
     result(f"render: {summary.objects} objects, {summary.rendered} rendered, {summary.skipped} up to date, "
            f"{summary.failed} failed", summary.as_dict(), json_out)
+    if failed:
+        raise PartialFailure("canonical renders", failed, summary.rendered + summary.failed,
+                             rerun=st.rerun("--only-failed", ctx=ctx, drop=("force", "only_failed")),
+                             log=str(log))
+
+
+def failed_render_ids(catalog) -> list[int]:  # type: ignore[no-untyped-def]
+    """Ids of the objects whose stored canonical render (any view) is a failure."""
+    from sqlalchemy import select
+
+    from mixcount.catalog.models import Render
+
+    with catalog.session() as session:
+        return sorted(set(session.scalars(select(Render.object_id).where(Render.error.is_not(None)))))
 
 
 def filter_cmd(
     ctx: typer.Context,
     json_out: bool = json_option("the summary"),
 ) -> None:
-    """Flag duplicates and degenerate/outlier objects, exclude all but one per duplicate group (idempotent)."""
+    """Flag duplicates and degenerate/outlier objects, exclude all but one per duplicate group (idempotent).
+    Exits 3 when an object's descriptors could not be computed (one line each)."""
     from mixcount.curation.finding.catalog_filter import run_filter
 
     st = state(ctx)
-    catalog = st.catalog()
+    catalog = st.catalog(write=True)
     try:
         summary = run_filter(catalog, st.config())
+        by_object: dict[str, list[str]] = {}
+        for f in summary.descriptor_failures:  # an object may fail more than one descriptor: one line
+            by_object.setdefault(f"#{f['id']} {f['name']}", []).append(str(f["error"]))
+        failed = [(label, "; ".join(errors)) for label, errors in by_object.items()]
+        log = failure_log(catalog, "catalog-filter", failed) if failed else None
     finally:
         catalog.close()
     flags = ", ".join(f"{n} {k}" for k, n in summary.flags.items()) or "none"
@@ -59,9 +87,6 @@ def filter_cmd(
     if summary.missing_renders:
         console.print(f"[yellow]{summary.missing_renders} objects have no canonical render: appearance checks "
                       "skipped for them (run `mixcount catalog render`)[/]", highlight=False)
-    for f in summary.descriptor_failures:
-        console.print(f"[yellow]descriptor failed[/] #{f['id']} {escape(f['name'])}: {escape(f['error'])}",
-                      highlight=False, soft_wrap=True)
     gt = summary.ground_truth
     if gt is not None:
         kinds = ", ".join(f"{k} {v['found']}/{v['planted']}" for k, v in gt["by_trap"].items())
@@ -72,6 +97,10 @@ def filter_cmd(
             f"clean objects with a duplicate flag {gt['clean_with_duplicate_flag']}/{gt['clean_objects']} "
             f"({100 * gt['clean_flag_rate']:.1f} %)")
     result(lines, summary.as_dict(), json_out)
+    if failed:
+        raise PartialFailure("objects described for the filter", failed, summary.objects, log=str(log),
+                             rerun=f"{st.rerun(ctx=ctx)} (idempotent: it tries them again; an object whose model no "
+                                   "longer loads fails until its file is fixed or it is excluded)")
 
 
 def sheet_cmd(
@@ -109,7 +138,7 @@ def review_import_cmd(
     """Record accept/reject decisions (with reviewer and time) and apply them to object statuses."""
     from mixcount.curation.review.import_decisions import import_decisions
 
-    catalog = state(ctx).catalog()
+    catalog = state(ctx).catalog(write=True)
     try:
         summary = import_decisions(catalog, file, reviewer=reviewer, other_catalog=other_catalog)
     finally:
