@@ -125,3 +125,134 @@ def size_ratio_evidence(size_a_m: float, size_b_m: float, *, rescale_limit: floa
         return SizeEvidence(ratio, False, "rescale")
     unit = unit_explained_ratio(ratio, tolerance=tolerance)
     return SizeEvidence(ratio, unit is None, unit)
+
+
+# ------------------------------------------------------------------------------------ a size per object
+# Where an object's real size comes from (issue 70), recorded per object (``objects.size_source``):
+SIZE_STATED = "stated"  # the user: a ``size`` entry in metadata.json or ``catalog ingest --size-of``
+SIZE_MODEL = "model"  # the model in its unit (the file's, a description's, a stated or assumed one)
+SIZE_KIND = "kind"  # the typical size of the object's kind (mixcount/data/typical_sizes.csv)
+SIZE_NONE = "none"  # no trustworthy size: normalised or implausible, and no kind in the table
+SIZE_SOURCES = (SIZE_STATED, SIZE_MODEL, SIZE_KIND, SIZE_NONE)
+TRUSTED_SIZE_SOURCES = (SIZE_STATED, SIZE_MODEL, SIZE_KIND)
+
+# A model normalised as image-to-3D tools write them (TRELLIS, InstantMesh, Hunyuan3D, ...): its largest
+# side is 1 or 2 in the file's numbers (the [-0.5, 0.5] or [-1, 1] cube) within this share ...
+NORMALISED_SIDES = (1.0, 2.0)
+NORMALISED_TOLERANCE = 0.02
+# ... and its box is centred on the origin within this share of the largest side on every axis
+NORMALISED_CENTRE = 0.05
+# A model's size is implausible for its kind beyond this factor outside the kind's [min, max] range.
+KIND_SLACK = 3.0
+
+
+def parse_size(value: object) -> Optional[float]:
+    """A stated size as the largest side in metres: a number (metres), a string with a unit ("14 mm",
+    "3.5in", "0.2 m", "12" = metres) or a list of three such values ([x, y, z]: the largest is taken).
+    None for anything else or a size that is not positive."""
+    if isinstance(value, bool) or value is None:
+        return None
+    if isinstance(value, (list, tuple)):
+        sides = [parse_size(v) for v in value]
+        return max(sides) if len(sides) == 3 and all(s is not None for s in sides) else None  # type: ignore[type-var]
+    if isinstance(value, (int, float)):
+        return float(value) if value > 0 and math.isfinite(value) else None
+    if not isinstance(value, str):
+        return None
+    text = value.strip().lower().replace(" ", "")
+    if "x" in text and not text.endswith("x"):  # "120x80x15mm": the unit of the last applies to all
+        parts = text.split("x")
+        unit = parts[-1].lstrip("0123456789.")
+        return parse_size([p if p.lstrip("0123456789.") else p + unit for p in parts]) if len(parts) == 3 else None
+    number = text.rstrip("abcdefghijklmnopqrstuvwxyz\"'")
+    unit = text[len(number):] or "m"
+    unit = {'"': "in", "inch": "in", "inches": "in", "mm.": "mm"}.get(unit, unit)
+    try:
+        n = float(number)
+        factor = metres_per_unit(unit)
+    except (ValueError, KeyError):
+        return None
+    return n * factor if n > 0 and math.isfinite(n) else None
+
+
+def looks_normalised(extents: Iterable[float], centre: Iterable[float]) -> bool:
+    """True when a model's box (``extents`` and ``centre`` in the file's own numbers) is what an
+    image-to-3D tool writes: its largest side 1 or 2 (:data:`NORMALISED_SIDES`) and its centre on the
+    origin (a unit cube, whatever the object's real size)."""
+    ext = [float(e) for e in extents]
+    largest = max(ext)
+    if not any(abs(largest - side) <= NORMALISED_TOLERANCE * side for side in NORMALISED_SIDES):
+        return False
+    return all(abs(float(c)) <= NORMALISED_CENTRE * largest for c in centre)
+
+
+@dataclass(frozen=True)
+class KindSize:
+    """A kind's typical largest side and plausible range (metres) and the reference it comes from."""
+
+    kind: str
+    typical_m: float
+    min_m: float
+    max_m: float
+    source: str
+
+    def fits(self, largest_m: float, slack: float = KIND_SLACK) -> bool:
+        """True when a largest side is within ``slack`` x outside the kind's range."""
+        return self.min_m / slack <= largest_m <= self.max_m * slack
+
+
+@dataclass(frozen=True)
+class SizeDecision:
+    """An object's real size and where it comes from: ``factor`` multiplies the model as read in its unit
+    (1.0: the model's size kept), ``source`` one of :data:`SIZE_SOURCES`, ``detail`` a sentence."""
+
+    factor: float
+    source: str
+    detail: str
+
+    @property
+    def trusted(self) -> bool:
+        return self.source in TRUSTED_SIZE_SOURCES
+
+
+def decide_size(largest_m: float, *, normalised: bool, unit_stated: bool, stated_m: Optional[float],
+                stated_by: str = "", kind: Optional[KindSize] = None) -> SizeDecision:
+    """The real size of a model whose largest side is ``largest_m`` as read in its unit. First that speaks:
+
+    1. a size the user stated (``stated_m``, said by ``stated_by``): the model is scaled to it;
+    2. a unit the user stated (``unit_stated``): the model's size, never second-guessed;
+    3. the model's own size when it means something: not ``normalised`` and plausible for its ``kind``
+       (within :data:`KIND_SLACK` x of its range), or, without a kind, for an everyday object;
+    4. the kind's typical size (a normalised or implausible model of a kind in the table);
+    5. none: a normalised or implausible model of a kind the table lacks (untrusted: the real-size
+       scene rule refuses it)."""
+    if not (largest_m > 0 and math.isfinite(largest_m)):
+        return SizeDecision(1.0, SIZE_NONE, "no size: the model has no extent")
+    if stated_m is not None:
+        return SizeDecision(stated_m / largest_m, SIZE_STATED,
+                            f"stated size: {_length(stated_m)} ({stated_by}); the model was {_length(largest_m)}")
+    if unit_stated:
+        return SizeDecision(1.0, SIZE_MODEL, f"model: {_length(largest_m)} in the stated unit")
+    if normalised:
+        why = f"normalised into a unit cube (largest side {largest_m:.3g} in the file, centred)"
+    elif kind is not None and not kind.fits(largest_m):
+        why = (f"{_length(largest_m)} is implausible for a {kind.kind} "
+               f"({_length(kind.min_m)}-{_length(kind.max_m)})")
+    elif kind is None and not is_plausible(largest_m):
+        why = f"{_length(largest_m)} is no everyday object's size"
+    else:
+        return SizeDecision(1.0, SIZE_MODEL, f"model: {_length(largest_m)} in its unit")
+    if kind is None:
+        return SizeDecision(1.0, SIZE_NONE, f"no trustworthy size: {why}, and no typical size for its kind "
+                                            "(give \"size\" in metadata.json, e.g. \"size\": \"14 mm\")")
+    return SizeDecision(kind.typical_m / largest_m, SIZE_KIND,
+                        f"typical size: {why}; a {kind.kind} is {_length(kind.typical_m)} ({kind.source})")
+
+
+def _length(m: float) -> str:
+    """A length for people: mm below 1 cm, cm below 1 m, else m."""
+    if m < 0.01:
+        return f"{m * 1000:.3g} mm"
+    if m < 1.0:
+        return f"{m * 100:.3g} cm"
+    return f"{m:.3g} m"

@@ -33,7 +33,16 @@ def analysis_kwargs(cand: Candidate, catalog_collision_dir: Path, settings: dict
         "proxy_max_vertices": settings["proxy_max_vertices"],
         "collision_source": str(cand.collision_source) if cand.collision_source else None,
         "facts_face_budget": settings["facts_face_budget"],
+        "size_hint": size_hint(cand),
     }
+
+
+def size_hint(cand: Candidate) -> dict[str, Any]:
+    """What the size decision knows of a candidate (:func:`mixcount.catalog.typical_sizes.sized`): its name
+    and category, and a size stated in its metadata.json (``size``) or by ``catalog ingest --size-of``."""
+    stated = cand.metadata.get("size")
+    return {"name": cand.name, "category": cand.category, "stated": stated,
+            "stated_by": str(cand.metadata.get("size_stated_by") or "size in the object's metadata.json")}
 
 
 def run_analysis(kwargs: dict[str, Any]) -> Facts:

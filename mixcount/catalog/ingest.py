@@ -70,7 +70,7 @@ from mixcount.progress import ProgressReporter, as_reporter
 FACT_FIELDS = (
     "source_units", "source_up_axis", "dim_x", "dim_y", "dim_z", "vertex_count", "face_count",
     "watertight", "volume", "area", "textured", "geometry_hash", "collision_path", "collision_face_count",
-    "proxy_path", "proxy_vertex_count",
+    "proxy_path", "proxy_vertex_count", "size_source",
 )
 
 
@@ -134,7 +134,7 @@ def settings_of(config: IngestConfig) -> dict[str, Any]:
         "assume_units": config.assume_units,
         "assume_up_axis": config.assume_up_axis,
         "facts_face_budget": config.facts_face_budget,  # a big model's hash and collision mesh depend on it
-        "analysis_version": 2,  # bump when mesh.py measures differently (2: units decided, issue 56)
+        "analysis_version": 3,  # bump when mesh.py measures differently (2: units decided, issue 56; 3: sizes, 70)
     }
 
 

@@ -335,6 +335,7 @@ def analyse_model(
     facts_face_budget: int,
     collision_source: str | None = None,
     units_reason: str = "",
+    size_hint: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Worker entry point: all facts of one model as a plain dict (raises IngestError).
 
@@ -349,12 +350,16 @@ def analyse_model(
 
     ``facts_face_budget`` > 0: a model of more faces is measured whole where that is cheap, its hash and
     collision mesh come from a reduced copy, and ``facts_note`` says so (:mod:`mixcount.catalog.mesh_bounds`).
-    Numerical warnings of the libraries are not printed: they are kept in ``facts_note``."""
+    Numerical warnings of the libraries are not printed: they are kept in ``facts_note``.
+
+    ``size_hint`` (name, category, a stated size and who stated it): the object's real size and its source
+    (:func:`mixcount.catalog.typical_sizes.size_decision`: stated, the model's, its kind's typical size, or
+    none), the model scaled to it (its unit then metres per unit as a number; ``size_source`` in the facts)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
         facts = _analyse(model_path, collision_dir=collision_dir, face_budget=face_budget, units=units,
                          up_axis=up_axis, proxy_max_vertices=proxy_max_vertices, collision_source=collision_source,
-                         facts_face_budget=facts_face_budget, units_reason=units_reason)
+                         facts_face_budget=facts_face_budget, units_reason=units_reason, size_hint=size_hint)
     said = sorted({f"{w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught
                    if issubclass(w.category, RuntimeWarning)})
     if said:  # not on stderr: on the object, where the user looks for what ingest met
@@ -364,13 +369,17 @@ def analyse_model(
 
 def _analyse(model_path: str, *, collision_dir: str, face_budget: int, units: str, up_axis: str,
              proxy_max_vertices: int, collision_source: str | None, facts_face_budget: int,
-             units_reason: str) -> dict[str, Any]:
+             units_reason: str, size_hint: dict[str, Any] | None = None) -> dict[str, Any]:
+    from mixcount.catalog.typical_sizes import sized
+
     path = Path(model_path)
     norm = load_normalised(path, units=units, up_axis=up_axis, face_budget=facts_face_budget)
     prior = size_prior(units_reason)  # None for what the user said: never second-guessed
     if prior is not None:
         norm, units_reason = _size_prior(norm, units_reason, apply=prior == "reread")
         units = norm.source_units
+    norm, units_reason, size_source = sized(norm, units_reason, size_hint)  # the real size and its source
+    units = norm.source_units
     mesh, full = norm.mesh, norm.full
     ghash = geometry_hash(mesh)
     dims = mesh.extents if full is None else np.asarray(full.extents)
@@ -408,7 +417,7 @@ def _analyse(model_path: str, *, collision_dir: str, face_budget: int, units: st
         proxy_path=proxy.path,
         proxy_vertex_count=proxy.vertex_count,
     )
-    return {**facts.as_dict(), "collision_source": used, "units_reason": units_reason,
+    return {**facts.as_dict(), "collision_source": used, "units_reason": units_reason, "size_source": size_source,
             "facts_note": None if full is None else full.note()}
 
 

@@ -92,6 +92,8 @@ class CatalogObject(Base):
     metadata_json: Mapped[Optional[str]] = mapped_column(Text)
     source_units: Mapped[Optional[str]] = mapped_column(String(16))
     source_up_axis: Mapped[Optional[str]] = mapped_column(String(4))
+    # where the real size comes from (mixcount.sizes.SIZE_SOURCES): stated | model | kind | none (issue 70)
+    size_source: Mapped[Optional[str]] = mapped_column(String(16))
     dim_x: Mapped[Optional[float]] = mapped_column(Float)
     dim_y: Mapped[Optional[float]] = mapped_column(Float)
     dim_z: Mapped[Optional[float]] = mapped_column(Float)

@@ -81,6 +81,7 @@ def object_record(session: Session, obj: CatalogObject, *, caption_warnings: lis
         "geometry_hash": obj.geometry_hash,
         "source_units": obj.source_units,
         "source_up_axis": obj.source_up_axis,
+        "size_source": obj.size_source,
         "dims_m": [obj.dim_x, obj.dim_y, obj.dim_z] if obj.dim_x is not None else None,
         "vertex_count": obj.vertex_count,
         "face_count": obj.face_count,

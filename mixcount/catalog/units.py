@@ -9,7 +9,9 @@ The first that speaks decides:
 2. **description**: the mesh ``scale`` of a URDF / SDF / MJCF beside the model (or a layout's
    convention: GSO is metres, OmniObject3D ``ingest.omniobject3d_units``);
 3. **format**: glTF is metres by its specification, USD says, STEP states its length unit (OpenCASCADE
-   reads it into metres); STL from CAD and 3D-printing tools is millimetres;
+   reads it into metres: the unit recorded is "m", the unit the file states is kept in the reason and shown
+   by :func:`shown_unit`, so that ``catalog list`` says "mm" for a STEP drawn in millimetres); STL from CAD
+   and 3D-printing tools is millimetres;
 4. **default**: ``ingest.assume_units`` for OBJ / PLY.
 
 After 3 (STL) the **size prior** has its say in the analysis: a largest side that no everyday object has
@@ -21,6 +23,7 @@ implausible size is only said (the reason names the unit that would fit, ingest 
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,10 +76,52 @@ def decide_units(source: Path, *, units: str | None, units_reason: str | None, s
     if suffix in GLTF_EXTENSIONS:
         return UnitDecision("m", "format: glTF is metres by its specification")
     if suffix in STEP_EXTENSIONS:
-        return UnitDecision("m", "format: STEP states its length unit (read into metres by OpenCASCADE)")
+        own = step_length_unit(source)
+        return UnitDecision("m", f"format: {STEP_STATES}{own} (read into metres by OpenCASCADE)" if own else
+                            "format: STEP states its length unit (read into metres by OpenCASCADE)")
     if suffix == ".stl":
         return UnitDecision("mm", "format: STL from CAD and 3D-printing tools is millimetres")
     return UnitDecision(assume, f"default: ingest.assume_units ({assume}) for {suffix.lstrip('.').upper()}")
+
+
+STEP_STATES = "the STEP file states "  # the reason's words before the file's own unit (shown_unit reads it)
+# the length unit of a STEP (ISO 10303-21): a complex entity holding LENGTH_UNIT(), an SI unit with its prefix
+# or a unit converted from one ('INCH', 'FOOT'); case as the standard writes it, any spacing
+_LENGTH_UNIT = re.compile(r"\(\s*[^;]*?LENGTH_UNIT\s*\(\s*\)[^;]*;", re.IGNORECASE)
+_SI_UNIT = re.compile(r"SI_UNIT\s*\(\s*(\$|\.(\w+)\.)\s*,\s*\.METRE\.\s*\)", re.IGNORECASE)
+_CONVERTED = re.compile(r"CONVERSION_BASED_UNIT\s*\(\s*'([^']*)'", re.IGNORECASE)
+_SI_PREFIX = {"": "m", "milli": "mm", "centi": "cm", "deci": "dm", "kilo": "km", "micro": "um"}
+_NAMED = {"inch": "in", "in": "in", "foot": "ft", "ft": "ft", "millimetre": "mm", "millimeter": "mm", "mm": "mm",
+          "metre": "m", "meter": "m", "centimetre": "cm", "centimeter": "cm"}
+
+
+def step_length_unit(path: Path, *, limit: int = 4 << 20) -> str | None:
+    """The length unit a STEP file states ("mm", "m", "in", ...; the first length unit of its data section),
+    or None when none is found in its first ``limit`` bytes or the file cannot be read. OpenCASCADE reads the
+    geometry into metres whatever it is; this is only what the file said, for the user to see."""
+    try:
+        with open(path, "rb") as fh:
+            text = fh.read(limit).decode("latin-1")
+    except OSError:
+        return None
+    for entity in _LENGTH_UNIT.finditer(text):
+        body = entity.group(0)
+        named = _CONVERTED.search(body)
+        if named:
+            return _NAMED.get(named.group(1).strip().lower(), named.group(1).strip().lower() or None)
+        si = _SI_UNIT.search(body)
+        if si:
+            return _SI_PREFIX.get((si.group(2) or "").lower())
+    return None
+
+
+def shown_unit(units: str | None, reason: str | None) -> str:
+    """The unit to show for an object: the file's own where the model was read into another (a STEP in
+    millimetres read into metres shows "mm"), else the unit it was read in."""
+    text = reason or ""
+    if STEP_STATES in text:
+        return text.split(STEP_STATES, 1)[1].split(" ", 1)[0]
+    return units or ""
 
 
 def decide_frame(cand: Any, *, stated: str | None, assume: str) -> None:
@@ -115,7 +160,7 @@ def note_units(rescaled: list[tuple[str, str, str]], implausible: list[tuple[str
     than metres, ``implausible`` when its size was said to be implausible (not re-read)."""
     if unit and unit != "m":
         rescaled.append((name, unit, reason or ""))
-    if "would be" in (reason or ""):
+    if "would be" in (reason or "") or "no trustworthy size" in (reason or ""):
         implausible.append((name, reason or ""))
 
 

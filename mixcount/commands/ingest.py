@@ -87,6 +87,8 @@ def ingest_cmd(
         if why.startswith("size prior"):
             console.print(f"[yellow]re-read[/] {escape(name)} in {unit}: {escape(why)}; give --units to choose",
                           highlight=False, soft_wrap=True)
+        elif why.startswith(("typical size", "stated size")):  # re-sized (issue 70, mixcount.sizes.decide_size)
+            console.print(f"[yellow]re-sized[/] {escape(name)}: {escape(why)}", highlight=False, soft_wrap=True)
     for name, why in summary.implausible:
         console.print(f"[yellow]warning:[/] {escape(name)}: {escape(why.split('; ', 1)[-1])}", highlight=False,
                       soft_wrap=True)
@@ -231,6 +233,7 @@ def list_cmd(
             for o in objects:
                 dims = "x".join(f"{d * 100:.1f}" for d in o.dims) if o.dim_x is not None else ""
                 frame = f"{o.source_units or ''} / {o.source_up_axis or ''}" if o.source_units else ""
+                frame += f" (size: {o.size_source})" if frame and o.size_source not in (None, "model") else ""
                 table.add_row(str(o.id), o.name, o.category, o.status, dims, frame, str(o.face_count or ""),
                               (o.error or "")[:60])
             out.print(table)

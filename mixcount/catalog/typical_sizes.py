@@ -1,0 +1,97 @@
+"""The typical size of an object's kind: the table ``mixcount/data/typical_sizes.csv`` (issue 70).
+
+A model whose size carries no meaning (normalised into a unit cube by an image-to-3D tool, or implausible
+for its kind) takes its kind's typical largest side (:func:`mixcount.sizes.decide_size`). Each row is a
+kind, its other names, its typical largest side and a plausible range in metres, and the reference the
+figure comes from (a datasheet, a package or sports standard, a product-dimension listing).
+:func:`kind_size` finds an object's kind from the words of its category, then of its name (the longest
+name of a kind found first, a plural "s"/"es" allowed).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import replace
+from functools import lru_cache
+from importlib import resources
+from typing import Any, Optional
+
+import numpy as np
+
+from mixcount.frame import unit_scale
+from mixcount.scene.words import words_of
+from mixcount.sizes import SIZE_NONE, KindSize, SizeDecision, decide_size, looks_normalised, parse_size
+
+TABLE = "typical_sizes.csv"
+
+
+@lru_cache(maxsize=1)
+def table() -> tuple[tuple[tuple[str, ...], KindSize], ...]:
+    """(words of one name of the kind, its row) for every name of every kind, longest names first."""
+    text = resources.files("mixcount.data").joinpath(TABLE).read_text("utf-8")
+    out: list[tuple[tuple[str, ...], KindSize]] = []
+    for row in csv.DictReader(io.StringIO(text)):
+        size = KindSize(row["kind"], float(row["typical_m"]), float(row["min_m"]), float(row["max_m"]),
+                        row["source"])
+        for name in [row["kind"], *filter(None, (row["aliases"] or "").split("|"))]:
+            out.append((tuple(words_of(name)), size))
+    out.sort(key=lambda e: -len(e[0]))
+    return tuple(out)
+
+
+def _find(words: list[str]) -> Optional[KindSize]:
+    forms = [{w, w[:-1] if w.endswith("s") else w, w[:-2] if w.endswith("es") else w} for w in words]
+    for name, size in table():
+        n = len(name)
+        for i in range(len(words) - n + 1):
+            if all(name[j] in forms[i + j] for j in range(n)):
+                return size
+    return None
+
+
+def kind_size(name: str, category: str) -> Optional[KindSize]:
+    """The typical size of the kind the object's category names, else its name; None when neither does."""
+    return _find(words_of(category or "")) or _find(words_of(name or ""))
+
+
+def size_decision(largest_m: float, extents_file: Any, centre_file: Any, units_reason: str,
+                  hint: Optional[dict[str, Any]]) -> SizeDecision:
+    """:func:`mixcount.sizes.decide_size` for one model: ``largest_m`` its largest side as read in its unit,
+    ``extents_file`` / ``centre_file`` its box in the file's own numbers (for :func:`looks_normalised`),
+    ``units_reason`` why it is read in that unit, ``hint`` the ingest's ``size_hint`` (name, category, the
+    stated size and who stated it)."""
+    hint = hint or {}
+    stated = parse_size(hint.get("stated")) if hint.get("stated") is not None else None
+    return decide_size(largest_m, normalised=looks_normalised(extents_file, centre_file),
+                       unit_stated=(units_reason or "").startswith("stated"), stated_m=stated,
+                       stated_by=str(hint.get("stated_by") or "stated"),
+                       kind=kind_size(str(hint.get("name") or ""), str(hint.get("category") or "")))
+
+
+def sized(norm: Any, units_reason: str, hint: Optional[dict[str, Any]]) -> tuple[Any, str, Optional[str]]:
+    """A loaded model (:class:`mixcount.catalog.mesh.NormalisedMesh`, metres Z-up) at its real size:
+    (the model, scaled when its size came from a stated or typical size; the unit reason, which then says
+    so and the unit is metres per unit as a number; the size source). Without a hint (a caller that does
+    not size): the model as it is and no source."""
+    if hint is None:
+        return norm, units_reason, None
+    try:
+        mpu = unit_scale(norm.source_units)
+    except ValueError:
+        return norm, units_reason, SIZE_NONE
+    full = norm.full
+    extents = np.asarray(full.extents if full is not None else norm.mesh.extents, dtype=np.float64)
+    centre = np.asarray(norm.mesh.bounds, dtype=np.float64).mean(axis=0)
+    decision = size_decision(float(extents.max()), extents / mpu, centre / mpu, units_reason, hint)
+    if decision.source == SIZE_NONE:
+        return norm, "; ".join(filter(None, [units_reason, decision.detail])), decision.source
+    if abs(decision.factor - 1.0) < 1e-9:
+        return norm, units_reason, decision.source
+    f = decision.factor
+    norm.mesh.apply_scale(f)
+    if full is not None:
+        full = replace(full, extents=tuple(float(e) * f for e in full.extents), area=full.area * f ** 2,
+                       volume=None if full.volume is None else full.volume * f ** 3)
+    reason = f"{decision.detail} (unit was: {norm.source_units}, {units_reason or 'assumed'})"
+    return replace(norm, source_units=f"{mpu * f:.6g}", full=full), reason, decision.source
