@@ -124,6 +124,19 @@ def shown_unit(units: str | None, reason: str | None) -> str:
     return units or ""
 
 
+def units_reason_of(metadata_json: str | None) -> str | None:
+    """The unit's reason recorded with an object (``metadata_json["ingest"]["units_reason"]``), or None."""
+    import json
+
+    try:
+        data = json.loads(metadata_json or "{}")
+    except ValueError:
+        return None
+    ingest = data.get("ingest") if isinstance(data, dict) else None
+    reason = ingest.get("units_reason") if isinstance(ingest, dict) else None
+    return reason if isinstance(reason, str) else None
+
+
 def decide_frame(cand: Any, *, stated: str | None, assume: str) -> None:
     """Set a candidate's ``units`` and ``units_reason`` by :func:`decide_units`, judged on its original
     file (a multi-part object's first part, a staged or derived model's source)."""

@@ -201,6 +201,7 @@ def list_cmd(
 
     from mixcount.captions.check import object_warnings
     from mixcount.catalog.records import object_record
+    from mixcount.catalog.units import shown_unit, units_reason_of
 
     catalog = state(ctx).catalog()
     try:
@@ -232,7 +233,8 @@ def list_cmd(
                 table.add_column(col)
             for o in objects:
                 dims = "x".join(f"{d * 100:.1f}" for d in o.dims) if o.dim_x is not None else ""
-                frame = f"{o.source_units or ''} / {o.source_up_axis or ''}" if o.source_units else ""
+                unit = shown_unit(o.source_units, units_reason_of(o.metadata_json))  # a STEP's own mm, not "m"
+                frame = f"{unit} / {o.source_up_axis or ''}" if o.source_units else ""
                 frame += f" (size: {o.size_source})" if frame and o.size_source not in (None, "model") else ""
                 table.add_row(str(o.id), o.name, o.category, o.status, dims, frame, str(o.face_count or ""),
                               (o.error or "")[:60])
@@ -252,6 +254,7 @@ def show_cmd(
     from mixcount.captions.check import object_warnings
     from mixcount.catalog.models import CatalogObject
     from mixcount.catalog.records import object_record
+    from mixcount.catalog.units import shown_unit
 
     catalog = state(ctx).catalog()
     try:
@@ -270,6 +273,9 @@ def show_cmd(
     width = max(len(k) for k in record)
     for key, value in record.items():
         text = json.dumps(value, sort_keys=True) if isinstance(value, (dict, list)) else "-" if value is None else str(value)
+        if key == "source_units" and value:  # the file's own unit (a STEP's mm), and the one it was read into
+            own = shown_unit(str(value), record.get("units_reason"))
+            text = text if own == value else f"{own} (read into {value})"
         out.print(f"{key:<{width}}  {text}")
 
 
