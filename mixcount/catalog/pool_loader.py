@@ -99,6 +99,7 @@ def load_pool(session: Session, *, split: Optional[str] = None, palette: Any = N
                 source_units=obj.source_units, source_up_axis=obj.source_up_axis,
                 render_path=renders.get(int(obj.id)),
                 source=obj.source, source_id=obj.source_id, license=obj.license, container=bool(obj.container),
+                size_source=obj.size_source,
                 variants=tuple(sorted(variants.get(int(obj.id), ()))),
                 look=None if palette is None or obj.textured else _look_tuple(object_look(
                     palette, name=obj.name, category=obj.category or "", metadata_json=obj.metadata_json,
@@ -109,18 +110,19 @@ def load_pool(session: Session, *, split: Optional[str] = None, palette: Any = N
 
 
 def load_environments(session: Session) -> list[EnvironmentRecord]:
-
+    """The ingested environment maps a scene may draw: those that decoded whole (a ``broken`` one never)."""
     return [
         EnvironmentRecord(int(e.id), e.name, e.path, e.content_hash)
-        for e in session.execute(select(Environment).order_by(Environment.id)).scalars()
+        for e in session.execute(select(Environment).where(Environment.broken.is_(None))
+                                 .order_by(Environment.id)).scalars()
     ]
 
 
 def load_materials(session: Session) -> list[MaterialRecord]:
-
+    """The ingested floor materials a scene may draw: those whose maps decoded whole (a ``broken`` one never)."""
     return [
         MaterialRecord(int(m.id), m.name, m.path, dict(sorted(json.loads(m.maps_json or "{}").items())))
-        for m in session.execute(select(Material).order_by(Material.id)).scalars()
+        for m in session.execute(select(Material).where(Material.broken.is_(None)).order_by(Material.id)).scalars()
     ]
 
 
