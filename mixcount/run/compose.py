@@ -82,7 +82,7 @@ def compose_scenes(
     as :class:`~mixcount.run.compose_entry.ComposeJob` parsed it (None: parsed here when views need it)."""
     from mixcount.dataset.settings import check_settings, dataset_settings
     from mixcount.scene.environment_sampling import environments_to_draw
-    from mixcount.scene.sampler import container_warning
+    from mixcount.scene.sampler import container_warning, size_warning
 
     comp = config.compose
     out_dir = Path(out_dir)
@@ -121,7 +121,8 @@ def compose_scenes(
     summary.device = device.device
     from mixcount.run.readiness import missing_steps
 
-    for warning in [container_warning(pool, comp.split, config.scene), *missing_steps(pool, comp.split)]:
+    for warning in [container_warning(pool, comp.split, config.scene), size_warning(pool, comp.split, config.scene),
+                    *missing_steps(pool, comp.split)]:
         if warning:  # once per run, not once per scene
             summary.warnings.append(warning)
             bar.note(warning)

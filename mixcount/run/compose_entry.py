@@ -78,13 +78,14 @@ class ComposeJob:
         be sampled is replaced by the next, as in the run), with what the run will say at its start."""
         from mixcount.run.readiness import missing_steps
         from mixcount.run.seed_plan import describe_passed, dry_plan
-        from mixcount.scene.sampler import container_warning, sample_scene
+        from mixcount.scene.sampler import container_warning, sample_scene, size_warning
 
         config, n, out_dir = self.config, self.n, self.out_dir
         split, base = config.compose.split, config.compose.seed
         inputs = load_inputs(catalog, config)
         pool, envs, mats = inputs.pool, inputs.environments, inputs.materials
-        lines = [w for w in [container_warning(pool, split, config.scene)] if w] + missing_steps(pool, split)
+        lines = [w for w in [container_warning(pool, split, config.scene), size_warning(pool, split, config.scene)]
+                 if w] + missing_steps(pool, split)
         plan = dry_plan(out_dir, split, base, n,
                         lambda seed: sample_scene(seed, split, config, pool, environments=envs, materials=mats),
                         int(n * config.compose.max_attempts_factor) + 4)
