@@ -1,8 +1,8 @@
 """Derived models: one GLB for an object whose source is a STEP file or several part files.
 
 Every later step (mesh analysis, the canonical render in Blender, the USD asset) reads one model file
-in one frame. A STEP file is read through trimesh's loader (cascadio / OpenCASCADE, into metres); the
-parts of a multi-part object (:mod:`mixcount.catalog.layouts.parts`) are placed in their common frame,
+in one frame. A STEP file is read by cascadio (OpenCASCADE, into metres) into one glTF primitive per
+colour of each solid (:func:`load_step`); the parts of a multi-part object (:mod:`mixcount.catalog.layouts.parts`) are placed in their common frame,
 each by its description's placement when it has one. The result is written once, as a GLB named by a
 hash of the sources (and their placements), under the catalog's ``staged/derived`` folder; the object's
 ``model_path`` points at it and ``metadata.source_model_path`` / ``metadata.parts`` name the sources.
@@ -10,11 +10,17 @@ hash of the sources (and their placements), under the catalog's ``staged/derived
 A derived GLB keeps its sources' numbers (millimetres stay millimetres, CAD's Z-up stays Z-up): the unit
 and up axis recorded for the object apply to it (:func:`mixcount.frame.source_frame`), so that the
 unit decision is the same whatever was derived.
+
+Every material is kept (issue 70): each primitive of a source, with its material, stays a geometry of
+its own in the derived GLB. trimesh's STEP loader merged the primitives of a solid into one geometry,
+which kept only the first colour (an LED's leads red, an IC's pins black); :func:`load_step` reads the
+STEP without that merge. docs/usd.md ("Materials kept") has the counts per source kind.
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +29,7 @@ import numpy as np
 from mixcount.atomic import atomic_path
 from mixcount.frame import STEP_EXTENSIONS, load_model
 
-DERIVE_VERSION = 1
+DERIVE_VERSION = 2  # 2: every colour of a STEP kept (load_step)
 
 
 def needs_derived(cand: Any) -> bool:
@@ -44,6 +50,24 @@ def _key(sources: list[tuple[Path, Any]]) -> str:
     return h.hexdigest()
 
 
+def load_step(path: Path) -> Any:
+    """A STEP file as a trimesh Scene in metres: one geometry per colour of each solid, each with its
+    material (the file's colour as a glTF PBR factor). cascadio writes one primitive per colour
+    (``merge_primitives`` merges faces of the same colour only); trimesh's own STEP loader then merged
+    those primitives into one geometry with the first one's material, which this does not."""
+    import cascadio
+    import trimesh
+
+    glb = cascadio.load(path.read_bytes(), file_type="step", merge_primitives=True)
+    if not glb:
+        raise ValueError(f"OpenCASCADE could not read {path.name} as STEP")
+    return trimesh.load(io.BytesIO(glb), file_type="glb", merge_primitives=False, process=False)
+
+
+def _load_source(path: Path) -> Any:
+    return load_step(path) if path.suffix.lower() in STEP_EXTENSIONS else load_model(path, force="scene")
+
+
 def build_glb(sources: list[tuple[Path, Any]], out: Path) -> None:
     """One GLB of every source's geometry, each placed by its 4x4 matrix (None: as it is); raises
     ValueError naming the source that does not load."""
@@ -52,17 +76,19 @@ def build_glb(sources: list[tuple[Path, Any]], out: Path) -> None:
     scene = trimesh.Scene()
     for k, (path, matrix) in enumerate(sources):
         try:
-            part = load_model(path, force="scene")
+            part = _load_source(path)
         except Exception as exc:  # trimesh raises many types for bad files
             raise ValueError(f"cannot read part {path.name}: {str(exc).strip()[:200] or type(exc).__name__}") from None
         place = np.eye(4) if matrix is None else np.asarray(matrix, dtype=np.float64)
-        for node in part.graph.nodes_geometry:
+        for j, node in enumerate(part.graph.nodes_geometry):
             transform, geom_name = part.graph[node]
             geom = part.geometry.get(geom_name)
             if geom is None:
                 continue
-            scene.add_geometry(geom.copy(), node_name=f"{k:02d}_{path.stem}_{node}"[:60],
-                               geom_name=f"{k:02d}_{path.stem}_{geom_name}"[:60], transform=place @ transform)
+            # numbered first: names cut to 60 characters must stay distinct, or a later geometry replaces an
+            # earlier one (a KiCad name such as BarrelJack_CUI_PJ-063AH_Horizontal lost its body that way)
+            scene.add_geometry(geom.copy(), node_name=f"{k:02d}_{j:03d}_{path.stem}_{node}"[:60],
+                               geom_name=f"{k:02d}_{j:03d}_{path.stem}_{geom_name}"[:60], transform=place @ transform)
     if not scene.geometry:
         raise ValueError("no mesh data in the parts")
     out.parent.mkdir(parents=True, exist_ok=True)

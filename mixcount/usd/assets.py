@@ -45,7 +45,7 @@ from mixcount.usd.model_parts import Part, load_parts, look_tag
 from mixcount.usd.read import CONVEX_PARTS_PRIM
 from mixcount.usd.usd_source import override_invalid_faces, usd_bounds
 
-CONVERTER_VERSION = 7  # 5: palette looks / 6: degenerate, invalid triangles dropped (usd/mesh_clean.py) / 7: textures outside the model's folder read (frame.load_model); bump when the converter output changes: cached assets are rebuilt
+CONVERTER_VERSION = 8  # 5: palette looks / 6: degenerate, invalid triangles dropped (usd/mesh_clean.py) / 7: textures outside the model's folder read (frame.load_model) / 8: every colour of a STEP kept (catalog/derived.py); bump when the converter output changes: cached assets are rebuilt
 # V-HACD (vhacdx through trimesh) settings of that decomposition: part of the converter's output, so
 # fixed here with the version rather than configured (a changed value must rebuild every cached asset)
 CONVEX_PARTS_MAX = 16
