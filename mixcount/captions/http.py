@@ -12,6 +12,8 @@ name (as the captions should say it) and category, and a system prompt stating t
 
 Failure policy (every sleep goes through the injected ``sleep`` so tests stay fast):
 
+* every request ends within ``timeout_s``, connect to last byte (:mod:`mixcount.captions.deadline`: a
+  server that drips its answer cannot hold it longer);
 * 408, 409, 429, 5xx, timeouts and connection errors are retried up to ``max_retries`` times with capped
   exponential backoff and "equal" jitter (half the step fixed, half random), unless the server says how long
   to wait: ``retry-after-ms``, ``Retry-After`` (seconds or HTTP date), or Gemini's
@@ -49,6 +51,7 @@ import numpy as np
 
 from mixcount.captions.base import LLM_WORD_BOUNDS, TIERS, CaptionInput, CaptionResult, check_tiers
 from mixcount.captions.check import blocking, reasons
+from mixcount.captions.deadline import deadline_client, request_deadline
 from mixcount.captions.redact import RedactingFilter, Redactor
 from mixcount.config import CaptionsConfig
 from mixcount.errors import CaptionError, CaptionRequestError, ConfigError, UnusableAnswerError
@@ -259,7 +262,8 @@ class HttpCaptioner:
         for name in HTTP_STACK_LOGGERS:
             logging.getLogger(name).addFilter(self._log_filter)
         self._own_client = client is None
-        self.client = client or httpx.Client(
+        # captions.timeout_s bounds each connect and read and, through request_deadline, the whole request
+        self.client = client or deadline_client(
             timeout=config.timeout_s,
             limits=httpx.Limits(max_connections=max(2, config.concurrency)),
         )
@@ -397,9 +401,12 @@ class HttpCaptioner:
             made += 1
             wait: float | None = None
             try:
-                response = self.client.post(self.url, json=body, headers=self._headers(), timeout=self.config.timeout_s)
+                with request_deadline(self.config.timeout_s):
+                    response = self.client.post(self.url, json=body, headers=self._headers(),
+                                                timeout=self.config.timeout_s)
             except httpx.TimeoutException:
-                last = self.redact(f"timed out after {self.config.timeout_s:g} s ({self.url})")
+                last = self.redact(f"no complete answer within {self.config.timeout_s:g} s (captions.timeout_s: "
+                                   f"connect to last byte) from {self.url}")
             except httpx.TransportError as exc:
                 last = self.redact(f"connection error to {self.url}: {type(exc).__name__}: {exc}")
             else:

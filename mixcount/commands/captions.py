@@ -115,7 +115,8 @@ def _failed_items(catalog, failures: list[dict]) -> list[tuple[str, str]]:  # ty
         return []
     ids = [int(f["object_id"]) for f in failures]
     with catalog.session() as session:
-        names = dict(session.execute(select(CatalogObject.id, CatalogObject.name).where(CatalogObject.id.in_(ids))).tuples())
+        rows = session.execute(select(CatalogObject.id, CatalogObject.name).where(CatalogObject.id.in_(ids))).all()
+    names = {int(row[0]): str(row[1]) for row in rows}
     return [(f"#{f['object_id']} {names.get(int(f['object_id']), '')}".rstrip(), str(f["error"]))
             for f in sorted(failures, key=lambda f: int(f["object_id"]))]
 
