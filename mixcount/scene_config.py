@@ -17,6 +17,8 @@ PATTERNS = ("tiles", "bricks", "planks", "checker", "dots", "noise")
 BUNDLED_HDRI = "bundled_hdri"
 SKY = "sky"
 DEFAULT_ENVIRONMENTS = (BUNDLED_HDRI, SKY)  # scene.default_environment: the light without ingested HDRIs
+SIZE_PAPER, SIZE_REAL = "paper", "real"
+SIZE_RULES = (SIZE_PAPER, SIZE_REAL)  # scene.size_rule: the paper's drawn sizes, or every object's real size
 
 # where Cycles renders (compose.device, rerender.device; mixcount.engine.devices): the one list of the names
 DEVICES = ("cpu", "gpu", "auto")
@@ -130,6 +132,7 @@ class SceneConfig:
     """Every parameter the sampler and the stage writer read (see configs/default.toml for meaning)."""
 
     scale: float
+    size_rule: str
     floor_shapes: tuple[str, ...]
     floor_half_extent: Range
     floor_thickness: float
@@ -251,6 +254,8 @@ class SceneConfig:
                               "count_rest_tolerance > 0")
         if self.n_cameras < 1:
             raise ConfigError("scene.n_cameras must be >= 1")
+        if self.size_rule not in SIZE_RULES:
+            raise ConfigError(f"scene.size_rule must be one of {', '.join(SIZE_RULES)}, got {self.size_rule!r}")
         if self.camera_framing not in ("paper", "fit"):
             raise ConfigError(f"scene.camera_framing must be paper or fit, got {self.camera_framing!r}")
         if not 0.0 < self.camera_fit_share <= 1.0 or not 0.0 <= self.camera_frame_margin < 0.5:

@@ -99,6 +99,7 @@ def load_pool(session: Session, *, split: Optional[str] = None, palette: Any = N
                 source_units=obj.source_units, source_up_axis=obj.source_up_axis,
                 render_path=renders.get(int(obj.id)),
                 source=obj.source, source_id=obj.source_id, license=obj.license, container=bool(obj.container),
+                size_source=obj.size_source,
                 variants=tuple(sorted(variants.get(int(obj.id), ()))),
                 look=None if palette is None or obj.textured else _look_tuple(object_look(
                     palette, name=obj.name, category=obj.category or "", metadata_json=obj.metadata_json,

@@ -95,18 +95,25 @@ def _variant_options(drafts: list[ClassDraft], free: list[ObjectRecord]) -> list
 
 
 def build_classes(rng: np.random.Generator, config: SceneConfig, eligible: list[ObjectRecord],
-                   n_classes: int) -> list[ClassDraft]:
+                   n_classes: int, *, real: bool = False) -> list[ClassDraft]:
+    """The scene's classes. ``real`` (``scene.size_rule = "real"``): each class at its object's real largest
+    side (metres, not yet scaled: the sampler chooses the scene's scale from them) and no resized pair (an
+    object has one real size); no class size is drawn, so the draws that follow differ from a paper scene's."""
     s = config.scale
     lo, hi = config.class_size[0] * s, config.class_size[1] * s
+
+    def size_of(obj: ObjectRecord) -> float:
+        return obj.max_dim if real else _u(rng, (lo, hi))
+
     first = eligible[int(rng.integers(len(eligible)))]
-    drafts = [ClassDraft(first, _u(rng, (lo, hi)), "first")]
+    drafts = [ClassDraft(first, size_of(first), "first")]
     probs = construction_weights(config)
     while len(drafts) < n_classes:
         used = {d.obj.object_id for d in drafts}
         cats = {d.obj.category for d in drafts}
         taken = frozenset().union(*(caption_keys(d.obj.captions) for d in drafts))
         free = [o for o in eligible if o.object_id not in used and not caption_keys(o.captions) & taken]
-        resizable = _resize_options(drafts, lo, hi, config.resize_ratio[0])
+        resizable = [] if real else _resize_options(drafts, lo, hi, config.resize_ratio[0])
         # a variant of a class in the scene comes only from option (d), so p_colour_variant is what
         # decides how often a scene holds the hard pair
         variant_ids = set().union(*(d.obj.variants for d in drafts))
@@ -120,7 +127,8 @@ def build_classes(rng: np.random.Generator, config: SceneConfig, eligible: list[
         choice = CONSTRUCTIONS[int(rng.choice(len(CONSTRUCTIONS), p=p / p.sum()))]
         if choice == "colour_variant":
             bi, cands = variants[int(rng.integers(len(variants)))]
-            draft = ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice, base=bi)
+            pick = cands[int(rng.integers(len(cands)))]
+            draft = ClassDraft(pick, size_of(pick), choice, base=bi)
         elif choice == "same_object_resized":
             bi = resizable[int(rng.integers(len(resizable)))]
             base = drafts[bi]
@@ -132,12 +140,14 @@ def build_classes(rng: np.random.Generator, config: SceneConfig, eligible: list[
             by_cat = sorted({o.category for o in same_cat})
             cat = by_cat[int(rng.integers(len(by_cat)))]
             cands = [o for o in same_cat if o.category == cat]
-            draft = ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice)
+            pick = cands[int(rng.integers(len(cands)))]
+            draft = ClassDraft(pick, size_of(pick), choice)
         else:
             by_cat = sorted({o.category for o in other_cat})
             cat = by_cat[int(rng.integers(len(by_cat)))]
             cands = [o for o in other_cat if o.category == cat]
-            draft = ClassDraft(cands[int(rng.integers(len(cands)))], _u(rng, (lo, hi)), choice)
+            pick = cands[int(rng.integers(len(cands)))]
+            draft = ClassDraft(pick, size_of(pick), choice)
         drafts.append(draft)
     return drafts
 

@@ -12,6 +12,10 @@ distance by the camera's ``framing`` rule:
 * ``fit``: the smallest distance at which ``fit_share`` of the settled counted origins project into the
   frame (inside ``margin`` of each border), times 1 + |distance_scale - 1| (the same jitter, never
   closer than the fit).
+* ``pile``: ``distance_factor`` x the diagonal of a square of ``pile_area`` x the settled pile's one-layer
+  footprint (the sum of the counted objects' largest sides squared) x ``distance_scale``: the container a
+  paper scene fits to its pile (``container_pile_area``), so a real-size scene, whose container keeps its
+  real size, shows its objects at the paper's pixels per object (issue 70).
 * ``fixed``: the spec's pose as it is (specs written before framing existed, or a user's own camera).
 
 Distractors are not simulated: :func:`place_distractors` puts each on the floor where every camera sees
@@ -33,7 +37,7 @@ from mixcount.annotate.raster import PinholeCamera
 from mixcount.scene.rotation import matrix_from_quat, quat_from_matrix
 from mixcount.scene.spec import CameraSpec, FloorSpec
 
-FRAMINGS = ("paper", "fit", "fixed")
+FRAMINGS = ("paper", "fit", "pile", "fixed")
 _R = 6
 _FIT_STEPS = 48  # bisection steps of the fit distance (relative precision ~1e-12 of the bracket)
 
@@ -162,6 +166,13 @@ def frame_camera(cam: CameraSpec, counted: NDArray[Any], sizes: NDArray[Any], co
                 derivation["footprint_scale"] = round(float(footprint_scale), _R)
         dist = cam.distance_factor * base * cam.distance_scale
         derivation.update(distance_rule=f"{cam.distance_factor} x {rule} x distance_scale", base_diagonal=round(base, _R))
+    elif cam.framing == "pile":
+        area = float(cam.pile_area or 1.0) * float(np.sum(np.square(np.asarray(sizes, dtype=np.float64))))
+        base = math.sqrt(2.0 * area) * (float(footprint_scale) if footprint_scale < 1.0 else 1.0)
+        dist = cam.distance_factor * base * cam.distance_scale
+        derivation.update(distance_rule=f"{cam.distance_factor} x diagonal of a square of {cam.pile_area} x the "
+                                        f"settled pile's footprint ({len(pts)} objects) x distance_scale",
+                          base_diagonal=round(base, _R))
     elif cam.framing == "fit":
         d_fit = fit_distance(cam, target, pts, cam.fit_share, margin)
         dist = d_fit * (1.0 + abs(cam.distance_scale - 1.0))

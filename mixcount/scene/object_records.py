@@ -37,6 +37,8 @@ class ObjectRecord:
     variants: tuple[int, ...] = ()  # object ids of its colour variants (catalog flag colour_variant)
     # (sRGB r, g, b, metallic, roughness) for its parts without a colour of their own ([palette]); None: none
     look: Optional[tuple[float, ...]] = None
+    # where its real size comes from (objects.size_source: stated | model | kind | none; None: not recorded)
+    size_source: Optional[str] = None
 
     @property
     def max_dim(self) -> float:

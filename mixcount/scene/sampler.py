@@ -20,11 +20,18 @@ An object whose captions collide with one already in the scene is never drawn fo
 
 Spawn order: the counted instances' class labels are shuffled before placement, so each spawn
 position gets a random class and class order never decides which class ends up on top of the pile.
+
+Sizes (``scene.size_rule``): ``paper`` draws each class's size, the distractors' and fits the container
+to its pile; ``real`` keeps every object at its real size (classes times the instance jitter, distractors
+and the container at real size, no resized pair) and chooses the scene scale per scene
+(:func:`scene_scale`), so the simulation sees bodies of the paper's sizes whatever the real ones
+(2 mm parts or 50 cm boxes); objects without a trustworthy size (:func:`trusted_size`) are left out.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
@@ -56,7 +63,8 @@ from mixcount.scene.framing import camera_position, look_at_rotation
 from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, ObjectRecord
 from mixcount.scene.rotation import quat_from_matrix
 from mixcount.scene.spawn_layout import ellipse_radius, release_waves, spawn_positions
-from mixcount.scene_config import SceneConfig
+from mixcount.scene_config import SIZE_REAL, SceneConfig
+from mixcount.sizes import TRUSTED_SIZE_SOURCES
 
 if TYPE_CHECKING:
     from mixcount.config import Config
@@ -117,6 +125,38 @@ def eligible_objects(pool: Sequence[ObjectRecord], split: str) -> list[ObjectRec
     )
 
 
+def trusted_size(obj: ObjectRecord) -> bool:
+    """True when an object's real size can be trusted (stated, the model's, its kind's typical size)."""
+    return obj.size_source in TRUSTED_SIZE_SOURCES
+
+
+def size_warning(pool: Sequence[ObjectRecord], split: str, config: SceneConfig) -> Optional[str]:
+    """The one line that names the objects of a split a real-size scene refuses (no trustworthy size), or
+    None (the paper's size rule, or every object has one)."""
+    if config.size_rule != SIZE_REAL:
+        return None
+    refused = [o for o in eligible_objects(pool, split) if not trusted_size(o)]
+    if not refused:
+        return None
+    names = ", ".join(f"{o.name} ({o.size_source or 'not recorded'})" for o in refused[:5])
+    more = f" and {len(refused) - 5} more" if len(refused) > 5 else ""
+    return (f"{len(refused)} object(s) of split {split!r} have no trustworthy real size and are left out of "
+            f"real-size scenes (scene.size_rule = \"real\"): {names}{more}; give \"size\" in their metadata.json "
+            "(e.g. \"size\": \"14 mm\") and run catalog ingest again")
+
+
+def scene_scale(real_sizes: Sequence[float], config: SceneConfig) -> float:
+    """The scene scale of a real-size scene: the classes' real largest sides (metres) times it lie in the
+    paper's ``class_size`` x ``scale`` range as far as their spread allows: their geometric mean at the
+    range's geometric middle, raised until the smallest class is at the range's low end (the small bodies
+    are the ones that tunnel). Four significant digits (readable stages)."""
+    sizes = np.asarray(real_sizes, dtype=np.float64)
+    lo, hi = config.class_size[0] * config.scale, config.class_size[1] * config.scale
+    s = math.sqrt(lo * hi) / float(np.exp(np.mean(np.log(sizes))))
+    s = max(s, lo / float(sizes.min()))
+    return float(f"{s:.4g}")
+
+
 def container_warning(pool: Sequence[ObjectRecord], split: str, config: SceneConfig) -> Optional[str]:
     """The one-line warning for a split without a container, or None when it has one (or never uses one)."""
     if config.no_container_probability >= 1.0 or any(o.container for o in eligible_objects(pool, split)):
@@ -143,6 +183,13 @@ def _sample_floor(rng: np.random.Generator, config: SceneConfig, materials: Sequ
         material=sample_floor_material(rng, config.floor_patterns, materials, config.procedural_floor_probability,
                                        config.floor_texture_px),
     )
+
+
+def _floor_scaled(floor: FloorSpec, factor: float) -> FloorSpec:
+    """``floor`` with every length times ``factor`` (a real-size scene's own scale replaces ``scale``)."""
+    hx, hy = floor.half_extent
+    return FloorSpec(floor.shape, (round(hx * factor, _R), round(hy * factor, _R)),
+                     round(floor.thickness * factor, _R), round(floor.uv_scale_m * factor, _R), floor.material)
 
 
 def _floor_reaching(floor: FloorSpec, half_diagonal: float) -> FloorSpec:
@@ -277,15 +324,16 @@ def _place_counted(rng: np.random.Generator, config: SceneConfig, drafts: list[C
 
 
 def _place_distractors(rng: np.random.Generator, config: SceneConfig, picks: list[ObjectRecord], pile: _Pile,
-                       first_id: int) -> list[PlacedObject]:
-    """Distractors at their drawn size and yaw, provisionally in a ring around the pile (scene.usda); the
-    worker moves them after physics to free floor in the camera's view (mixcount.scene.framing)."""
+                       first_id: int, *, real: bool = False) -> list[PlacedObject]:
+    """Distractors at their drawn size (``real``: their real size) and yaw, provisionally in a ring around
+    the pile (scene.usda); the worker moves them after physics to free floor in the camera's view
+    (mixcount.scene.framing)."""
     s = config.scale
     distractors: list[PlacedObject] = []
     placed_xy: list[tuple[float, float, float]] = []
     margin = config.distractor_margin * s
     for obj in picks:
-        size = config.distractor_base_size * s * _u(rng, config.distractor_size_multiplier)
+        size = obj.max_dim * s if real else config.distractor_base_size * s * _u(rng, config.distractor_size_multiplier)
         f = size / obj.max_dim
         ext = np.asarray(obj.dims) * f
         rho = float(math.hypot(ext[0], ext[1]) / 2)
@@ -402,6 +450,9 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     config, compose = cfg.scene, cfg.compose
     rng = np.random.default_rng(seed)
     s = config.scale
+    real = config.size_rule == SIZE_REAL
+    if real:  # an object without a trustworthy real size is never drawn (size_warning says which)
+        pool = [o for o in pool if trusted_size(o)]
     in_split = eligible_objects(pool, split)
 
     environment = sample_environment(rng, config, environments)
@@ -412,14 +463,22 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     eligible = [o for o in in_split if o.category not in exclude
                 and (container_obj is None or o.object_id != container_obj.object_id)]
     if not eligible:
-        raise CompositionError(f"no eligible objects in split {split!r} (active, with a split and valid size)")
+        raise CompositionError(f"no eligible objects in split {split!r} (active, with a split and valid size"
+                               + (", and a trustworthy real size: scene.size_rule = \"real\")" if real else ")"))
 
     n = _ui(rng, config.n_objects)
     target = None if config.count_target == PAPER else count_distribution(config.count_target)
     if target is not None:  # a visible-count target (issue 37): n is drawn from its own stream instead
         n = draw_total(target, seed)
     n_classes = min(_ui(rng, config.n_classes), n)
-    drafts = build_classes(rng, config, eligible, n_classes)
+    drafts = build_classes(rng, config, eligible, n_classes, real=real)
+    if real:  # the scene's own scale: every length below in scene metres of it (floor and draws rescaled)
+        s = scene_scale([d.size for d in drafts], config)
+        for d in drafts:
+            d.size *= s
+        floor = _floor_scaled(floor, s / config.scale)
+        cont_scale = np.full(3, s)  # the container at its real size: no per-axis jitter, no pile fit
+        config = replace(config, scale=s)
     count_target = None
     elevations: Optional[list[float]] = None
     if target is None:
@@ -435,7 +494,9 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     sizes = np.array([drafts[c].size for c in inst_class]) * jitter
     extent: Optional[NDArray[Any]] = None
     fit = 1.0
-    if container_obj is not None:
+    if container_obj is not None and real:
+        extent = np.asarray(container_obj.dims) * cont_scale
+    elif container_obj is not None:
         extent = np.asarray(container_obj.dims) * cont_scale
         # a count target's container holds its expected need (per class the first count_target["need"]
         # bodies, count_container_need x its target: neither the low camera's margin nor the reserve), as a
@@ -459,7 +520,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     free = [o for o in in_split if o.object_id not in used and not caption_keys(o.captions) & taken]
     n_dist = min(_ui(rng, config.n_distractors), len(free))
     picks = distinct_caption_picks(rng, free, n_dist, taken)
-    distractors = _place_distractors(rng, config, picks, pile, n + 1)
+    distractors = _place_distractors(rng, config, picks, pile, n + 1, real=real)
 
     container = None
     if container_obj is not None and extent is not None:
@@ -473,6 +534,11 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         diag = float(math.hypot(2 * pile.semi[0], 2 * pile.semi[1]))
     target0 = np.array([pile.centre[0], pile.centre[1], pile.base_z + float(np.mean(sizes)) / 2])
     cameras = _draw_cameras(rng, config, compose.resolution, target0, diag, elevations)
+    if real and container is not None and config.camera_framing == "paper":
+        # the real container does not grow with its pile: frame the pile as a paper scene's fitted
+        # container would (the paper's pixels per object), mixcount.scene.framing "pile"
+        area = round(math.sqrt(config.container_pile_area[0] * config.container_pile_area[1]), _R)
+        cameras = [replace(c, framing="pile", pile_area=area) for c in cameras]
 
     return SceneSpec(
         scene_id=scene_id or scene_id_for(seed), seed=int(seed), split=split, scale=s,
@@ -488,5 +554,5 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
             distractor_tries=config.distractor_max_tries, distractor_max_overlap=config.distractor_max_overlap,
             # the early stop waits for bodies within 1.5 x the farthest provisional camera of the centre
             view_radius=round(1.5 * max(c.distance for c in cameras), _R)),
-        count_target=count_target,
+        count_target=count_target, size_rule=SIZE_REAL if real else None,
     )

@@ -289,9 +289,14 @@ class CameraSpec:
     distance_scale: float  # 1 + U(-camera_distance_jitter, +camera_distance_jitter)
     distance_factor: float  # "paper": distance = factor x ||diag AABB(container)|| x distance_scale
     fit_share: float  # "fit": share of settled counted origins the frame must hold
+    # "pile": the base diagonal is that of a square of pile_area x the settled pile's one-layer footprint (the
+    # container a paper scene fits to its pile), so a real-size scene shows the paper's pixels per object
+    pile_area: Optional[float] = None
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
+        if d["pile_area"] is None:
+            del d["pile_area"]  # paper scenes keep their bytes
         for k in ("position", "look_at", "orientation", "resolution", "clip_range", "lookat_offset"):
             d[k] = list(d[k])
         return d
@@ -309,6 +314,7 @@ class CameraSpec:
             framing=str(d.get("framing", "fixed")), lookat_offset=_t(d.get("lookat_offset", (0.0, 0.0, 0.0))),
             distance_scale=float(d.get("distance_scale", 1.0)), distance_factor=float(d.get("distance_factor", 0.0)),
             fit_share=float(d.get("fit_share", 1.0)),
+            pile_area=None if d.get("pile_area") is None else float(d["pile_area"]),
         )
 
 
@@ -412,6 +418,8 @@ class SceneSpec:
     placement: Optional[PlacementSpec] = None  # None: a spec written before after-physics placement
     # the visible counts asked for (counts/targets.py target_record); None: the paper's spawned-count rule
     count_target: Optional[Mapping[str, Any]] = None
+    # "real": every object at its real size, ``scale`` chosen for this scene (docs/scene.md); None: the paper's
+    size_rule: Optional[str] = None
 
     @property
     def n_counted(self) -> int:
@@ -443,6 +451,7 @@ class SceneSpec:
             "placement": None if self.placement is None else self.placement.to_dict(),
             # only with a target: the paper's specs keep their bytes (and config hash) as before
             **({} if self.count_target is None else {"count_target": dict(self.count_target)}),
+            **({} if self.size_rule is None else {"size_rule": self.size_rule}),
         }
 
     def to_json(self) -> str:
@@ -464,6 +473,7 @@ class SceneSpec:
             assets=tuple(AssetRef.from_dict(a) for a in d["assets"]), version=int(d.get("version", 1)),
             placement=None if d.get("placement") is None else PlacementSpec.from_dict(d["placement"]),
             count_target=None if d.get("count_target") is None else dict(d["count_target"]),
+            size_rule=None if d.get("size_rule") is None else str(d["size_rule"]),
         )
 
     @classmethod
