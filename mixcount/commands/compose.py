@@ -221,24 +221,50 @@ def register(app: typer.Typer, catalog_app: typer.Typer) -> None:
     catalog_app.command("ingest-materials")(ingest_materials_cmd)
 
 
+ALLOW_ROOT_HELP = ("A folder outside the one named that its links may lead into (repeatable; adds to "
+                   "[ingest] extra_roots). Without it such a link is refused and said.")
+
+
+def _assets_result(kind: str, summary: Any, json_out: bool, st: Any, ctx: typer.Context) -> None:
+    """What ``ingest-env`` / ``ingest-materials`` print: the summary, then (exit 3, :class:`PartialFailure`)
+    one line per file broken (recorded, never drawn) or refused (a link out of the library, not read)."""
+    result(f"{kind}: {summary.new} new, {summary.unchanged} unchanged, {len(summary.broken)} broken "
+           f"(never drawn), {len(summary.refused)} refused (outside the library), {len(summary.skipped)} skipped",
+           summary.to_dict(), json_out)
+    failed = [(p, f"broken: {r}") for p, r in summary.broken] + [(p, f"refused: {r}") for p, r in summary.refused]
+    if failed:
+        total = summary.new + summary.unchanged + len(summary.refused)
+        raise PartialFailure(kind, failed, total, rerun=st.rerun(ctx=ctx),
+                             headline=f"{kind}: {len(summary.broken)} broken (recorded, never drawn: replace them), "
+                                      f"{len(summary.refused)} refused (outside the library)")
+
+
 def ingest_env_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="HDR/EXR files or folders."),
+                   allow_root: list[Path] = typer.Option([], "--allow-root", help=ALLOW_ROOT_HELP),
                    json_out: bool = json_option("the summary")) -> None:
-    """Add HDR/EXR environment maps to the catalog (sampled uniformly per scene)."""
+    """Add HDR/EXR environment maps to the catalog (sampled uniformly per scene); each is decoded whole
+    first, and one that does not decode is recorded broken and never drawn."""
     from mixcount.catalog.environments import ingest_environments
 
-    summary = ingest_environments(state(ctx).catalog(create=True), paths)
-    result(f"environments: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped",
-           summary.to_dict(), json_out)
+    st = state(ctx)
+    ing = st.config().ingest
+    summary = ingest_environments(st.catalog(create=True), paths, max_pixels=ing.max_image_pixels,
+                                  extra_roots=[*ing.extra_roots, *map(str, allow_root)])
+    _assets_result("environments", summary, json_out, st, ctx)
 
 
 def ingest_materials_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="Folders of PBR texture sets."),
+                         allow_root: list[Path] = typer.Option([], "--allow-root", help=ALLOW_ROOT_HELP),
                          json_out: bool = json_option("the summary")) -> None:
-    """Add PBR texture sets (base colour, roughness, normal, ...) for floors."""
+    """Add PBR texture sets (base colour, roughness, normal, ...) for floors; every map is decoded whole
+    first, and a set with one that does not decode is recorded broken and never drawn."""
     from mixcount.catalog.environments import ingest_materials
 
-    summary = ingest_materials(state(ctx).catalog(create=True), paths)
-    result(f"materials: {summary.new} new, {summary.unchanged} unchanged, {len(summary.skipped)} skipped",
-           summary.to_dict(), json_out)
+    st = state(ctx)
+    ing = st.config().ingest
+    summary = ingest_materials(st.catalog(create=True), paths, max_pixels=ing.max_image_pixels,
+                               extra_roots=[*ing.extra_roots, *map(str, allow_root)])
+    _assets_result("materials", summary, json_out, st, ctx)
 
 
 def merge_cmd(
