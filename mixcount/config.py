@@ -377,6 +377,7 @@ class ComposeConfig:
     normal_format: str
     mesh_cache: str
     merge: bool
+    min_object_px: float  # floor of the pixels per counted object (mixcount.run.object_pixels); 0 = none
 
     def validate(self) -> None:
         if self.split not in SPLIT_NAMES:
@@ -396,6 +397,8 @@ class ComposeConfig:
             raise ConfigError(f"compose.device must be one of {', '.join(DEVICES)}, got {self.device!r}")
         if not self.ray_gpus_per_worker > 0:
             raise ConfigError(f"compose.ray_gpus_per_worker must be > 0, got {self.ray_gpus_per_worker!r}")
+        if not self.min_object_px >= 0:
+            raise ConfigError(f"compose.min_object_px must be >= 0 (0: no floor), got {self.min_object_px!r}")
 
 
 def _tuples(value: Any) -> Any:

@@ -15,6 +15,7 @@ it: (x, y, z) -> (x, -z, y).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Iterator, Optional
 
@@ -69,19 +70,67 @@ def source_frame(model_path: Path, units: Optional[str], up_axis: Optional[str])
     return unit_scale(name), name, (up_axis or "Y").upper()
 
 
-def load_model(path: Path | str, *, force: Optional[str] = None) -> Any:
+def load_model(path: Path | str, *, force: Optional[str] = None, roots: Any = None) -> Any:
     """``trimesh.load`` of a model file (``process=False``) whose references (an OBJ's .mtl and its textures,
-    a glTF's buffers and images) are read where the file says, as Blender and MuJoCo read them, also
-    outside the model's own folder: robosuite ships ``objects/meshes/can.mtl`` naming
-    ``../../textures/soda.png``. trimesh refuses such a path by default and drops the texture with only a
-    log line, so those models were ingested, converted and captioned untextured without a word. Every
-    reader of a library's model file goes through here (ingest, the USD conversion, curation, captions)."""
+    a glTF's buffers and images) are read through :class:`BoundedResolver`: where the file says, as Blender
+    and MuJoCo read them, also outside the model's own folder (robosuite ships ``objects/meshes/can.mtl``
+    naming ``../../textures/soda.png``; trimesh's own resolver drops such a texture with only a log line),
+    but never outside the library: with ``roots`` (a :class:`mixcount.library_root.LibraryRoots`, else the
+    roots of the ingest step under way, :func:`mixcount.library_root.current`) a reference that leaves them
+    is not read; without any, an absolute path or a URI (``file://``) is not read (a catalog's models were
+    sealed by ingest: every relative reference they hold was checked inside their library). Every reader
+    of a library's model file goes through here (ingest, the USD conversion, curation, captions)."""
     import trimesh
 
-    resolver = trimesh.resolvers.FilePathResolver(str(path), allow_anywhere=True)
+    resolver = BoundedResolver(str(path), roots)
     if force is None:
         return trimesh.load(str(path), process=False, resolver=resolver)
     return trimesh.load(str(path), force=force, process=False, resolver=resolver)
+
+
+def _bounded_resolver() -> Any:
+    import trimesh
+
+    from mixcount.library_root import LibraryRoots, OutsideLibraryError, current
+
+    class _Bounded(trimesh.resolvers.FilePathResolver):  # type: ignore[misc, name-defined]
+        """trimesh's file resolver whose every reference goes through the library's roots
+        (:meth:`mixcount.library_root.LibraryRoots.resolve`); a refused one is a ValueError, which trimesh
+        takes as "not there" (a texture: the model loads untextured; a buffer: the load fails)."""
+
+        def __init__(self, source: str, roots: Any = None) -> None:
+            super().__init__(source, allow_anywhere=True)
+            self.roots = roots if roots is not None else current()
+
+        def namespaced(self, namespace: str) -> Any:
+            return type(self)(os.path.join(self.parent, namespace), self.roots)
+
+        def absolute(self, name: str) -> Path:
+            ref = name.strip()
+            try:
+                if self.roots is not None:
+                    return Path(self.roots.resolve(ref, self.parent, "reference"))
+                # no roots: a relative reference as written; never an absolute path or a URI
+                LibraryRoots(("/",)).resolve(ref, self.parent, "reference")
+            except OutsideLibraryError as exc:
+                raise ValueError(str(exc)) from None
+            if os.path.isabs(ref) or ref.lower().startswith("file:"):
+                raise ValueError(f"{ref}: an absolute reference is not read")
+            return (Path(self.parent) / ref).resolve()
+
+    return _Bounded
+
+
+def BoundedResolver(source: str, roots: Any = None) -> Any:  # noqa: N802  (a class, built on first use)
+    """A trimesh resolver for a model file at ``source`` that reads no reference outside ``roots`` (see
+    :func:`load_model`)."""
+    global _BOUNDED
+    if _BOUNDED is None:
+        _BOUNDED = _bounded_resolver()
+    return _BOUNDED(source, roots)
+
+
+_BOUNDED: Any = None
 
 
 def walk_geometry(scene: Any) -> Iterator[tuple[str, np.ndarray, Any]]:

@@ -23,9 +23,11 @@ from __future__ import annotations
 
 import os
 import re
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Iterator
 from urllib.parse import unquote, urlsplit
 
 from mixcount.errors import CatalogError
@@ -71,6 +73,10 @@ class LibraryRoots:
         extras = [_real(Path(e).expanduser()) for e in extra if str(e).strip()]
         return cls(tuple(dict.fromkeys([str(first), *extras])))
 
+    def widened(self, *extra: str | os.PathLike[str]) -> "LibraryRoots":
+        """These roots and ``extra`` folders (a staged copy's folder under the catalog's data folder)."""
+        return LibraryRoots(tuple(dict.fromkeys([*self.roots, *(_real(e) for e in extra)])))
+
     @property
     def root(self) -> Path:
         """The folder the user named (real path)."""
@@ -115,3 +121,48 @@ class LibraryRoots:
             return self.check(Path(base) / ref, what)
         except OutsideLibraryError as exc:
             raise OutsideLibraryError(reference, exc.reason) from None
+
+
+# --------------------------------------------------------------------------- the boundary of one walk
+
+_CURRENT: ContextVar[tuple[LibraryRoots, list[tuple[Path, str]]] | None] = ContextVar("library_roots", default=None)
+
+
+@contextmanager
+def bounded(roots: LibraryRoots, refused: list[tuple[Path, str]] | None = None) -> Iterator[LibraryRoots]:
+    """Within this block :func:`current` is ``roots``: the folder listings of the layouts
+    (:func:`mixcount.catalog.layouts.candidates.scan_folder`) leave out links that lead outside it, and
+    :func:`mixcount.frame.load_model` reads no reference outside it. What was refused is appended to
+    ``refused`` as (path, reason), once per path."""
+    token = _CURRENT.set((roots, refused if refused is not None else []))
+    try:
+        yield roots
+    finally:
+        _CURRENT.reset(token)
+
+
+def current() -> LibraryRoots | None:
+    """The roots of the walk or ingest step under way (:func:`bounded`), None outside one."""
+    here = _CURRENT.get()
+    return here[0] if here else None
+
+
+def refuse(path: Path, reason: str) -> None:
+    """Note a link or file refused by the current walk (said once per path in the ingest summary)."""
+    here = _CURRENT.get()
+    if here is not None and all(p != path for p, _r in here[1]):
+        here[1].append((path, reason))
+
+
+def refusal(path: str | os.PathLike[str], what: str) -> str | None:
+    """Why ``path`` may not be read in the current walk (its real path leaves the roots), noted once;
+    None when it may (or outside a walk)."""
+    roots = current()
+    if roots is None:
+        return None
+    try:
+        roots.check(path, what)
+    except OutsideLibraryError as exc:
+        refuse(Path(path), exc.reason)
+        return exc.reason
+    return None

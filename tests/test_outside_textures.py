@@ -48,13 +48,26 @@ def test_a_texture_in_a_sibling_folder_is_read_everywhere(tmp_path: Path) -> Non
 
     catalog = open_catalog(f"sqlite:///{tmp_path / 'c.db'}", data_dir=str(tmp_path / "data"))
     try:
-        summary = ingest_paths(catalog, [tmp_path / "lib" / "objects"], config=load_config())
-        assert summary.new == 1 and summary.broken == 0
+        summary = ingest_paths(catalog, [tmp_path / "lib"], config=load_config())  # the library: lib/
+        assert summary.new == 1 and summary.broken == 0 and not summary.refused
         with catalog.session() as s:
             obj = s.scalars(select(CatalogObject)).one()
             assert obj.textured and obj.name == "can"
     finally:
         catalog.close()
+    # lib/objects named as the library: the texture in lib/textures is outside it, refused (issue 68)
+    # with a flag that names it, unless --allow-root names its folder
+    for extra, textured in (((), False), ((tmp_path / "lib" / "textures",), True)):
+        other = open_catalog(f"sqlite:///{tmp_path / f'o{len(extra)}.db'}", data_dir=str(tmp_path / f"o{len(extra)}"))
+        try:
+            summary = ingest_paths(other, [tmp_path / "lib" / "objects"], config=load_config(), allow_roots=extra)
+            assert summary.new == 1 and summary.broken == 0
+            said = [w for _n, w in summary.warnings if "soda.png" in w and "outside the library" in w]
+            assert bool(said) != textured, summary.warnings
+            with other.session() as s:
+                assert s.scalars(select(CatalogObject)).one().textured == textured
+        finally:
+            other.close()
 
     paths = convert_asset(model, tmp_path / "usd", content_hash="x", units="m", up_axis="Z")
     written = list(Path(paths.visual).parent.glob("*_tex/*"))

@@ -28,9 +28,9 @@ def ball(path: Path) -> Path:
     return path
 
 
-def walked(root: Path) -> tuple[list, list[tuple[Path, str]]]:
+def walked(root: Path, extra: tuple[Path, ...] = ()) -> tuple[list, list[tuple[Path, str]]]:
     repeats: list[tuple[Path, str]] = []
-    return discover([root], repeats=repeats), repeats
+    return discover([root], repeats=repeats, extra_roots=extra), repeats
 
 
 def test_links_to_the_folder_itself_are_walked_once_and_said(tmp_path: Path) -> None:
@@ -46,20 +46,30 @@ def test_links_to_the_folder_itself_are_walked_once_and_said(tmp_path: Path) -> 
     assert all("already walked (a loop" in why for _, why in repeats)
 
 
-def test_a_linked_folder_keeps_its_real_path_and_outside_targets_are_read_once(tmp_path: Path) -> None:
+def test_a_linked_folder_keeps_its_real_path_and_outside_targets_are_refused(tmp_path: Path) -> None:
     lib, outside = tmp_path / "L", tmp_path / "elsewhere"
     ball(lib / "zz_real" / "ball.glb")
     os.symlink(lib / "zz_real", lib / "aa_alias")  # sorted first: the object still gets its real path
     ball(outside / "cups" / "cup.glb")
-    os.symlink(outside, lib / "out1")
-    os.symlink(outside / "cups", lib / "out2")  # the same folder through another link
+    os.symlink(outside, lib / "out1")  # outside the library: not followed (issue 68), said once
+    os.symlink(outside / "cups", lib / "out2")
     os.symlink(lib / "zz_real" / "ball.glb", lib / "ball_link.glb")  # a model file linked beside it
-    found, repeats = walked(lib)
+    refused: list[tuple[Path, str]] = []
+    repeats: list[tuple[Path, str]] = []
+    found = discover([lib], repeats=repeats, refused=refused)
     paths = sorted(Path(c.source_id).relative_to(lib).as_posix() for c in found)
-    assert paths == ["out1/cups/cup.glb", "zz_real/ball.glb"]
+    assert paths == ["zz_real/ball.glb"]
     said = {p.relative_to(lib).as_posix(): why for p, why in repeats}
-    assert set(said) == {"aa_alias", "out2", "ball_link.glb"}
-    assert "loop" not in said["out2"] and "zz_real/ball.glb" in said["ball_link.glb"]
+    assert set(said) == {"aa_alias", "ball_link.glb"}
+    assert "zz_real/ball.glb" in said["ball_link.glb"]
+    assert sorted(p.relative_to(lib).as_posix() for p, _ in refused) == ["out1", "out2"]
+    assert all("outside the library" in why for _, why in refused)
+    # allowed: the folder outside is walked as before, each real folder once
+    again: list[tuple[Path, str]] = []
+    found = discover([lib], repeats=again, extra_roots=[outside])
+    assert sorted(Path(c.source_id).relative_to(lib).as_posix() for c in found) == ["out1/cups/cup.glb",
+                                                                                  "zz_real/ball.glb"]
+    assert "out2" in {p.relative_to(lib).as_posix() for p, _ in again}
 
 
 def test_a_self_link_that_never_resolves_stays_broken(tmp_path: Path) -> None:
@@ -175,7 +185,7 @@ def test_real_package_trees_with_loops_give_the_same_objects(kind: str, package:
         pytest.skip(why)
     plain, plain_repeats = walked(tree)
     added = mirror_with_loops(tree, tmp_path / "mirror")
-    looped, repeats = walked(tmp_path / "mirror")
+    looped, repeats = walked(tmp_path / "mirror", (tree,))  # a mirror of links into the package: allowed
 
     def real(cands: list) -> list[str]:
         return sorted(os.path.realpath(c.model_path) for c in cands if c.model_path is not None)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import os
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -39,6 +40,7 @@ from mixcount.catalog import hashing, layouts
 from mixcount.catalog.analysis_pool import analyse_all, analysis_kwargs
 from mixcount.catalog.containers import opening_warnings, refresh_containers
 from mixcount.catalog.derived import derive
+from mixcount.catalog.ingest_runs import close_interrupted_runs, done_running, note_running, run_failure
 from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
 from mixcount.catalog.layouts.parts import check_parts
 from mixcount.catalog.mesh import model_resources
@@ -64,6 +66,7 @@ from mixcount.catalog.units import check_units, decide_frame, note_units, units_
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
 from mixcount.frame import GLTF_EXTENSIONS
+from mixcount.library_root import bounded
 from mixcount.progress import ProgressReporter, as_reporter
 
 # Fact columns copied from the analysis dict onto the row.
@@ -92,6 +95,13 @@ class IngestSummary:
     invalidated: list[tuple[str, list[str]]] = field(default_factory=list)  # (name, changed columns)
     rescaled: list[tuple[str, str, str]] = field(default_factory=list)  # (name, unit, reason)
     implausible: list[tuple[str, str]] = field(default_factory=list)  # (name, unit reason): a size said, not re-read
+    # links and files outside the library, not followed / not read: (path, why), once each
+    refused: list[tuple[str, str]] = field(default_factory=list)
+    # metadata entries of another meaning, ignored: (entry, what it must be) -> how many objects carried it
+    ignored: dict[tuple[str, str], int] = field(default_factory=dict)
+    # objects this run failed on (a worker crash, an internal error), not their input: (name, reason)
+    failed: list[tuple[str, str]] = field(default_factory=list)
+    interrupted_runs: list[int] = field(default_factory=list)  # earlier runs closed as interrupted
 
     @property
     def total(self) -> int:
@@ -108,6 +118,11 @@ class IngestSummary:
                            for n, a, b, r in self.reoriented],
             "invalidated": [{"name": n, "changed": c} for n, c in self.invalidated],
             **units_summary(self.rescaled, self.implausible),
+            "refused": [{"path": p, "reason": r} for p, r in self.refused],
+            "ignored_metadata": [{"entry": e, "expected": w, "objects": n}
+                                 for (e, w), n in sorted(self.ignored.items())],
+            "failed": [{"name": n, "reason": r} for n, r in self.failed],
+            "interrupted_runs": list(self.interrupted_runs),
         }
 
     def note_units(self, name: str, unit: str | None, reason: str | None) -> None:
@@ -161,7 +176,10 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float) -> P
             prep.error = "empty file (0 bytes)"
             return prep
         tolerated: list[str] = []
-        resources = model_resources(cand.model_path, tolerated)
+        roots = cand.roots
+        if roots is not None and not roots.contains(cand.model_path):  # a staged or derived copy: its folder too
+            roots = roots.widened(cand.model_path.parent)
+        resources = model_resources(cand.model_path, tolerated, roots)
         cand.warnings.extend(w for w in tolerated if w not in cand.warnings)
         files = {"model" + cand.model_path.suffix.lower(): cand.model_path}
         files.update({f"res:{k}": v for k, v in resources.items()})
@@ -341,6 +359,7 @@ def ingest_paths(
     up_axis: str | None = None,
     units: str | None = None,
     parts: str = "auto",
+    allow_roots: Iterable[Path | str] = (),
 ) -> IngestSummary:
     """Ingest every object under ``paths`` into ``catalog``; see the module docstring.
 
@@ -349,12 +368,16 @@ def ingest_paths(
     stored; the CLI uses it to exit non-zero when anything is broken. ``up_axis`` (X, Y or Z; None or
     ``auto``: each file's own rule) is the up axis of every object whose metadata or layout states none,
     glTF included (docs/ingest.md, "Units and up axis"). ``units`` (``--units``) and ``parts`` (``--parts``):
-    :mod:`mixcount.catalog.units`, :mod:`mixcount.catalog.layouts.parts`.
+    :mod:`mixcount.catalog.units`, :mod:`mixcount.catalog.layouts.parts`. ``allow_roots`` (``--allow-root``)
+    and ``ingest.extra_roots`` widen each library's boundary (:mod:`mixcount.library_root`).
     """
     paths = list(paths)
+    refused: list[tuple[Path, str]] = []
+    extra = [*config.ingest.extra_roots, *allow_roots]
     candidates = _discover(catalog, paths, config.ingest, layout=layout, metadata_files=metadata_files,
-                           up_axis=up_axis, units=units, parts=parts)
+                           up_axis=up_axis, units=units, parts=parts, extra_roots=extra, refused=refused)
     run = _start_run(catalog, paths, candidates, config.ingest)
+    run.summary.refused = [(safe_text(str(p)), safe_text(r)) for p, r in refused]
     bar = as_reporter(progress)
     status = "interrupted"
     try:
@@ -395,6 +418,8 @@ class _Run:
         setattr(summary, outcome, getattr(summary, outcome) + 1)
         if outcome == "broken":
             summary.broken_objects.append((prep.cand.name, error or prep.error or ""))
+            if error and run_failure(error):
+                summary.failed.append((prep.cand.name, error))
         else:
             summary.warnings.extend((prep.cand.name, w) for w in prep.cand.warnings)
 
@@ -404,10 +429,12 @@ class _Run:
 
 def _discover(catalog: Any, paths: list[Path | str], ing: IngestConfig, *, layout: str,
               metadata_files: Iterable[Path | str], up_axis: str | None, units: str | None,
-              parts: str) -> list[Candidate]:
+              parts: str, extra_roots: list[str | Path] | None = None,
+              refused: list[tuple[Path, str]] | None = None) -> list[Candidate]:
     """Step 1: every object under ``paths``, oriented, staged, its unit decided and derived models made."""
     stated_units = check_units(units)
-    candidates = discover(paths, layout=layout, metadata_files=metadata_files, parts=check_parts(parts))
+    candidates = discover(paths, layout=layout, metadata_files=metadata_files, parts=check_parts(parts),
+                          extra_roots=extra_roots or [], refused=refused)
     for cand in candidates:
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units
@@ -416,9 +443,11 @@ def _discover(catalog: Any, paths: list[Path | str], ing: IngestConfig, *, layou
     with catalog.session() as session:
         orient(session, candidates, paths, up_axis, assume=ing.assume_up_axis)
     for cand in candidates:
-        layouts.stage(cand, catalog.staged_dir)
-        decide_frame(cand, stated=stated_units, assume=ing.assume_units)  # the unit and why (mixcount.catalog.units)
-        derive(cand, catalog.staged_dir)  # STEP or parts: one GLB in the sources' numbers
+        # every model read here (a part, a STEP) reads no reference outside the object's library
+        with bounded(cand.roots) if cand.roots is not None else nullcontext():
+            layouts.stage(cand, catalog.staged_dir)
+            decide_frame(cand, stated=stated_units, assume=ing.assume_units)  # the unit and why (mixcount.catalog.units)
+            derive(cand, catalog.staged_dir)  # STEP or parts: one GLB in the sources' numbers
     return candidates
 
 
@@ -431,10 +460,16 @@ def _start_run(catalog: Any, paths: list[Path | str], candidates: list[Candidate
                settings_of(ing), ing.max_file_mb * 2**20, proxy_budget(ing), max(1, ing.workers),
                catalog.collision_dir)
     with catalog.session() as session:
+        summary.interrupted_runs = close_interrupted_runs(session, catalog.data_dir)
         row = IngestRun(paths=json.dumps([str(p) for p in paths]), status="running")
         session.add(row)
-        session.commit()
+        session.flush()
         summary.run_id = row.id
+        note_running(catalog.data_dir, row.id)  # before the row is seen: a run beside it never closes it
+        session.commit()
+    for cand in candidates:
+        for key in cand.ignored:
+            summary.ignored[key] = summary.ignored.get(key, 0) + 1
     return run
 
 
@@ -500,6 +535,7 @@ def _finish_run(catalog: Any, summary: IngestSummary, status: str) -> None:
             row.n_new, row.n_unchanged = summary.new, summary.unchanged
             row.n_updated, row.n_broken = summary.updated, summary.broken
             session.commit()
+    done_running(catalog.data_dir, summary.run_id)
 
 
 def _analyse_all(session: Session, pending: list[Prepared], run: _Run, n_workers: int,

@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 
 from mixcount.commands.common import RichProgress, check_catalog_file, console, out, result, state
-from mixcount.errors import CatalogError
+from mixcount.errors import CatalogError, PartialFailure
 
 
 def ingest_cmd(
@@ -41,6 +41,11 @@ def ingest_cmd(
         help="How a folder's several model files become objects: merge (the parts of one object), separate "
              "(one object per file) or auto (parts when named alike and their boxes touch or nest, or an MJCF "
              "places them in one body). A \"parts\" entry in a folder's metadata.json wins."),
+    allow_root: list[Path] = typer.Option(
+        [], "--allow-root",
+        help="A folder outside the library that its files may reference or link into (repeatable; added to "
+             "ingest.extra_roots). Anything else outside the folder named is refused for that object "
+             "(docs/ingest.md, \"The library root is the boundary\")."),
     metadata: list[Path] = typer.Option(
         [], "--metadata",
         help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
@@ -55,7 +60,8 @@ def ingest_cmd(
     # error before the database is touched; files in formats ingest does not read are listed, not fatal
     check_catalog_file(st.db)  # a --db that is not a catalog is named first
     repeats: list[tuple[Path, str]] = []
-    skipped = _check_inputs(paths, layout, metadata, repeats)
+    extra = [*cfg.ingest.extra_roots, *allow_root]
+    skipped = _check_inputs(paths, layout, metadata, repeats, extra)
     check_up_axis(up_axis)
     from mixcount.catalog.layouts.parts import check_parts
     from mixcount.catalog.units import check_units
@@ -66,13 +72,28 @@ def ingest_cmd(
     try:
         summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
                                layout=layout, metadata_files=metadata, up_axis=up_axis, units=units,
-                               parts=parts)
+                               parts=parts, allow_roots=allow_root)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)
         raise
     finally:
         catalog.close()
+    for run_id in summary.interrupted_runs:
+        console.print(f"[yellow]closed:[/] ingest run {run_id} was left running by a process that is gone: "
+                      "recorded as interrupted", highlight=False, soft_wrap=True)
+    if summary.refused:
+        console.print(f"[yellow]refused {len(summary.refused)} link(s) or file(s)[/] leading outside the library "
+                      "(not followed, not read; --allow-root DIR to allow a folder):", highlight=False,
+                      soft_wrap=True)
+        for p, reason in summary.refused[:SKIPPED_LINES]:
+            console.print(f"  {escape(p)}: {escape(reason)}", highlight=False, soft_wrap=True)
+        if len(summary.refused) > SKIPPED_LINES:
+            console.print(f"  ... and {len(summary.refused) - SKIPPED_LINES} more (all listed by --json)",
+                          highlight=False)
+    for (entry, expected), n in sorted(summary.ignored.items()):
+        console.print(f"[yellow]ignored[/] {escape(entry)} in {n} object(s): not {escape(expected)}",
+                      highlight=False, soft_wrap=True)
     for line in summary.container_warnings:
         console.print(f"[yellow]warning:[/] {escape(line)}", highlight=False, soft_wrap=True)
     for name, reason in summary.broken_objects:
@@ -110,6 +131,11 @@ def ingest_cmd(
          "walked_once": [{"path": str(p), "reason": r} for p, r in repeats]},
         json_out,
     )
+    if summary.failed:  # the run failed on these (a crash, an internal error), not their input: exit 3
+        raise PartialFailure("catalog ingest", summary.failed, summary.total,
+                             rerun="run the same catalog ingest command again: only these are analysed again",
+                             headline=f"catalog ingest: {len(summary.failed)} of {summary.total} object(s) failed "
+                                      "in this run (not in their files)")
     if strict and summary.broken:
         raise CatalogError(f"{summary.broken} broken object(s) (--strict)")
 
@@ -118,7 +144,7 @@ SKIPPED_LINES = 20  # skipped files named one per line; the rest are counted
 
 
 def _check_inputs(paths: list[Path], layout: str, metadata: list[Path],
-                  repeats: list[tuple[Path, str]]) -> list[tuple[Path, str]]:
+                  repeats: list[tuple[Path, str]], extra_roots: list[str | Path]) -> list[tuple[Path, str]]:
     """Walk every PATH once before the database is opened: a PATH with no model file in it is an error
     that names it (with what was skipped there), and the files in formats ingest does not read are
     reported on stderr by name, with a count per format, as are the links not followed again (loops,
@@ -131,7 +157,8 @@ def _check_inputs(paths: list[Path], layout: str, metadata: list[Path],
     skipped: list[tuple[Path, str]] = []
     for path in paths:
         here: list[tuple[Path, str]] = []
-        if not discover([path], layout=layout, metadata_files=metadata, skipped=here, repeats=repeats):
+        if not discover([path], layout=layout, metadata_files=metadata, skipped=here, repeats=repeats,
+                        extra_roots=extra_roots):
             what = (f": only {len(here)} file(s) in formats ingest does not read ("
                     + ", ".join(sorted({p.suffix.lower() for p, _ in here})) + ")") if here else ""
             raise CatalogError(

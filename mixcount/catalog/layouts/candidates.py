@@ -13,6 +13,9 @@ from typing import Any, Protocol
 import mixcount.json_input as json_input
 from mixcount.catalog.mesh import MESH_EXTENSIONS
 from mixcount.catalog.naming import DTC_NAME, category_from_name, category_text, safe_text, singular
+from mixcount.frame import UP_AXES, unit_scale
+from mixcount.library_root import LibraryRoots, refusal, refuse
+from mixcount.library_root import current as current_roots
 
 SOURCE_DTC = "dtc"
 SOURCE_GSO = "gso"
@@ -52,7 +55,8 @@ class Candidate:
     # files a model loader must find side by side (reference name -> real file); ingest links them
     # into one folder under the catalog's data folder and analyses, renders and converts that copy
     staged: dict[str, Path] = field(default_factory=dict)
-    staged_texts: dict[str, str] = field(default_factory=dict)  # files written there instead (a rewritten .mtl)
+    # files written there instead (a rewritten .mtl, an OBJ or glTF whose references left the library)
+    staged_texts: dict[str, str | bytes] = field(default_factory=dict)
     # companion meshes of the model (collision meshes, LODs: not objects), by kind and file name
     companions: dict[str, Path] = field(default_factory=dict)
     collision_source: Path | None = None  # a collision companion: the physics proxy is built from it
@@ -63,6 +67,10 @@ class Candidate:
     # 4x4 placement from a description), and the rule that made them one (:mod:`.parts`)
     parts: list[tuple[Path, Any]] = field(default_factory=list)
     parts_rule: str | None = None
+    # the folders its files may come from (the library named, the extra roots allowed): set by the walk
+    roots: LibraryRoots | None = None
+    # metadata entries of another meaning, ignored: (entry, why), said once per library in the summary
+    ignored: list[tuple[str, str]] = field(default_factory=list)
 
 
 class Walker(Protocol):
@@ -96,7 +104,25 @@ def preferred_model(files: list[Path]) -> Path:
 
 
 def scan_folder(folder: Path) -> list[os.DirEntry]:
-    return sorted(os.scandir(folder), key=lambda e: e.name)
+    """A folder's entries by name, less the symbolic links that lead outside the library of the walk under
+    way (:func:`mixcount.library_root.bounded`): those are not followed, and noted once as refused."""
+    entries = sorted(os.scandir(folder), key=lambda e: e.name)
+    roots = current_roots()
+    if roots is None:
+        return entries
+    kept = []
+    for entry in entries:
+        try:
+            link = entry.is_symlink()
+        except OSError:
+            link = False
+        if link and not roots.contains(entry.path):
+            target = os.path.realpath(entry.path)
+            refuse(Path(entry.path), f"a link to {target}, outside the library: not followed "
+                                     "(allow its folder with --allow-root to use it)")
+            continue
+        kept.append(entry)
+    return kept
 
 
 def is_dir(entry: os.DirEntry) -> bool:
@@ -137,7 +163,9 @@ def _first(record: dict[str, Any], keys: tuple[str, ...]) -> str | None:
 
 
 def record_identity(record: dict[str, Any]) -> dict[str, str | None]:
-    """name, category, licence, units, up axis from a metadata record (any of the usual field names)."""
+    """name, category, licence, units, up axis from a metadata record (any of the usual field names).
+    A ``units`` or ``up_axis`` of another meaning (``"unknown"``, a list) is left out: :func:`ignored_entries`
+    says which."""
     lic = _first(record, LICENCE_FIELDS)
     if lic is not None:
         lic = LICENCE_SLUGS.get(lic.strip().lower(), lic)
@@ -145,18 +173,68 @@ def record_identity(record: dict[str, Any]) -> dict[str, str | None]:
     if category is not None and category.strip().lower() in ("none", "null", "unknown", "other", ""):
         category = None
     units = record_units(record.get("units"))
-    up = record.get("up_axis") if isinstance(record.get("up_axis"), str) else None
-    return {"name": _first(record, NAME_FIELDS), "category": category, "license": lic, "units": units, "up_axis": up}
+    return {"name": _first(record, NAME_FIELDS), "category": category, "license": lic, "units": units,
+            "up_axis": record_up_axis(record.get("up_axis"))}
 
 
 def record_units(value: Any) -> str | None:
     """A metadata ``units`` entry as text: a unit name (``"mm"``) or metres per unit, written as a string
-    (``"0.05"``) or as a JSON number (``0.05``); None for anything else."""
+    (``"0.05"``) or as a JSON number (``0.05``); None for anything else (``"unknown"``, a list, 0)."""
     if isinstance(value, bool):
         return None
     if isinstance(value, (int, float)):
-        return f"{value:g}" if value > 0 else None
-    return value.strip() if isinstance(value, str) and value.strip() else None
+        text = f"{value:g}" if value > 0 else None
+    else:
+        text = value.strip() if isinstance(value, str) and value.strip() else None
+    if text is None:
+        return None
+    try:
+        unit_scale(text)
+    except ValueError:
+        return None
+    return text
+
+
+def record_up_axis(value: Any) -> str | None:
+    """A metadata ``up_axis`` entry: X, Y or Z (any case, ``+Z`` too); None for anything else."""
+    if not isinstance(value, str):
+        return None
+    up = value.strip().upper().lstrip("+")
+    return up if up in UP_AXES else None
+
+
+# the entries the project reads from a metadata record, with what each must be (docs/ingest.md)
+READ_ENTRIES = {"units": "a unit (mm, cm, m, in, ft) or metres per unit", "up_axis": "X, Y or Z",
+                "parts": "merge, separate or auto"}
+
+
+def ignored_entries(record: dict[str, Any], file: str = "metadata.json") -> list[tuple[str, str]]:
+    """The entries of ``record`` the project reads whose value cannot mean what it reads them for
+    (``"parts": 3``, a count of parts; ``"units": "unknown"``; a list where a name is expected), each as
+    (``file: entry value``, what it must be): ignored, said once per library, never fatal."""
+    out = []
+    checks = {"units": record_units, "up_axis": record_up_axis,
+              "parts": lambda v: v.strip().lower() if isinstance(v, str) and v.strip().lower() in
+              ("auto", "merge", "separate") else None}
+    for key, check in checks.items():
+        if key in record and record[key] is not None and check(record[key]) is None:
+            out.append((f"{file}: {key} {_shown(record[key])}", READ_ENTRIES[key]))
+    for keys, what in ((NAME_FIELDS, "name"), (CATEGORY_FIELDS, "category"), (LICENCE_FIELDS, "licence")):
+        for key in keys:
+            if key in record and record[key] is not None and _text(record[key]) is None:
+                out.append((f"{file}: {key} {_shown(record[key])}", f"a {what} as text"))
+    return out
+
+
+def _shown(value: Any) -> str:
+    """A metadata value as said in the summary: short, one line."""
+    import json
+
+    try:
+        text = json.dumps(value, default=str)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return safe_text(text if len(text) <= 40 else text[:37] + "...")
 
 
 def apply_identity(cand: Candidate, ident: dict[str, str | None]) -> None:
@@ -178,14 +256,21 @@ def read_licence(path: Path) -> str:
 
 
 def json_object(path: Path, cand: Candidate) -> dict[str, Any] | None:
+    """A side file's JSON object, or None with a warning on ``cand`` saying why it was not read (it does
+    not parse, it is not an object, it leads outside the library): the object is ingested without it."""
+    reason = refusal(path, path.name)
+    if reason:
+        cand.warnings.append(f"{path.name} not read: {reason}")
+        return None
     try:
         data = json_input.read(path)  # too deep / too large: a ValueError of one line
     except (OSError, ValueError) as exc:
-        cand.error = f"{path.name} does not parse: {exc}"
+        cand.warnings.append(f"{path.name} does not parse, not used: {exc}")
         return None
     if not isinstance(data, dict):
-        cand.error = f"{path.name} is not a JSON object"
+        cand.warnings.append(f"{path.name} is not a JSON object, not used")
         return None
+    cand.ignored.extend(ignored_entries(data, path.name))
     return data
 
 

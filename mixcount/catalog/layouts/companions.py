@@ -119,12 +119,15 @@ def _mesh_of(elem: ET.Element | None, sdf: bool) -> tuple[str | None, str | None
     return uri, scale, rpy
 
 
-def read_description(path: Path) -> RobotDescription | None:
+def read_description(path: Path, notes: list[str] | None = None) -> RobotDescription | None:
     """The first link's visual mesh, collision mesh, scale, up axis and name of a URDF or SDF file, or
-    None when the file does not parse or holds no mesh."""
+    None when the file does not parse (why appended to ``notes``: an entity bomb, an external entity, a
+    malformed file) or holds no mesh."""
     try:
         root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError):
+    except (ET.ParseError, OSError) as exc:
+        if notes is not None:
+            notes.append(unparsed(path, exc))
         return None
     sdf = root.tag == "sdf"
     body = root.find(".//model") if sdf else root
@@ -159,17 +162,25 @@ def _file_name(uri: str | None) -> str | None:
     return re.split(r"[\\/]", uri.strip())[-1] or None
 
 
-def descriptions_in(folder_files: list[Path]) -> list[RobotDescription]:
+def unparsed(path: Path, exc: Exception) -> str:
+    """The warning of a description file that does not parse: its name and the parser's one-line reason."""
+    text = str(exc).splitlines()[0][:200] if str(exc) else ""
+    reason = getattr(exc, "strerror", None) or text or type(exc).__name__
+    return f"{path.name} does not parse, not used: {reason}"
+
+
+def descriptions_in(folder_files: list[Path], notes: list[str] | None = None) -> list[RobotDescription]:
     """The readable URDF/SDF files among a folder's files, by name, then the folder's MJCF files read
-    together as one description (a body file and its ``*_dependencies.xml`` / includes)."""
+    together as one description (a body file and its ``*_dependencies.xml`` / includes). A description
+    that does not parse is left out, and said in ``notes`` (a warning on the folder's objects)."""
     found = []
     for path in sorted(folder_files):
         if path.suffix.lower() in DESCRIPTION_EXTENSIONS:
-            desc = read_description(path)
+            desc = read_description(path, notes)
             if desc is not None:
                 found.append(desc)
     xml = [p for p in sorted(folder_files) if p.suffix.lower() == ".xml" and is_mjcf(p)]
-    model = read_mjcf(xml) if xml else None
+    model = read_mjcf(xml, notes) if xml else None
     if model is not None:
         first = model.parts[0][0] if model.parts else None
         desc = RobotDescription(model.files[0], model.name, first, model.collision[0] if model.collision else None,

@@ -18,7 +18,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Iterable, Iterator
 
-from mixcount.atomic import write_text_atomic
+from mixcount.atomic import write_bytes_atomic
 from mixcount.catalog.layouts import folder as folder_layout
 from mixcount.catalog.layouts import objaverse
 from mixcount.catalog.layouts.candidates import (
@@ -30,9 +30,10 @@ from mixcount.catalog.layouts.candidates import (
     scan_folder,
 )
 from mixcount.catalog.mesh import MESH_EXTENSIONS
-from mixcount.catalog.model_files import relink_textures
+from mixcount.catalog.model_files import relink_textures, seal_gltf
 from mixcount.catalog.naming import DTC_NAME, odd_name_reason, safe_text
 from mixcount.errors import CatalogError
+from mixcount.library_root import LibraryRoots, bounded
 
 
 def _folder_layouts() -> tuple[ModuleType, ...]:
@@ -63,8 +64,13 @@ LAYOUTS = ("auto", *sorted(m.NAME for m in FOLDER_LAYOUTS + (objaverse,)), folde
 class TreeWalker:
     """Walks one root path and yields candidates (see the module docstring for the rules)."""
 
-    def __init__(self, root: Path, layout: str, side: objaverse.SideMetadata, parts: str = "auto") -> None:
+    def __init__(self, root: Path, layout: str, side: objaverse.SideMetadata, parts: str = "auto",
+                 roots: LibraryRoots | None = None) -> None:
         self.root = root
+        # the boundary: the folder named and the extra roots allowed (docs/ingest.md, "The library root is
+        # the boundary"); links and files that leave it are not followed, and listed in ``refused``
+        self.roots = roots or LibraryRoots.of(root)
+        self.refused: list[tuple[Path, str]] = []
         self.parts = parts  # catalog ingest --parts: merge | separate | auto (:mod:`.parts`)
         self.layout = layout
         self.side = side
@@ -185,6 +191,32 @@ class TreeWalker:
         if models:
             yield from folder_layout.read_models(self, folder, entries, models)
 
+    def refuse_outside(self, cand: Candidate) -> None:
+        """Every file of ``cand`` inside the roots (after links are followed): a model file or part outside
+        breaks it (the walk met it through a folder link the listing could not see: ``meshes/`` -> /x),
+        a companion, side file or staged texture outside is dropped with a warning naming it and why."""
+        cand.roots = self.roots
+        if cand.error:
+            return
+        for path in [p for p in (cand.model_path, *(p for p, _m in cand.parts)) if p is not None]:
+            if not self.roots.contains(path):
+                cand.error = (f"model file {safe_text(str(path))} leads outside the library "
+                              f"({safe_text(os.path.realpath(path))}): not read; allow its folder with --allow-root")
+                self.refused.append((path, "a model file outside the library: not read"))
+                return
+        if cand.collision_source is not None and not self.roots.contains(cand.collision_source):
+            cand.collision_source = None
+        for table, what in ((cand.companions, "companion mesh"), (cand.sidecars, "side file"),
+                            (cand.staged, "staged file")):
+            for key, path in list(table.items()):
+                if not self.roots.contains(path):
+                    del table[key]
+                    cand.warnings.append(f"{what} {safe_text(str(path))} leads outside the library "
+                                         f"({safe_text(os.path.realpath(path))}): not read")
+        if cand.staged and (cand.model_path is None or cand.model_path.name not in cand.staged
+                            or any(w.startswith("staged file") for w in cand.warnings)):
+            cand.staged, cand.staged_texts = {}, {}  # staged again by stage(): its materials sealed
+
     def refuse_unusable_names(self, cand: Candidate) -> None:
         """``cand`` broken when a folder or file name on the way to its files (from the path given down)
         cannot be a path here: control characters (a newline), line separators, bytes that are not UTF-8.
@@ -240,13 +272,19 @@ def _drop_linked_copies(found: list[Candidate], repeats: list[tuple[Path, str]])
 def discover(paths: Iterable[Path | str], *, layout: str = "auto",
              metadata_files: Iterable[Path | str] = (),
              skipped: list[tuple[Path, str]] | None = None,
-             repeats: list[tuple[Path, str]] | None = None, parts: str = "auto") -> list[Candidate]:
+             repeats: list[tuple[Path, str]] | None = None, parts: str = "auto",
+             extra_roots: Iterable[Path | str] = (),
+             refused: list[tuple[Path, str]] | None = None) -> list[Candidate]:
     """Every object under ``paths`` (sorted walk, duplicates removed); a missing path, an unknown
     layout or an unusable ``--metadata`` file is a CatalogError. Model files a walk passes over (formats
     in :data:`UNREAD_MODEL_FORMATS`) are appended to ``skipped`` as (path, reason) when it is given;
     folders and linked model files not read again (each real folder and file is read once: loops and
     repeated link targets) to ``repeats``. Objects whose path has a name that cannot be a path here
-    (control characters) are broken (:meth:`TreeWalker.refuse_unusable_names`)."""
+    (control characters) are broken (:meth:`TreeWalker.refuse_unusable_names`).
+
+    Each path is a library whose folder is its boundary, widened by ``extra_roots`` (``--allow-root``,
+    ``[ingest] extra_roots``): a link that leads outside is not followed and a file outside is not read
+    (:meth:`TreeWalker.refuse_outside`); each is appended once to ``refused`` as (path, why)."""
     if layout not in LAYOUTS:
         raise CatalogError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     side = objaverse.SideMetadata(Path(p) for p in metadata_files)
@@ -257,25 +295,30 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
         if not os.path.lexists(path):
             raise CatalogError(f"path not found: {raw}")
         path = path.resolve()
-        walker = TreeWalker(path if path.is_dir() else path.parent, layout, side, parts)
-        if path.is_dir():
-            own = walker.object_at(path)
-            items: Iterable[Candidate] = [own] if own is not None else walker.walk(path)
-        elif path.is_file():
-            items = [walker.file_object(path)]
-        else:
-            try:
-                os.stat(path)
-                items = [Candidate(SOURCE_FOLDER, safe_text(str(path)), safe_text(path.name), "unknown",
-                                   error="not a regular file or folder")]
-            except OSError as exc:
-                items = [broken_path_candidate(path, exc)]
-        for cand in items:
-            walker.refuse_unusable_names(cand)
-            found.setdefault((cand.source, cand.source_id), cand)
+        top = path if path.is_dir() else path.parent
+        walker = TreeWalker(top, layout, side, parts, LibraryRoots.of(top, extra_roots))
+        with bounded(walker.roots, walker.refused):
+            if path.is_dir():
+                own = walker.object_at(path)
+                items: Iterable[Candidate] = [own] if own is not None else walker.walk(path)
+            elif path.is_file():
+                items = [walker.file_object(path)]
+            else:
+                try:
+                    os.stat(path)
+                    items = [Candidate(SOURCE_FOLDER, safe_text(str(path)), safe_text(path.name), "unknown",
+                                       error="not a regular file or folder")]
+                except OSError as exc:
+                    items = [broken_path_candidate(path, exc)]
+            for cand in items:
+                walker.refuse_outside(cand)
+                walker.refuse_unusable_names(cand)
+                found.setdefault((cand.source, cand.source_id), cand)
         if skipped is not None:
             skipped.extend(walker.skipped)
         again.extend(walker.repeats)
+        if refused is not None:
+            refused.extend(r for r in walker.refused if r not in refused)
     kept = _drop_linked_copies(list(found.values()), again)
     if repeats is not None:
         repeats.extend(again)
@@ -283,15 +326,24 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
 
 
 def _relink(cand: Candidate) -> None:
-    """An OBJ whose textures are found only by name is staged with its materials rewritten to name them
-    (:func:`mixcount.catalog.model_files.relink_textures`), so that analysis, renders and USD all see them."""
+    """A model whose references must change to be read from a staged copy is staged with them rewritten:
+    an OBJ whose textures are found only by name, or whose material or textures leave the library
+    (:func:`mixcount.catalog.model_files.relink_textures`), a glTF whose images leave it
+    (:func:`mixcount.catalog.model_files.seal_gltf`), so that analysis, renders and USD all see the same
+    files, and none from outside the library."""
     assert cand.model_path is not None
-    relinked = relink_textures(cand.model_path)
+    roots = cand.roots or LibraryRoots.of(cand.model_path.parent)
+    if cand.model_path.suffix.lower() in (".gltf", ".glb"):
+        relinked = seal_gltf(cand.model_path, roots)
+    else:
+        relinked = relink_textures(cand.model_path, roots)
     if relinked is None:
         return
     cand.staged = {cand.model_path.name: cand.model_path, **relinked.textures}
     cand.staged_texts = dict(relinked.materials)
-    cand.warnings.extend(relinked.notes)
+    if relinked.model is not None:
+        cand.staged_texts[cand.model_path.name] = relinked.model
+    cand.warnings.extend(n for n in relinked.notes if n not in cand.warnings)
 
 
 def _place_file(real: Path, target: Path) -> None:
@@ -325,9 +377,20 @@ def stage(cand: Candidate, staging_root: Path) -> None:
         return
     key = hashlib.sha256(f"{cand.source}\0{cand.source_id}".encode()).hexdigest()[:20]
     folder = staging_root / cand.source / key
+    roots = cand.roots or LibraryRoots.of(cand.model_path.parent)
+    for name, real in list(cand.staged.items()):  # never a link to, or a copy of, a file outside
+        if not roots.contains(real) and name not in cand.staged_texts:
+            del cand.staged[name]
+            cand.warnings.append(f"{safe_text(name)} leads outside the library "
+                                 f"({safe_text(os.path.realpath(real))}): not staged")
+        elif not os.path.normpath(folder / name).startswith(os.path.normpath(folder) + os.sep):
+            cand.error = f"cannot stage {safe_text(name)}: the name leaves the staging folder"
+            return
     try:
         folder.mkdir(parents=True, exist_ok=True)
         for name, real in cand.staged.items():
+            if name in cand.staged_texts:
+                continue  # written below: a rewritten model or material
             link = folder / name
             link.parent.mkdir(parents=True, exist_ok=True)
             if cand.staged_texts:
@@ -345,8 +408,9 @@ def stage(cand: Candidate, staging_root: Path) -> None:
             target = folder / name
             if target.is_symlink():
                 target.unlink()
-            if not target.is_file() or target.read_text(errors="replace") != text:
-                write_text_atomic(target, text)
+            data = text.encode() if isinstance(text, str) else text
+            if not target.is_file() or target.read_bytes() != data:
+                write_bytes_atomic(target, data)
     except OSError as exc:
         cand.error = f"cannot stage the model's files under {folder}: {exc.strerror or exc}"
         return

@@ -70,16 +70,15 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
         cand.metadata["model_file"] = cand.model_path.name  # another model file stood in for 3d-asset.glb
     meta = folder / "metadata.json"
     if meta.is_file():
-        cand.sidecars["metadata.json"] = meta
-        data = json_object(meta, cand)
-        if data is None:
-            return cand
-        cand.metadata.update(data)
-        ident = record_identity(data)
-        if ident["category"]:
-            cand.category = category_text(ident["category"])
-        cand.units, cand.up_axis = ident["units"], ident["up_axis"]
-        cand.license = ident["license"]
+        data = json_object(meta, cand)  # one that does not parse or leads outside: a warning, not read
+        if data is not None:
+            cand.sidecars["metadata.json"] = meta
+            cand.metadata.update(data)
+            ident = record_identity(data)
+            if ident["category"]:
+                cand.category = category_text(ident["category"])
+            cand.units, cand.up_axis = ident["units"], ident["up_axis"]
+            cand.license = ident["license"]
     lic = licence_file_in(entries)  # a licence file beats a licence field
     if lic is not None:
         read_licence_into(cand, lic)

@@ -26,6 +26,7 @@ from mixcount.catalog.layouts.candidates import (
     Candidate,
     Walker,
     apply_identity,
+    ignored_entries,
     preferred_model,
     record_identity,
 )
@@ -33,6 +34,7 @@ from mixcount.catalog.layouts.companions import RobotDescription, companion_base
 from mixcount.catalog.layouts.parts import auto_parts, check_parts, same_model_formats
 from mixcount.catalog.naming import GENERIC_FOLDERS, GENERIC_STEMS, category_from_name, category_from_stem, safe_text
 from mixcount.errors import IngestError
+from mixcount.library_root import refusal
 
 NAME = SOURCE_FOLDER
 
@@ -48,14 +50,19 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
     """Model files of a folder that is not a DTC/GSO/OmniObject3D object."""
     meta_path = folder / "metadata.json"
     record: dict[str, Any] | None = None
-    meta_error: str | None = None
+    # a metadata.json that does not parse, is no object or leads outside the library: a warning on the
+    # folder's objects (said with the reason), which are ingested without it
+    meta_note: str | None = None
     if meta_path.is_file() and ctx.layout != "objaverse":
+        outside = refusal(meta_path, "metadata.json")
         try:
-            data = json_input.read(meta_path)  # too deep / too large: a ValueError of one line
+            data = None if outside else json_input.read(meta_path)  # too deep / too large: one line
         except (OSError, ValueError) as exc:
-            data, meta_error = None, f"metadata.json does not parse: {exc}"
-        if data is not None and not isinstance(data, dict):
-            meta_error = "metadata.json is not a JSON object"
+            data, meta_note = None, f"metadata.json does not parse, not used: {exc}"
+        if outside:
+            meta_note = f"metadata.json not read: {outside}"
+        elif data is not None and not isinstance(data, dict):
+            meta_note = "metadata.json is not a JSON object, not used"
         elif isinstance(data, dict) and not (data and all(isinstance(v, dict) for v in data.values())):
             record = data  # one object's record (a mapping of many records is side metadata)
     if ctx.layout == "objaverse":
@@ -63,36 +70,41 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
             yield ctx.file_object(path)
         return
     files = [Path(e.path) for e in entries]
-    descriptions = descriptions_in(files)
+    unread: list[str] = []  # descriptions that do not parse: a warning on the folder's objects
+    descriptions = descriptions_in(files, unread)
     if not descriptions and record is None and folder != ctx.root and folder.name.strip().lower() in GENERIC_FOLDERS:
-        above = _description_above(folder)  # Toy car/toy_car.xml beside Toy car/meshes/ (an MJCF meshdir)
+        above = _description_above(folder, unread)  # Toy car/toy_car.xml beside Toy car/meshes/ (an MJCF meshdir)
         if above:
             descriptions, folder = above, folder.parent
+    if unread:
+        meta_note = "; ".join(([meta_note] if meta_note else []) + unread)
     main, companions = split_companions(models, descriptions)
     main, copies = same_model_formats(main, MODEL_PREFERENCE)
-    try:
-        rule = check_parts(str(record["parts"]) if record is not None and "parts" in record
-                           else getattr(ctx, "parts", "auto"))
-    except IngestError as exc:
-        rule, meta_error = "auto", meta_error or f"metadata.json: {exc.reason}"
+    stated = record.get("parts") if record is not None else None
+    try:  # "parts": 3 (a count of parts, as several datasets write it) is no rule: ignored, said once
+        rule = check_parts(stated if isinstance(stated, str) else getattr(ctx, "parts", "auto"))
+    except IngestError:
+        rule = check_parts(getattr(ctx, "parts", "auto"))
     described = [d for d in descriptions if d.visual and any(m.name == d.visual for m in main)]
     parts, why = _parts_of(ctx, folder, main, described, rule, record is not None)
     if parts:
         desc = next((d for d in described if d.parts), described[0] if described else None)
         first = parts[0][0]
-        yield _folder_object(ctx, folder, first, models, record, meta_error, meta_path, companions, desc,
+        yield _folder_object(ctx, folder, first, models, record, meta_note, meta_path, companions, desc,
                              parts=parts, parts_rule=why, copies=copies)
         return
     if len(main) > 1 and len(described) == 1 and record is None:
         main = [m for m in main if m.name == described[0].visual]  # the URDF names the model
-    if len(main) == 1 or (record is not None and rule != "separate") or meta_error:
+    if len(main) == 1 or (record is not None and rule != "separate"):
         model = main[0] if len(main) == 1 else preferred_model(main)
         desc = next((d for d in described if d.visual == model.name), None)
-        yield _folder_object(ctx, folder, model, models, record, meta_error, meta_path, companions, desc,
+        yield _folder_object(ctx, folder, model, models, record, meta_note, meta_path, companions, desc,
                              parts_rule=why, copies=copies)
         return
     for path in main:
         cand = ctx.file_object(path)
+        if meta_note and not cand.error:
+            cand.warnings.append(meta_note)
         own = {k: v for k, v in companions.items() if companion_base(v.stem) == path.stem}
         _attach(cand, own, next((d for d in described if d.visual == path.name), None))
         if why:
@@ -100,13 +112,13 @@ def read_models(ctx: Walker, folder: Path, entries: list[os.DirEntry], models: l
         yield cand
 
 
-def _description_above(folder: Path) -> list[RobotDescription]:
+def _description_above(folder: Path, notes: list[str]) -> list[RobotDescription]:
     """The descriptions (URDF/SDF/MJCF) in the folder above a generic mesh folder (``meshes/``)."""
     try:
-        files = sorted(p for p in folder.parent.iterdir() if p.is_file())
+        files = sorted(p for p in folder.parent.iterdir() if p.is_file() and not refusal(p, p.name))
     except OSError:
         return []
-    return descriptions_in(files)
+    return descriptions_in(files, notes)
 
 
 def _parts_of(ctx: Walker, folder: Path, main: list[Path], described: list[RobotDescription], rule: str,
@@ -176,7 +188,7 @@ def _attach(cand: Candidate, companions: dict[str, Path], desc: RobotDescription
 
 
 def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], record: dict[str, Any] | None,
-                   meta_error: str | None, meta_path: Path, companions: dict[str, Path],
+                   meta_note: str | None, meta_path: Path, companions: dict[str, Path],
                    desc: RobotDescription | None, *, parts: list[tuple[Path, Any]] | None = None,
                    parts_rule: str | None = None, copies: list[Path] | None = None) -> Candidate:
     cand = ctx.file_object(model)
@@ -185,9 +197,8 @@ def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], r
     cand.parts, cand.parts_rule = list(parts or []), parts_rule
     if copies:
         cand.metadata["other_formats"] = sorted(p.name for p in copies)
-    if meta_error:
-        cand.error = meta_error
-        return cand
+    if meta_note:
+        cand.warnings.append(meta_note)
     generic = re.sub(r"[\d_\-\s]+$", "", model.stem).lower() in GENERIC_STEMS
     # the folder given to ingest names its model only when it is clearly one object's folder (it holds
     # companions or a URDF/SDF): a folder of loose files keeps its files' names
@@ -210,6 +221,7 @@ def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], r
     if record is not None:
         cand.sidecars["metadata.json"] = meta_path
         cand.metadata.update(record)
+        cand.ignored.extend(ignored_entries(record))
         ident = record_identity(record)
         apply_identity(cand, ident)
         if ident["license"]:

@@ -20,6 +20,7 @@ from mixcount.catalog.layouts.candidates import (
     scan_folder,
 )
 from mixcount.catalog.naming import category_from_name, category_text, odd_name_reason, safe_text
+from mixcount.library_root import refusal
 
 NAME = SOURCE_GSO
 PRIORITY = 10  # folder layouts are tried in this order
@@ -53,20 +54,24 @@ def read(ctx: Walker, folder: Path, entries: list[os.DirEntry]) -> Candidate:
     objs = [p for p in models if p.name == "model.obj"] or [p for p in models if p.suffix.lower() == ".obj"]
     cand.model_path = objs[0] if objs else (preferred_model(models) if models else None)
     pbtxt = folder / "metadata.pbtxt"
-    if pbtxt.is_file():
-        cand.sidecars["metadata.pbtxt"] = pbtxt
+    outside = refusal(pbtxt, "metadata.pbtxt") if pbtxt.is_file() else None
+    if outside:
+        cand.warnings.append(f"metadata.pbtxt not read: {outside}")
+    elif pbtxt.is_file():
         try:
             ident = gso_identity(parse_pbtxt(pbtxt.read_text(encoding="utf-8", errors="replace")))
-        except (OSError, ValueError) as exc:
-            cand.error = f"metadata.pbtxt does not parse: {exc}"
-            return cand
+        except (OSError, ValueError) as exc:  # a warning on the object, which keeps the folder's name
+            ident = {"name": None, "category": None, "license": None}
+            cand.warnings.append(f"metadata.pbtxt does not parse, not used: {str(exc)[:200]}")
+        else:
+            cand.sidecars["metadata.pbtxt"] = pbtxt
         if ident["name"]:
             cand.name = safe_text(ident["name"])
         cand.category = category_text(ident["category"]) if ident["category"] else category_from_name(cand.name)
         cand.license = ident["license"]
         cand.metadata.update({k: v for k, v in ident.items() if v})
     for marker in ("model.config", "model.sdf"):
-        if (folder / marker).is_file():
+        if (folder / marker).is_file() and not refusal(folder / marker, marker):
             cand.sidecars[marker] = folder / marker
     if cand.model_path is None:
         cand.error = "GSO folder has no meshes/model.obj"

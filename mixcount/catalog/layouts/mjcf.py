@@ -97,13 +97,18 @@ def is_mjcf(path: Path) -> bool:
     return False
 
 
-def read_mjcf(paths: list[Path]) -> MjcfModel | None:
-    """The object the MJCF files of one folder describe, or None when none parses or names a mesh."""
+def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | None:
+    """The object the MJCF files of one folder describe, or None when none parses or names a mesh; a file
+    that does not parse is said in ``notes``."""
     roots = []
     for path in sorted(paths):
         try:
             root = ET.parse(path).getroot()
-        except (ET.ParseError, OSError):
+        except (ET.ParseError, OSError) as exc:
+            if notes is not None:
+                text = str(exc).splitlines()[0][:200] if str(exc) else ""
+                reason = getattr(exc, "strerror", None) or text or type(exc).__name__
+                notes.append(f"{path.name} does not parse, not used: {reason}")
             continue
         if root.tag in MJCF_ROOTS:
             roots.append((path, root))

@@ -20,12 +20,14 @@ from mixcount.catalog.layouts.candidates import (
     Candidate,
     Walker,
     apply_identity,
+    ignored_entries,
     model_files_in,
     record_identity,
     scan_folder,
 )
 from mixcount.catalog.naming import category_from_stem, safe_text
 from mixcount.errors import CatalogError
+from mixcount.library_root import refusal
 
 NAME = SOURCE_OBJAVERSE
 SIDE_SUFFIXES = (".json", ".jsonl", ".csv", ".json.gz", ".jsonl.gz", ".csv.gz")
@@ -49,6 +51,7 @@ def read_file(ctx: Walker, path: Path) -> Optional[Candidate]:
     ident = record_identity(rec)
     cand.metadata = {"record": rec, "metadata_file": str(side_file)}
     apply_identity(cand, ident)
+    cand.ignored.extend(ignored_entries(rec, side_file.name))
     cand.license = ident["license"]
     return cand
 
@@ -140,7 +143,8 @@ class SideMetadata:
 
     def _with_side_folders(self, folder: Path) -> list[Path]:
         if folder not in self._side_dirs:
-            self._side_dirs[folder] = [folder] + [folder / n for n in SIDE_FOLDERS if (folder / n).is_dir()]
+            self._side_dirs[folder] = [folder] + [folder / n for n in SIDE_FOLDERS if (folder / n).is_dir()
+                                                  and not refusal(folder / n, f"side metadata folder {n}/")]
         return self._side_dirs[folder]
 
     def lookup(self, uid: str, folder: Path, root: Path) -> tuple[dict[str, Any], Path] | None:
