@@ -39,6 +39,7 @@ RUN_KEYS = frozenset({
     "split", "seed", "workers", "render_threads", "recycle_after", "settle_ahead", "ray_cpus_per_worker",
     "scene_timeout_s", "max_attempts_factor", "preview_scenes", "mesh_cache", "merge",
     "device", "ray_gpus_per_worker",  # where Cycles renders (each scene records it: metadata.json render_device)
+    "min_object_px",  # the floor a run's pixels per counted object are said against, not what a scene is
 })
 CATALOG_KEY = "catalog"
 

@@ -31,6 +31,16 @@ from mixcount.config import Config
 from mixcount.errors import AssetError, CompositionError, MixcountError, StoppedByUser, StorageError, os_error_line
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.run.local import Executor
+from mixcount.run.object_pixels import (
+    IMAGES,
+    PLAN,
+    PixelSizes,
+    PixelTally,
+    measured_object_px,
+    plan_warning,
+    planned_object_px,
+    planned_sizes,
+)
 from mixcount.run.scene_task import EMPTY, FAILED, REJECTED, SKIPPED, WRITTEN, SceneOutcome, SceneTask
 from mixcount.scene_config import RULE_ALL_CAMERAS
 from mixcount.worker.contract import MoreViews, SceneOutputs
@@ -53,6 +63,9 @@ class ComposeSummary:
     damaged: list[dict[str, Any]] = field(default_factory=list)  # finished scenes set aside and redone
     stopped: Optional[str] = None  # the fault that stopped the run (no new seed drawn after it)
     device: Optional[str] = None  # what the scenes rendered on: "cpu" or "gpu" (compose.device resolved)
+    # pixels per counted object (mixcount.run.object_pixels): "plan" (the scenes this run drew) and "images"
+    # (the visible counted objects of the scenes it wrote), each median / smallest against the floor
+    object_px: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -121,8 +134,9 @@ def compose_scenes(
     summary.device = device.device
     from mixcount.run.readiness import missing_steps
 
+    small = plan_warning(first_scenes_px(config, pool, environments, materials, n))
     for warning in [container_warning(pool, comp.split, config.scene), size_warning(pool, comp.split, config.scene),
-                    *missing_steps(pool, comp.split)]:
+                    *missing_steps(pool, comp.split), small]:
         if warning:  # once per run, not once per scene
             summary.warnings.append(warning)
             bar.note(warning)
@@ -137,12 +151,31 @@ def compose_scenes(
         if own_executor:
             executor.close()
     summary.seconds = round(time.perf_counter() - t0, 3)
+    summary.object_px = run.object_px()
     run.raise_if_stopped()
     if summary.written < n:
         bar.note(f"only {summary.written} of {n} scenes written after {run.attempts} attempts")
     if (comp.merge if merge is None else merge) and merge_is_stale(out_dir):
         _merge(out_dir, config, summary, bar)
     return summary
+
+
+PLAN_PX_SCENES = 16  # scenes sampled at the start of a run for its pixels-per-object warning
+
+
+def first_scenes_px(config: Config, pool: list[Any], environments: tuple, materials: tuple, n: int) -> PixelSizes:
+    """Pixels per counted object of the first scenes the run would draw (``compose.seed`` on, at most
+    :data:`PLAN_PX_SCENES`; a seed that cannot be sampled is left out): sampling is cheap, nothing renders."""
+    from mixcount.scene.sampler import sample_scene
+
+    specs = []
+    for seed in range(config.compose.seed, config.compose.seed + min(n, PLAN_PX_SCENES)):
+        try:
+            specs.append(sample_scene(seed, config.compose.split, config, pool, environments=environments,
+                                      materials=materials))
+        except Exception:  # noqa: BLE001 - the run records such a seed as failed; the estimate goes without it
+            continue
+    return planned_sizes(specs, config.compose.min_object_px)
 
 
 def require_split(pool: list[Any], split: str) -> None:
@@ -242,6 +275,8 @@ class _ComposeRun:
     fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
     largest_scene: int = 0  # bytes of the largest scene written by this run (how much free space one needs)
     external: dict[int, str] = field(default_factory=dict)  # object id -> its render's copy under OUT/exemplars
+    planned_px: PixelTally = field(default_factory=PixelTally.empty)  # counted objects' box sides, planned
+    written_px: PixelTally = field(default_factory=PixelTally.empty)  # and in the images this run wrote
 
     def __post_init__(self) -> None:
         comp = self.config.compose
@@ -343,11 +378,18 @@ class _ComposeRun:
             self.stop(StorageError(f"cannot copy external exemplars: {os_error_line(exc)}"))
             return None
         distractors = {d.object_id for d in spec.distractors}
+        self.planned_px.add(planned_object_px(spec))
         return SceneTask(spec=spec, out_dir=str(self.out_dir), assets_dir=str(self.assets_dir),
                          timeout_s=self.config.compose.scene_timeout_s, threads=self.threads, oracle=self.oracle,
                          captions={k: v for k, v in self.captions.items() if k in distractors},
                          external_exemplars={k: self.external[k] for k in sorted(used) if k in self.external},
                          outputs=self.outputs, more_views=self.more_views, device=self.device)
+
+    def object_px(self) -> dict[str, Any]:
+        """The summary's ``object_px``: the plan of the scenes this run drew and the images it wrote."""
+        floor = self.config.compose.min_object_px
+        return {"floor_px": floor, PLAN: self.planned_px.sizes(floor, PLAN).to_dict(),
+                IMAGES: self.written_px.sizes(floor, IMAGES).to_dict()}
 
     def info(self) -> str:
         return f"failed {self.summary.failed}  regenerated {self.summary.empty + self.summary.rejected}"
@@ -381,6 +423,8 @@ class _ComposeRun:
         if outcome.status == WRITTEN:
             summary.written += 1
             self.largest_scene = max(self.largest_scene, recorded_size(Path(outcome.path or "")))
+            if outcome.path:
+                self.written_px.add(measured_object_px(Path(outcome.path)))
         elif outcome.status == SKIPPED:
             summary.written += 1
             summary.skipped += 1

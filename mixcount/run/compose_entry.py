@@ -76,6 +76,7 @@ class ComposeJob:
         ``compose.seed`` that the run draws (:func:`mixcount.run.seed_plan.planned_seeds`: finished and
         thrown-away scenes already in ``out_dir`` are passed over, as the run passes them; a seed that cannot
         be sampled is replaced by the next, as in the run), with what the run will say at its start."""
+        from mixcount.run.object_pixels import plan_warning, planned_sizes
         from mixcount.run.readiness import missing_steps
         from mixcount.run.seed_plan import describe_passed, dry_plan
         from mixcount.scene.sampler import container_warning, sample_scene, size_warning
@@ -93,7 +94,9 @@ class ComposeJob:
                   for seed, err in plan.unsampled]
         lines += describe_passed(plan.passed)
         specs = plan.specs
-        if specs:
+        if specs:  # how large the counted objects will be drawn (the run warns when under the floor)
+            sizes = planned_sizes(specs, config.compose.min_object_px)
+            lines.append(plan_warning(sizes) or sizes.line())
             lines.append(f"the run draws {', '.join(s.scene_id for s in specs[:8])}"
                          + (f" and {len(specs) - 8} more" if len(specs) > 8 else "")
                          + "; a scene that comes out empty at render is replaced by the next seed")
