@@ -82,6 +82,9 @@ def _compose_lines(summary: Any, out_dir: Path, *, merge: bool) -> list[str]:
     written = [str(o.get("scene_id")) for o in (summary.outcomes or []) if o.get("status") == "written"]
     if written:  # the ids, to hold against the dry run's plan
         lines.append("new scenes: " + ", ".join(written[:8]) + (f" and {len(written) - 8} more" if len(written) > 8 else ""))
+    from mixcount.run.object_pixels import summary_lines
+
+    lines += summary_lines(getattr(summary, "object_px", None))  # pixels per counted object against the floor
     if summary.failures:  # what failed and where each failure is explained
         from collections import Counter
 
