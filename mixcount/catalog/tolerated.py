@@ -2,8 +2,9 @@
 
 A missing ``.mtl`` or texture, a texture found by name rather than where its material points, a URDF
 scale that is not applied: the object stays active (as with ``mesh_quality``) and carries one flag per
-problem, kind ``missing_material``, ``missing_texture`` or ``ingest_note``, with the warning as reason.
-``catalog filter`` leaves these kinds alone; each ingest that writes the object writes them again.
+problem, kind ``missing_material``, ``missing_texture``, ``damaged_texture`` (a texture that does not
+decode whole: truncated, lying about its size, over ``[ingest] max_image_pixels``) or ``ingest_note``,
+with the warning as reason. ``catalog filter`` leaves these kinds alone; each ingest that writes the object writes them again.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from sqlalchemy.orm import Session
 from mixcount.catalog.models import CatalogObject, Flag
 
 # flags ingest writes itself: what it tolerated in a model's files (filter keeps them; a change rewrites them)
-INGEST_FLAG_KINDS = ("missing_material", "missing_texture", "ingest_note")
+INGEST_FLAG_KINDS = ("missing_material", "missing_texture", "damaged_texture", "ingest_note")
 
 
 def _warning_kind(warning: str) -> str:
@@ -22,6 +23,8 @@ def _warning_kind(warning: str) -> str:
         return "missing_material"
     if warning.startswith("missing texture file"):
         return "missing_texture"
+    if warning.startswith("texture ") and " does not decode: " in warning:  # media_check.texture_warnings
+        return "damaged_texture"
     return "ingest_note"
 
 
