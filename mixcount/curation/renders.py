@@ -139,6 +139,19 @@ def _upsert(session: Session, object_id: int, view: str) -> Render:
     return row
 
 
+def canonical_fault(result: Any) -> Optional[str]:
+    """Why one of a canonical result's views is no render of its object (Blender's missing-image magenta
+    over the object's mask, or black everywhere: :func:`mixcount.catalog.media_check.render_fault`), or None."""
+    from mixcount.catalog.media_check import render_fault
+
+    for v in result.views:
+        if Path(v.path).is_file():
+            fault = render_fault(v.path, v.mask_path)
+            if fault:
+                return f"{Path(v.path).name}: {fault}"
+    return None
+
+
 def render_catalog(
     catalog: Catalog,
     config: CanonicalRenderConfig,
@@ -185,6 +198,9 @@ def render_catalog(
     def on_result(outcome: RenderOutcome) -> None:
         key = outcome.key
         oid = int(key)
+        fault = canonical_fault(outcome.result) if outcome.result is not None else None
+        if fault:  # a magenta or black render of a textured object: failed, not recorded as its look
+            outcome = RenderOutcome(key, None, fault)
         with catalog.session() as session:
             if outcome.result is not None:
                 for v in outcome.result.views:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Protocol
 
+from mixcount.errors import RenderError
 from mixcount.scene.spec import SceneSpec
 from mixcount.worker.client import Worker
 from mixcount.worker.contract import STATUS_EMPTY, STATUS_OK, MoreViews, SceneOutputs, SceneRequest, SceneResult
@@ -113,6 +114,21 @@ def stage_scene(task: SceneTask) -> Optional[StagedScene]:
     return StagedScene(tmp, _request(task, tmp), round(time.perf_counter() - t, 4))
 
 
+def render_fault_of(tmp: Path, result: SceneResult) -> Optional[str]:
+    """Why the RGB image of one of the scene's cameras is no render of its inputs (black, or Blender's
+    missing-image magenta: :func:`mixcount.catalog.media_check.render_fault`), naming the file; None when
+    every one is a render."""
+    from mixcount.catalog.media_check import render_fault
+
+    for suffix in [v.suffix for v in result.views] or [""]:
+        rgb = tmp / f"rgb{suffix}.png"
+        if rgb.is_file():
+            fault = render_fault(rgb)
+            if fault:
+                return f"{rgb.name}: {fault}"
+    return None
+
+
 class SceneRunner(Protocol):
     """What runs one task on one worker (:func:`run_scene_task`, or a test's own): with settle-ahead on, the
     executor passes the stage it wrote ahead as ``staged``."""
@@ -170,6 +186,9 @@ def run_scene_task(task: SceneTask, worker: Worker, staged: Optional[StagedScene
             return SceneOutcome(spec.scene_id, spec.seed, EMPTY if status == STATUS_EMPTY else REJECTED,
                                 time.perf_counter() - t0, error=f"scene {status}: {reason['why']}", timings=timings,
                                 reason=reason)
+        fault = render_fault_of(tmp, result)
+        if fault:  # black / magenta where the inputs are not: a failed scene, never a written one (issue 68)
+            raise RenderError(f"scene {spec.scene_id}: {fault}")
         t = time.perf_counter()
         timings["total"] = 0.0
         device = _device_record(result)
