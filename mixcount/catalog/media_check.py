@@ -25,6 +25,7 @@ missing-texture magenta, where the inputs were checked whole is a failed render,
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
 import sys
@@ -135,20 +136,23 @@ def _c_output() -> Iterator[list[str]]:
     complaints there, stdout included, which would break ``--json``): the lines land in the list it
     yields, not on the user's terminal."""
     lines: list[str] = []
+    said = io.StringIO()  # what the binding prints through Python's sys.stdout / sys.stderr
     with tempfile.TemporaryFile() as sink:
         _flush_c_streams()
         saved = [os.dup(1), os.dup(2)]
         try:
             os.dup2(sink.fileno(), 1)
             os.dup2(sink.fileno(), 2)
-            yield lines
+            with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+                yield lines
         finally:
             _flush_c_streams()
             for fd, old in zip((1, 2), saved):
                 os.dup2(old, fd)
                 os.close(old)
             sink.seek(0)
-            lines.extend(ln.strip() for ln in sink.read(8192).decode(errors="replace").splitlines() if ln.strip())
+            text = said.getvalue() + sink.read(8192).decode(errors="replace")
+            lines.extend(ln.strip() for ln in text.splitlines() if ln.strip())
 
 
 def _read_exr(path: Path, max_pixels: int) -> tuple[int, int, dict[str, NDArray[np.float32]]]:
@@ -372,7 +376,7 @@ def texture_warnings(files: dict[str, Path], max_pixels: int) -> list[str]:
 
 def magenta_share(rgb: NDArray[np.uint8], mask: Optional[NDArray[np.bool_]] = None) -> float:
     """The share of pixels (within ``mask`` when given) in Blender's missing-image magenta: red and blue
-    within 15 % of each other, above 40 of 255, and green under 10 % of them."""
+    within 15 % of each other, above 24 of 255, and green under 10 % of them."""
     px = rgb.reshape(-1, rgb.shape[-1])[:, :3].astype(np.float32)
     if mask is not None:
         px = px[mask.reshape(-1)]
@@ -380,7 +384,7 @@ def magenta_share(rgb: NDArray[np.uint8], mask: Optional[NDArray[np.bool_]] = No
         return 0.0
     r, g, b = px[:, 0], px[:, 1], px[:, 2]
     hi = np.maximum(r, b)
-    pink = (np.minimum(r, b) > 40) & (np.abs(r - b) <= 0.15 * hi) & (g <= 0.1 * hi)
+    pink = (np.minimum(r, b) > 24) & (np.abs(r - b) <= 0.15 * hi) & (g <= 0.1 * hi)
     return float(pink.mean())
 
 
