@@ -124,7 +124,8 @@ def test_catalog_caption_against_a_dripping_server_ends_at_the_deadline(dripper,
                "--set", f"captions.endpoint={dripper.base}", "catalog", "caption", "--captioner", "http"])
     seconds = time.monotonic() - t0
     err = capsys.readouterr().err
-    print(f"catalog caption against the dripping server: exit {rc} after {seconds:.1f} s\n{err}")
+    with capsys.disabled():
+        print(f"catalog caption against the dripping server: exit {rc} after {seconds:.1f} s\n{err}")
     assert rc == 3 and "Traceback" not in err
     assert 2.5 <= seconds < 3 + 5  # the deadline, both objects at once (captions.concurrency 4), not for ever
     for name in ("Hammer", "Desk lamp"):
