@@ -191,6 +191,8 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float, max_
         sidecar_hash = hashing.files_hash({f"side:{k}": v for k, v in cand.sidecars.items()})
         identity_hash = hashing.json_hash([cand.layout, cand.name, cand.category, cand.license, cand.metadata])
         frame: list[Any] = [settings, cand.units, cand.up_axis, cand.units_reason]
+        if cand.metadata.get("size") is not None:  # a stated size decides the facts (mixcount.sizes.decide_size)
+            frame.append({"size": cand.metadata["size"]})
         if cand.up_axis and cand.model_path.suffix.lower() in GLTF_EXTENSIONS:
             frame.append("gltf up axis as stated")  # once ignored: such objects are measured again
         folder = cand.model_path.resolve().parent

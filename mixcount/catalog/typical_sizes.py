@@ -4,7 +4,7 @@ A model whose size carries no meaning (normalised into a unit cube by an image-t
 for its kind) takes its kind's typical largest side (:func:`mixcount.sizes.decide_size`). Each row is a
 kind, its other names, its typical largest side and a plausible range in metres, and the reference the
 figure comes from (a datasheet, a package or sports standard, a product-dimension listing).
-:func:`kind_size` finds an object's kind from the words of its category, then of its name (the longest
+:func:`kind_size` finds an object's kind from the words of its category and of its name (the longest
 name of a kind found first, a plural "s"/"es" allowed).
 """
 
@@ -40,19 +40,24 @@ def table() -> tuple[tuple[tuple[str, ...], KindSize], ...]:
     return tuple(out)
 
 
-def _find(words: list[str]) -> Optional[KindSize]:
-    forms = [{w, w[:-1] if w.endswith("s") else w, w[:-2] if w.endswith("es") else w} for w in words]
-    for name, size in table():
-        n = len(name)
-        for i in range(len(words) - n + 1):
-            if all(name[j] in forms[i + j] for j in range(n)):
-                return size
-    return None
+def _forms(words: list[str]) -> list[set[str]]:
+    return [{w, w[:-1] if w.endswith("s") else w, w[:-2] if w.endswith("es") else w} for w in words]
+
+
+def _holds(forms: list[set[str]], name: tuple[str, ...]) -> bool:
+    n = len(name)
+    return any(all(name[j] in forms[i + j] for j in range(n)) for i in range(len(forms) - n + 1))
 
 
 def kind_size(name: str, category: str) -> Optional[KindSize]:
-    """The typical size of the kind the object's category names, else its name; None when neither does."""
-    return _find(words_of(category or "")) or _find(words_of(name or ""))
+    """The typical size of the object's kind: the longest name of a kind found in the words of its category
+    or of its name ("Soccer ball" of category "ball" is a soccer ball), the category first at equal length;
+    None when neither names one."""
+    cat, own = _forms(words_of(category or "")), _forms(words_of(name or ""))
+    for words, size in table():
+        if _holds(cat, words) or _holds(own, words):
+            return size
+    return None
 
 
 def size_decision(largest_m: float, extents_file: Any, centre_file: Any, units_reason: str,
