@@ -220,7 +220,9 @@ def _folder_object(ctx: Walker, folder: Path, model: Path, models: list[Path], r
         cand.metadata["companions"] = sorted(companions)
     if record is not None:
         cand.sidecars["metadata.json"] = meta_path
-        cand.metadata.update(record)
+        # the record's own "parts" (a rule, or a count as several datasets write it) is kept as
+        # "parts_stated": "parts" is the catalog's list of the object's part files (catalog show / list)
+        cand.metadata.update({("parts_stated" if k == "parts" else k): v for k, v in record.items()})
         cand.ignored.extend(ignored_entries(record))
         ident = record_identity(record)
         apply_identity(cand, ident)

@@ -1,0 +1,128 @@
+"""`catalog ingest` of a hostile library (tests/hostile_library.py, issue 68 items 1, 7, 8): nothing from
+outside the library is recorded, staged or read; every case is said with its path and reason; a link to
+``/`` costs nothing; metadata of another meaning is ignored and said once; description bombs are a
+warning; the broken objects are reported work, so the command exits 0."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mixcount.catalog.layouts.discovery import discover
+from tests.hostile_library import SECRET, build
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
+# an ingest in a process whose every file open and folder listing is recorded (an audit hook)
+AUDITED = """
+import json, sys
+from pathlib import Path
+seen = []
+def hook(event, args):
+    if event in ("open", "os.scandir", "os.listdir") and args and isinstance(args[0], (str, bytes, Path)):
+        seen.append(str(args[0]))
+sys.addaudithook(hook)
+from mixcount.catalog.db import open_catalog
+from mixcount.catalog.ingest import ingest_paths
+from mixcount.config import load_config
+lib, out = Path(sys.argv[1]), Path(sys.argv[2])
+catalog = open_catalog(f"sqlite:///{out / 'audit.db'}", data_dir=str(out / "audit"))
+ingest_paths(catalog, [lib], config=load_config([], ["ingest.workers=1"]))
+catalog.close()
+print(json.dumps(seen))
+"""
+
+
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    tmp = tmp_path_factory.mktemp("hostile")
+    lib, why = build(tmp)
+    if lib is None:
+        pytest.skip(why)
+    cat = tmp / "cat"
+    cat.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(PROJECT_ROOT)}
+    run = subprocess.run([sys.executable, "-m", "mixcount.cli", "--db", str(cat / "c.db"), "catalog", "ingest",
+                          str(lib), "--json"], capture_output=True, text=True, env=env, timeout=300, cwd=tmp)
+    listed = subprocess.run([sys.executable, "-m", "mixcount.cli", "--db", str(cat / "c.db"), "catalog", "list",
+                             "--json"], capture_output=True, text=True, env=env, timeout=120, cwd=tmp)
+    return {"tmp": tmp, "lib": lib, "cat": cat, "run": run, "summary": json.loads(run.stdout),
+            "objects": json.loads(listed.stdout)}
+
+
+def test_the_run_says_every_case_and_exits_0(hostile: dict) -> None:
+    run, summary, lib = hostile["run"], hostile["summary"], hostile["lib"]
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "Traceback" not in run.stderr
+    refused = {Path(r["path"]).relative_to(lib).as_posix(): r["reason"] for r in summary["refused"]}
+    assert set(refused) == {"rootlink", "outlink", "chain_a", "chain_b", "meta_link/cube/metadata.json",
+                            "model_link/linked.obj", "tex_link/cube/tex.png", "tex_link/passwd/pw.png"}
+    assert all("outside the library" in r for r in refused.values())
+    assert run.stderr.count("rootlink") == 1  # said once, not one line per file under /
+    broken = {b["reason"] for b in summary["broken_objects"]}
+    assert len(broken) == 2 and all(r.startswith("buffer ") and "secret.bin" in r and "outside the library" in r
+                                    for r in broken), broken
+    warnings = " | ".join(w["warning"] for w in summary["warnings"])
+    for ref in ("../../../secret/secret.png", "..%2F..%2F..%2Fsecret%2Fsecret.png", "file:///", "secret.png in cube.mtl refused",
+                "../../../secret/evil.mtl", "tex.png in cube.mtl refused", "pw.png in cube.mtl refused",
+                "metadata.json not read"):
+        assert ref in warnings, ref
+    assert warnings.count("cube.urdf does not parse") == 2  # the bomb and the external entity
+    ignored = {i["entry"] for i in summary["ignored_metadata"]}
+    assert {"metadata.json: parts 3", 'metadata.json: units "unknown"', "metadata.json: up_axis 7"} <= ignored
+    assert not summary["failed"]
+
+
+def test_nothing_from_outside_is_recorded_or_staged(hostile: dict) -> None:
+    objects, lib, cat = hostile["objects"], hostile["lib"], hostile["cat"]
+    for o in objects:
+        path = Path(o["model_path"])
+        assert path.is_relative_to(lib) or path.is_relative_to(cat), o["model_path"]
+        assert not path.is_relative_to(lib) or os.path.realpath(path).startswith(str(lib)), o["model_path"]
+    names = {o["name"] for o in objects}
+    assert "Counted cube" in names and SECRET.decode() not in names
+    assert [o["status"] for o in objects if "odd name [x] 'q' ü" in o["model_path"]] == ["active"]
+    assert not any("dotted" in o["model_path"] for o in objects)  # a ..something folder is hidden: not walked
+    active = [o for o in objects if o["status"] == "active"]
+    assert len(active) == 17 and sum(o["status"] == "broken" for o in objects) == 2
+    boxes = [o for o in active if o["name"] == "box"]
+    assert sorted(o["textured"] for o in boxes) == [False] * 4 + [True]  # the escaped images refused
+    for folder, _dirs, files in os.walk(cat):  # the catalog, its staged copies, collision meshes
+        for name in files:
+            path = Path(folder) / name
+            data = path.read_bytes() if not path.is_symlink() else b""
+            assert SECRET not in data and b"root:x:0:0" not in data, path
+            if path.is_symlink():
+                assert os.path.realpath(path).startswith(str(lib)), (path, os.path.realpath(path))
+
+
+def test_nothing_outside_is_opened_or_listed(hostile: dict) -> None:
+    tmp, lib = hostile["tmp"], hostile["lib"]
+    env = {**os.environ, "PYTHONPATH": str(PROJECT_ROOT)}
+    out = tmp / "audited"
+    out.mkdir()
+    run = subprocess.run([sys.executable, "-c", AUDITED, str(lib), str(out)], capture_output=True, text=True,
+                         env=env, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    seen = json.loads(run.stdout.splitlines()[-1])
+    touched = [p for p in seen if p.startswith((str(tmp / "secret"), str(tmp / "outside"), "/etc/passwd"))]
+    assert not touched, touched
+    assert any(p.startswith(str(lib)) for p in seen)  # the hook saw the library's own files
+
+
+def test_a_link_to_the_root_of_the_file_system_costs_nothing(tmp_path: Path) -> None:
+    lib = tmp_path / "L"
+    (lib / "cube").mkdir(parents=True)
+    (lib / "cube" / "cube.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    os.symlink("/", lib / "rootlink")
+    refused: list[tuple[Path, str]] = []
+    start = time.perf_counter()
+    found = discover([lib], refused=refused)
+    assert time.perf_counter() - start < 2.0
+    assert [c.name for c in found] == ["cube"] and [p.name for p, _r in refused] == ["rootlink"]
