@@ -10,6 +10,7 @@ from typing import Any, Optional
 import typer
 
 from mixcount.commands.common import console, json_option, result, state
+from mixcount.errors import PartialFailure
 
 
 def _lines(summary: Any) -> list[str]:
@@ -39,9 +40,12 @@ def render_cmd(
     passes: Optional[str] = typer.Option(None, "--passes", help="Comma list of passes besides rgb.png (compose.passes)."),
     oracle: bool = typer.Option(False, "--oracle", help="Also run the one-render-per-object reference per view (slow; oracle_masks*.npz)."),
     no_merge: bool = typer.Option(False, "--no-merge", help="Skip the merge at the end."),
+    scenes: list[str] = typer.Option([], "--scene", help="Only this scene id (repeatable; what a run with "
+                                     "failed scenes says to rerun)."),
     json_out: bool = json_option("the run's summary"),
 ) -> None:
-    """Render the finished scenes of DATASET again into a new dataset: no physics, no re-placement."""
+    """Render the finished scenes of DATASET again into a new dataset: no physics, no re-placement. Exits 3
+    when a scene could not be rendered again (one line each, and the command for only those)."""
     from mixcount.run.rerender import rerender_dataset
     from mixcount.worker.client import BlenderWorker
 
@@ -53,10 +57,18 @@ def render_cmd(
     worker = BlenderWorker(name="rerender", log_dir=Path(tempfile.gettempdir()))
     try:
         summary = rerender_dataset(dataset, out_dir, cfg, worker, oracle=oracle, merge=not no_merge,
-                                   progress=lambda k, n: console.print(f"scene {k}/{n}", highlight=False))
+                                   progress=lambda k, n: console.print(f"scene {k}/{n}", highlight=False),
+                                   only=scenes or None)
     finally:
         worker.close()
     result(_lines(summary), summary.to_dict(), json_out)
+    failed = [(str(s["scene_id"]), f"status {s['status']}") for s in summary.scenes if s["status"] != "written"]
+    if failed:
+        again = Path(f"{out_dir}-again")
+        rerun = state(ctx).rerun("--out", str(again), *[w for sid, _ in failed for w in ("--scene", sid)],
+                                 ctx=ctx, drop=("out_dir", "scenes"))
+        raise PartialFailure("scenes rendered again", failed, len(summary.scenes),
+                             rerun=f"{rerun} (a new folder: the re-render never writes into a used one)")
 
 
 def register(app: typer.Typer, catalog_app: typer.Typer) -> None:

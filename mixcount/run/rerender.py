@@ -26,7 +26,7 @@ import time
 import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Collection, Optional
 
 import numpy as np
 
@@ -222,8 +222,9 @@ def rerender_scene(scene_dir: Path, dst: Path, config: Config, worker: Worker, *
 
 
 def rerender_dataset(src: Path, dst: Path, config: Config, worker: Worker, *, oracle: bool, merge: bool,
-                     progress: Optional[Any]) -> RerenderSummary:
-    """Every finished scene of ``src`` rendered again into the new dataset ``dst`` (module docstring).
+                     progress: Optional[Any], only: Optional[Collection[str]] = None) -> RerenderSummary:
+    """Every finished scene of ``src`` (only those whose ids ``only`` names, when given) rendered again into
+    the new dataset ``dst`` (module docstring).
 
     ``dst`` must not exist or be empty, and not be ``src``: the source is never written. The device is
     checked first; nothing is written when it is refused."""
@@ -233,6 +234,11 @@ def rerender_dataset(src: Path, dst: Path, config: Config, worker: Worker, *, or
     if dst.exists() and any(dst.iterdir()):
         raise CompositionError(f"--out {dst} exists and is not empty: the re-render goes into a new folder")
     scenes = finished_scenes(src)
+    if only is not None:
+        unknown = sorted(set(only) - {d.name for d in scenes})
+        if unknown:
+            raise CompositionError(f"{src} holds no finished scene {', '.join(unknown)}: nothing was written")
+        scenes = [d for d in scenes if d.name in set(only)]
     check_scene_files(scenes)
     t0 = time.perf_counter()
     device = probe_device(worker, config.rerender.device, config.rerender.timeout_s)
