@@ -251,8 +251,12 @@ def ingest_env_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(..., h
 
     st = state(ctx)
     ing = st.config().ingest
-    summary = ingest_environments(st.catalog(create=True), paths, max_pixels=ing.max_image_pixels,
-                                  extra_roots=[*ing.extra_roots, *map(str, allow_root)])
+    catalog = st.catalog(create=True)
+    try:
+        summary = ingest_environments(catalog, paths, max_pixels=ing.max_image_pixels,
+                                      extra_roots=[*ing.extra_roots, *map(str, allow_root)])
+    finally:
+        catalog.close()  # the writer lock goes with it
     _assets_result("environments", summary, json_out, st, ctx)
 
 
@@ -265,8 +269,12 @@ def ingest_materials_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(
 
     st = state(ctx)
     ing = st.config().ingest
-    summary = ingest_materials(st.catalog(create=True), paths, max_pixels=ing.max_image_pixels,
-                               extra_roots=[*ing.extra_roots, *map(str, allow_root)])
+    catalog = st.catalog(create=True)
+    try:
+        summary = ingest_materials(catalog, paths, max_pixels=ing.max_image_pixels,
+                                   extra_roots=[*ing.extra_roots, *map(str, allow_root)])
+    finally:
+        catalog.close()  # the writer lock goes with it
     _assets_result("materials", summary, json_out, st, ctx)
 
 
