@@ -166,3 +166,18 @@ def refusal(path: str | os.PathLike[str], what: str) -> str | None:
         refuse(Path(path), exc.reason)
         return exc.reason
     return None
+
+
+def reference_refusal(reference: str | None, base: str | os.PathLike[str], what: str) -> str | None:
+    """Why a path written in a description (a URDF / SDF / MJCF mesh ``filename``) leads outside the roots
+    of the current walk (None when it does not, when it is a package URI such as ``package://`` or
+    ``model://``, matched by file name only, or outside a walk)."""
+    roots = current()
+    if roots is None or not reference or (_SCHEME.match(reference) and not reference.lower().startswith("file:")
+                                          and not _WINDOWS_DRIVE.match(reference)):
+        return None
+    try:
+        roots.resolve(reference, base, what)
+    except OutsideLibraryError as exc:
+        return exc.reason
+    return None

@@ -74,6 +74,7 @@ def test_the_run_says_every_case_and_exits_0(hostile: dict) -> None:
                 "metadata.json not read"):
         assert ref in warnings, ref
     assert warnings.count("cube.urdf does not parse") == 2  # the bomb and the external entity
+    assert "cube.urdf names the mesh ../../../outside/evil_model/cube.obj, outside the library" in warnings
     ignored = {i["entry"] for i in summary["ignored_metadata"]}
     assert {"metadata.json: parts 3", 'metadata.json: units "unknown"', "metadata.json: up_axis 7"} <= ignored
     assert not summary["failed"]
@@ -126,3 +127,51 @@ def test_a_link_to_the_root_of_the_file_system_costs_nothing(tmp_path: Path) -> 
     found = discover([lib], refused=refused)
     assert time.perf_counter() - start < 2.0
     assert [c.name for c in found] == ["cube"] and [p.name for p, _r in refused] == ["rootlink"]
+
+
+def _tiny(lib: Path) -> Path:
+    (lib / "cube").mkdir(parents=True)
+    (lib / "cube" / "cube.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    return lib
+
+
+def test_a_run_left_running_by_a_dead_process_is_closed_as_interrupted(tmp_path: Path, catalog) -> None:
+    from mixcount.catalog.ingest import ingest_paths
+    from mixcount.catalog.ingest_runs import note_running
+    from mixcount.catalog.models import IngestRun
+    from mixcount.config import load_config
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    with catalog.session() as s:
+        rows = [IngestRun(status="running") for _ in range(3)]
+        s.add_all(rows)
+        s.commit()
+        ids = [r.id for r in rows]
+    note_running(catalog.data_dir, ids[1])  # this process: alive, left running
+    notes = catalog.data_dir / "ingest_runs"
+    (notes / f"{ids[2]}.json").write_text(json.dumps({"pid": int(gone.stdout), "started": None,
+                                                      "host": os.uname().nodename}))  # a process that is gone
+    summary = ingest_paths(catalog, [_tiny(tmp_path / "L")], config=load_config([], ["ingest.workers=1"]))
+    assert summary.interrupted_runs == [ids[0], ids[2]]
+    with catalog.session() as s:
+        status = {r.id: r.status for r in s.query(IngestRun)}
+    assert [status[i] for i in ids] == ["interrupted", "running", "interrupted"]
+    assert status[summary.run_id] == "done" and not (notes / f"{summary.run_id}.json").exists()
+
+
+def test_a_failure_of_the_run_exits_3_but_broken_input_exits_0(tmp_path: Path, monkeypatch) -> None:
+    import mixcount.catalog.mesh as mesh
+    from mixcount.cli import main
+
+    lib = _tiny(tmp_path / "L")
+    (lib / "empty").mkdir()
+    (lib / "empty" / "empty.obj").write_text("")  # broken input: reported work, exit 0
+    db = str(tmp_path / "c.db")
+    assert main(["--db", db, "--set", "ingest.workers=1", "catalog", "ingest", str(lib)]) == 0
+
+    def crash(**_kwargs):  # an internal error of the analysis, not of the file
+        raise RuntimeError("simulated internal error")
+
+    monkeypatch.setattr(mesh, "analyse_model", crash)
+    (lib / "cube" / "cube.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 2 0\nv 0 0 2\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    assert main(["--db", db, "--set", "ingest.workers=1", "catalog", "ingest", str(lib)]) == 3

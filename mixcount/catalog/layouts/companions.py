@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from mixcount.catalog.layouts.mjcf import is_mjcf, read_mjcf
+from mixcount.catalog.naming import safe_text
+from mixcount.library_root import reference_refusal
 
 # collision companions: mug_col, duck_vhacd, teddy2_VHACD_CHs, l_finger_collision, cube_collisionfilter
 _COLLISION = re.compile(r"[_\-\s.](col|coll|collider|collision\w*|vhacd\w*|convex|hull|phys|physics)$"
@@ -142,6 +144,11 @@ def read_description(path: Path, notes: list[str] | None = None) -> RobotDescrip
         name = name.rsplit(".", 1)[0]
     desc = RobotDescription(path, name, _file_name(visual_uri), _file_name(collision_uri),
                             kind="SDF" if sdf else "URDF")
+    for uri in dict.fromkeys(u for u in (visual_uri, collision_uri) if u):
+        why = reference_refusal(uri.strip(), path.parent, "mesh path")
+        if why:  # only a file of that name beside the description is ever used: said, never read
+            desc.warnings.append(f"{path.name} names the mesh {safe_text(uri.strip())}, outside the library "
+                                 f"({why.split(' (')[0]}): only {_file_name(uri)} beside it is used")
     scale = _floats(scale_text, 3)
     if scale is not None:
         desc.mesh_scale = (scale[0], scale[1], scale[2])
