@@ -16,6 +16,8 @@ it: (x, y, z) -> (x, -z, y).
 from __future__ import annotations
 
 import os
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator, Optional
 
@@ -131,6 +133,28 @@ def BoundedResolver(source: str, roots: Any = None) -> Any:  # noqa: N802  (a cl
 
 
 _BOUNDED: Any = None
+
+
+@contextmanager
+def quiet_native_output() -> Iterator[None]:
+    """File descriptors 1 and 2 sent to /dev/null for the block: OpenCASCADE (cascadio, a STEP read) prints
+    its parser's complaints (``**** ERR StepFile : Undefined Parsing ...``) straight to them, past Python.
+    The reason a file does not read reaches the user as the object's one-line broken reason instead."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
 
 
 def walk_geometry(scene: Any) -> Iterator[tuple[str, np.ndarray, Any]]:

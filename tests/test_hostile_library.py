@@ -175,3 +175,19 @@ def test_a_failure_of_the_run_exits_3_but_broken_input_exits_0(tmp_path: Path, m
     monkeypatch.setattr(mesh, "analyse_model", crash)
     (lib / "cube" / "cube.obj").write_text("v 0 0 0\nv 2 0 0\nv 0 2 0\nv 0 0 2\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
     assert main(["--db", db, "--set", "ingest.workers=1", "catalog", "ingest", str(lib)]) == 3
+
+
+def test_a_step_file_that_does_not_read_says_so_in_one_line(tmp_path: Path) -> None:
+    lib = tmp_path / "L"
+    (lib / "a").mkdir(parents=True)
+    (lib / "b").mkdir()
+    (lib / "a" / "empty.step").write_bytes(b"")
+    (lib / "b" / "garbage.step").write_bytes(bytes(range(256)) * 8)
+    env = {**os.environ, "PYTHONPATH": str(PROJECT_ROOT)}
+    run = subprocess.run([sys.executable, "-m", "mixcount.cli", "--db", str(tmp_path / "c.db"), "catalog", "ingest",
+                          str(lib)], capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    said = run.stdout + run.stderr
+    assert "ERR StepFile" not in said and "Failed to read STEP" not in said and "/tmp" not in said.split("broken")[-1]
+    broken = [ln for ln in said.splitlines() if ln.startswith("broken ")]
+    assert len(broken) == 2 and all("could not read" in ln and ".step" in ln for ln in broken), broken

@@ -66,7 +66,7 @@ from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  #
 from mixcount.catalog.units import check_units, decide_frame, note_units, units_summary
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
-from mixcount.frame import GLTF_EXTENSIONS
+from mixcount.frame import GLTF_EXTENSIONS, quiet_native_output
 from mixcount.library_root import bounded
 from mixcount.progress import ProgressReporter, as_reporter
 
@@ -453,7 +453,8 @@ def _discover(catalog: Any, paths: list[Path | str], ing: IngestConfig, *, layou
         with bounded(cand.roots) if cand.roots is not None else nullcontext():
             layouts.stage(cand, catalog.staged_dir)
             decide_frame(cand, stated=stated_units, assume=ing.assume_units)  # the unit and why (mixcount.catalog.units)
-            derive(cand, catalog.staged_dir)  # STEP or parts: one GLB in the sources' numbers
+            with quiet_native_output():  # OpenCASCADE's own complaints: the broken reason says it in one line
+                derive(cand, catalog.staged_dir)  # STEP or parts: one GLB in the sources' numbers
     return candidates
 
 

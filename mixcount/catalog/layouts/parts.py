@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from mixcount.errors import IngestError
-from mixcount.frame import load_model
+from mixcount.frame import load_model, quiet_native_output
 
 PARTS_CHOICES = ("auto", "merge", "separate")
 MAX_PARTS = 64  # more model files than this in one folder: a library, not an object
@@ -63,7 +63,8 @@ def names_say_parts(folder_name: str, stems: list[str]) -> bool:
 def _bounds(path: Path) -> np.ndarray | None:
 
     try:
-        scene = load_model(path, force="scene")
+        with quiet_native_output():  # a STEP part: OpenCASCADE prints its complaints past Python
+            scene = load_model(path, force="scene")
         bounds = scene.bounds
     except Exception:  # a file that does not load is judged (and reported) by its own analysis
         return None
