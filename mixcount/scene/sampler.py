@@ -23,9 +23,11 @@ position gets a random class and class order never decides which class ends up o
 
 Sizes (``scene.size_rule``): ``paper`` draws each class's size, the distractors' and fits the container
 to its pile; ``real`` keeps every object at its real size (classes times the instance jitter, distractors
-and the container at real size, no resized pair) and chooses the scene scale per scene
-(:func:`scene_scale`), so the simulation sees bodies of the paper's sizes whatever the real ones
-(2 mm parts or 50 cm boxes); objects without a trustworthy size (:func:`trusted_size`) are left out.
+and the container at real size, no resized pair) and chooses the objects' scale per scene
+(:func:`scene_scale`, the spec's ``scale``) so that the classes land at the paper's scene sizes; every
+other length (spawn heights, margins, floor, camera jitter, rest speed) keeps ``scale``, so the simulation
+sees a paper scene whatever the real sizes (2 mm parts or 50 cm boxes); objects without a trustworthy size
+(:func:`trusted_size`) are left out.
 """
 
 from __future__ import annotations
@@ -185,13 +187,6 @@ def _sample_floor(rng: np.random.Generator, config: SceneConfig, materials: Sequ
     )
 
 
-def _floor_scaled(floor: FloorSpec, factor: float) -> FloorSpec:
-    """``floor`` with every length times ``factor`` (a real-size scene's own scale replaces ``scale``)."""
-    hx, hy = floor.half_extent
-    return FloorSpec(floor.shape, (round(hx * factor, _R), round(hy * factor, _R)),
-                     round(floor.thickness * factor, _R), round(floor.uv_scale_m * factor, _R), floor.material)
-
-
 def _floor_reaching(floor: FloorSpec, half_diagonal: float) -> FloorSpec:
     """``floor`` grown (never shrunk) so that it reaches ``half_diagonal`` from the centre in every direction."""
     hx, hy = floor.half_extent
@@ -324,16 +319,17 @@ def _place_counted(rng: np.random.Generator, config: SceneConfig, drafts: list[C
 
 
 def _place_distractors(rng: np.random.Generator, config: SceneConfig, picks: list[ObjectRecord], pile: _Pile,
-                       first_id: int, *, real: bool = False) -> list[PlacedObject]:
-    """Distractors at their drawn size (``real``: their real size) and yaw, provisionally in a ring around
-    the pile (scene.usda); the worker moves them after physics to free floor in the camera's view
-    (mixcount.scene.framing)."""
+                       first_id: int, *, real_scale: Optional[float] = None) -> list[PlacedObject]:
+    """Distractors at their drawn size (a real-size scene's: their real size x ``real_scale``) and yaw,
+    provisionally in a ring around the pile (scene.usda); the worker moves them after physics to free floor
+    in the camera's view (mixcount.scene.framing)."""
     s = config.scale
     distractors: list[PlacedObject] = []
     placed_xy: list[tuple[float, float, float]] = []
     margin = config.distractor_margin * s
     for obj in picks:
-        size = obj.max_dim * s if real else config.distractor_base_size * s * _u(rng, config.distractor_size_multiplier)
+        size = (obj.max_dim * real_scale if real_scale is not None
+                else config.distractor_base_size * s * _u(rng, config.distractor_size_multiplier))
         f = size / obj.max_dim
         ext = np.asarray(obj.dims) * f
         rho = float(math.hypot(ext[0], ext[1]) / 2)
@@ -472,13 +468,15 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         n = draw_total(target, seed)
     n_classes = min(_ui(rng, config.n_classes), n)
     drafts = build_classes(rng, config, eligible, n_classes, real=real)
-    if real:  # the scene's own scale: every length below in scene metres of it (floor and draws rescaled)
-        s = scene_scale([d.size for d in drafts], config)
+    size_scale = s  # scene metres per real metre of an object: s, or a real-size scene's own
+    if real:
+        # the objects' own scale: the classes land in the paper's scene sizes, so every other length (spawn
+        # heights, margins, floor, camera jitter, rest speed: ·s of the paper's 4.5-12 cm objects) stays the
+        # paper's and physics sees a paper scene; the container and distractors keep their real proportions
+        size_scale = scene_scale([d.size for d in drafts], config)
         for d in drafts:
-            d.size *= s
-        floor = _floor_scaled(floor, s / config.scale)
-        cont_scale = np.full(3, s)  # the container at its real size: no per-axis jitter, no pile fit
-        config = replace(config, scale=s)
+            d.size *= size_scale
+        cont_scale = np.full(3, size_scale)  # the container at its real size: no per-axis jitter, no pile fit
     count_target = None
     elevations: Optional[list[float]] = None
     if target is None:
@@ -520,7 +518,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
     free = [o for o in in_split if o.object_id not in used and not caption_keys(o.captions) & taken]
     n_dist = min(_ui(rng, config.n_distractors), len(free))
     picks = distinct_caption_picks(rng, free, n_dist, taken)
-    distractors = _place_distractors(rng, config, picks, pile, n + 1, real=real)
+    distractors = _place_distractors(rng, config, picks, pile, n + 1, real_scale=size_scale if real else None)
 
     container = None
     if container_obj is not None and extent is not None:
@@ -541,7 +539,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         cameras = [replace(c, framing="pile", pile_area=area) for c in cameras]
 
     return SceneSpec(
-        scene_id=scene_id or scene_id_for(seed), seed=int(seed), split=split, scale=s,
+        scene_id=scene_id or scene_id_for(seed), seed=int(seed), split=split, scale=size_scale,
         config_hash=cfg.hash, classes=tuple(classes), objects=tuple(objects),
         distractors=tuple(distractors), container=container, floor=floor, environment=environment,
         cameras=tuple(cameras), physics=_physics_spec(config),
