@@ -59,17 +59,25 @@ def compose(catalog: "Catalog", out: str | Path, *, n: int, split: Optional[str]
         "compose.samples": samples}.items() if v is not None})
     out = Path(out).resolve()
     summary = ComposeJob.checked(cfg, n=n, out_dir=out).run(catalog, progress=progress)
-    if package_assets:
-        package(out, search=[Path(catalog.usd_assets_dir)])
+    if package_assets:  # each asset checked against the catalog's libraries: one from outside is an error
+        from mixcount.dataset.package import package_with_catalog
+
+        package_with_catalog(out, catalog, cfg).raise_if_refused(out)
     return summary
 
 
-def package(out: str | Path, *, search: Sequence[str | Path] = ()) -> "PackageReport":
+def package(out: str | Path, *, search: Sequence[str | Path] = (), catalog: Optional["Catalog"] = None) -> "PackageReport":
     """Copy every file the dataset's stages use into ``out/assets/`` (``mixcount package``); returns the
-    report (``copied``, ``bytes`` ...). ``search``: folders to find assets whose links are broken, before
-    ``$MIXCOUNT_ASSETS``."""
-    from mixcount.dataset.package import package_assets
+    report (``copied``, ``bytes``, ``refused`` ...). ``search``: folders to find assets whose links are broken,
+    before ``$MIXCOUNT_ASSETS``. ``catalog``: the catalog that made the dataset; each asset is then checked
+    against its libraries first and one from outside them is refused (not copied, ``refused``); without it
+    nothing is checked."""
+    from mixcount.dataset.package import package_assets, package_with_catalog
 
+    if catalog is not None:
+        from mixcount.config import load_config
+
+        return package_with_catalog(Path(out), catalog, load_config(), search=[Path(s) for s in search])
     return package_assets(Path(out), search=[Path(s) for s in search])
 
 

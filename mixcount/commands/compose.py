@@ -186,14 +186,20 @@ def compose_cmd(
         return
     summary = job.run(catalog, executor_kind=executor_kind, workers=workers, address=address,
                       progress=RichProgress(), mixed_settings=mixed_settings)
-    if package_assets:
-        from mixcount.dataset.package import package_assets as copy_assets
+    packaged = None
+    if package_assets:  # each asset checked against the catalog's libraries first (mixcount.dataset.sources)
+        from mixcount.dataset.package import package_with_catalog
 
-        packaged = copy_assets(out_dir, assets_dirs=[Path(catalog.usd_assets_dir)])
-        console.print(f"packaged {len(packaged.copied)} asset file(s) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB)", highlight=False)
+        packaged = package_with_catalog(out_dir, catalog, cfg)
+        for line in packaged.lines():
+            console.print(line, highlight=False, soft_wrap=True, markup=False)
+        console.print(f"packaged {len(packaged.copied)} asset entr(ies) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB "
+                      f"written, {len(packaged.refused)} refused; listed in {out_dir / 'package.json'})", highlight=False)
     result(_compose_lines(summary, out_dir, merge=cfg.compose.merge) + _views_lines(cfg), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
            json_out)
     _fail_on_failed_seeds(st, ctx, summary, n, out_dir)
+    if packaged is not None:
+        packaged.raise_if_refused(out_dir)
 
 
 def _fail_on_failed_seeds(st: Any, ctx: typer.Context, summary: Any, n: int, out_dir: Path) -> None:

@@ -20,10 +20,19 @@ folder and the folders right under it: ``usd_assets/<catalog>/``).
 
 Recorded paths (``metadata.json``, the spec in each stage's ``customLayerData``) are written by
 :func:`mixcount.usd.portable.portable_paths` (``assets/<name>``, ``bpy:<path>``, ``source:<file name>``).
+
+Only library files get in (issue 68; :mod:`mixcount.dataset.sources`): with the catalog that made the
+dataset (``compose --package-assets``, ``mixcount package --db CATALOG``: :func:`package_with_catalog`) each
+entry is checked first, and one whose object's model or a file it names lies outside its library - or
+that is no file of the catalog at all - is refused: not copied, its link taken out, one line naming it.
+``OUT/package.json`` lists every packaged file with its bytes and its sources (library name, id and path
+relative to the library: no absolute path) and the refused entries; the report's ``bytes`` is the sum of
+the files this call wrote, measured on disk after every rewrite.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from dataclasses import dataclass, field
@@ -31,12 +40,14 @@ from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any, Iterable, Optional
 
-from mixcount.atomic import atomic_path
+from mixcount.atomic import atomic_path, write_text_atomic
 from mixcount.errors import PackageError
 from mixcount.usd.portable import ASSETS_DIR, SOURCES_DIR, PathRoots, portable_paths
 
 SEARCH_ENV = "MIXCOUNT_ASSETS"
 STAGE_SUFFIXES = (".usda", ".usdc", ".usd")
+PACKAGE_LIST = "package.json"  # OUT/package.json: every packaged file with its sources, the refused entries
+PACKAGE_LIST_VERSION = 1
 
 
 # ------------------------------------------------------------------------------------ packaging
@@ -50,11 +61,27 @@ class PackageReport:
     kept: list[str] = field(default_factory=list)
     searched: list[str] = field(default_factory=list)
     rewritten: list[str] = field(default_factory=list)
-    bytes: int = 0
+    bytes: int = 0  # of the files this call wrote (copies, rewritten layers, USD sources), measured on disk
+    refused: list[tuple[str, str]] = field(default_factory=list)  # (entry, the one line said)
+    files: list[dict[str, Any]] = field(default_factory=list)  # OUT/package.json's "files"
+    checked: bool = False  # the entries were checked against the catalog's libraries
 
     def to_dict(self) -> dict[str, Any]:
         return {"copied": len(self.copied), "kept": len(self.kept), "found_by_search": len(self.searched),
-                "layers_rewritten": len(self.rewritten), "bytes": self.bytes}
+                "layers_rewritten": len(self.rewritten), "bytes": self.bytes, "refused": len(self.refused),
+                "refused_entries": [e for e, _line in self.refused], "checked": self.checked}
+
+    def lines(self) -> list[str]:
+        """One line per refused entry (what was not copied and why)."""
+        return [f"refused {line}: not copied into the dataset" for _entry, line in self.refused]
+
+    def raise_if_refused(self, out_dir: Path) -> None:
+        """A :class:`PackageError` when an entry was refused (each was said in one line)."""
+        if self.refused:
+            raise PackageError(f"{len(self.refused)} asset entr{'y' if len(self.refused) == 1 else 'ies'} of {out_dir} "
+                               "refused (listed above): they come from outside the catalog's libraries, and the "
+                               "scenes using them no longer open whole; re-ingest the objects' libraries (or allow "
+                               "the folder: [ingest] extra_roots) and compose those scenes again")
 
 
 def search_roots(extra: Iterable[Path] = ()) -> list[Path]:
@@ -142,6 +169,23 @@ def _asset_values(layer: Any) -> list[str]:
     return out
 
 
+def _entry_files(assets: Path, rel: str) -> list[tuple[str, int]]:
+    """(posix path under OUT, bytes) of every regular file of the entry ``assets/<rel>`` (a file or a folder)."""
+    entry = assets / rel
+    if entry.is_symlink():
+        return []
+    files = [entry] if entry.is_file() else sorted(f for f in entry.rglob("*") if f.is_file() and not f.is_symlink())
+    return [(f"{ASSETS_DIR}/{f.relative_to(assets).as_posix()}", f.stat().st_size) for f in files]
+
+
+def _remove_entry(dest: Path) -> None:
+    """A refused entry taken out of the dataset (a link, or a copy an older, unchecked package made)."""
+    if dest.is_symlink() or dest.is_file():
+        dest.unlink()
+    elif dest.is_dir():
+        shutil.rmtree(dest)
+
+
 def _sanitize_layer(path: Path, out_dir: Path, roots: PathRoots, report: PackageReport) -> None:
     """A copied asset layer: its customLayerData paths made portable; a reference to a USD source model
     outside the dataset copied into ``sources/`` and re-pointed relatively."""
@@ -168,7 +212,8 @@ def _sanitize_layer(path: Path, out_dir: Path, roots: PathRoots, report: Package
                 dest = out_dir / ASSETS_DIR / rel
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 if not dest.exists():
-                    report.bytes += _copy(src, dest)
+                    _copy(src, dest)
+                    report.copied.append(rel)
                 ref = Sdf.Reference(Path(os.path.relpath(dest, path.parent)).as_posix(), ref.primPath,
                                     ref.layerOffset, ref.customData)
                 changed = True
@@ -183,18 +228,32 @@ def _sanitize_layer(path: Path, out_dir: Path, roots: PathRoots, report: Package
         report.rewritten.append(path.name)
 
 
-def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: Iterable[Path] = ()) -> PackageReport:
+def package_with_catalog(out_dir: Path, catalog: Any, config: Any, *, search: Iterable[Path] = ()) -> PackageReport:
+    """:func:`package_assets` of a dataset composed from ``catalog``: each entry checked against the
+    catalog's libraries first (``config.ingest.extra_roots`` as configured now widen them)."""
+    from mixcount.dataset.sources import CatalogSources
+
+    return package_assets(out_dir, search=[*search, Path(catalog.usd_assets_dir)],
+                          assets_dirs=[Path(catalog.usd_assets_dir)],
+                          sources=CatalogSources(catalog, config.ingest.extra_roots))
+
+
+def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: Iterable[Path] = (),
+                   sources: Any = None) -> PackageReport:
     """Make ``OUT/assets/`` hold real copies of every file the dataset's stages use.
 
     Each symbolic link is replaced by a copy of its target; an entry whose link is broken, or that a
     stage names and that is missing, is looked for by name in ``search`` and ``$MIXCOUNT_ASSETS``. Copied
-    USD layers get portable customLayerData. Raises :class:`PackageError` naming every entry found
-    nowhere (what was copied before stays; a rerun finishes the job)."""
+    USD layers get portable customLayerData. ``sources`` (a :class:`mixcount.dataset.sources.CatalogSources`;
+    None: nothing checked, for datasets built without a catalog) refuses what did not come from the
+    libraries (module docstring). Writes ``OUT/package.json``. Raises :class:`PackageError` naming every
+    entry found nowhere (what was copied before stays; a rerun finishes the job)."""
     out_dir = Path(out_dir)
     assets = out_dir / ASSETS_DIR
     roots = search_roots(search)
     path_roots = PathRoots(out_dir, tuple(Path(a) for a in assets_dirs) + tuple(roots))
-    report = PackageReport()
+    report = PackageReport(checked=sources is not None)
+    verdicts: dict[str, Any] = {}
     wanted = _referenced_entries(out_dir) if (out_dir / "scenes").is_dir() else set()
     present: set[str] = set()
     if assets.is_dir():
@@ -208,6 +267,8 @@ def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: I
     for rel in sorted(present | wanted):
         dest = assets / rel
         if dest.exists() and not dest.is_symlink():
+            if _refused(sources, rel, dest, dest, report, verdicts):
+                continue
             report.kept.append(rel)
             continue
         src: Optional[Path] = dest.resolve() if dest.is_symlink() and dest.exists() else None
@@ -220,12 +281,53 @@ def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: I
                 continue  # an asset without textures has no texture folder
             missing.append(rel)
             continue
+        if _refused(sources, rel, src, dest, report, verdicts):
+            continue
         dest.parent.mkdir(parents=True, exist_ok=True)
-        report.bytes += _copy(src, dest)
+        _copy(src, dest)
         report.copied.append(rel)
         if dest.suffix in STAGE_SUFFIXES:
             _sanitize_layer(dest, out_dir, path_roots, report)
+    _write_list(out_dir, report, verdicts)
     if missing:
         raise PackageError(f"{len(missing)} asset(s) of {out_dir} found nowhere (links broken and not in "
                            f"${SEARCH_ENV} {os.environ.get(SEARCH_ENV, '')!r}): {', '.join(missing[:10])}")
     return report
+
+
+def _refused(sources: Any, rel: str, target: Optional[Path], dest: Path, report: PackageReport,
+             verdicts: dict[str, Any]) -> bool:
+    """Whether ``rel`` is refused by ``sources`` (then it is taken out of the dataset and said)."""
+    if sources is None:
+        return False
+    verdict = sources.verdict(rel, target)
+    verdicts[rel] = verdict
+    if verdict.ok:
+        return False
+    _remove_entry(dest)
+    report.refused.append((rel, str(verdict.refused)))
+    return True
+
+
+def _write_list(out_dir: Path, report: PackageReport, verdicts: dict[str, Any]) -> None:
+    """``OUT/package.json``: every packaged file (bytes, entry, object ids, sources), the refused entries;
+    ``report.bytes`` = the bytes of the files this call wrote, as they lie on disk now."""
+    assets = out_dir / ASSETS_DIR
+    written = set(report.copied)
+    files: list[dict[str, Any]] = []
+    for rel in sorted(set(report.kept) | written):
+        verdict = verdicts.get(rel)
+        if verdict is None and rel.startswith(f"{SOURCES_DIR}/"):  # a USD source copied with its asset layer
+            verdict = verdicts.get(f"{rel.split('/')[1]}.usdc")
+        for path, size in _entry_files(assets, rel):
+            files.append({"file": path, "bytes": size, "entry": rel,
+                          "object_ids": list(verdict.object_ids) if verdict is not None else [],
+                          "sources": [src.to_dict() for src in verdict.sources] if verdict is not None else []})
+            if rel in written:
+                report.bytes += size
+    report.files = files
+    refused = [{"entry": rel, "object_ids": list(verdicts[rel].object_ids), "why": verdicts[rel].why}
+               for rel, _line in report.refused]
+    doc = {"version": PACKAGE_LIST_VERSION, "checked_against_libraries": report.checked,
+           "bytes": sum(f["bytes"] for f in files), "files": files, "refused": refused}
+    write_text_atomic(out_dir / PACKAGE_LIST, json.dumps(doc, indent=1, ensure_ascii=False) + "\n")
