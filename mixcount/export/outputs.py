@@ -7,7 +7,9 @@ are rewritten on every run. Files in the managed folders that the current run di
 an earlier export of other splits) are removed, so a rerun leaves exactly what a fresh run would.
 
 ``mixcount_export.json`` records the format, source dataset, options and figures of the last run; an
-export folder of one format is never reused for another.
+export folder of one format is never reused for another. The source dataset is recorded as its path
+relative to the export folder (``../out``) and its ``dataset.json`` identity, never as an absolute path of
+the machine that exported it (an export gets published: issue 68).
 """
 
 from __future__ import annotations
@@ -183,9 +185,23 @@ class ExportFolder:
         from mixcount.version import __version__
 
         manifest = {
-            "format": self.fmt, "dataset": str(Path(dataset_root).resolve()), "mixcount": __version__,
+            "format": self.fmt, "dataset": dataset_reference(Path(dataset_root), self.root), "mixcount": __version__,
             "options": options, "figures": figures,
             "files": {"written": self.written, "up_to_date": self.skipped},
         }
         self.write_json(MANIFEST, manifest, indent=1)
         return manifest
+
+
+def dataset_reference(dataset_root: Path, export_root: Path) -> dict[str, Any]:
+    """How an export names the dataset it came from: ``path`` relative to the export folder, its folder
+    ``name`` and the ``dataset_json_sha256`` of its ``dataset.json`` (None without one)."""
+    import hashlib
+
+    src = Path(dataset_root).resolve()
+    try:
+        digest: Optional[str] = hashlib.sha256((src / "dataset.json").read_bytes()).hexdigest()
+    except OSError:
+        digest = None
+    return {"path": Path(os.path.relpath(src, Path(export_root).resolve())).as_posix(), "name": src.name,
+            "dataset_json_sha256": digest}
