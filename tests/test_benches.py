@@ -273,6 +273,17 @@ def test_captions_bench(tmp_path: Path) -> None:
     assert doc["textured"] >= 3 and doc["textured_agree"] == doc["textured"]
 
 
+@pytest.mark.slow
+@pytest.mark.blender
+def test_real_size_physics_bench(tmp_path: Path) -> None:
+    """Issue 70: one real-size scene of 2 mm parts settles with nothing lost, at the scale the rule chose."""
+    doc = run_smoke("real_size_physics", None, args=("--work", str(tmp_path)))[-1]
+    (row,) = doc["summary"]
+    check_figures(row, ["spawned", "lost", "kept", "worst_overlap", "worst_floor_sink"])
+    assert row["band"] == "2 mm" and row["scenes"] == 1 and row["errors"] == 0 and row["lost"] == 0
+    assert row["scales"][0] * 0.0012 >= 0.45  # the smallest part at the paper's smallest scene size
+
+
 def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     """A bench added to bench/ without ``--smoke`` or without its test above fails here (bench/pools.py is
     the benches' shared helper and bench/count_sheet.py, which draws docs/count_targets_look.png from
