@@ -63,6 +63,7 @@ from mixcount.catalog.orientation import (  # noqa: F401  (check_up_axis re-expo
 from mixcount.catalog.proxies import refresh_proxy
 from mixcount.catalog.stale import Before, StoreContext, invalidate
 from mixcount.catalog.tolerated import INGEST_FLAG_KINDS, write_warning_flags  # noqa: F401  (re-exported)
+from mixcount.catalog.typical_sizes import apply_size_of
 from mixcount.catalog.units import check_units, decide_frame, note_units, units_summary
 from mixcount.config import Config, IngestConfig
 from mixcount.errors import IngestError
@@ -365,6 +366,7 @@ def ingest_paths(
     units: str | None = None,
     parts: str = "auto",
     allow_roots: Iterable[Path | str] = (),
+    size_of: Iterable[str] = (),
 ) -> IngestSummary:
     """Ingest every object under ``paths`` into ``catalog``; see the module docstring.
 
@@ -374,13 +376,16 @@ def ingest_paths(
     ``auto``: each file's own rule) is the up axis of every object whose metadata or layout states none,
     glTF included (docs/ingest.md, "Units and up axis"). ``units`` (``--units``) and ``parts`` (``--parts``):
     :mod:`mixcount.catalog.units`, :mod:`mixcount.catalog.layouts.parts`. ``allow_roots`` (``--allow-root``)
-    and ``ingest.extra_roots`` widen each library's boundary (:mod:`mixcount.library_root`).
+    and ``ingest.extra_roots`` widen each library's boundary (:mod:`mixcount.library_root`). ``size_of``
+    (``--size-of FOLDER=SIZE``): the real size of every object under a folder whose metadata states none
+    (:func:`mixcount.catalog.typical_sizes.apply_size_of`).
     """
     paths = list(paths)
     refused: list[tuple[Path, str]] = []
     extra = [*config.ingest.extra_roots, *allow_roots]
     candidates = _discover(catalog, paths, config.ingest, layout=layout, metadata_files=metadata_files,
                            up_axis=up_axis, units=units, parts=parts, extra_roots=extra, refused=refused)
+    apply_size_of(candidates, list(size_of))  # a size stated for whole folders (issue 70)
     run = _start_run(catalog, paths, candidates, config.ingest)
     run.summary.refused = [(safe_text(str(p)), safe_text(r)) for p, r in refused]
     bar = as_reporter(progress)

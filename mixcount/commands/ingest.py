@@ -46,6 +46,10 @@ def ingest_cmd(
         help="A folder outside the library that its files may reference or link into (repeatable; added to "
              "ingest.extra_roots). Anything else outside the folder named is refused for that object "
              "(docs/ingest.md, \"The library root is the boundary\")."),
+    size_of: list[str] = typer.Option(
+        [], "--size-of", metavar="FOLDER=SIZE",
+        help="The real size (largest side: \"14 mm\", \"3.5 in\", \"0.2\" in metres) of every object under FOLDER "
+             "whose metadata.json states no \"size\"; repeatable (docs/ingest.md, \"Sizes\")."),
     metadata: list[Path] = typer.Option(
         [], "--metadata",
         help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
@@ -72,7 +76,7 @@ def ingest_cmd(
     try:
         summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
                                layout=layout, metadata_files=metadata, up_axis=up_axis, units=units,
-                               parts=parts, allow_roots=allow_root)
+                               parts=parts, size_of=size_of, allow_roots=allow_root)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)

@@ -152,6 +152,19 @@ def canonical_fault(result: Any) -> Optional[str]:
     return None
 
 
+def damaged_textures(session: Session) -> dict[int, str]:
+    """Object id -> the reason of its first ``damaged_texture`` flag (a texture that did not decode whole at
+    ingest: :func:`mixcount.catalog.media_check.texture_warnings`). Such an object is not rendered: Blender
+    would paint the image magenta or black, or decode a declared 40000 x 40000 image."""
+    from mixcount.catalog.models import Flag
+
+    out: dict[int, str] = {}
+    for oid, reason in session.execute(select(Flag.object_id, Flag.reason).where(Flag.kind == "damaged_texture")
+                                       .order_by(Flag.id)):
+        out.setdefault(int(oid), str(reason))
+    return out
+
+
 def render_catalog(
     catalog: Catalog,
     config: CanonicalRenderConfig,
@@ -173,9 +186,11 @@ def render_catalog(
     out_dir = catalog.renders_dir
     statuses = [STATUS_ACTIVE, STATUS_EXCLUDED] if include_excluded else [STATUS_ACTIVE]
     jobs: list[tuple[str, CanonicalRequest]] = []
+    refused: list[tuple[str, str]] = []  # objects whose texture did not decode at ingest: never sent to Blender
     names: dict[str, str] = {}
     hashes: dict[str, str] = {}
     with catalog.session() as session:
+        damaged = damaged_textures(session)
         query = select(CatalogObject).where(CatalogObject.status.in_(statuses)).order_by(CatalogObject.id)
         if object_ids is not None:
             query = query.where(CatalogObject.id.in_(list(object_ids)))
@@ -188,12 +203,15 @@ def render_catalog(
                 continue
             key = str(obj.id)
             names[key], hashes[key] = obj.name, model_key(obj, look)
+            if obj.id in damaged:
+                refused.append((key, f"not rendered: {damaged[obj.id]} (flag damaged_texture: replace the file)"))
+                continue
             jobs.append((key, canonical_request(config, obj, out_dir, look)))
-    if not jobs:
+    if not jobs and not refused:
         return summary
 
     bar = as_reporter(progress)
-    bar.start("render", len(jobs))
+    bar.start("render", len(jobs) + len(refused))
 
     def on_result(outcome: RenderOutcome) -> None:
         key = outcome.key
@@ -221,6 +239,8 @@ def render_catalog(
             session.commit()
         bar.advance()
 
+    for key, reason in refused:
+        on_result(RenderOutcome(key, None, reason))
     try:
         run_jobs(jobs, on_result=on_result, workers=config.workers, timeout_s=config.timeout_s,
                  threads_per_worker=config.threads)
