@@ -26,7 +26,7 @@ from sqlalchemy.orm import Session
 
 from mixcount.captions.base import TIERS, Captioner, CaptionInput, CaptionResult
 from mixcount.catalog.db import Catalog
-from mixcount.catalog.decisions import accepted_ids
+from mixcount.catalog.decisions import accepted_ids, latest_pair_decisions
 from mixcount.catalog.grouping import connected_groups
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
@@ -234,10 +234,13 @@ def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: 
                 cs.response_hash = response_hash(result.raw)
                 changed.add(oid)
 
+        apart = kept_apart(session)
         for group in _colliding_groups(captions):
             hashes = {oid: (session.get(CatalogObject, oid).content_hash or f"#{oid}") for oid in group}
             if len(set(hashes.values())) == 1:
-                continue  # one file twice: a true duplicate
+                if any(frozenset((a, b)) in apart for a in group for b in group if a < b):
+                    changed |= _tell_apart_by_name(session, {oid: captions[oid] for oid in group})
+                continue  # one file twice: a true duplicate, unless a person said they differ
             lum = {oid: item_of(oid).colours.luminance for oid in group}
             toned = len(group) == 2 and abs(lum[group[0]] - lum[group[1]]) >= TONE_MIN_DIFFERENCE
             for level, use_tone in TELL_STEPS:
@@ -257,6 +260,36 @@ def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: 
 
 
 separate_collisions = separate_variants
+
+KEPT_APART = ("different", "variants")  # a person's pair decisions that keep both objects as classes of their own
+
+
+def kept_apart(session: Session) -> set[frozenset[int]]:
+    """Pairs a person decided are two objects (``different``) or two versions to keep (``variants``)."""
+    return {pair for pair, rd in latest_pair_decisions(session).items() if rd.decision in KEPT_APART}
+
+
+def _tell_apart_by_name(session: Session, group: dict[int, CaptionSet]) -> set[int]:
+    """One file under several names that a person said are different objects (a 1k and a 10k resistor drawn
+    alike): nothing seen tells them apart, so each caption gets the words of its name the others' lack
+    ("green resistor 1k" / "green resistor 10k"). Returns the objects whose captions changed."""
+    import re
+
+    # the name's tokens as typed ("1k", "10k": a value is one token); the caption check may call such a
+    # token an id (id_fragment), and it is still the only thing the person's names tell apart
+    words = {oid: [t for t in re.split(r"[\s_]+", (session.get(CatalogObject, oid).name or "").lower()) if t]
+             for oid in group}
+    changed: set[int] = set()
+    for oid, cs in group.items():
+        others = set().union(*(set(w) for o, w in words.items() if o != oid))
+        own = [w for w in words[oid] if w not in others]
+        if not own:
+            continue
+        tail = " ".join(own)
+        cs.short, cs.concise = f"{cs.short} {tail}", f"{cs.concise} {tail}"
+        cs.detailed = f"{cs.detailed.rstrip('. ')}, marked {tail}."
+        changed.add(oid)
+    return changed
 
 
 def _tell_apart_by_asking(catalog: Catalog, captioner: Captioner) -> int:
@@ -384,12 +417,14 @@ def collision_groups(pairs: Iterable[tuple[int, int]]) -> list[list[int]]:
 
 def dedupe_collisions(catalog: Catalog) -> int:
     """Keep one active object per collision group (a person-accepted one first, else the lowest id) and
-    exclude the group's other active objects. Never re-activates anything."""
+    exclude the group's other active objects, except one a person decided is a different object from the
+    kept one, or a variant to keep (:data:`KEPT_APART`). Never re-activates anything."""
     with catalog.session() as session:
         flags = session.scalars(select(Flag).where(Flag.kind == COLLISION_KIND)).all()
         pairs = {(min(f.object_id, f.pair_object_id), max(f.object_id, f.pair_object_id))
                  for f in flags if f.pair_object_id is not None}
         accepted = accepted_ids(session)
+        apart = kept_apart(session)  # a person said the two differ: both stay (issue 70)
         excluded = 0
         for group in collision_groups(pairs):
             members = [session.get(CatalogObject, oid) for oid in group]
@@ -398,7 +433,7 @@ def dedupe_collisions(catalog: Catalog) -> int:
                 continue
             keep = next((o for o in live if o.id in accepted), live[0])
             for obj in live:
-                if obj is not keep:
+                if obj is not keep and frozenset((obj.id, keep.id)) not in apart:
                     obj.status = STATUS_EXCLUDED
                     excluded += 1
         session.commit()

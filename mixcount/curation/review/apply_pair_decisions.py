@@ -1,7 +1,9 @@
 """A person's pair decisions applied at once by `catalog review import` (the filter applies them again on
 every run, :func:`mixcount.curation.finding.catalog_filter.run_filter`): ``same`` excludes the worse of the two in the
-filter's quality order, ``variants`` / ``different`` re-activate a side the filter had excluded for
-this pairing; the pair's flags are marked as decided (severity *info*)."""
+filter's quality order, ``variants`` / ``different`` re-activate a side the filter or the caption step had
+excluded for this pairing (an exact duplicate, a caption collision: a person's word that the two differ
+keeps both as classes of their own, issue 70), unless a person rejected that side; the pair's flags are
+marked as decided (severity *info*)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from mixcount.catalog.decisions import latest_decisions, latest_pair_decisions
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Flag
 from mixcount.curation.flag_kinds import (
     APPEARANCE_RANK,
+    CAPTION_COLLISION,
     DECIDED_MARK,
     EXCLUDED_MARK,
     POSSIBLE_COPY,
@@ -39,7 +42,9 @@ def _rank(session: Session, obj: CatalogObject, accepted: set[int]) -> tuple:
 def apply_pair_decisions(session: Session) -> list[dict[str, Any]]:
     """Apply every latest pair decision to statuses and flags; returns the status changes."""
     changes: list[dict[str, Any]] = []
-    accepted = {oid for oid, rd in latest_decisions(session).items() if rd.decision == "accept"}
+    decisions = latest_decisions(session)
+    accepted = {oid for oid, rd in decisions.items() if rd.decision == "accept"}
+    rejected = {oid for oid, rd in decisions.items() if rd.decision == "reject"}
     for pair, rd in latest_pair_decisions(session).items():
         a, b = (session.get(CatalogObject, i) for i in sorted(pair))
         if a is None or b is None:
@@ -69,8 +74,11 @@ def apply_pair_decisions(session: Session) -> list[dict[str, Any]]:
                     f.reason = f"{f.reason} {note}"
         else:
             for x in (a, b):
-                marked = any(f.object_id == x.id and EXCLUDED_MARK in (f.reason or "") for f in flags)
-                if x.status == STATUS_EXCLUDED and marked:
+                # excluded for this pairing: by the filter (its mark), or by the caption step's dedupe of
+                # equal captions (which marks nothing; captioning tells the two apart by name next time)
+                marked = any(f.object_id == x.id and (EXCLUDED_MARK in (f.reason or "") or f.kind == CAPTION_COLLISION)
+                             for f in flags)
+                if x.status == STATUS_EXCLUDED and marked and x.id not in rejected:
                     changes.append({"id": x.id, "name": x.name, "from": x.status, "to": STATUS_ACTIVE})
                     x.status = STATUS_ACTIVE
     session.flush()
