@@ -244,7 +244,8 @@ def decide_size(largest_m: float, *, normalised: bool, unit_stated: bool, stated
         return SizeDecision(1.0, SIZE_MODEL, f"model: {_length(largest_m)} in its unit")
     if kind is None:
         return SizeDecision(1.0, SIZE_NONE, f"no trustworthy size: {why}, and no typical size for its kind "
-                                            "(give \"size\" in metadata.json, e.g. \"size\": \"14 mm\")")
+                                            "(give \"size\" in metadata.json, e.g. \"size\": \"14 mm\", or "
+                                            "catalog ingest --size-of FOLDER=SIZE)")
     return SizeDecision(kind.typical_m / largest_m, SIZE_KIND,
                         f"typical size: {why}; a {kind.kind} is {_length(kind.typical_m)} ({kind.source})")
 

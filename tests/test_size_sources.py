@@ -140,6 +140,25 @@ def test_ingest_says_each_resize_and_each_object_without_a_size(library, tmp_pat
     assert any(line.split() == ["size_source", "kind"] for line in shown.splitlines())
 
 
+def test_a_size_for_a_whole_folder(tmp_path, capsys):
+    """``--size-of FOLDER=SIZE``: every object under the folder without a size of its own takes it; a
+    metadata.json size wins; a value that does not read is one line, before anything is stored."""
+    lib = tmp_path / "lib"
+    for name in ("LED red", "LED green", "LED blue"):
+        (lib / "leds" / name).mkdir(parents=True)
+        trimesh.creation.cylinder(radius=0.3, height=1.0).export(lib / "leds" / name / "model.glb")
+    (lib / "leds" / "LED blue" / "metadata.json").write_text(json.dumps({"size": "5 mm"}))
+    db = str(tmp_path / "catalog.db")
+    assert main(["--db", db, "catalog", "ingest", str(lib), "--workers", "1", "--size-of", f"{lib / 'leds'}=8.6 mm"]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"re-sized LED red: stated size: 8.6 mm (catalog ingest --size-of {lib / 'leds'}=8.6 mm)" in err
+    assert main(["--db", db, "catalog", "list", "--json"]) == 0
+    sizes = {o["name"]: (o["size_source"], round(max(o["dims_m"]), 5)) for o in json.loads(capsys.readouterr().out)}
+    assert sizes == {"LED red": ("stated", 0.0086), "LED green": ("stated", 0.0086), "LED blue": ("stated", 0.005)}
+    assert main(["--db", db, "catalog", "ingest", str(lib), "--size-of", "leds"]) == 2
+    assert "--size-of 'leds': give FOLDER=SIZE" in capsys.readouterr().err
+
+
 def test_a_stated_size_wins_and_a_changed_one_is_measured_again(library, tmp_path, capsys):
     lib = tmp_path / "lib"
     (lib / "Part").mkdir(parents=True)

@@ -15,10 +15,12 @@ import io
 from dataclasses import replace
 from functools import lru_cache
 from importlib import resources
-from typing import Any, Optional
+from pathlib import Path
+from typing import Any, Iterable, Optional, Sequence
 
 import numpy as np
 
+from mixcount.errors import IngestError
 from mixcount.frame import unit_scale
 from mixcount.scene.words import words_of
 from mixcount.sizes import SIZE_NONE, KindSize, SizeDecision, decide_size, looks_normalised, parse_size
@@ -100,3 +102,34 @@ def sized(norm: Any, units_reason: str, hint: Optional[dict[str, Any]]) -> tuple
                        volume=None if full.volume is None else full.volume * f ** 3)
     reason = f"{decision.detail} (unit was: {norm.source_units}, {units_reason or 'assumed'})"
     return replace(norm, source_units=f"{mpu * f:.6g}", full=full), reason, decision.source
+
+
+def check_size_of(values: Sequence[str]) -> list[tuple[Path, float, str]]:
+    """``catalog ingest --size-of DIR=SIZE`` values checked: (folder, largest side in metres, the value as
+    given); an IngestError names a value without ``=`` or whose size does not read (:func:`parse_size`)."""
+    out = []
+    for value in values:
+        folder, sep, size = value.rpartition("=")
+        metres = parse_size(size) if sep and folder else None
+        if metres is None:
+            raise IngestError(f"--size-of {value!r}: give FOLDER=SIZE, the size of every object under FOLDER as "
+                              "its largest side (\"14 mm\", \"3.5 in\", \"0.2\" in metres, or \"120x80x15mm\")")
+        out.append((Path(folder).expanduser().resolve(), metres, value))
+    return out
+
+
+def apply_size_of(candidates: Iterable[Any], values: Sequence[str]) -> None:
+    """A size stated for whole folders (``--size-of``): every candidate under a folder whose metadata.json
+    states no ``size`` takes it (the deepest folder given wins), said as ``catalog ingest --size-of ...``."""
+    rules = sorted(check_size_of(values), key=lambda r: -len(r[0].parts))
+    if not rules:
+        return
+    for cand in candidates:
+        if cand.model_path is None or cand.metadata.get("size") is not None:
+            continue
+        where = Path(cand.metadata.get("source_model_path") or cand.model_path).resolve()
+        for folder, metres, value in rules:
+            if folder == where or folder in where.parents:
+                cand.metadata["size"] = f"{metres:.6g}"
+                cand.metadata["size_stated_by"] = f"catalog ingest --size-of {value}"
+                break
