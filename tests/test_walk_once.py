@@ -30,7 +30,7 @@ def ball(path: Path) -> Path:
 
 def walked(root: Path, extra: tuple[Path, ...] = ()) -> tuple[list, list[tuple[Path, str]]]:
     repeats: list[tuple[Path, str]] = []
-    return discover([root], repeats=repeats, extra_roots=extra), repeats
+    return discover([root], repeats=repeats, allowed=extra), repeats
 
 
 def test_links_to_the_folder_itself_are_walked_once_and_said(tmp_path: Path) -> None:
@@ -66,7 +66,7 @@ def test_a_linked_folder_keeps_its_real_path_and_outside_targets_are_refused(tmp
     assert all("outside the library" in why for _, why in refused)
     # allowed: the folder outside is walked as before, each real folder once
     again: list[tuple[Path, str]] = []
-    found = discover([lib], repeats=again, extra_roots=[outside])
+    found = discover([lib], repeats=again, allowed=[outside])
     assert sorted(Path(c.source_id).relative_to(lib).as_posix() for c in found) == ["out1/cups/cup.glb",
                                                                                   "zz_real/ball.glb"]
     assert "out2" in {p.relative_to(lib).as_posix() for p, _ in again}

@@ -445,7 +445,7 @@ def _discover(catalog: Any, paths: list[Path | str], ing: IngestConfig, *, layou
     """Step 1: every object under ``paths``, oriented, staged, its unit decided and derived models made."""
     stated_units = check_units(units)
     candidates = discover(paths, layout=layout, metadata_files=metadata_files, parts=check_parts(parts),
-                          extra_roots=extra_roots or [], refused=refused)
+                          allowed=extra_roots or [], refused=refused)
     for cand in candidates:
         if cand.layout == SOURCE_OMNI:  # OBJ scans without units: the configured convention of the layout
             cand.units = cand.units or ing.omniobject3d_units

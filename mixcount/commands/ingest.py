@@ -83,21 +83,7 @@ def ingest_cmd(
         raise
     finally:
         catalog.close()
-    for run_id in summary.interrupted_runs:
-        console.print(f"[yellow]closed:[/] ingest run {run_id} was left running by a process that is gone: "
-                      "recorded as interrupted", highlight=False, soft_wrap=True)
-    if summary.refused:
-        console.print(f"[yellow]refused {len(summary.refused)} link(s) or file(s)[/] leading outside the library "
-                      "(not followed, not read; --allow-root DIR to allow a folder):", highlight=False,
-                      soft_wrap=True)
-        for p, reason in summary.refused[:SKIPPED_LINES]:
-            console.print(f"  {escape(p)}: {escape(reason)}", highlight=False, soft_wrap=True)
-        if len(summary.refused) > SKIPPED_LINES:
-            console.print(f"  ... and {len(summary.refused) - SKIPPED_LINES} more (all listed by --json)",
-                          highlight=False)
-    for (entry, expected), n in sorted(summary.ignored.items()):
-        console.print(f"[yellow]ignored[/] {escape(entry)} in {n} object(s): not {escape(expected)}",
-                      highlight=False, soft_wrap=True)
+    _print_boundary(summary)
     for line in summary.container_warnings:
         console.print(f"[yellow]warning:[/] {escape(line)}", highlight=False, soft_wrap=True)
     for name, reason in summary.broken_objects:
@@ -147,6 +133,26 @@ def ingest_cmd(
 SKIPPED_LINES = 20  # skipped files named one per line; the rest are counted
 
 
+def _print_boundary(summary) -> None:  # type: ignore[no-untyped-def]
+    """What the run closed, refused and ignored: earlier runs left running, links and files outside the
+    library (once each, 20 lines then a count), metadata entries of another meaning (once per value)."""
+    for run_id in summary.interrupted_runs:
+        console.print(f"[yellow]closed:[/] ingest run {run_id} was left running by a process that is gone: "
+                      "recorded as interrupted", highlight=False, soft_wrap=True)
+    if summary.refused:
+        console.print(f"[yellow]refused {len(summary.refused)} link(s) or file(s)[/] leading outside the library "
+                      "(not followed, not read; --allow-root DIR to allow a folder):", highlight=False,
+                      soft_wrap=True)
+        for p, reason in summary.refused[:SKIPPED_LINES]:
+            console.print(f"  {escape(p)}: {escape(reason)}", highlight=False, soft_wrap=True)
+        if len(summary.refused) > SKIPPED_LINES:
+            console.print(f"  ... and {len(summary.refused) - SKIPPED_LINES} more (all listed by --json)",
+                          highlight=False)
+    for (entry, expected), n in sorted(summary.ignored.items()):
+        console.print(f"[yellow]ignored[/] {escape(entry)} in {n} object(s): not {escape(expected)}",
+                      highlight=False, soft_wrap=True)
+
+
 def _check_inputs(paths: list[Path], layout: str, metadata: list[Path],
                   repeats: list[tuple[Path, str]], extra_roots: list[str | Path]) -> list[tuple[Path, str]]:
     """Walk every PATH once before the database is opened: a PATH with no model file in it is an error
@@ -162,7 +168,7 @@ def _check_inputs(paths: list[Path], layout: str, metadata: list[Path],
     for path in paths:
         here: list[tuple[Path, str]] = []
         if not discover([path], layout=layout, metadata_files=metadata, skipped=here, repeats=repeats,
-                        extra_roots=extra_roots):
+                        allowed=extra_roots):
             what = (f": only {len(here)} file(s) in formats ingest does not read ("
                     + ", ".join(sorted({p.suffix.lower() for p, _ in here})) + ")") if here else ""
             raise CatalogError(

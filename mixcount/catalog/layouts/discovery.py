@@ -273,7 +273,7 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
              metadata_files: Iterable[Path | str] = (),
              skipped: list[tuple[Path, str]] | None = None,
              repeats: list[tuple[Path, str]] | None = None, parts: str = "auto",
-             extra_roots: Iterable[Path | str] = (),
+             allowed: Iterable[Path | str] = (),
              refused: list[tuple[Path, str]] | None = None) -> list[Candidate]:
     """Every object under ``paths`` (sorted walk, duplicates removed); a missing path, an unknown
     layout or an unusable ``--metadata`` file is a CatalogError. Model files a walk passes over (formats
@@ -282,7 +282,7 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
     repeated link targets) to ``repeats``. Objects whose path has a name that cannot be a path here
     (control characters) are broken (:meth:`TreeWalker.refuse_unusable_names`).
 
-    Each path is a library whose folder is its boundary, widened by ``extra_roots`` (``--allow-root``,
+    Each path is a library whose folder is its boundary, widened by ``allowed`` (``--allow-root``,
     ``[ingest] extra_roots``): a link that leads outside is not followed and a file outside is not read
     (:meth:`TreeWalker.refuse_outside`); each is appended once to ``refused`` as (path, why)."""
     if layout not in LAYOUTS:
@@ -296,7 +296,7 @@ def discover(paths: Iterable[Path | str], *, layout: str = "auto",
             raise CatalogError(f"path not found: {raw}")
         path = path.resolve()
         top = path if path.is_dir() else path.parent
-        walker = TreeWalker(top, layout, side, parts, LibraryRoots.of(top, extra_roots))
+        walker = TreeWalker(top, layout, side, parts, LibraryRoots.of(top, allowed))
         with bounded(walker.roots, walker.refused):
             if path.is_dir():
                 own = walker.object_at(path)
