@@ -12,6 +12,8 @@ MuJoCo reads a model with its includes:
 * a geom in ``group`` 3 or above (hidden by MuJoCo's viewer: the collision geoms of metaworld,
   robosuite and MuJoCo Menagerie), or with ``rgba`` alpha 0, is collision only; its meshes are companions
   (not objects) unless a visual geom uses them too;
+* a geom naming a mesh no ``<asset>`` declares (the body file copied without its dependencies) uses the
+  mesh file of that name in the folder, and a warning says so (:func:`_meshes_by_name`);
 * the first body holding visual mesh geoms is the object; its visual meshes are its parts, each placed
   by its body chain and geom transform (MuJoCo's world is Z-up, lengths in metres).
 """
@@ -24,6 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from mixcount.catalog.naming import safe_text
 
 MJCF_ROOTS = ("mujoco", "mujocoinclude")
 
@@ -125,7 +129,9 @@ def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | 
                 meshes[name] = (Path(file.replace("\\", "/")).name, _floats(mesh.get("scale")))
         for top in root.findall("default"):
             _defaults(top, {}, classes)
+    found_by_name = _meshes_by_name(roots, meshes, classes)
     model = MjcfModel([p for p, _r in roots], None)
+    model.warnings.extend(found_by_name)
     used_visual: set[str] = set()
     used_collision: set[str] = set()
     for _p, root in roots:
@@ -145,6 +151,32 @@ def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | 
     if not model.parts and not model.collision:
         return None
     return model
+
+
+MESH_FILES = (".stl", ".obj", ".ply", ".msh", ".glb", ".gltf")  # what a <mesh file> names, as the folder holds it
+
+
+def _meshes_by_name(roots: list[tuple[Path, ET.Element]], meshes: dict[str, tuple[str, list[float] | None]],
+                    classes: dict[str, dict[str, str]]) -> list[str]:
+    """A geom naming a mesh that no ``<asset>`` of the folder declares (its ``*_dependencies.xml`` was not
+    copied, only the body file and the meshes beside it): the mesh file of that name in the description's
+    folder is used (``mesh="mug"`` -> ``mug.stl``), added to ``meshes``; returns the warnings that say so.
+    Without this the description was ignored and the object read in the wrong frame (on its side)."""
+    folders = {p.parent for p, _r in roots}
+    files = {f.stem.lower(): f for d in sorted(folders) for f in sorted(d.iterdir())
+             if f.is_file() and f.suffix.lower() in MESH_FILES}
+    said = []
+    for path, root in roots:
+        for geom in root.iter("geom"):
+            cls = geom.get("class") or "main"
+            name = geom.get("mesh") or {**classes.get("main", {}), **classes.get(cls, {})}.get("mesh")
+            if not name or name in meshes or name.lower() not in files:
+                continue
+            found = files[name.lower()]
+            meshes[name] = (found.name, None)
+            said.append(f"{path.name} names the mesh {safe_text(name)!r}, which no <asset> beside it declares: "
+                        f"{safe_text(found.name)} in its folder is used (scale 1)")
+    return said
 
 
 def _body_parts(body: ET.Element, parent: np.ndarray | None, childclass: str | None,
