@@ -310,7 +310,8 @@ def _refused(sources: Any, rel: str, target: Optional[Path], dest: Path, report:
 
 
 def _write_list(out_dir: Path, report: PackageReport, verdicts: dict[str, Any]) -> None:
-    """``OUT/package.json``: every packaged file (bytes, entry, object ids, sources), the refused entries;
+    """``OUT/package.json``: every packaged file (bytes, entry, whether this call wrote it, object ids,
+    sources), the refused entries;
     ``report.bytes`` = the bytes of the files this call wrote, as they lie on disk now."""
     assets = out_dir / ASSETS_DIR
     written = set(report.copied)
@@ -320,7 +321,7 @@ def _write_list(out_dir: Path, report: PackageReport, verdicts: dict[str, Any]) 
         if verdict is None and rel.startswith(f"{SOURCES_DIR}/"):  # a USD source copied with its asset layer
             verdict = verdicts.get(f"{rel.split('/')[1]}.usdc")
         for path, size in _entry_files(assets, rel):
-            files.append({"file": path, "bytes": size, "entry": rel,
+            files.append({"file": path, "bytes": size, "entry": rel, "written": rel in written,
                           "object_ids": list(verdict.object_ids) if verdict is not None else [],
                           "sources": [src.to_dict() for src in verdict.sources] if verdict is not None else []})
             if rel in written:
