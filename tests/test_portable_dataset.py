@@ -161,8 +161,8 @@ def test_moved_dataset_opens_merges_exports_and_rerenders_without_the_catalog(tw
     os.rename(catalog_assets, hidden)  # the catalog's converted assets are gone from where the links point
     try:
         env = {**os.environ, "MIXCOUNT_ASSETS": str(hidden)}
-        proc = subprocess.run([sys.executable, "-m", "mixcount", "package", str(moved), "--json"], capture_output=True, text=True,
-                              env=env, timeout=300)
+        proc = subprocess.run([sys.executable, "-m", "mixcount", "--db", str(root / "catalog.db"), "package", str(moved),
+                               "--json"], capture_output=True, text=True, env=env, timeout=300)  # the catalog vouches
         assert proc.returncode == 0, proc.stderr[-2000:]
         report = json.loads(proc.stdout)
         assert report["copied"] > 0 and report["found_by_search"] > 0
