@@ -42,6 +42,7 @@ CASES = {
     "tex_link": "a texture that is a link to the secret (and one to /etc/passwd)",
     "model_link": "a model file that is a link to a model outside",
     "meta_link": "metadata.json that is a link to a JSON file outside",
+    "licence_link": "a LICENSE that is a link to a file outside (its text would be the objects' licence)",
     "urdf_out": "a URDF whose mesh filename leaves the library",
     "urdf_bomb": "an entity-bomb URDF beside a model",
     "urdf_xxe": "a URDF with an external entity naming the secret",
@@ -143,6 +144,8 @@ def build(tmp: Path) -> tuple[Path | None, str]:
     os.symlink("/etc/passwd", lib / "tex_link" / "passwd" / "pw.png")
     (lib / "model_link").mkdir()
     os.symlink(outside / "evil_model" / "cube.obj", lib / "model_link" / "linked.obj")
+    _cube(pyb, lib / "licence_link" / "cube")
+    os.symlink(secret / "secret.json", lib / "licence_link" / "LICENSE")
     _cube(pyb, lib / "meta_link" / "cube")
     os.symlink(secret / "secret.json", lib / "meta_link" / "cube" / "metadata.json")
     folder = _cube(pyb, lib / "urdf_out" / "cube").parent

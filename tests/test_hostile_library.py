@@ -62,7 +62,8 @@ def test_the_run_says_every_case_and_exits_0(hostile: dict) -> None:
     assert "Traceback" not in run.stderr
     refused = {Path(r["path"]).relative_to(lib).as_posix(): r["reason"] for r in summary["refused"]}
     assert set(refused) == {"rootlink", "outlink", "chain_a", "chain_b", "meta_link/cube/metadata.json",
-                            "model_link/linked.obj", "tex_link/cube/tex.png", "tex_link/passwd/pw.png"}
+                            "model_link/linked.obj", "tex_link/cube/tex.png", "tex_link/passwd/pw.png",
+                            "licence_link/LICENSE"}
     assert all("outside the library" in r for r in refused.values())
     assert run.stderr.count("rootlink") == 1  # said once, not one line per file under /
     broken = {b["reason"] for b in summary["broken_objects"]}
@@ -91,7 +92,8 @@ def test_nothing_from_outside_is_recorded_or_staged(hostile: dict) -> None:
     assert [o["status"] for o in objects if "odd name [x] 'q' ü" in o["model_path"]] == ["active"]
     assert not any("dotted" in o["model_path"] for o in objects)  # a ..something folder is hidden: not walked
     active = [o for o in objects if o["status"] == "active"]
-    assert len(active) == 17 and sum(o["status"] == "broken" for o in objects) == 2
+    assert len(active) == 18 and sum(o["status"] == "broken" for o in objects) == 2
+    assert not any(SECRET.decode() in (o["license"] or "") for o in objects)
     boxes = [o for o in active if o["name"] == "box"]
     assert sorted(o["textured"] for o in boxes) == [False] * 4 + [True]  # the escaped images refused
     for folder, _dirs, files in os.walk(cat):  # the catalog, its staged copies, collision meshes

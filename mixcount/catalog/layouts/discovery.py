@@ -84,7 +84,9 @@ class TreeWalker:
             found = None
             try:
                 for e in scan_folder(folder):
-                    if LICENCE_NAMES.match(e.name) and e.is_file():
+                    # inside the roots, or (an object folder named itself) a real file of the folder above
+                    if LICENCE_NAMES.match(e.name) and e.is_file() and (
+                            self.roots.contains(e.path) or os.path.realpath(e.path) == os.path.abspath(e.path)):
                         found = (read_licence(Path(e.path)), Path(e.path))
                         break
             except OSError:
