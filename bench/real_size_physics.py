@@ -8,7 +8,7 @@ Per band a small library of parts is written (a cylinder like a radial capacitor
 sizes stated in metadata.json: the band's size and 0.6 x it, and a tray 12 x 8 x 1.5 band sizes as the
 container), ingested into its own catalog (every object in train), and composed end to end by the worker
 with ``scene.size_rule = "real"`` (default physics: 300 frames, 8 substeps, convex hulls) at 32 px and 1
-sample: bands 2 mm, 2 cm, 20 cm, 50 cm; two mixed libraries (2 mm parts beside 2 cm ones, 2 cm beside 50 cm:
+sample, every other scene in the tray: bands 2 mm, 2 cm, 20 cm, 50 cm; two mixed libraries (2 mm parts beside 2 cm ones, 2 cm beside 50 cm:
 one scale per scene, so the small class is at the paper's smallest and the large one 10 or 25 x it); and the
 2 cm library under the paper's rule as the baseline of today's settling.
 
@@ -151,10 +151,11 @@ def run_band(work: Path, name: str, sizes: list[float], rule: str, seeds: list[i
     cat.close()
     out = work / "out" / f"{name.replace(' ', '').replace('+', '_')}_{rule}"
     rows = []
-    for seed in seeds:
+    for k, seed in enumerate(seeds):  # every other scene in the band's tray
         args = ["--db", str(db), "--set", f'scene.size_rule="{rule}"', "--set", f"scene.n_objects=[{n.replace('-', ',')}]",
                 "--set", "scene.n_classes=[2,2]", "--set", "scene.n_distractors=[0,0]",
-                "--set", "scene.no_container_probability=0.5", "compose", "--n", "1", "--split", "train",
+                "--set", 'scene.counted_exclude_categories=["tray"]',
+                "--set", f"scene.no_container_probability={1.0 if k % 2 == 0 else 0.0}", "compose", "--n", "1", "--split", "train",
                 "--seed", str(seed), "--resolution", str(resolution), "--samples", "1", "--out", str(out)]
         before = set((out / "scenes").glob("scene_*")) if (out / "scenes").is_dir() else set()
         t0 = time.perf_counter()
@@ -172,7 +173,7 @@ def run_band(work: Path, name: str, sizes: list[float], rule: str, seeds: list[i
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, default=None, help="work folder (default: a temporary one)")
-    ap.add_argument("--seeds", type=int, default=2, help="scenes per band")
+    ap.add_argument("--seeds", type=int, default=2, help="scenes per band (the odd ones in the band's tray)")
     ap.add_argument("--n", default="30-50", help="counted bodies spawned per scene, low-high")
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--smoke", action="store_true", help="one band, one scene of 8-10 bodies")

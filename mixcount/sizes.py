@@ -220,7 +220,7 @@ def decide_size(largest_m: float, *, normalised: bool, unit_stated: bool, stated
     """The real size of a model whose largest side is ``largest_m`` as read in its unit. First that speaks:
 
     1. a size the user stated (``stated_m``, said by ``stated_by``): the model is scaled to it;
-    2. a unit the user stated (``unit_stated``): the model's size, never second-guessed;
+    2. a unit the user or a description file stated (``unit_stated``): the model's size, never second-guessed;
     3. the model's own size when it means something: not ``normalised`` and plausible for its ``kind``
        (within :data:`KIND_SLACK` x of its range), or, without a kind, for an everyday object;
     4. the kind's typical size (a normalised or implausible model of a kind in the table);

@@ -201,7 +201,9 @@ def test_real_exports_are_objects_of_their_real_size(real_library):
             assert 0.5 <= ratio <= 2.0, (name, rec["dims_m"], want.largest_m)
     if "Wuson" in recs:  # a PLY with no unit, implausible in ingest.assume_units: said, not re-read
         assert "would be" in recs["Wuson"]["units_reason"]
-        assert [n for n, _r in summary.implausible] == ["Wuson"]
+        # and assimp's textured box, a glTF cube of 1 m centred on the origin, is normalised: no trustworthy size
+        # (issue 70, mixcount.sizes.decide_size), said
+        assert sorted(n for n, _r in summary.implausible) == sorted(["Wuson"] + ["Textured box"] * ("Textured box" in recs))
 
 
 def test_step_and_stl_of_one_model_are_one_object(real_library):

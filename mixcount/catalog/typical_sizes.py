@@ -66,12 +66,13 @@ def size_decision(largest_m: float, extents_file: Any, centre_file: Any, units_r
                   hint: Optional[dict[str, Any]]) -> SizeDecision:
     """:func:`mixcount.sizes.decide_size` for one model: ``largest_m`` its largest side as read in its unit,
     ``extents_file`` / ``centre_file`` its box in the file's own numbers (for :func:`looks_normalised`),
-    ``units_reason`` why it is read in that unit, ``hint`` the ingest's ``size_hint`` (name, category, the
+    ``units_reason`` why it is read in that unit (a unit the user stated or a description file's scale, a
+    URDF / MJCF / SDF, is the model's word on its size: never second-guessed), ``hint`` the ingest's ``size_hint`` (name, category, the
     stated size and who stated it)."""
     hint = hint or {}
     stated = parse_size(hint.get("stated")) if hint.get("stated") is not None else None
     return decide_size(largest_m, normalised=looks_normalised(extents_file, centre_file),
-                       unit_stated=(units_reason or "").startswith("stated"), stated_m=stated,
+                       unit_stated=(units_reason or "").startswith(("stated", "description")), stated_m=stated,
                        stated_by=str(hint.get("stated_by") or "stated"),
                        kind=kind_size(str(hint.get("name") or ""), str(hint.get("category") or "")))
 

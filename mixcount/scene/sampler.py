@@ -294,16 +294,20 @@ class _Pile:
 
 
 def _place_counted(rng: np.random.Generator, config: SceneConfig, drafts: list[ClassDraft],
-                   inst_class: NDArray[Any], sizes: NDArray[Any], pile: _Pile) -> list[PlacedObject]:
-    """Spawn poses above the pile's ellipse (or square), in waves when stacked; random orientations."""
+                   inst_class: NDArray[Any], sizes: NDArray[Any], pile: _Pile, real: bool = False) -> list[PlacedObject]:
+    """Spawn poses above the pile's ellipse (or square), in waves when stacked; random orientations. A
+    real-size scene's bodies never start with their bounding sphere below the pile's base (a class 10-40 x
+    the paper's smallest is larger than the height range's low end)."""
     s, n = config.scale, len(inst_class)
     z_range = (pile.base_z + config.spawn_height[0] * s, pile.base_z + config.spawn_height[1] * s)
     positions = spawn_positions(rng, sizes / 2, pile.centre, pile.semi, pile.yaw, z_range, config.spawn_max_tries,
-                                 pile.ellipse, config.spawn_stack)
+                                 pile.ellipse, config.spawn_stack, base_z=pile.base_z if real else None)
     release = np.ones(n, dtype=int)
     if config.spawn_stack and config.spawn_release_waves:
         positions, release = release_waves(positions, z_range, config.spawn_wave_clearance * s,
                                             config.spawn_wave_interval_frames)
+        if real:
+            positions[:, 2] = np.maximum(positions[:, 2], pile.base_z + sizes / 2)
     if config.random_orientation:
         orients = _random_quats(rng, n).tolist()
     else:
@@ -395,7 +399,9 @@ def _asset_refs(objs: Sequence[ObjectRecord]) -> tuple[AssetRef, ...]:
     )
 
 
-def _physics_spec(config: SceneConfig) -> PhysicsSpec:
+def _physics_spec(config: SceneConfig, largest: float = 0.0) -> PhysicsSpec:
+    """The stage's physics; ``largest`` (a real-size scene's largest counted body, scene metres): the floor
+    collider is never shallower than it (a body larger than the collider's depth pushed through it)."""
     s = config.scale
     return PhysicsSpec(
         frames=config.physics_frames, substeps=config.physics_substeps,
@@ -403,7 +409,7 @@ def _physics_spec(config: SceneConfig) -> PhysicsSpec:
         gravity=config.gravity, settle_below_floor_fraction=config.settle_below_floor_fraction,
         settle_penetration_fraction=config.settle_penetration_fraction,
         collision_proxies=bool(config.collision_proxies), rest_speed=round(float(config.physics_rest_speed) * s, 6),
-        floor_collider_depth=round(float(config.physics_floor_collider_depth) * s, 6))
+        floor_collider_depth=round(max(float(config.physics_floor_collider_depth) * s, largest), 6))
 
 
 def _target_spawn(seed: int, config: SceneConfig, target: CountDistribution, n: int, drafts: list[ClassDraft],
@@ -508,7 +514,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         extent = np.asarray(container_obj.dims) * cont_scale
     pile = _Pile(config, extent, yaw)
     floor = _floor_reaching(floor, pile.half_diagonal + config.floor_pile_margin * s)
-    objects = _place_counted(rng, config, drafts, inst_class, sizes, pile)
+    objects = _place_counted(rng, config, drafts, inst_class, sizes, pile, real)
 
     # distractors: other objects of the split, each once (never sharing a caption with a class, in its
     # own or its size-qualified form, or with each other)
@@ -542,7 +548,7 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         scene_id=scene_id or scene_id_for(seed), seed=int(seed), split=split, scale=size_scale,
         config_hash=cfg.hash, classes=tuple(classes), objects=tuple(objects),
         distractors=tuple(distractors), container=container, floor=floor, environment=environment,
-        cameras=tuple(cameras), physics=_physics_spec(config),
+        cameras=tuple(cameras), physics=_physics_spec(config, float(sizes.max()) if real and len(sizes) else 0.0),
         render=RenderSpec(resolution=compose.resolution, samples=compose.samples, denoise=compose.denoise,
                           visibility_threshold=compose.visibility_threshold,
                           denoise_prefilter=compose.denoise_prefilter, cycles=cfg.cycles),

@@ -6,7 +6,7 @@ along a direction. Split out of the sampler so that it reads by concern.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,10 +14,12 @@ from numpy.typing import NDArray
 
 def spawn_positions(rng: np.random.Generator, radii: NDArray[Any], centre: NDArray[Any], semi: tuple[float, float],
                      yaw: float, z_range: tuple[float, float], tries: int, ellipse: bool,
-                     stack: bool = True) -> NDArray[Any]:
+                     stack: bool = True, base_z: Optional[float] = None) -> NDArray[Any]:
     """Uniform points in the (rotated) ellipse or square, heights in z_range; each instance takes the
     first of ``tries`` candidates whose bounding sphere misses the ones placed so far, else the
-    candidate with the most clearance, lifted (``stack``) above the spheres already in its column."""
+    candidate with the most clearance, lifted (``stack``) above the spheres already in its column.
+    ``base_z`` (a real-size scene, whose bodies may be larger than the height range's low end): no
+    candidate's bounding sphere reaches below it (a body that started inside the floor fell through it)."""
     n = len(radii)
     out = np.zeros((n, 3))
     if n == 0:
@@ -32,6 +34,8 @@ def spawn_positions(rng: np.random.Generator, radii: NDArray[Any], centre: NDArr
         ly = rng.uniform(-semi[1], semi[1], (n, tries))
     cand = np.stack([centre[0] + c * lx - s_ * ly, centre[1] + s_ * lx + c * ly,
                      rng.uniform(z_range[0], z_range[1], (n, tries))], axis=2)
+    if base_z is not None:
+        cand[:, :, 2] = np.maximum(cand[:, :, 2], base_z + np.asarray(radii, dtype=np.float64)[:, None])
     out[0] = cand[0, 0]
     for i in range(1, n):
         # squared centre distances against squared sums of radii: no square roots unless no spot is free
