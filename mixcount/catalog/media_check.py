@@ -399,8 +399,8 @@ def render_fault(rgb_path: Path | str, mask_path: Optional[Path | str] = None) -
         rgb = np.asarray(im.convert("RGB"))
     mean = float(rgb.mean())
     if mean < BLACK_MEAN:
-        return (f"the render is black (mean {mean:.2f} of 255): an environment map or lights that gave no "
-                "light, though they were decoded whole at ingest")
+        return (f"the render is black (mean {mean:.2f} of 255): no light reached the camera (an environment "
+                "map damaged since it was ingested, or lights at zero)")
     mask = None
     if mask_path is not None and Path(mask_path).is_file():
         with Image.open(mask_path) as im:
