@@ -76,6 +76,7 @@ def test_the_run_says_every_case_and_exits_0(hostile: dict) -> None:
         assert ref in warnings, ref
     assert warnings.count("cube.urdf does not parse") == 2  # the bomb and the external entity
     assert "cube.urdf names the mesh ../../../outside/evil_model/cube.obj, outside the library" in warnings
+    assert not summary["rescaled"]  # its scale describes the file outside: not applied to the cube beside it
     ignored = {i["entry"] for i in summary["ignored_metadata"]}
     assert {"metadata.json: parts 3", 'metadata.json: units "unknown"', "metadata.json: up_axis 7"} <= ignored
     assert not summary["failed"]

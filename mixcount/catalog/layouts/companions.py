@@ -146,9 +146,15 @@ def read_description(path: Path, notes: list[str] | None = None) -> RobotDescrip
                             kind="SDF" if sdf else "URDF")
     for uri in dict.fromkeys(u for u in (visual_uri, collision_uri) if u):
         why = reference_refusal(uri.strip(), path.parent, "mesh path")
-        if why:  # only a file of that name beside the description is ever used: said, never read
-            desc.warnings.append(f"{path.name} names the mesh {safe_text(uri.strip())}, outside the library "
-                                 f"({why.split(' (')[0]}): only {_file_name(uri)} beside it is used")
+        if why:  # it describes a file outside, not the one of that name beside it: not applied, said
+            if uri == visual_uri:
+                desc.visual = None
+            if uri == collision_uri:
+                desc.collision = None
+            note = (f"{path.name} names the mesh {safe_text(uri.strip())}, outside the library "
+                    f"({why.split(' (')[0]}): not read, and the description not applied to {_file_name(uri)} here")
+            if notes is not None:
+                notes.append(note)
     scale = _floats(scale_text, 3)
     if scale is not None:
         desc.mesh_scale = (scale[0], scale[1], scale[2])
