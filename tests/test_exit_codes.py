@@ -124,3 +124,34 @@ def test_partial_failure_prints_one_line_per_item_and_the_rerun(capsys) -> None:
     assert "error: things: 57 of 100 failed (full errors: /l/x.log)" in err
     assert err[-1] == "rerun only those: mixcount again --only-failed"
     assert not any("Traceback" in ln for ln in err)
+
+
+def test_compose_with_failed_seeds_exits_3_with_the_seeds_to_compose_again(tmp_path, monkeypatch, capsys) -> None:
+    """compose's side (no render: the run's summary given): two failed seeds made up by others still exit 3,
+    one line per failed scene, and the loop that composes each failed seed again with the same options."""
+    from mixcount.catalog.db import open_catalog
+    from mixcount.run.compose import ComposeSummary
+    from mixcount.run.compose_entry import ComposeJob
+
+    db = tmp_path / "catalog.db"
+    open_catalog(str(db), data_dir="").close()
+    out = tmp_path / "out"
+    failures = [{"scene_id": f"scene_{s:06d}", "seed": s, "cause": "worker SIGSEGV",
+                 "error": "WorkerDied: worker0: worker died (SIGSEGV, exit code -11) while handling 'scene'; last "
+                          "lines:\nFatal Python error: Segmentation fault\n  File \"x.py\", line 3 in render"}
+                for s in (7, 9)]
+    summary = ComposeSummary(requested=2, written=2, failed=2, failures=failures)
+    monkeypatch.setattr(ComposeJob, "run", lambda self, catalog, **kw: summary)
+    code, stdout, err = _cli(capsys, "--db", str(db), "compose", "--n", "2", "--seed", "6", "--out", str(out),
+                             "--resolution", "64", "--split", "train")
+    assert code == 3 and "Traceback" not in err and "Fatal Python error" not in err
+    assert "failed: scene_000007 (seed 7): [worker SIGSEGV] WorkerDied: worker0: worker died (SIGSEGV" in err
+    assert any(ln.startswith("failed: scene_000009 (seed 9): ") for ln in err.splitlines())
+    assert f"error: compose: 2 seed(s) failed (full errors: {out / 'logs' / 'failures.jsonl'})" in err
+    rerun = next(ln for ln in err.splitlines() if ln.startswith("rerun only those: "))
+    assert rerun == ("rerun only those: for s in 7 9; do mixcount --db " + str(db) + " compose --out " + str(out)
+                     + " --split train --resolution 64 --n 1 --seed $s; done")
+
+    summary.failures, summary.failed = [], 0  # the same run without a failed seed: 0
+    code, _, err = _cli(capsys, "--db", str(db), "compose", "--n", "2", "--out", str(out))
+    assert code == 0, err
