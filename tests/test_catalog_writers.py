@@ -129,3 +129,37 @@ def test_locked_by_a_program_without_the_writer_lock_is_one_line(db: Path, monke
     text = str(caught.value)
     assert "\n" not in text and "stayed locked by another process" in text and str(db) in text
     assert main(["--db", str(db), "catalog", "list"]) == 0  # and usable again once the other let go
+
+
+def test_one_process_shares_its_lock_and_lets_go_of_it(db: Path) -> None:
+    """Two catalogs of one process opened for writing share its lock (a second flock would wait for the
+    first); the lock goes with the last close, or with a catalog dropped unclosed."""
+    import fcntl
+    import gc
+
+    from mixcount.catalog.db import Writer
+
+    def free() -> bool:  # what another process would find: can the lock be taken now?
+        fd = os.open(writer_lock_path(db), os.O_RDWR)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            return False
+        finally:
+            os.close(fd)
+
+    writer = Writer(command="mixcount catalog render", wait_s=0)
+    first = open_catalog(str(db), data_dir="", writer=writer)
+    t0 = time.monotonic()
+    second = open_catalog(str(db), data_dir="", writer=writer)
+    assert time.monotonic() - t0 < 5 and not free()
+    first.close()
+    assert not free() and json.loads(writer_lock_path(db).read_text())["pid"] == os.getpid()
+    second.close()
+    assert free() and writer_lock_path(db).read_text() == ""
+    dropped = open_catalog(str(db), data_dir="", writer=writer)
+    assert not free()
+    del dropped
+    gc.collect()
+    assert free()

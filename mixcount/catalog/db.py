@@ -407,25 +407,52 @@ def _hostname() -> str:
 
 
 @dataclass
+class _HeldLock:
+    """A writer lock this process holds: the open lock file and how many open catalogs share it."""
+
+    fd: int
+    users: int = 1
+
+
+_HELD: dict[Path, _HeldLock] = {}  # lock file -> this process's hold on it (one flock per process and file)
+
+
+def _let_go(path: Path) -> None:
+    """One user fewer of this process's writer lock ``path``; the last one lets the lock go."""
+    held = _HELD.get(path)
+    if held is None:
+        return
+    held.users -= 1
+    if held.users > 0:
+        return
+    del _HELD[path]
+    import fcntl
+
+    try:
+        os.ftruncate(held.fd, 0)  # no stale holder is shown to the next one who reads it
+        fcntl.flock(held.fd, fcntl.LOCK_UN)
+    except OSError:
+        pass
+    finally:
+        os.close(held.fd)
+
+
+@dataclass
 class WriterLock:
-    """The writer lock held by this process: the open lock file (closing it lets the lock go)."""
+    """The writer lock held for one open catalog (:meth:`release`, or its garbage collection, lets it go).
+    Two catalogs of one process opened for writing on one file share the process's lock: a second
+    ``flock`` of the same file would wait for the first."""
 
     path: Path
-    fd: Optional[int] = field(default=None, repr=False)
+    _finalizer: Any = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        import weakref
+
+        self._finalizer = weakref.finalize(self, _let_go, self.path)
 
     def release(self) -> None:
-        if self.fd is None:
-            return
-        import fcntl
-
-        try:
-            os.ftruncate(self.fd, 0)  # no stale holder is shown to the next one who reads it
-            fcntl.flock(self.fd, fcntl.LOCK_UN)
-        except OSError:
-            pass
-        finally:
-            os.close(self.fd)
-            self.fd = None
+        self._finalizer()
 
 
 def take_writer_lock(db_path: Path, writer: Writer) -> WriterLock:
@@ -433,7 +460,10 @@ def take_writer_lock(db_path: Path, writer: Writer) -> WriterLock:
     for the process that holds it; :class:`CatalogBusyError` (one line naming that process) after that."""
     import fcntl
 
-    path = writer_lock_path(db_path)
+    path = writer_lock_path(db_path).resolve()
+    if path in _HELD:  # this process writes it already (another open catalog): shared
+        _HELD[path].users += 1
+        return WriterLock(path)
     try:
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     except OSError as exc:
@@ -470,7 +500,8 @@ def take_writer_lock(db_path: Path, writer: Writer) -> WriterLock:
         os.pwrite(fd, json.dumps(record).encode("utf-8"), 0)
     except OSError:
         pass  # the lock itself holds; only its description is missing
-    return WriterLock(path, fd)
+    _HELD[path] = _HeldLock(fd)
+    return WriterLock(path)
 
 
 @dataclass
