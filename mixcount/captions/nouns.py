@@ -13,7 +13,10 @@ the category is a shelf label. So:
   noun, refined by a variant word that contains it ("Ball_..._Volleyball" -> "volleyball"); other variant
   words that are neither colours nor ids are modifiers ("Toy_..._TruckRed" -> "truck toy");
 * a name left with no word (``Random object 17 (procedural)``) falls back to the category, and a category
-  that is no noun either ("misc") to "object".
+  that is no noun either ("misc") to "object";
+* a technical part name (``CP_Radial_D5.0mm_P2.00mm``, ``DIP-8 IC NE555``, ``Screw terminal 2 pin``) is named
+  by the noun a person would use (:func:`mixcount.catalog.naming.technical_category`: "capacitor", "IC",
+  "terminal block"), not by its package, pin count or mounting words ("blue capacitor", not "blue CP radial").
 
 The broad category is never appended after a noun from the name.
 """
@@ -24,7 +27,7 @@ import re
 from dataclasses import dataclass
 
 from mixcount.captions.colours import NAMES
-from mixcount.catalog.naming import DTC_NAME, GENERIC_STEMS, singular
+from mixcount.catalog.naming import DTC_NAME, GENERIC_STEMS, singular, technical_category
 
 # Colour words a name may carry; captions take colours from measurement only. Beyond the 24 measured names:
 # words shops and DTC variants use for colours.
@@ -124,6 +127,16 @@ def category_noun(category: str) -> list[str]:
     return words[:-1] + [singular(words[-1])]
 
 
+ABBREVIATIONS = {"ic": "IC", "led": "LED"}  # technical nouns written in capitals
+
+
+def technical_words(name: str) -> tuple[str, ...] | None:
+    """The noun words of a technical part name ("CP_Radial_D5.0mm" -> ("capacitor",), "DIP-8 IC" -> ("IC",)),
+    None for a name that is not one."""
+    found = technical_category(name)
+    return None if found is None else tuple(ABBREVIATIONS.get(w, w) for w in found.split())
+
+
 def noun_phrase(name: str, category: str, *, max_words: int = 3) -> NounPhrase:
     """The noun phrase a caption names the object with (see the module docstring)."""
     name = (name or "").strip()
@@ -140,6 +153,9 @@ def noun_phrase(name: str, category: str, *, max_words: int = 3) -> NounPhrase:
         modifiers = [w for w in variant if w not in refined and singular(w) not in head_words]
         words = (modifiers + head_words)[-max_words:]
         return NounPhrase(tuple(words), "category", tuple(dropped + [match.group("id")]))
+    technical = technical_words(name)
+    if technical:
+        return NounPhrase(tuple(w.lower() for w in technical), "name", tuple(clean_name_words(name)[1]))
     kept, dropped = clean_name_words(name)
     if len(kept) > 1:  # "Ball_B01_Volleyball": a word the head noun contains says it twice
         head = kept[-1]
@@ -224,6 +240,10 @@ def name_phrase(name: str, category: str, *, max_words: int = 4) -> NamePhrase:
     if is_folder_name(name) or not name:
         phrase = noun_phrase(name, category)
         return NamePhrase(phrase.words, (), phrase.source, (), phrase.dropped)
+    technical = technical_words(name)
+    if technical:  # the part's noun; the name's colour words still count ("LED 5mm red")
+        said = tuple(dict.fromkeys(w for w in _split_words(name) if _is_colour(w)))
+        return NamePhrase(technical, said, "name", (), tuple(clean_name_words(name)[1]))
     dropped: list[str] = []
     colours: list[str] = []
     text = name
