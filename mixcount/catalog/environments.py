@@ -139,7 +139,7 @@ def _record_check(row: Any, reason: Optional[str], path: Path, summary: IngestAs
 
 
 def ingest_environments(catalog: Any, paths: Iterable[Path], *, max_pixels: int,
-                        extra_roots: Iterable[str] = ()) -> IngestAssetsSummary:
+                        extra_roots: Iterable[str]) -> IngestAssetsSummary:
     """Store every HDR/EXR map under ``paths`` in table ``environments``, each decoded whole first: one that
     does not decode (or holds NaN, or is black) is stored ``broken`` with the reason and never drawn. A
     row from before the check is decoded at its next ingest."""
@@ -214,7 +214,7 @@ def _maps_reason(maps: dict[str, Path], max_pixels: int) -> Optional[str]:
 
 
 def ingest_materials(catalog: Any, paths: Iterable[Path], *, max_pixels: int,
-                     extra_roots: Iterable[str] = ()) -> IngestAssetsSummary:
+                     extra_roots: Iterable[str]) -> IngestAssetsSummary:
     """Store every folder under ``paths`` that holds a PBR set (at least a base-colour map), every map
     decoded whole first: a set with a map that does not decode is stored ``broken`` and never drawn."""
     from sqlalchemy import select
