@@ -5,7 +5,7 @@
 
 For each file: ``in file`` = the distinct looks its materials give (STEP: distinct ``COLOUR_RGB`` values;
 OBJ: the distinct Kd / map_Kd of the materials its faces use; glTF: the distinct base colour factor /
-texture of the materials its primitives use; USD: the distinct materials bound to its meshes), and
+texture of the materials its primitives use; USD: the distinct looks of the materials bound to its meshes), and
 ``in asset`` = the distinct looks bound to the meshes of the converted asset (a constant diffuse colour,
 a texture's pixels, or vertex colours), converted as compose converts it: STEP and part folders through
 the derived GLB (:mod:`mixcount.catalog.derived`), then :func:`mixcount.usd.assets.convert_asset`.
@@ -78,16 +78,7 @@ def gltf_looks(path: Path) -> int:
 
 
 def usd_looks(path: Path) -> int:
-    from pxr import Usd, UsdGeom, UsdShade
-
-    stage = Usd.Stage.Open(str(path))
-    bound = set()
-    for prim in stage.Traverse():
-        if prim.IsA(UsdGeom.Mesh) and UsdGeom.Imageable(prim).ComputePurpose() != UsdGeom.Tokens.guide:
-            mat, _rel = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
-            if mat:
-                bound.add(str(mat.GetPath()))
-    return len(bound)
+    return asset_looks(path)  # the distinct looks bound to its meshes, counted as in an asset
 
 
 def file_looks(path: Path) -> int:
