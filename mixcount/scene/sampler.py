@@ -159,6 +159,18 @@ def scene_scale(real_sizes: Sequence[float], config: SceneConfig) -> float:
     return float(f"{s:.4g}")
 
 
+def _real_size_classes(drafts: list[ClassDraft], config: SceneConfig) -> float:
+    """A real-size scene's classes (drafted at their real sizes) in scene metres; returns the objects' scale.
+
+    Only the objects take it: the classes land in the paper's scene sizes, so every other length (spawn
+    heights, margins, floor, camera jitter, rest speed: ·s of the paper's 4.5-12 cm objects) stays the
+    paper's and physics sees a paper scene; the container and distractors keep their real proportions."""
+    size_scale = scene_scale([d.size for d in drafts], config)
+    for d in drafts:
+        d.size *= size_scale
+    return size_scale
+
+
 def container_warning(pool: Sequence[ObjectRecord], split: str, config: SceneConfig) -> Optional[str]:
     """The one-line warning for a split without a container, or None when it has one (or never uses one)."""
     if config.no_container_probability >= 1.0 or any(o.container for o in eligible_objects(pool, split)):
@@ -474,14 +486,8 @@ def sample_scene(seed: int, split: str, cfg: "Config", pool: Sequence[ObjectReco
         n = draw_total(target, seed)
     n_classes = min(_ui(rng, config.n_classes), n)
     drafts = build_classes(rng, config, eligible, n_classes, real=real)
-    size_scale = s  # scene metres per real metre of an object: s, or a real-size scene's own
+    size_scale = _real_size_classes(drafts, config) if real else s  # scene metres per real metre of an object
     if real:
-        # the objects' own scale: the classes land in the paper's scene sizes, so every other length (spawn
-        # heights, margins, floor, camera jitter, rest speed: ·s of the paper's 4.5-12 cm objects) stays the
-        # paper's and physics sees a paper scene; the container and distractors keep their real proportions
-        size_scale = scene_scale([d.size for d in drafts], config)
-        for d in drafts:
-            d.size *= size_scale
         cont_scale = np.full(3, size_scale)  # the container at its real size: no per-axis jitter, no pile fit
     count_target = None
     elevations: Optional[list[float]] = None
