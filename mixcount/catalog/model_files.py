@@ -15,7 +15,7 @@ import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 from urllib.parse import unquote
 
 from mixcount.catalog.naming import safe_text
@@ -77,7 +77,7 @@ def _gltf_resources(path: Path, doc: dict[str, Any], roots: LibraryRoots | None 
     return out
 
 
-def _is_local_uri(uri: Any) -> bool:
+def _is_local_uri(uri: Any) -> TypeGuard[str]:
     """A glTF ``uri`` naming a file (relative, absolute or ``file://``), not embedded data."""
     return isinstance(uri, str) and bool(uri) and not uri.startswith("data:")
 
@@ -321,14 +321,14 @@ def relink_textures(path: Path, roots: LibraryRoots | None = None) -> Relinked |
     if dropped or (moved and any("/" in n.replace("\\", "/") for n in _mtllibs(text))):
         # the staged model names its materials by file name, beside it (one in another folder too)
         moved = True
-        keep = []
-        for line in raw.split(b"\n"):
-            if line.startswith(b"mtllib"):
-                name = line[len(b"mtllib"):].decode(errors="replace").strip()
-                if name in dropped:
+        keep: list[bytes] = []
+        for row in raw.split(b"\n"):
+            if row.startswith(b"mtllib"):
+                named = row[len(b"mtllib"):].decode(errors="replace").strip()
+                if named in dropped:
                     continue
-                line = b"mtllib " + Path(name.replace("\\", "/")).name.encode()
-            keep.append(line)
+                row = b"mtllib " + Path(named.replace("\\", "/")).name.encode()
+            keep.append(row)
         out.model = b"\n".join(keep)
     return out if moved else None
 
