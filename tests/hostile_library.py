@@ -35,9 +35,11 @@ CASES = {
     "gltf_abs": "glTF image URI /abs/secret.png",
     "gltf_file": "glTF image URI file:///abs/secret.png",
     "gltf_pct": "glTF image URI ..%2F..%2F..%2Fsecret%2Fsecret.png (percent-encoded ../)",
+    "glb_rel": "a GLB (binary chunk inside) whose image URI is ../../../secret/secret.png",
     "gltf_buf_abs": "glTF buffer with an absolute URI",
     "gltf_buf_file": "glTF buffer with a file:// URI",
     "mtl_abs": "MTL map_Kd /abs/secret.png",
+    "gso_bump": "a Google Scanned Objects folder whose model.mtl adds bump /abs/secret.png to its own texture",
     "mtllib_out": "OBJ mtllib ../../secret/evil.mtl",
     "tex_link": "a texture that is a link to the secret (and one to /etc/passwd)",
     "model_link": "a model file that is a link to a model outside",
@@ -87,6 +89,22 @@ def _gltf(src: Path, dest: Path, image: str | None = None, buffer: str | None = 
     return dest / "BoxTextured.gltf"
 
 
+def _glb(src: Path, dest: Path, image: str) -> Path:
+    """assimp's BoxTextured as one GLB (its buffer in the binary chunk) whose image is an external URI."""
+    dest.mkdir(parents=True, exist_ok=True)
+    doc = json.loads((src / "BoxTextured.gltf").read_text())
+    binary = (src / "BoxTextured0.bin").read_bytes()
+    del doc["buffers"][0]["uri"]
+    doc["images"][0]["uri"] = image
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    body = (struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942)
+            + binary)
+    (dest / "box.glb").write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
+    return dest / "box.glb"
+
+
 def _cube(pyb: Path, dest: Path, mtl: str | None = None, mtllib: str = "cube.mtl") -> Path:
     dest.mkdir(parents=True, exist_ok=True)
     text = (pyb / "cube.obj").read_text()
@@ -133,11 +151,19 @@ def build(tmp: Path) -> tuple[Path | None, str]:
     _gltf(box, lib / "gltf_abs" / "box", image=str(sec))
     _gltf(box, lib / "gltf_file" / "box", image=sec.as_uri())
     _gltf(box, lib / "gltf_pct" / "box", image="..%2F..%2F..%2Fsecret%2Fsecret.png")
+    _glb(box, lib / "glb_rel" / "box", image="../../../secret/secret.png")
     _gltf(box, lib / "gltf_buf_abs" / "box", buffer=str(secret / "secret.bin"))
     _gltf(box, lib / "gltf_buf_file" / "box", buffer=(secret / "secret.bin").as_uri())
     _gltf(box, lib / "good_gltf" / "box")
     _cube(pyb, lib / "mtl_abs" / "cube", mtl=str(sec))
     _cube(pyb, lib / "mtllib_out" / "cube", mtllib="../../../secret/evil.mtl")
+    gso = lib / "gso_bump" / "Cube_Scan"
+    _cube(pyb, gso / "meshes", mtllib="model.mtl")
+    (gso / "meshes" / "cube.obj").rename(gso / "meshes" / "model.obj")
+    (gso / "meshes" / "model.mtl").write_text(f"newmtl m\nmap_Kd texture.png\nbump {sec}\n")
+    (gso / "materials" / "textures").mkdir(parents=True)
+    shutil.copy(pyb / "cube.png", gso / "materials" / "textures" / "texture.png")
+    (gso / "model.config").write_text("<model><name>Cube_Scan</name></model>\n")
     _cube(pyb, lib / "tex_link" / "cube", mtl="tex.png")
     os.symlink(sec, lib / "tex_link" / "cube" / "tex.png")
     _cube(pyb, lib / "tex_link" / "passwd", mtl="pw.png")

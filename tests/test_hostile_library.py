@@ -72,7 +72,7 @@ def test_the_run_says_every_case_and_exits_0(hostile: dict) -> None:
     warnings = " | ".join(w["warning"] for w in summary["warnings"])
     for ref in ("../../../secret/secret.png", "..%2F..%2F..%2Fsecret%2Fsecret.png", "file:///", "secret.png in cube.mtl refused",
                 "../../../secret/evil.mtl", "tex.png in cube.mtl refused", "pw.png in cube.mtl refused",
-                "metadata.json not read"):
+                "metadata.json not read", "secret.png in model.mtl refused"):
         assert ref in warnings, ref
     assert warnings.count("cube.urdf does not parse") == 2  # the bomb and the external entity
     assert "cube.urdf names the mesh ../../../outside/evil_model/cube.obj, outside the library" in warnings
@@ -93,10 +93,12 @@ def test_nothing_from_outside_is_recorded_or_staged(hostile: dict) -> None:
     assert [o["status"] for o in objects if "odd name [x] 'q' ü" in o["model_path"]] == ["active"]
     assert not any("dotted" in o["model_path"] for o in objects)  # a ..something folder is hidden: not walked
     active = [o for o in objects if o["status"] == "active"]
-    assert len(active) == 18 and sum(o["status"] == "broken" for o in objects) == 2
+    assert len(active) == 20 and sum(o["status"] == "broken" for o in objects) == 2
+    gso = [o for o in objects if o["name"] == "Cube_Scan"]
+    assert [(o["status"], o["textured"]) for o in gso] == [("active", True)]  # its own texture kept, the bump not
     assert not any(SECRET.decode() in (o["license"] or "") for o in objects)
     boxes = [o for o in active if o["name"] == "box"]
-    assert sorted(o["textured"] for o in boxes) == [False] * 4 + [True]  # the escaped images refused
+    assert sorted(o["textured"] for o in boxes) == [False] * 5 + [True]  # the escaped images refused (GLB too)
     for folder, _dirs, files in os.walk(cat):  # the catalog, its staged copies, collision meshes
         for name in files:
             path = Path(folder) / name

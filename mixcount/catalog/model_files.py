@@ -167,8 +167,8 @@ def seal_gltf(path: Path, roots: LibraryRoots) -> Relinked | None:
 _MTL_MAP = re.compile(r"^\s*(map_\w+|bump|disp|decal|norm)\s+(.+?)\s*$", re.IGNORECASE)
 
 
-def _texture_file(tex: str, mtl: Path, model: Path, roots: LibraryRoots | None = None
-                  ) -> tuple[Path | None, bool, str | None]:
+def _texture_file(tex: str, mtl: Path, model: Path, roots: LibraryRoots | None = None,
+                  also: tuple[Path, ...] = ()) -> tuple[Path | None, bool, str | None]:
     """(file, found where the reference points, why refused) of an MTL texture reference: first where it
     points (relative to the MTL, ``../cube.png`` included), then by its file name in the model's folder (a
     Windows path such as ``E:\\data\\table.png`` too). With ``roots``, a reference whose file lies outside
@@ -182,7 +182,7 @@ def _texture_file(tex: str, mtl: Path, model: Path, roots: LibraryRoots | None =
                 return None, False, exc.reason
         return ref, True, None
     name = re.split(r"[\\/]", tex)[-1]
-    for folder in dict.fromkeys((model.parent, mtl.parent)):
+    for folder in dict.fromkeys((model.parent, mtl.parent, *also)):
         here = folder / name
         if name and here.is_file() and (roots is None or roots.contains(here)):
             return here, False, None
@@ -269,13 +269,14 @@ class Relinked:
     model: str | bytes | None = None
 
 
-def relink_textures(path: Path, roots: LibraryRoots | None = None) -> Relinked | None:
+def relink_textures(path: Path, roots: LibraryRoots | None = None, also: tuple[Path, ...] = ()) -> Relinked | None:
     """For an OBJ whose textures are found only by name (``../cube.png``, ``E:\\data\\table.png``), not at
     all, or (with ``roots``) outside the library: its materials rewritten to name them by file name (a
     missing or refused one left out, so that the model has its material's plain colour: Blender paints a
     missing image magenta), so that every loader (trimesh, Blender's importer) finds them when the model is
-    staged beside them; an ``mtllib`` outside the library is dropped from the staged model itself. None
-    when nothing needs it."""
+    staged beside them; an ``mtllib`` outside the library is dropped from the staged model itself.
+    ``also``: more folders a texture is looked up in by name (GSO's ``materials/textures/``). None when
+    nothing needs it."""
     if path.suffix.lower() != ".obj":
         return None
     try:
@@ -304,7 +305,7 @@ def relink_textures(path: Path, roots: LibraryRoots | None = None) -> Relinked |
             match = _MTL_MAP.match(mline)
             if match:
                 tex = match.group(2).split()[-1]
-                ref, where, why = _texture_file(tex, mtl, path, roots)
+                ref, where, why = _texture_file(tex, mtl, path, roots, also)
                 if ref is None:  # dropped: Blender would paint a missing image magenta, not a default material
                     moved = True
                     out.notes.append(refused_texture(tex, name, why) if why else missing_texture(tex, name))

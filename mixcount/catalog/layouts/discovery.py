@@ -24,6 +24,7 @@ from mixcount.catalog.layouts import objaverse
 from mixcount.catalog.layouts.candidates import (
     LICENCE_NAMES,
     SOURCE_FOLDER,
+    SOURCE_GSO,
     Candidate,
     broken_path_candidate,
     read_licence,
@@ -337,8 +338,9 @@ def _relink(cand: Candidate) -> None:
     roots = cand.roots or LibraryRoots.of(cand.model_path.parent)
     if cand.model_path.suffix.lower() in (".gltf", ".glb"):
         relinked = seal_gltf(cand.model_path, roots)
-    else:
-        relinked = relink_textures(cand.model_path, roots)
+    else:  # a GSO model's textures are in materials/textures/ (staged by name beside its MTL)
+        also = (cand.model_path.parent.parent / "materials" / "textures",) if cand.layout == SOURCE_GSO else ()
+        relinked = relink_textures(cand.model_path, roots, also)
     if relinked is None:
         return
     cand.staged = {cand.model_path.name: cand.model_path, **relinked.textures}
