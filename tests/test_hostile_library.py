@@ -99,6 +99,10 @@ def test_nothing_from_outside_is_recorded_or_staged(hostile: dict) -> None:
     assert not any(SECRET.decode() in (o["license"] or "") for o in objects)
     boxes = [o for o in active if o["name"] == "box"]
     assert sorted(o["textured"] for o in boxes) == [False] * 5 + [True]  # the escaped images refused (GLB too)
+    for o in boxes:  # each flagged with the reference and the reason
+        said = [f["reason"] for f in o["flags"] if "refused" in f["reason"]]
+        assert len(said) == (0 if o["textured"] else 1) and all("secret" in r and "outside the library" in r
+                                                                  for r in said), o["flags"]
     for folder, _dirs, files in os.walk(cat):  # the catalog, its staged copies, collision meshes
         for name in files:
             path = Path(folder) / name
