@@ -74,3 +74,14 @@ def test_bd_warehouse_parts_keep_their_plain_nouns():
             if tech is not None and tech != category_from_name(words.split()[-1]):
                 changed.append((name, tech))
     assert not changed, changed  # "Button Head Screw" stays a screw, "Socket Weld Flange" a flange
+
+
+def test_pin_counts_of_technical_names_only():
+    from mixcount.catalog.naming import pin_count
+
+    assert pin_count("PhoenixContact_MC_1,5_3-G-3.81_1x03_P3.81mm_Horizontal") == 3
+    assert pin_count("IDC-Header_2x05_P2.54mm_Vertical") == 10 and pin_count("Screw terminal 2 pin") == 2
+    assert pin_count("DIP-8 IC NE555") == 8
+    assert pin_count("BatteryHolder_Keystone_1058_1x2032") is None  # a CR2032 cell, not 2032 pins
+    assert pin_count("DSUB-9_Male_Horizontal_P2.77x2.54mm") is None  # a pitch, not a grid
+    assert pin_count("Box 10x20") is None  # not a technical name

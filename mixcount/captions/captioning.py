@@ -255,6 +255,7 @@ def separate_variants(catalog: Catalog, captioner: Captioner, *, colour_source: 
             else:  # nothing seen tells them apart: a true duplicate, left with its plain captions
                 for oid in group:
                     write(oid, item_of(oid))
+                changed |= _tell_apart_by_pins(session, {oid: captions[oid] for oid in group})
         session.commit()
     return len(changed)
 
@@ -267,6 +268,28 @@ KEPT_APART = ("different", "variants")  # a person's pair decisions that keep bo
 def kept_apart(session: Session) -> set[frozenset[int]]:
     """Pairs a person decided are two objects (``different``) or two versions to keep (``variants``)."""
     return {pair for pair, rd in latest_pair_decisions(session).items() if rd.decision in KEPT_APART}
+
+
+_NUMBER_WORDS = ("zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven",
+                 "twelve", "thirteen", "fourteen", "fifteen", "sixteen", "seventeen", "eighteen", "nineteen", "twenty")
+
+
+def _tell_apart_by_pins(session: Session, group: dict[int, CaptionSet]) -> set[int]:
+    """Parts of one family that nothing seen told apart (a 2- and a 3-pin terminal block in one colour):
+    when every name states a pin count (:func:`mixcount.catalog.naming.pin_count`) and the counts differ, each
+    caption starts with it ("two-pin green terminal block"), a count a person sees. Returns the changed ids."""
+    from mixcount.catalog.naming import pin_count
+
+    counts = {oid: pin_count(session.get(CatalogObject, oid).name or "") for oid in group}
+    if None in counts.values() or len(set(counts.values())) < len(counts):
+        return set()
+    for oid, cs in group.items():
+        n = int(counts[oid])  # type: ignore[arg-type]
+        number = _NUMBER_WORDS[n] if n < len(_NUMBER_WORDS) else str(n)
+        word = f"{number}-pin"
+        cs.short, cs.concise = f"{word} {cs.short}", f"{word[:1].upper()}{word[1:]} {cs.concise[:1].lower()}{cs.concise[1:]}"
+        cs.detailed = f"{cs.detailed} It has {number} pins."
+    return set(group)
 
 
 def _tell_apart_by_name(session: Session, group: dict[int, CaptionSet]) -> set[int]:

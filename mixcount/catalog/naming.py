@@ -237,3 +237,22 @@ def technical_category(name: str) -> str | None:
         if maker in joined:
             return category
     return None
+
+
+_GRID = re.compile(r"(?<![A-Za-z0-9.])(\d{1,2})x(\d{1,2})(?![\d.]*mm)(?!\d)", re.IGNORECASE)  # 1x04, 2x05: rows x pins
+_PINS = re.compile(r"(?<![\d.])(\d{1,3})[\s_-]?(?:pins?|pol|poles?|ways?|positions?)\b", re.IGNORECASE)
+_PACKAGE_PINS = re.compile(r"\b(?:" + "|".join(sorted(PACKAGES)) + r")-?(\d{1,3})\b", re.IGNORECASE)
+
+
+def pin_count(name: str) -> int | None:
+    """The pin count a technical name states ("1x04" -> 4, "2x05" -> 10, "Screw terminal 2 pin" -> 2,
+    "DIP-8" -> 8), or None: what tells two parts of one family apart in an image (a 2- and a 3-pin
+    terminal block), where sizes are kept out of captions. Only for a technical name
+    (:func:`technical_category`): "Box 10x20" states no pins."""
+    if technical_category(name) is None:
+        return None
+    for pattern in (_GRID, _PINS, _PACKAGE_PINS):
+        m = pattern.search(name.replace("_", " "))
+        if m:
+            return int(m.group(1)) * (int(m.group(2)) if pattern is _GRID else 1)
+    return None
