@@ -163,3 +163,30 @@ def test_each_request_keeps_its_own_deadline_on_one_client(dripper, tmp_path) ->
         cap.close()
     assert caught.value.attempts == 2 and "no complete answer within 2 s" in str(caught.value)
     assert 3.5 <= seconds < 4 + 3, seconds  # two requests of 2 s each, no more
+
+
+def test_a_ray_address_that_is_no_cluster_is_refused_within_the_probe(monkeypatch) -> None:
+    """The other network call: `compose --executor ray --address` probes the address under one deadline. A
+    port that accepts and stays silent held ray.init for more than 400 s (retrying for ever, no word); an
+    HTTP/1.1 server (a dashboard) is refused at once. (A real head passes: tests/test_ray_executor.py.)"""
+    import http.server
+
+    import mixcount.run.ray_executor as rx
+
+    monkeypatch.setattr(rx, "PROBE_S", 2.0)
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(4)
+    web = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    threading.Thread(target=web.serve_forever, daemon=True).start()
+    try:
+        for address, most in ((f"127.0.0.1:{silent.getsockname()[1]}", 2.0 + 1.5),
+                              (f"127.0.0.1:{web.server_address[1]}", 1.5)):
+            t0 = time.monotonic()
+            with pytest.raises(rx.RayExecutorError, match="is not a Ray cluster: something listens there"):
+                rx._probe(address, 120.0)
+            assert time.monotonic() - t0 < most
+    finally:
+        silent.close()
+        web.shutdown()
+        web.server_close()

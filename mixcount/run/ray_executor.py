@@ -120,16 +120,41 @@ def cluster_device(device: Optional[str], cluster_gpus: float, gpus_per_slot: fl
                                   "the CPU")
 
 
+H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"  # preface, empty SETTINGS
+PROBE_S = 10.0  # the most the probe of a cluster address waits, connect to answer
+
+
 def _probe(address: str, timeout: float) -> None:
-    """Fail fast on a ``host:port`` nobody listens on (ray.init would retry for minutes)."""
+    """Fail fast, within :data:`PROBE_S`, on a ``host:port`` that is not a Ray cluster's GCS: nobody listens
+    (ray.init would retry for minutes), or something listens but does not answer as a gRPC (HTTP/2) server
+    (a silent port, the dashboard's HTTP port): ray.init then retried for ever (over 400 s seen) with no
+    word. The probe sends HTTP/2's client preface and waits for the server's SETTINGS frame, under one
+    deadline for the connect and every read."""
     host, sep, port = address.rpartition(":")
     if not sep or "://" in address or not port.isdigit():
         return  # "auto", "ray://..." (Ray Client): let Ray handle them
+    wait = min(timeout, PROBE_S)
+    deadline = time.monotonic() + wait
+    head = b""
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=min(timeout, 10.0)).close()
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=wait) as sock:
+            sock.sendall(H2_PREFACE)
+            while len(head) < 9 and (left := deadline - time.monotonic()) > 0:
+                sock.settimeout(left)
+                chunk = sock.recv(9 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+    except socket.timeout:
+        pass
     except OSError as exc:
         raise RayExecutorError(f"cannot reach the Ray cluster at {address}: {exc} (is `ray start --head` running "
                                "there, and the port open?)") from None
+    if len(head) < 9 or head[3] != 0x4:  # HTTP/2 frame header: length (3), type (4 = SETTINGS), flags, stream
+        raise RayExecutorError(
+            f"{address} is not a Ray cluster: something listens there but sent nothing a Ray GCS (a gRPC server) sends within "
+            f"{wait:g} s; give the head's address as `ray start --head` prints it (port 6379 by default), not the "
+            "dashboard's")
 
 
 def _rss_kb(pid: Optional[int]) -> Optional[int]:
