@@ -46,7 +46,7 @@ FAMILY = {"Resistor": {"resistor"}, "Capacitor": {"capacitor"}, "Diode": {"diode
 def test_kicad_demo_model_names_get_their_library_kind():
     """Each 3D model a kicad-demos PCB names (``Capacitor_SMD.3dshapes/C_0805_2012Metric.wrl``): its file name
     gets the kind its library folder says (a DIP footprint "with socket" may say socket). At the time of
-    writing 70 of 85; the plain rule alone got none (it took "metric", "horizontal", "mm")."""
+    writing 76 of 85; the plain rule alone got 7 (it took "metric", "horizontal", "mm")."""
     root, why = deb_tree("kicad-demos")
     if root is None:
         pytest.skip(why)
