@@ -206,6 +206,7 @@ def _stats(kind: str, width: int, height: int, planes: list[NDArray[np.float32]]
 # ----------------------------------------------------------------------------- Radiance HDR
 
 _RESOLUTION = ("-Y", "+Y", "-X", "+X")
+_RGBE_SCALE = np.array([0.0] + [2.0 ** (e - 136) for e in range(1, 256)], dtype=np.float32)
 
 
 def _radiance_header(data: bytes) -> tuple[int, int, int]:
@@ -259,6 +260,10 @@ def _rle_scanline(data: bytes, pos: int, width: int) -> tuple[NDArray[np.uint8],
 
 def _flat_scanline(data: bytes, pos: int, width: int, prev: Optional[NDArray[np.uint8]]) -> tuple[NDArray[np.uint8], int]:
     """One flat or old-style run-length scanline (RGBE quadruples; (1, 1, 1, n) repeats the last)."""
+    if pos + 4 * width <= len(data):  # flat, the common case: one slice, no repeat markers in it
+        quads = np.frombuffer(data, np.uint8, 4 * width, pos).reshape(width, 4)
+        if not ((quads[:, 0] == 1) & (quads[:, 1] == 1) & (quads[:, 2] == 1)).any():
+            return quads, pos + 4 * width
     out = np.empty((width, 4), dtype=np.uint8)
     x, shift = 0, 0
     last = prev[-1] if prev is not None else None
@@ -302,8 +307,7 @@ def read_radiance(path: Path, max_pixels: int) -> NDArray[np.float32]:
         else:
             prev, pos = _flat_scanline(data, pos, width, prev)
         rgbe[y] = prev
-    exponent = rgbe[..., 3].astype(np.int32)
-    scale = np.where(exponent > 0, np.ldexp(1.0, exponent - 136), 0.0).astype(np.float32)
+    scale = _RGBE_SCALE[rgbe[..., 3]]  # mantissa x 2^(exponent - 136); exponent 0 is black
     return rgbe[..., :3].astype(np.float32) * scale[..., None]
 
 
