@@ -307,8 +307,9 @@ def read_radiance(path: Path, max_pixels: int) -> NDArray[np.float32]:
         else:
             prev, pos = _flat_scanline(data, pos, width, prev)
         rgbe[y] = prev
-    scale = _RGBE_SCALE[rgbe[..., 3]]  # mantissa x 2^(exponent - 136); exponent 0 is black
-    return rgbe[..., :3].astype(np.float32) * scale[..., None]
+    scale: NDArray[np.float32] = _RGBE_SCALE[rgbe[..., 3]]  # mantissa x 2^(exponent - 136); exponent 0 is black
+    rgb: NDArray[np.float32] = rgbe[..., :3].astype(np.float32) * scale[..., None]
+    return rgb
 
 
 def _decode_hdr(path: Path, max_pixels: int) -> Decoded:
