@@ -52,7 +52,15 @@ def library(tmp_path: Path) -> dict:
         "gltf_escape": _gltf(lib / "g" / "a.gltf", "../../outside/secret.png"),
         "gltf_inside": _gltf(lib / "h" / "b.gltf", "tex.png"),
         "usd_out": _usda(lib / "u" / "c.usda", str(outside / "layer.usda"), "./tex.png"),
+        "buffer_abs": _gltf(lib / "k" / "d.gltf", "tex.png", buffer_uri=f"file://{outside / 'secret.png'}"),
+        "mtllib_out": _obj(lib / "m", "tex.png"),
+        "linked_tex": _obj(lib / "n", "tex.png"),
     }
+    # invented: an OBJ whose material library itself lies outside; a texture inside the library that is a
+    # symbolic link to a file outside it
+    (models["mtllib_out"]).write_text("mtllib ../../outside/x.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (outside / "x.mtl").write_text("newmtl a\nmap_Kd secret.png\n")
+    (lib / "n" / "tex.png").symlink_to(outside / "secret.png")
     box = trimesh.creation.box()
     box.visual = trimesh.visual.ColorVisuals(box, vertex_colors=np.tile([200, 0, 0, 255], (8, 1)))
     box.export(lib / "plain.glb")
@@ -97,6 +105,8 @@ def test_verdicts_keep_what_stays_in_the_library_and_refuse_what_leaves(library:
     assert "../../outside/secret.png" in str(ok["gltf_escape"].refused)
     assert "layer.usda" in str(ok["usd_out"].refused)
     assert "lies in no library folder" in str(ok["stray"].refused)
+    assert "file://" in str(ok["buffer_abs"].refused) and "../../outside/x.mtl" in str(ok["mtllib_out"].refused)
+    assert "tex.png" in str(ok["linked_tex"].refused) and "outside the library" in str(ok["linked_tex"].refused)
     assert sources.verdict(f"{keys['abs_map']}_tex", None).refused  # the texture folder goes with its asset
     assert sources.verdict("deadbeef.usdc", None).why == "no object of this catalog"
     assert sources.verdict("notes/readme.txt", None).why == "not a library file"
@@ -106,3 +116,19 @@ def test_verdicts_keep_what_stays_in_the_library_and_refuse_what_leaves(library:
     assert widened.verdict(f"{keys['abs_map']}.usdc", None).ok
     assert any(s.library == "outside" and s.path == "secret.png"
                for s in widened.verdict(f"{keys['gltf_escape']}.usdc", None).sources)
+
+
+def test_a_file_dropped_into_the_assets_folder_is_taken_out_not_packaged(library: dict, tmp_path: Path) -> None:
+    from mixcount.dataset.package import package_assets
+
+    out = tmp_path / "out"
+    (out / "scenes").mkdir(parents=True)
+    (out / "assets" / "environments").mkdir(parents=True)
+    (out / "assets" / "environments" / "evil.exr").write_bytes(b"not a map of this catalog")
+    (out / "assets" / "notes.txt").write_bytes(b"nor this")
+    report = package_assets(out, sources=CatalogSources(library["catalog"]))
+    assert [e for e, _line in report.refused] == ["environments/evil.exr", "notes.txt"] and report.bytes == 0
+    assert not any(p.is_file() for p in (out / "assets").rglob("*"))
+    listed = json.loads((out / "package.json").read_text())
+    assert listed["files"] == [] and [r["why"] for r in listed["refused"]] == [
+        "not an environment map of this catalog", "not a library file"]
