@@ -132,6 +132,9 @@ def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | 
     found_by_name = _meshes_by_name(roots, meshes, classes)
     model = MjcfModel([p for p, _r in roots], None)
     model.warnings.extend(found_by_name)
+    if found_by_name and not any(c.get("angle") for _p, r in roots for c in r.iter("compiler")):
+        model.warnings.append("no <compiler angle> beside it either (it was in the file that declared the meshes?): "
+                              "its euler angles are read in MuJoCo's default, degrees")
     used_visual: set[str] = set()
     used_collision: set[str] = set()
     for _p, root in roots:
