@@ -13,7 +13,7 @@ one scale per scene, so the small class is at the paper's smallest and the large
 2 cm library under the paper's rule as the baseline of today's settling.
 
 From each scene's metadata.json: counted bodies spawned, lost (below_floor, flung_out, unstable), dropped for
-interpenetration, and the worst interpenetration among the bodies kept after the settle checks: the deepest
+interpenetration, and the worst interpenetration among the bodies the scene keeps: the deepest
 vertex of one body's collision hull inside another's (both hulls from the catalog's collision meshes at
 their settled poses), as a share of the smaller body's size; and the deepest point under the floor's top
 (min_z) as a share of the body's size. stdout: one JSON line; stderr: a table.
@@ -125,7 +125,9 @@ def worst_overlap(bodies: list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]
 def scene_figures(scene: Path, hulls: dict[int, tuple[np.ndarray, np.ndarray]]) -> dict[str, Any]:
     meta = json.loads((scene / "metadata.json").read_text())
     counted = [o for o in meta["objects"] if o["role"] == "counted"]
-    settled = [o for o in counted if o.get("reason") not in (*LOST, "interpenetration") and o.get("matrix_world")]
+    # the bodies the dataset keeps (a body dropped later, occluded or outside the frame, is moved away by the
+    # worker: its recorded pose is not where it settled)
+    settled = [o for o in counted if o["status"] == "kept" and o.get("matrix_world")]
     bodies = [(*hulls[o["object_id"]], np.asarray(o["matrix_world"], dtype=np.float64), float(o["size_m"]))
               for o in settled]
     sink = max([max(0.0, -float(o["min_z"])) / float(o["size_m"]) for o in settled if o.get("min_z") is not None] or [0.0])
@@ -151,20 +153,21 @@ def run_band(work: Path, name: str, sizes: list[float], rule: str, seeds: list[i
     cat.close()
     out = work / "out" / f"{name.replace(' ', '').replace('+', '_')}_{rule}"
     rows = []
-    for k, seed in enumerate(seeds):  # every other scene in the band's tray
+    for k, seed in enumerate(seeds):  # every other scene in the band's tray (its own dataset: other settings)
         args = ["--db", str(db), "--set", f'scene.size_rule="{rule}"', "--set", f"scene.n_objects=[{n.replace('-', ',')}]",
                 "--set", "scene.n_classes=[2,2]", "--set", "scene.n_distractors=[0,0]",
                 "--set", 'scene.counted_exclude_categories=["tray"]',
                 "--set", f"scene.no_container_probability={1.0 if k % 2 == 0 else 0.0}", "compose", "--n", "1", "--split", "train",
-                "--seed", str(seed), "--resolution", str(resolution), "--samples", "1", "--out", str(out)]
-        before = set((out / "scenes").glob("scene_*")) if (out / "scenes").is_dir() else set()
+                "--seed", str(seed), "--resolution", str(resolution), "--samples", "1", "--out", str(out / f"tray{k % 2}")]
+        scenes = out / f"tray{k % 2}" / "scenes"
+        before = set(scenes.glob("scene_*")) if scenes.is_dir() else set()
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
             code = main(args)
         if code != 0:
             rows.append({"band": name, "rule": rule, "seed": seed, "error": err.getvalue()[-400:]})
             continue
-        for scene in sorted(set((out / "scenes").glob("scene_*")) - before):
+        for scene in sorted(set(scenes.glob("scene_*")) - before):
             rows.append({"band": name, "rule": rule, "seed": seed, "wall_s": round(time.perf_counter() - t0, 1),
                          **scene_figures(scene, hulls)})
     return rows
@@ -176,11 +179,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2, help="scenes per band (the odd ones in the band's tray)")
     ap.add_argument("--n", default="30-50", help="counted bodies spawned per scene, low-high")
     ap.add_argument("--resolution", type=int, default=32)
+    ap.add_argument("--bands", default="", help="only these bands, comma-separated (e.g. '2 cm + 50 cm,2 mm')")
     ap.add_argument("--smoke", action="store_true", help="one band, one scene of 8-10 bodies")
     a = ap.parse_args()
     work = a.work or Path(tempfile.mkdtemp(prefix="real_size_physics_"))
     work.mkdir(parents=True, exist_ok=True)
     runs: list[tuple[str, str]] = [(b, "real") for b in BANDS] + [("2 cm", "paper")]
+    if a.bands:
+        runs = [r for r in runs if r[0] in a.bands.split(",")]
     seeds, n = list(range(a.seeds)), a.n
     if a.smoke:
         runs, seeds, n = [("2 mm", "real")], [0], "8-10"

@@ -4,8 +4,8 @@ The sampler's side on records (fast): every class at its real size times the jit
 container at real size, the scene scale chosen per scene (the classes in the paper's range), no resized
 pair, untrusted sizes refused in one line, the paper's specs unchanged; the ``pile`` framing's distance.
 Then one quick-config compose by real bpy on a library of parts of very different sizes (beads stated 8 mm
-and 24 mm, a 20 cm box as distractor): the rendered masks keep their proportions (median mask area ratio
-against the real size ratio squared) and no body is lost."""
+and 24 mm, one file, a 20 cm box as distractor): the rendered masks keep their proportions (median mask
+area ratio against the real size ratio squared) and no body is lost."""
 
 from __future__ import annotations
 
@@ -127,7 +127,8 @@ def test_pile_framing_shows_the_paper_pixels_per_object(real_cfg):
 
 # ------------------------------------------------------------------------------------------- rendered
 
-BEADS = {"Small bead": ("8 mm", (0.9, 0.15, 0.1)), "Large bead": ("24 mm", (0.1, 0.3, 0.9)),
+# the two beads are one file (one unit-cube model given two sizes): one asset each all the same
+BEADS = {"Small bead": ("8 mm", (0.9, 0.15, 0.1)), "Large bead": ("24 mm", (0.9, 0.15, 0.1)),
          "Storage box": ("20 cm", (0.8, 0.8, 0.8))}
 
 

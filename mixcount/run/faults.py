@@ -158,7 +158,7 @@ def missing_inputs(spec: Any, assets_dir: Path) -> Optional[str]:
 
     container_id = spec.container.object_id if spec.container is not None else None
     for a in spec.assets:
-        cached = (Path(assets_dir) / f"{asset_key(a.content_hash, str(a.model_path))}.usdc").is_file()
+        cached = (Path(assets_dir) / f"{asset_key(a.content_hash, str(a.model_path), a.source_units)}.usdc").is_file()
         why = None if cached else _readable(Path(a.model_path))
         if why:
             return f"model of object {a.object_id} ({a.name}) is {why}: {a.model_path}"

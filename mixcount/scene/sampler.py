@@ -316,7 +316,9 @@ def _place_counted(rng: np.random.Generator, config: SceneConfig, drafts: list[C
                                  pile.ellipse, config.spawn_stack, base_z=pile.base_z if real else None)
     release = np.ones(n, dtype=int)
     if config.spawn_stack and config.spawn_release_waves:
-        positions, release = release_waves(positions, z_range, config.spawn_wave_clearance * s,
+        # a real-size scene's bodies above the paper's largest leave a higher pile: a later wave clears it
+        extra = 2.0 * max(0.0, float(sizes.max()) - config.class_size[1] * s) if real and n else 0.0
+        positions, release = release_waves(positions, z_range, config.spawn_wave_clearance * s + extra,
                                             config.spawn_wave_interval_frames)
         if real:
             positions[:, 2] = np.maximum(positions[:, 2], pile.base_z + sizes / 2)

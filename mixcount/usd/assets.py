@@ -62,8 +62,12 @@ class AssetPaths:
     has_proxy: bool = False  # the asset holds a collision proxy at PROXY_PRIM
 
 
-def asset_key(content_hash: str, model_path: str) -> str:
-    return content_hash or hashlib.sha256(str(model_path).encode()).hexdigest()
+def asset_key(content_hash: str, model_path: str, units: Optional[str] = None) -> str:
+    """The converted asset's file stem: the model's content hash, plus its unit when that is not metres. One
+    file read in two units (two objects of one unit-cube model given other sizes, issue 70) is two assets;
+    keyed by the hash alone, both classes of a scene drew the one converted last (a 20 mm part at 2 mm)."""
+    key = content_hash or hashlib.sha256(str(model_path).encode()).hexdigest()
+    return key if units in (None, "", "m") else f"{key}_u{units}"
 
 
 # ------------------------------------------------------------------------------------ pxr side
@@ -254,7 +258,7 @@ def convert_asset(model_path: str | Path, out_dir: Path, *, content_hash: str = 
     """Convert one model to ``out_dir/<hash>.usdc`` (+ textures, + collision, + proxy prim) unless cached.
     ``look``: (sRGB r, g, b, metallic, roughness) for parts without a colour of their own."""
     model = Path(model_path)
-    key = asset_key(content_hash, str(model))
+    key = asset_key(content_hash, str(model), units)
     visual = out_dir / f"{key}.usdc"
     tex_dir = out_dir / f"{key}_tex"
     coll = out_dir / f"{key}_collision.usdc" if collision_path else None
