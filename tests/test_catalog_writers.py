@@ -132,22 +132,17 @@ def test_locked_by_a_program_without_the_writer_lock_is_one_line(db: Path, monke
 
 
 def test_one_process_shares_its_lock_and_lets_go_of_it(db: Path) -> None:
-    """Two catalogs of one process opened for writing share its lock (a second flock would wait for the
-    first); the lock goes with the last close, or with a catalog dropped unclosed."""
-    import fcntl
+    """Two catalogs of one process opened for writing share its lock; the lock goes with the last close, or
+    with a catalog dropped unclosed; a process forked by the writer (ingest's analysis pool) does not hold it."""
     import gc
 
     from mixcount.catalog.db import Writer
 
-    def free() -> bool:  # what another process would find: can the lock be taken now?
-        fd = os.open(writer_lock_path(db), os.O_RDWR)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            return True
-        except BlockingIOError:
-            return False
-        finally:
-            os.close(fd)
+    probe = ("import fcntl, os, sys\nfd = os.open(sys.argv[1], os.O_RDWR)\ntry:\n"
+             "    fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)\nexcept OSError:\n    sys.exit(1)\n")
+
+    def free() -> bool:  # what another process finds: can it take the lock now?
+        return subprocess.run([sys.executable, "-c", probe, str(writer_lock_path(db))]).returncode == 0
 
     writer = Writer(command="mixcount catalog render", wait_s=0)
     first = open_catalog(str(db), data_dir="", writer=writer)
@@ -160,6 +155,14 @@ def test_one_process_shares_its_lock_and_lets_go_of_it(db: Path) -> None:
     assert free() and writer_lock_path(db).read_text() == ""
     dropped = open_catalog(str(db), data_dir="", writer=writer)
     assert not free()
-    del dropped
-    gc.collect()
-    assert free()
+    child = os.fork()  # a forked child (a pool worker) outliving its parent's hold
+    if child == 0:
+        time.sleep(30)
+        os._exit(0)
+    try:
+        del dropped
+        gc.collect()
+        assert free()  # the child still runs, and does not hold the parent's lock
+    finally:
+        os.kill(child, 9)
+        os.waitpid(child, 0)

@@ -12,13 +12,15 @@ A file that is not a mixcount catalog (not SQLite, another program's database, a
 refused with one line naming the file and the problem (docs/faults.md).
 
 One catalog, several writers: a command that writes the catalog opens it with a :class:`Writer`, which
-takes an exclusive ``flock`` on ``<catalog>.writer`` beside the database for as long as the catalog is open
+takes an exclusive lock (POSIX ``lockf``) on ``<catalog>.writer`` beside the database for as long as the catalog is open
 and writes the holder's pid, command and start time into it. A second writer waits for it up to
 ``catalog.writer_wait_s``, then stops with one line naming the holder (:class:`CatalogBusyError`); SQLite's
 own lock is then never fought over for minutes (two ``catalog filter`` runs died after 1 m 52 s with
 ``database is locked``). Readers take no lock and never wait (WAL). A ``database is locked`` that still
 reaches a statement (another program, an old mixcount) becomes one line, a :class:`CatalogError`. The lock
-is the kernel's: it ends with the process that held it, whatever killed it.
+is the kernel's and the process's own: it ends with the process that held it, whatever killed it, and the
+processes it forks (ingest's analysis pool) do not hold it (a ``flock`` would be shared with them, and kept
+by a pool worker that outlives a killed ingest).
 """
 
 from __future__ import annotations
@@ -414,7 +416,7 @@ class _HeldLock:
     users: int = 1
 
 
-_HELD: dict[Path, _HeldLock] = {}  # lock file -> this process's hold on it (one flock per process and file)
+_HELD: dict[Path, _HeldLock] = {}  # lock file -> this process's hold on it (one lock per process and file)
 
 
 def _let_go(path: Path) -> None:
@@ -430,7 +432,7 @@ def _let_go(path: Path) -> None:
 
     try:
         os.ftruncate(held.fd, 0)  # no stale holder is shown to the next one who reads it
-        fcntl.flock(held.fd, fcntl.LOCK_UN)
+        fcntl.lockf(held.fd, fcntl.LOCK_UN)
     except OSError:
         pass
     finally:
@@ -440,8 +442,8 @@ def _let_go(path: Path) -> None:
 @dataclass
 class WriterLock:
     """The writer lock held for one open catalog (:meth:`release`, or its garbage collection, lets it go).
-    Two catalogs of one process opened for writing on one file share the process's lock: a second
-    ``flock`` of the same file would wait for the first."""
+    Two catalogs of one process opened for writing on one file share the process's lock (POSIX locks
+    belong to the process, and closing any descriptor of the file would let it go)."""
 
     path: Path
     _finalizer: Any = field(default=None, repr=False)
@@ -474,7 +476,7 @@ def take_writer_lock(db_path: Path, writer: Writer) -> WriterLock:
     try:
         while True:
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 break
             except OSError as exc:
                 if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
