@@ -153,7 +153,8 @@ def ingest_environments(catalog: Any, paths: Iterable[Path], *, max_pixels: int,
         known = {e.content_hash: e for e in session.execute(select(Environment)).scalars()}
         for path in files:
             if not is_environment_map(path):
-                summary.skipped.append(f"{path}: not an HDR or EXR file")
+                empty = path.stat().st_size == 0
+                summary.skipped.append(f"{path}: {'an empty file' if empty else 'not an HDR or EXR file'}")
                 continue
             digest = _sha256([path])
             row = known.get(digest)
