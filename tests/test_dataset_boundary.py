@@ -144,6 +144,14 @@ def test_package_assets_refuses_a_texture_from_outside_the_library(planted: dict
 def test_packaged_bytes_are_those_written_and_an_allowed_root_lets_the_file_in(planted: dict) -> None:
     key, secret = planted["key"], planted["outside"].read_bytes()
     copy = planted["tmp"] / "packaged"
+    from mixcount.catalog.db import open_catalog
+
+    other = planted["tmp"] / "other.db"
+    open_catalog(f"sqlite:///{other}", data_dir="").close()
+    links = sorted(p.name for p in (copy / "assets").iterdir() if p.is_symlink())
+    proc = _run("--db", str(other), "package", str(copy))  # another catalog cannot vouch, and takes nothing out
+    assert proc.returncode == 2 and "was composed from the catalog catalog.db#" in proc.stderr, proc.stderr[-2000:]
+    assert sorted(p.name for p in (copy / "assets").iterdir() if p.is_symlink()) == links and links
     proc = _run("--db", planted["db"], "package", str(copy), "--json")
     assert proc.returncode == 2, proc.stderr[-2000:]  # the planted asset refused here too
     report = json.loads(proc.stdout)

@@ -193,7 +193,7 @@ def compose_cmd(
         packaged = package_with_catalog(out_dir, catalog, cfg)
         for line in packaged.lines():
             console.print(line, highlight=False, soft_wrap=True, markup=False)
-        console.print(f"packaged {len(packaged.copied)} asset entr(ies) into {out_dir / 'assets'} ({packaged.bytes / 1e6:.1f} MB "
+        console.print(f"packaged {len(packaged.copied)} asset entr(ies) into {out_dir / 'assets'} ({packaged.bytes:,} bytes "
                       f"written, {len(packaged.refused)} refused; listed in {out_dir / 'package.json'})", highlight=False)
     result(_compose_lines(summary, out_dir, merge=cfg.compose.merge) + _views_lines(cfg), {k: v for k, v in summary.to_dict().items() if k != "outcomes"},
            json_out)

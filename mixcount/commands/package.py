@@ -40,7 +40,7 @@ def package_cmd(
         catalog.close()
     for line in report.lines():
         console.print(line, highlight=False, soft_wrap=True, markup=False)
-    result(f"packaged {out_dir / 'assets'}: {len(report.copied)} copied ({report.bytes / 1e6:.1f} MB written), "
+    result(f"packaged {out_dir / 'assets'}: {len(report.copied)} copied ({report.bytes:,} bytes written), "
            f"{len(report.kept)} already copies, {len(report.searched)} found by search, {len(report.refused)} refused",
            report.to_dict(), json_out)
     report.raise_if_refused(out_dir)

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any, Iterable, Optional
 
 from mixcount.atomic import atomic_path, write_text_atomic
-from mixcount.errors import PackageError
+from mixcount.errors import CompositionError, PackageError
 from mixcount.usd.portable import ASSETS_DIR, SOURCES_DIR, PathRoots, portable_paths
 
 SEARCH_ENV = "MIXCOUNT_ASSETS"
@@ -231,8 +231,19 @@ def _sanitize_layer(path: Path, out_dir: Path, roots: PathRoots, report: Package
 def package_with_catalog(out_dir: Path, catalog: Any, config: Any, *, search: Iterable[Path] = ()) -> PackageReport:
     """:func:`package_assets` of a dataset composed from ``catalog``: each entry checked against the
     catalog's libraries first (``config.ingest.extra_roots`` as configured now widen them)."""
+    from mixcount.dataset.settings import catalog_identity, read_settings
     from mixcount.dataset.sources import CatalogSources
 
+    try:
+        recorded = {str(v.get("settings", {}).get("catalog")) for v in read_settings(Path(out_dir))["variants"]
+                    if v.get("settings", {}).get("catalog")}
+    except CompositionError:  # a damaged settings.json: nothing recorded to hold the catalog against
+        recorded = set()
+    given = catalog_identity(catalog.url)
+    if recorded and given not in recorded:  # another catalog cannot vouch, and must not take copies out
+        raise PackageError(f"{out_dir} was composed from the catalog {', '.join(sorted(recorded))} (settings.json), not "
+                           f"{given}: packaging checks each asset against the libraries of the catalog that made the "
+                           "dataset; name that catalog with --db; nothing was changed")
     return package_assets(out_dir, search=[*search, Path(catalog.usd_assets_dir)],
                           assets_dirs=[Path(catalog.usd_assets_dir)],
                           sources=CatalogSources(catalog, config.ingest.extra_roots))
