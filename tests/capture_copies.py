@@ -9,7 +9,7 @@ Originals (real files; textured where the package ships a texture), in two parts
   Wuson (STL), genesis-world's boat (16 textures) and airplane, metaworld's thermos body and hammer head,
   prusa-slicer's Stanford bunny (STL), pybullet's lego brick.
 
-Copies (:data:`KINDS`), each of one kind only, seeded by the original's name:
+Copies (:data:`KINDS`), each of one kind only but the last, seeded by the original's name:
 
 * ``print``: another print: the colours turned in hue (a texture) or another plain colour (untextured);
 * ``resolution``: quadric decimation to 10-20 % of the faces, the texture baked to vertex colours (odd
@@ -17,7 +17,9 @@ Copies (:data:`KINDS`), each of one kind only, seeded by the original's name:
 * ``squash``: one random model axis scaled by 0.75-0.9;
 * ``units``: the numbers converted into another unit (mm, inches, cm or m; read back as ingest reads them);
 * ``pose``: a random rotation and offset;
-* ``reindex``: the same topology re-indexed (vertices and faces permuted) and sampled afresh.
+* ``reindex``: the same topology re-indexed (vertices and faces permuted) and sampled afresh;
+* ``compound``: several changes at once, as a second source makes them (issue 69): other units, a squash and
+  another pose, with another resolution (odd seeds) or another print (even ones).
 
 Look-alikes (:data:`LOOK_ALIKES`): distinct objects of one kind that must stay apart: metaworld's mug and
 cup, pybullet's mug, genesis-world's bolt and nut, and demo mugs, bowls and bottles of other proportions.
@@ -65,7 +67,8 @@ LOOK_ALIKE_FILES: dict[str, tuple[str, str]] = {
     "nut_genesis": (P.GENESIS, f"{G}/bolt_nut/nut.stl"),
 }
 DEMO_LOOK_ALIKES = (("mug", 1), ("mug", 2), ("bowl", 1), ("bowl", 2), ("bottle", 1), ("bottle", 2))
-KINDS = ("print", "resolution", "squash", "units", "pose", "reindex")
+KINDS = ("print", "resolution", "squash", "units", "pose", "reindex", "compound")
+SINGLE_KINDS = KINDS[:-1]
 UNITS = ("mm", "in", "cm", "m")
 Entry = tuple[str, str, str, np.ndarray, np.ndarray, Any]
 
@@ -103,38 +106,41 @@ def _hue_turn(colours: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def copies(name: str, part: str, v: np.ndarray, f: np.ndarray, dense: tuple[np.ndarray, np.ndarray],
            scale: float, seed: int) -> list[Entry]:
-    """The six copies of one original (see the module doc)."""
+    """The copies of one original (see the module doc), one per kind of :data:`KINDS`."""
     out = []
     tree = cKDTree(dense[0])
     for k, kind in enumerate(KINDS):
         rng = np.random.default_rng(seed * 10 + k)
+        changes = {kind}
+        if kind == "compound":
+            changes = {"units", "squash", "pose", "resolution" if seed % 2 else "print"}
         cv, cf = v.copy(), f.copy()
-        if kind == "resolution":
+        if "resolution" in changes:
             from mixcount.demo.traps import remesh
 
             cv, cf = remesh(cv, cf, method="decimate", target_faces=max(int(len(f) * rng.uniform(0.1, 0.2)), 60))
-        if kind == "reindex":
+        if "reindex" in changes:
             perm = rng.permutation(len(cv))
             inverse = np.empty_like(perm)
             inverse[perm] = np.arange(len(perm))
             cv, cf = cv[perm], inverse[cf][rng.permutation(len(cf))]
         points = D.sample_surface(cv, cf, A.N_SAMPLES, rng)
         colours = dense[1][tree.query(points)[1]]
-        if kind == "print":
+        if "print" in changes:
             colours = _hue_turn(colours, rng)
-        if kind == "resolution":
+        if "resolution" in changes:
             if seed % 2:  # baked to vertex colours: each sample takes its nearest vertex's colour
                 vertex_colour = dense[1][tree.query(cv)[1]]
                 colours = vertex_colour[cKDTree(cv).query(points)[1]]
             else:  # flattened to one colour
                 colours = np.tile(colours.mean(axis=0), (len(colours), 1))
         turn, factor, shift = np.eye(3), np.ones(3), np.zeros(3)
-        if kind == "squash":
+        if "squash" in changes:
             factor[rng.integers(0, 3)] = rng.uniform(0.75, 0.9)
-        if kind == "pose":
+        if "pose" in changes:
             turn, shift = _rotation(rng), rng.normal(size=3) * float(np.ptp(v, axis=0).max())
         unit = 1.0
-        if kind == "units":  # the numbers converted from the original's unit into another one
+        if "units" in changes:  # the numbers converted from the original's unit into another one
             others = [u for u in UNITS if abs(metres_per_unit(u) - scale) > 1e-12]
             unit = scale / metres_per_unit(others[seed % len(others)])
 

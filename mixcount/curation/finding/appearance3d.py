@@ -197,7 +197,9 @@ def surface_samples(model_path: str | Path, *, n: int = N_SAMPLES, seed: int = S
 
 
 def load_samples(model_path: str, *, cache_dir: Path | None, key: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`surface_samples`, cached as ``cache_dir/<key>_<version>.npz``."""
+    """:func:`surface_samples`, cached as ``cache_dir/<key>_<version>.npz``. The samples are stored as float32, so
+    they are returned as float32 values (in float64) when first computed too: a cold run and a warm one (and
+    two catalogs sharing the cache, one cold) see the same samples and get the same figures (issue 69)."""
     cache = cache_dir / f"{key}_{APPEARANCE_VERSION}.npz" if cache_dir is not None and key else None
     if cache is not None and cache.is_file():
         try:
@@ -205,12 +207,12 @@ def load_samples(model_path: str, *, cache_dir: Path | None, key: str | None) ->
                 return data["points"].astype(np.float64), data["colours"].astype(np.float64)
         except (OSError, ValueError, KeyError):
             pass
-    points, colours = surface_samples(model_path)
+    points, colours = (a.astype(np.float32) for a in surface_samples(model_path))
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(cache) as tmp:
-            np.savez_compressed(tmp, points=points.astype(np.float32), colours=colours.astype(np.float32))
-    return points, colours
+            np.savez_compressed(tmp, points=points, colours=colours)
+    return points.astype(np.float64), colours.astype(np.float64)
 
 
 # --------------------------------------------------------------------------- the descriptor

@@ -34,7 +34,7 @@ from typing import Iterable
 from mixcount.config import FilterConfig
 from mixcount.curation.finding import descriptors as D
 from mixcount.curation.finding import pair_evidence as E
-from mixcount.curation.finding.filter_items import Found, Item, LayoutCache
+from mixcount.curation.finding.filter_items import Found, Item, LayoutCache, in_order
 from mixcount.curation.finding.look_rules import look_pair, relit_colour_transport
 from mixcount.curation.flag_kinds import LOOK_ALIKE, POSSIBLE_COPY
 from mixcount.sizes import SizeEvidence
@@ -92,12 +92,14 @@ def shape_pair(x: Item, y: Item, th: FilterConfig, facts: tuple[float, float, fl
 def pair_flags(items: list[Item], th: FilterConfig, layouts: LayoutCache | None = None,
                pairs: Iterable[tuple[Item, Item]] | None = None) -> list[Found]:
     """Every pair flag of ``pairs`` (default: all pairs of ``items``): appearance rules, weighed by
-    :func:`mixcount.curation.finding.pair_evidence.weigh` (size, plain surfaces, aligned geometry), then shape. Two passes: the shape facts of every pair first (each object's nearest shape), then the rules."""
+    :func:`mixcount.curation.finding.pair_evidence.weigh` (size, plain surfaces, aligned geometry), then shape. Two passes: the shape facts of every pair first (each object's nearest shape), then the rules.
+    Each pair is taken in :func:`~mixcount.curation.finding.filter_items.in_order`: the catalog's order never
+    changes a flag."""
     layouts = layouts or LayoutCache(None)
     looked: list[tuple[Item, Item, list[Found], tuple[float, float, float] | None]] = []
     nearest: dict[int, float] = {}
     against: dict[tuple[int, int], SizeEvidence] = {}
-    for x, y in (pairs if pairs is not None else combinations(items, 2)):
+    for x, y in (in_order(*p) for p in (pairs if pairs is not None else combinations(items, 2))):
         found, size = E.weigh(x, y, look_pair(x, y, th, layouts), th, layouts)
         if size is not None:
             against[x.obj.id, y.obj.id] = size

@@ -63,6 +63,16 @@ class Found:
     reason: str
 
 
+def in_order(x: Item, y: Item) -> tuple[Item, Item]:
+    """The pair in the order every pair rule sees it (issue 69): by content hash, then geometry hash, not by
+    the catalog's order, so the same library ingested in another order gets the same flags (several
+    rules compare one object *onto* the other: a rotation search of one frame, the layout's first grid).
+    The id decides only between two objects of one content (then every rule gives both orders alike)."""
+    kx = (x.obj.content_hash or "", x.obj.geometry_hash or "", x.obj.id)
+    ky = (y.obj.content_hash or "", y.obj.geometry_hash or "", y.obj.id)
+    return (x, y) if kx <= ky else (y, x)
+
+
 def object_label(obj: CatalogObject) -> str:
     return f"#{obj.id} {obj.name!r}"
 

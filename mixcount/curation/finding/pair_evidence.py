@@ -8,8 +8,9 @@ object. :func:`weigh` checks each pairing the appearance rules found, before the
 (:mod:`mixcount.curation.finding.copy_rules`) sees the pair:
 
 * **Size** (:func:`mixcount.sizes.size_ratio_evidence` on the square roots of the real surface areas): a ratio beyond a
-  re-export's rescale (``size_rescale``) that no unit factor explains (``size_unit_tolerance``) is
-  evidence against a copy: the pair keeps no duplicate, variant or possible-copy flag (the shape rule makes
+  re-export's rescale (``size_rescale``) that no unit factor explains (``size_unit_tolerance``, widened by the
+  squash the alignment found: a copy in other units *and* squashed 10-25 % along one axis has 5-13 % less
+  surface, issue 69) is evidence against a copy: the pair keeps no duplicate, variant or possible-copy flag (the shape rule makes
   it a ``look_alike`` at most, the size sentence in its reason). An identical file or mesh
   (``exact_duplicate``) stays whatever the size. A largest side no everyday object has
   (:func:`mixcount.sizes.is_plausible`: a unit ingest could not read, a scan 15 m wide) is no evidence.
@@ -30,6 +31,7 @@ from __future__ import annotations
 import math
 
 from mixcount.config import FilterConfig
+from mixcount.curation.finding import descriptors as D
 from mixcount.curation.finding import shape_match as S
 from mixcount.curation.finding.filter_items import Found, Item, LayoutCache
 from mixcount.curation.finding.look_rules import pattern_strength
@@ -46,16 +48,36 @@ EXCLUDING = (NEAR_APPEARANCE, NEAR_GEOMETRY)
 PAIRING = EXCLUDING + (COLOUR_VARIANT, POSSIBLE_COPY)
 
 
-def size_evidence(x: Item, y: Item, th: FilterConfig) -> SizeEvidence | None:
+def size_evidence(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache | None = None) -> SizeEvidence | None:
     """The real sizes of the two weighed: the square root of the surface area, which no pose changes (a
     bounding box's largest side does: a turned copy's grows up to 1.7x); None when a descriptor is missing or
-    a largest side is implausible (its unit is unknown, so its size says nothing)."""
+    a largest side is implausible (its unit is unknown, so its size says nothing).
+
+    A squash changes the area too: squashed by ``f`` along one axis, a surface keeps between ``f`` and all of
+    its area. So where a unit factor explains the ratio only with the squash ``copy_max_squash`` allows, and
+    the shapes agree loosely (the copy rule's cheap gates), the pair is aligned (``layouts``: the cached
+    alignment the shape rule uses too) and the unit tolerance is widened by the square root of the stretch
+    the alignment found (largest over smallest stretch of its map): a unit error plus the squash that is
+    there, not any squash."""
     if x.shape is None or y.shape is None or not (x.shape.area_m2 and y.shape.area_m2):
         return None
     if not (is_plausible(max(x.shape.extents_m, default=0.0)) and is_plausible(max(y.shape.extents_m, default=0.0))):
         return None
-    return size_ratio_evidence(math.sqrt(x.shape.area_m2), math.sqrt(y.shape.area_m2), rescale_limit=th.size_rescale,
-                               tolerance=th.size_unit_tolerance)
+    sizes = math.sqrt(x.shape.area_m2), math.sqrt(y.shape.area_m2)
+    got = size_ratio_evidence(*sizes, rescale_limit=th.size_rescale, tolerance=th.size_unit_tolerance)
+    if not got.against or layouts is None or x.surface is None or y.surface is None:
+        return got
+    widest = (1.0 + th.size_unit_tolerance) * math.sqrt(th.copy_max_squash) - 1.0
+    if size_ratio_evidence(*sizes, rescale_limit=th.size_rescale, tolerance=widest).against:
+        return got
+    if D.d2_distance(x.shape, y.shape) > th.copy_gate_d2 or D.moment_distance(x.shape, y.shape) > th.cross_source_proportions:
+        return got
+    stretch = alignment(x, y, th, layouts)[1]
+    squashed = size_ratio_evidence(*sizes, rescale_limit=th.size_rescale,
+                                   tolerance=(1.0 + th.size_unit_tolerance) * math.sqrt(max(stretch, 1.0)) - 1.0)
+    if squashed.against:
+        return got
+    return SizeEvidence(got.ratio, False, f"{squashed.explained_by} and a squash x{stretch:.2f}")
 
 
 def is_plain(it: Item, th: FilterConfig) -> bool:
@@ -65,8 +87,22 @@ def is_plain(it: Item, th: FilterConfig) -> bool:
 
 def aligned_distance(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> float:
     """The shape rule's aligned distance of the pair (cached under the same key)."""
-    return layouts.cached(x, y, "shape", lambda: S.match(x.normalised(), y.normalised(), max_squash=th.copy_max_squash,
-                                                         quantile=th.match_quantile).distance)
+    return alignment(x, y, th, layouts)[0]
+
+
+def alignment(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, float]:
+    """(aligned distance, stretch of the map: largest over smallest, 1.0 for none) of the pair, one
+    :func:`~mixcount.curation.finding.shape_match.match` for both, each cached (``shape`` / ``stretch``)."""
+    done: list[S.Match] = []
+
+    def run() -> S.Match:
+        if not done:
+            done.append(S.match(x.normalised(), y.normalised(), max_squash=th.copy_max_squash,
+                                quantile=th.match_quantile))
+        return done[0]
+
+    return (layouts.cached(x, y, "shape", lambda: run().distance),
+            layouts.cached(x, y, "stretch", lambda: run().stretch))
 
 
 def primitive(x: Item, th: FilterConfig, layouts: LayoutCache) -> float:
@@ -78,7 +114,7 @@ def weigh(x: Item, y: Item, found: list[Found], th: FilterConfig,
           layouts: LayoutCache) -> tuple[list[Found], SizeEvidence | None]:
     """The appearance rules' ``found`` flags of one pair that the evidence bears (see the module doc), and
     the size evidence when it is against a copy (the shape rule then ranks the pair a look-alike at most)."""
-    size = size_evidence(x, y, th)
+    size = size_evidence(x, y, th, layouts)
     against = size if size is not None and size.against else None
     if against is not None:
         return [f for f in found if f.kind not in PAIRING], against
