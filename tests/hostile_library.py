@@ -52,6 +52,7 @@ CASES = {
     "odd name [x] 'q' ü": "a folder name with brackets, quotes, non-ASCII",
     "..dotted": "a folder named ..something (hidden: not walked)",
     "good_gltf": "the same glTF untouched (textured)",
+    "step_bad": "an empty STEP file and one of garbage bytes (OpenCASCADE's own output must not reach the terminal)",
 }
 
 
@@ -188,6 +189,9 @@ def build(tmp: Path) -> tuple[Path | None, str]:
                                 {"name": [], "category": {"x": 1}, "up_axis": 7})):
         folder = _cube(pyb, lib / "meta_counts" / f"cube{i}").parent
         (folder / "metadata.json").write_text(json.dumps(record))
+    for name, data in (("empty", b""), ("garbage", bytes(range(256)) * 8)):
+        (lib / "step_bad" / name).mkdir(parents=True)
+        (lib / "step_bad" / name / f"{name}.step").write_bytes(data)
     _cube(pyb, lib / "odd name [x] 'q' ü" / "cube")
     _cube(pyb, lib / "..dotted" / "cube")
     return lib, ""
