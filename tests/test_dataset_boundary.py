@@ -15,10 +15,8 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import pytest
@@ -39,8 +37,14 @@ def _textured_box(folder: Path, name: str, rgb: tuple[int, int, int]) -> Path:
     return folder / f"{name}.obj"
 
 
-def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mixcount", *args], capture_output=True, text=True, timeout=600)
+def _cli(capsys: Any, *args: str) -> tuple[int, str, str]:
+    """``mixcount ARGS`` in this process: (exit code, stdout, stderr)."""
+    from mixcount.cli import main
+
+    capsys.readouterr()
+    code = main(list(args))
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +60,9 @@ def planted(tmp_path_factory: pytest.TempPathFactory, demo_catalog_copy: Callabl
     _textured_box(lib / "red", "red", (200, 30, 30))
     _textured_box(lib / "blue", "blue", (30, 40, 200))
     db = str(root / "catalog.db")
-    ing = _run("--db", db, "--config", "quick", "catalog", "ingest", str(lib))
-    assert ing.returncode == 0, ing.stderr[-2000:]
+    from mixcount.cli import main
+
+    assert main(["--db", db, "--config", "quick", "catalog", "ingest", str(lib)]) == 0
     cat = open_catalog(f"sqlite:///{db}", data_dir="")
     with cat.session() as s:  # the boxes alone in train: the scene draws them
         mine = {o.id: o for o in s.scalars(select(CatalogObject)) if str(o.model_path).startswith(str(lib))}
@@ -70,9 +75,8 @@ def planted(tmp_path_factory: pytest.TempPathFactory, demo_catalog_copy: Callabl
     usd_assets = Path(cat.usd_assets_dir)
     cat.close()
     out = tmp / "out"
-    comp = _run("--db", db, "--config", "quick", "compose", "--n", "1", "--seed", "1", "--resolution", "48",
-                "--out", str(out))
-    assert comp.returncode == 0, comp.stderr[-3000:]
+    assert main(["--db", db, "--config", "quick", "compose", "--n", "1", "--seed", "1", "--resolution", "48",
+                 "--out", str(out)]) == 0
     (scene,) = [p for p in (out / "scenes").iterdir() if not p.name.startswith(".")]
     spec = json.loads((scene / "metadata.json").read_text())["spec"]
     counted = {c["object_id"] for c in spec["classes"]}
@@ -116,16 +120,16 @@ def _holding_pixels(tree: Path, pixels: np.ndarray) -> list[str]:
     return found
 
 
-def test_package_assets_refuses_a_texture_from_outside_the_library(planted: dict) -> None:
+def test_package_assets_refuses_a_texture_from_outside_the_library(planted: dict, capsys: Any) -> None:
     out, key, secret = planted["out"], planted["key"], planted["outside"].read_bytes()
     assert _holding_bytes(planted["usd_assets"] / f"{key}_tex", secret)  # the catalog does hold the planted file
-    proc = _run("--db", planted["db"], "--config", "quick", "compose", "--n", "1", "--seed", "1", "--resolution",
-                "48", "--out", str(out), "--package-assets")
-    assert proc.returncode == 2, (proc.returncode, proc.stderr[-3000:])
-    refused = [ln for ln in proc.stderr.splitlines() if ln.startswith("refused ")]
+    code, _out, err = _cli(capsys, "--db", planted["db"], "--config", "quick", "compose", "--n", "1", "--seed", "1",
+                           "--resolution", "48", "--out", str(out), "--package-assets")
+    assert code == 2, err[-3000:]
+    refused = [ln for ln in err.splitlines() if ln.startswith("refused ")]
     assert sorted(ln.split(":")[0] for ln in refused) == [f"refused {key}.usdc", f"refused {key}_tex"], refused
     assert all(str(planted["outside"]) in ln and "outside the library" in ln for ln in refused)
-    assert "2 asset entries of" in proc.stderr and "refused (listed above)" in proc.stderr
+    assert "2 asset entries of" in err and "refused (listed above)" in err
     assets = out / "assets"
     assert not (assets / f"{key}.usdc").exists() and not (assets / f"{key}_tex").exists()
     assert not any(p.is_symlink() for p in assets.rglob("*"))  # the rest copied
@@ -141,7 +145,7 @@ def test_package_assets_refuses_a_texture_from_outside_the_library(planted: dict
     assert boxes and all(s["path"].split("/")[0] in ("red", "blue") for s in boxes)
 
 
-def test_packaged_bytes_are_those_written_and_an_allowed_root_lets_the_file_in(planted: dict) -> None:
+def test_packaged_bytes_are_those_written_and_an_allowed_root_lets_the_file_in(planted: dict, capsys: Any) -> None:
     key, secret = planted["key"], planted["outside"].read_bytes()
     copy = planted["tmp"] / "packaged"
     from mixcount.catalog.db import open_catalog
@@ -149,12 +153,12 @@ def test_packaged_bytes_are_those_written_and_an_allowed_root_lets_the_file_in(p
     other = planted["tmp"] / "other.db"
     open_catalog(f"sqlite:///{other}", data_dir="").close()
     links = sorted(p.name for p in (copy / "assets").iterdir() if p.is_symlink())
-    proc = _run("--db", str(other), "package", str(copy))  # another catalog cannot vouch, and takes nothing out
-    assert proc.returncode == 2 and "was composed from the catalog catalog.db#" in proc.stderr, proc.stderr[-2000:]
+    code, _out, err = _cli(capsys, "--db", str(other), "package", str(copy))  # another catalog cannot vouch,
+    assert code == 2 and "was composed from the catalog catalog.db#" in err, err[-2000:]  # and takes nothing out
     assert sorted(p.name for p in (copy / "assets").iterdir() if p.is_symlink()) == links and links
-    proc = _run("--db", planted["db"], "package", str(copy), "--json")
-    assert proc.returncode == 2, proc.stderr[-2000:]  # the planted asset refused here too
-    report = json.loads(proc.stdout)
+    code, stdout, err = _cli(capsys, "--db", planted["db"], "package", str(copy), "--json")
+    assert code == 2, err[-2000:]  # the planted asset refused here too
+    report = json.loads(stdout)
     assert report["refused_entries"] == [f"{key}.usdc", f"{key}_tex"] and report["checked"]
     listed = json.loads((copy / "package.json").read_text())
     on_disk = {p: p.stat().st_size for p in (copy / "assets").rglob("*") if p.is_file()}
@@ -165,10 +169,11 @@ def test_packaged_bytes_are_those_written_and_an_allowed_root_lets_the_file_in(p
     assert _holding_bytes(copy, secret) == []
 
     allowed = planted["tmp"] / "allowed"
-    proc = _run("--db", planted["db"], "--set", f"ingest.extra_roots=[{json.dumps(str(planted['outside'].parent))}]",
-                "package", str(allowed), "--json")
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert json.loads(proc.stdout)["refused"] == 0
+    code, stdout, err = _cli(capsys, "--db", planted["db"], "--set",
+                             f"ingest.extra_roots=[{json.dumps(str(planted['outside'].parent))}]",
+                             "package", str(allowed), "--json")
+    assert code == 0, err[-2000:]
+    assert json.loads(stdout)["refused"] == 0
     assert _holding_bytes(allowed, secret)  # the folder allowed now: its file is packaged, and listed
     listed = json.loads((allowed / "package.json").read_text())
     tex = [f for f in listed["files"] if f["entry"] == f"{key}_tex"]

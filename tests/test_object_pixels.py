@@ -7,10 +7,8 @@ from __future__ import annotations
 
 import json
 import statistics
-import subprocess
-import sys
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import pytest
 
@@ -32,19 +30,26 @@ def test_tally_median_and_smallest_match_the_plain_figures() -> None:
     assert PixelTally.empty().median() is None and not PixelTally.empty().sizes(10.0, "plan").under_floor
 
 
-def _mixcount(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mixcount", *args], capture_output=True, text=True, timeout=600)
+def _cli(capsys: Any, *args: str) -> tuple[int, str, str]:
+    """``mixcount ARGS`` in this process: (exit code, stdout, stderr)."""
+    from mixcount.cli import main
+
+    capsys.readouterr()
+    code = main(list(args))
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
 
 
-def test_small_objects_are_said_at_the_start_and_in_the_summary(tmp_path: Path,
+def test_small_objects_are_said_at_the_start_and_in_the_summary(tmp_path: Path, capsys: Any,
                                                                demo_catalog_copy: Callable[[Path, int], Path]) -> None:
     root = demo_catalog_copy(tmp_path / "cat", 12)
     base = ["--db", str(root / "catalog.db"), "--config", "quick"]
     out = tmp_path / "out"
-    proc = _mixcount(*base, "compose", "--n", "1", "--seed", "3", "--resolution", "48", "--out", str(out), "--json")
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "objects are too small to count" in proc.stderr and "compose.min_object_px = 32 px" in proc.stderr
-    summary = json.loads(proc.stdout)
+    code, stdout, err = _cli(capsys, *base, "compose", "--n", "1", "--seed", "3", "--resolution", "48", "--out",
+                             str(out), "--json")
+    assert code == 0, err[-3000:]
+    assert "objects are too small to count" in err and "compose.min_object_px = 32 px" in err
+    summary = json.loads(stdout)
     px = summary["object_px"]
     images, plan = px["images"], px["plan"]
     assert px["floor_px"] == 32.0 and images["under_floor"] and plan["under_floor"]
@@ -59,7 +64,7 @@ def test_small_objects_are_said_at_the_start_and_in_the_summary(tmp_path: Path,
     assert f"median {images['median_px']:g} px, smallest {images['smallest_px']:g} px" in line and "UNDER" in line
 
     # the text summary says it too; a dry run with the floor lowered to 4 px warns of nothing
-    dry = _mixcount(*base, "--set", "compose.min_object_px=4", "compose", "--n", "2", "--seed", "3", "--resolution",
-                    "48", "--out", str(tmp_path / "dry"), "--dry-run")
-    assert dry.returncode == 0, dry.stderr[-2000:]
-    assert "too small to count" not in dry.stderr and "at or above the floor compose.min_object_px = 4 px" in dry.stderr
+    code, _out, err = _cli(capsys, *base, "--set", "compose.min_object_px=4", "compose", "--n", "2", "--seed", "3",
+                           "--resolution", "48", "--out", str(tmp_path / "dry"), "--dry-run")
+    assert code == 0, err[-2000:]
+    assert "too small to count" not in err and "at or above the floor compose.min_object_px = 4 px" in err
