@@ -43,10 +43,10 @@ def request_deadline(seconds: float) -> Iterator[float]:
 
 def _bounded(timeout: Optional[float], error: type[Exception]) -> Optional[float]:
     """``timeout`` cut to the time left until this thread's deadline; ``error`` when none is left."""
-    deadline = getattr(_local, "deadline", None)
+    deadline: Optional[float] = getattr(_local, "deadline", None)
     if deadline is None:
         return timeout
-    left = deadline - time.monotonic()
+    left = float(deadline) - time.monotonic()
     if left <= 0:
         raise error("the request's deadline passed")
     return left if timeout is None else min(timeout, left)

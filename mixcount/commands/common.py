@@ -192,7 +192,7 @@ def failure_log(catalog: Any, step: str, failures: Sequence[tuple[str, str]]) ->
     the terminal gets one line per item (:class:`~mixcount.errors.PartialFailure`), the log the rest."""
     import datetime
 
-    path = Path(catalog.data_dir) / "logs" / catalog.files_key / f"{step}.log"
+    path: Path = Path(catalog.data_dir) / "logs" / str(catalog.files_key) / f"{step}.log"
     path.parent.mkdir(parents=True, exist_ok=True)
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     with path.open("a", encoding="utf-8") as fh:
