@@ -165,6 +165,7 @@ def rerender_scene(scene_dir: Path, dst: Path, config: Config, worker: Worker, *
     """One finished scene rendered again into ``dst/scenes/<scene_id>`` (module docstring); its record."""
     from mixcount.dataset.manifest import record_scene_files
     from mixcount.dataset.scene_writer import finalize_scene, move_into_place, tmp_dir_for, write_metadata
+    from mixcount.run.scene_task import render_fault_of
 
     t0 = time.perf_counter()
     meta = json.loads((scene_dir / "metadata.json").read_text())
@@ -194,6 +195,9 @@ def rerender_scene(scene_dir: Path, dst: Path, config: Config, worker: Worker, *
         if result.status != STATUS_OK:
             return {"scene_id": spec.scene_id, "status": result.status, "views": len(views),
                     "seconds": round(time.perf_counter() - t0, 3)}
+        fault = render_fault_of(tmp, result)
+        if fault:  # black / magenta where the inputs are not: failed, never written (issue 68)
+            raise RenderError(f"re-render of {spec.scene_id}: {fault}")
         render = spec.render
         changes: dict[str, Any] = {}
         if rr.resolution:
