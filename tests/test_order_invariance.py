@@ -36,40 +36,41 @@ SLICE = ("bunny", "bunny_dec_flat_mm", "bunny_dec_flat_cm_dark", "bunny_dec_flat
 
 
 def _normalised_scans() -> dict[str, S.Normalised]:
-    """The real scans pymeshlab ships and a decimated, flattened, turned copy of two of them."""
+    """Two real scans pymeshlab ships and a decimated, squashed, turned copy of each in cm."""
     rng = np.random.default_rng(69)
     out = {}
-    for name in ("bunny10k_textured.obj", "cow.obj", "airplane.obj", "bone.ply"):
+    for name in ("bunny10k_textured.obj", "cow.obj"):
         mesh = trimesh.load(SAMPLES / name, force="mesh", process=False)
-        out[name.split(".")[0]] = S.normalise(trimesh.sample.sample_surface(mesh, 6000, seed=1)[0])
-        if name in ("bunny10k_textured.obj", "cow.obj"):
-            turn = np.linalg.qr(rng.normal(size=(3, 3)))[0] @ np.diag([1.0, 0.8, 1.0])
-            v, f = remesh(np.asarray(mesh.vertices) @ turn.T * 100.0, np.asarray(mesh.faces), method="decimate",
-                          target_faces=800)
-            out[name.split(".")[0] + "_copy"] = S.normalise(trimesh.sample.sample_surface(trimesh.Trimesh(v, f), 6000, seed=2)[0])
+        key = name.split(".")[0].replace("10k_textured", "")
+        out[key] = S.normalise(trimesh.sample.sample_surface(mesh, 6000, seed=1)[0])
+        turn = np.linalg.qr(rng.normal(size=(3, 3)))[0] @ np.diag([1.0, 0.8, 1.0])
+        v, f = remesh(np.asarray(mesh.vertices) @ turn.T * 100.0, np.asarray(mesh.faces), method="decimate",
+                      target_faces=800)
+        out[key + "_copy"] = S.normalise(trimesh.sample.sample_surface(trimesh.Trimesh(v, f), 6000, seed=2)[0])
     return out
 
 
 def test_alignment_is_the_same_whichever_object_comes_first():
     n = _normalised_scans()
-    pairs = [("bunny10k_textured", "bunny10k_textured_copy"), ("cow", "cow_copy"), ("bunny10k_textured", "cow"),
-             ("airplane", "bone"), ("cow_copy", "airplane")]
-    one_way = []
-    for a, b in pairs:
+    one_way, got = [], {}
+    for a, b in [("bunny", "bunny_copy"), ("cow", "cow_copy"), ("bunny", "cow")]:
         ab = S.match(n[a], n[b], max_squash=1.34)
         ba = S.match(n[b], n[a], max_squash=1.34)
         assert ab.distance == ba.distance, (a, b)
         # the maps are each other's inverse (b onto a, a onto b)
         assert np.allclose((ab.rotation * ab.scale) @ (ba.rotation * ba.scale), np.eye(3), atol=1e-9)
         assert ab.stretch == pytest.approx(ba.stretch)
-        forwards = S._match(n[a], n[b], max_squash=1.34, quantile=S.QUANTILE, whole=S.WHOLE_STARTS).distance
-        backwards = S._match(n[b], n[a], max_squash=1.34, quantile=S.QUANTILE, whole=S.WHOLE_STARTS).distance
-        assert ab.distance in (round(forwards, 6), round(backwards, 6))
-        one_way.append(abs(forwards - backwards))
+        # the other direction, which the order-free match never takes for this pair
+        first, second = (n[a], n[b]) if n[a].digest > n[b].digest else (n[b], n[a])
+        other = S._match(first, second, max_squash=1.34, quantile=S.QUANTILE, whole=S.WHOLE_STARTS).distance
+        one_way.append(abs(other - ab.distance))
+        got[a, b] = ab
     # what the order-free match takes away: aligning one way or the other gives other figures
     assert max(one_way) > 1e-3, one_way
-    # the copies stay copies: far nearer each other than the different scans are
-    assert S.match(n["cow"], n["cow_copy"], max_squash=1.34).distance < 0.5 * S.match(n["cow"], n["airplane"], max_squash=1.34).distance
+    # the copies stay copies (squashed 20 %: the map's stretch says so), far nearer than the two scans
+    for key in ("bunny", "cow"):
+        assert got[key, key + "_copy"].distance < 0.5 * got["bunny", "cow"].distance
+        assert got[key, key + "_copy"].stretch > 1.1
 
 
 def _write(root: Path) -> list[Path]:
@@ -111,6 +112,7 @@ def _filtered(db: Path, data: Path, folders: list[Path]) -> tuple[dict, dict, di
     return {"flags": flags, "status": status, "first": first}, queue, cache
 
 
+@pytest.mark.slow
 def test_the_same_library_in_reverse_order_gets_the_same_flags(tmp_path: Path):
     folders = _write(tmp_path / "lib")
     forwards, queue_f, cache_f = _filtered(tmp_path / "forwards.db", tmp_path / "data", folders)

@@ -194,16 +194,19 @@ class RayExecutor:
                                           configure_logging=True)
             if address:
                 _probe(address, connect_timeout_s)
-            try:
-                if address:
-                    ray.init(address=address, **kwargs)
-                else:
-                    if slots or device in (None, "cpu"):
-                        n = max(1, int(slots or 1))
-                    else:  # GPU actors, as many as GPUs: CPUs for all of them
-                        n = max(1, (os.cpu_count() or 1) // max(1, int(cpus_per_slot)))
-                    ray.init(num_cpus=max(1, int(round(n * cpus_per_slot))), _node_ip_address="127.0.0.1",
-                             object_store_memory=int(object_store_mb) * 1024 * 1024, **kwargs)
+            from mixcount.worker.client import in_package_root
+
+            try:  # from the package's folder: Ray puts the driver's current folder first on its workers' sys.path
+                with in_package_root():
+                    if address:
+                        ray.init(address=address, **kwargs)
+                    else:
+                        if slots or device in (None, "cpu"):
+                            n = max(1, int(slots or 1))
+                        else:  # GPU actors, as many as GPUs: CPUs for all of them
+                            n = max(1, (os.cpu_count() or 1) // max(1, int(cpus_per_slot)))
+                        ray.init(num_cpus=max(1, int(round(n * cpus_per_slot))), _node_ip_address="127.0.0.1",
+                                 object_store_memory=int(object_store_mb) * 1024 * 1024, **kwargs)
             except Exception as exc:  # noqa: BLE001 - ConnectionError, RuntimeError, ...: one clear message
                 raise RayExecutorError(f"cannot {'reach the Ray cluster at ' + address if address else 'start a local Ray cluster'}: "
                                        f"{type(exc).__name__}: {exc}") from exc
