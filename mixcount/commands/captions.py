@@ -70,6 +70,9 @@ def caption_cmd(
     conf = cfg.captions
     cap = make_captioner(conf.captioner, conf)
     logging.getLogger("httpx").setLevel(logging.WARNING)
+    # each failed object is one `failed:` line at the end (PartialFailure): its log record goes to the
+    # handlers a caller configured, not also to Python's last-resort stderr handler
+    logging.getLogger("mixcount.captions").addHandler(logging.NullHandler())
     catalog = st.catalog(write=True)
     try:
         summary = caption_catalog(
