@@ -69,3 +69,33 @@ def test_catalog_render_from_a_folder_holding_a_mixcount_package(tmp_path: Path)
     report = json.loads(render.stdout)
     assert report["rendered"] == 1 and report["failed"] == 0, report
     assert len(list((tmp_path / "renders").rglob("*.png"))) >= 1
+
+
+@pytest.mark.ray
+def test_ray_workers_started_from_such_a_folder_import_mixcount_itself(tmp_path: Path) -> None:
+    """Ray puts the driver's current folder first on its workers' ``sys.path`` at ``ray.init``: the executor
+    starts Ray from the package's folder (:func:`mixcount.worker.client.in_package_root`)."""
+    pytest.importorskip("ray")
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import os, ray\n"
+        "from mixcount.worker.client import in_package_root\n"
+        "kw = dict(num_cpus=1, include_dashboard=False, _node_ip_address='127.0.0.1', log_to_driver=False)\n"
+        "with in_package_root():\n"
+        "    ray.init(**kw)\n"
+        "print(os.getcwd())\n"
+        "@ray.remote\n"
+        "def where():\n"
+        "    import mixcount\n"
+        "    return mixcount.__file__\n"
+        "print(ray.get(where.remote()))\n"
+        "ray.shutdown()\n")
+    shell = _shadowing_folder(tmp_path / "clone")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run([sys.executable, str(probe)], cwd=shell, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    cwd, where = proc.stdout.split()[-2:]
+    assert cwd == str(shell)  # the driver's own folder is back after ray.init
+    # without the wrap the remote task imported <shell>/mixcount/__init__.py (ray 2.x, docs/faults.md)
+    assert where == str(Path(package_root()) / "mixcount" / "__init__.py")

@@ -24,6 +24,7 @@ no current folder on the path) and the folder holding the parent's own ``mixcoun
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -33,7 +34,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Any, Optional, Protocol
+from typing import Any, Iterator, Optional, Protocol
 
 from mixcount.errors import RenderError
 from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalResult
@@ -61,6 +62,20 @@ def worker_command(python: str, module: str = WORKER_MODULE,
     rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and p != root]
     env["PYTHONPATH"] = os.pathsep.join([root, *rest])
     return [python, "-P", "-m", module], env
+
+
+@contextlib.contextmanager
+def in_package_root() -> Iterator[None]:
+    """This process's current folder set to :func:`package_root` while the block runs, then back: Ray puts
+    the driver's current folder FIRST on its workers' ``sys.path`` when ``ray.init`` runs, so a driver
+    started in a folder holding a directory named ``mixcount`` had every scene actor import that one
+    (seen with ray 2.x: ``mixcount.__file__`` of a remote task was the folder's). Wrap ``ray.init`` in it."""
+    here = os.getcwd()
+    os.chdir(package_root())
+    try:
+        yield
+    finally:
+        os.chdir(here)
 
 
 class WorkerDied(RenderError):
