@@ -72,7 +72,9 @@ def caption_cmd(
     logging.getLogger("httpx").setLevel(logging.WARNING)
     # each failed object is one `failed:` line at the end (PartialFailure): its log record goes to the
     # handlers a caller configured, not also to Python's last-resort stderr handler
-    logging.getLogger("mixcount.captions").addHandler(logging.NullHandler())
+    quiet = logging.getLogger("mixcount.captions")
+    if not any(isinstance(h, logging.NullHandler) for h in quiet.handlers):
+        quiet.addHandler(logging.NullHandler())
     catalog = st.catalog(write=True)
     try:
         summary = caption_catalog(
