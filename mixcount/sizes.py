@@ -223,9 +223,12 @@ def decide_size(largest_m: float, *, normalised: bool, unit_stated: bool, stated
     2. a unit the user or a description file stated (``unit_stated``): the model's size, never second-guessed;
     3. the model's own size when it means something: not ``normalised`` and plausible for its ``kind``
        (within :data:`KIND_SLACK` x of its range), or, without a kind, for an everyday object;
-    4. the kind's typical size (a normalised or implausible model of a kind in the table);
-    5. none: a normalised or implausible model of a kind the table lacks (untrusted: the real-size
-       scene rule refuses it)."""
+    4. the kind's typical size for a normalised model of a kind in the table;
+    5. none (untrusted: the real-size scene rule refuses it): a normalised model of a kind the table
+       lacks, or a model whose size in its unit is implausible. Such a size is said (with the kind's
+       typical size), not replaced: as the unit rule's size prior, only the user's word or an STL's assumed
+       millimetres are re-read, and a copy stored in the wrong unit stays what curation finds
+       (the demo library's rescaled traps)."""
     if not (largest_m > 0 and math.isfinite(largest_m)):
         return SizeDecision(1.0, SIZE_NONE, "no size: the model has no extent")
     if stated_m is not None:
@@ -233,21 +236,21 @@ def decide_size(largest_m: float, *, normalised: bool, unit_stated: bool, stated
                             f"stated size: {_length(stated_m)} ({stated_by}); the model was {_length(largest_m)}")
     if unit_stated:
         return SizeDecision(1.0, SIZE_MODEL, f"model: {_length(largest_m)} in the stated unit")
+    give = "give \"size\" in metadata.json, e.g. \"size\": \"14 mm\", or catalog ingest --size-of FOLDER=SIZE"
     if normalised:
         why = f"normalised into a unit cube (largest side {largest_m:.3g} in the file, centred)"
-    elif kind is not None and not kind.fits(largest_m):
-        why = (f"{_length(largest_m)} is implausible for a {kind.kind} "
-               f"({_length(kind.min_m)}-{_length(kind.max_m)})")
-    elif kind is None and not is_plausible(largest_m):
-        why = f"{_length(largest_m)} is no everyday object's size"
-    else:
-        return SizeDecision(1.0, SIZE_MODEL, f"model: {_length(largest_m)} in its unit")
-    if kind is None:
-        return SizeDecision(1.0, SIZE_NONE, f"no trustworthy size: {why}, and no typical size for its kind "
-                                            "(give \"size\" in metadata.json, e.g. \"size\": \"14 mm\", or "
-                                            "catalog ingest --size-of FOLDER=SIZE)")
-    return SizeDecision(kind.typical_m / largest_m, SIZE_KIND,
-                        f"typical size: {why}; a {kind.kind} is {_length(kind.typical_m)} ({kind.source})")
+        if kind is None:
+            return SizeDecision(1.0, SIZE_NONE, f"no trustworthy size: {why}, and no typical size for its kind ({give})")
+        return SizeDecision(kind.typical_m / largest_m, SIZE_KIND,
+                            f"typical size: {why}; a {kind.kind} is {_length(kind.typical_m)} ({kind.source})")
+    if kind is not None and not kind.fits(largest_m):
+        return SizeDecision(1.0, SIZE_NONE, f"no trustworthy size: {_length(largest_m)} is implausible for a "
+                                            f"{kind.kind} ({_length(kind.min_m)}-{_length(kind.max_m)}; typically "
+                                            f"{_length(kind.typical_m)}: {give})")
+    if kind is None and not is_plausible(largest_m):
+        return SizeDecision(1.0, SIZE_NONE, f"no trustworthy size: {_length(largest_m)} is no everyday object's "
+                                            f"size ({give})")
+    return SizeDecision(1.0, SIZE_MODEL, f"model: {_length(largest_m)} in its unit")
 
 
 def _length(m: float) -> str:

@@ -80,9 +80,8 @@ def test_every_object_keeps_its_real_size_and_the_scale_is_chosen_per_scene(real
         # every other length is the paper's (·s of scene.scale): physics sees a paper scene
         assert spec.physics.rest_speed == pytest.approx(cfg.scene.physics_rest_speed * cfg.scene.scale, rel=1e-5)
         assert spec.floor.thickness == pytest.approx(cfg.scene.floor_thickness * cfg.scene.scale, rel=1e-4)
-        # a body larger than the spawn range's low end never starts inside the floor or the tray, and the
-        # floor collider is never shallower than the largest body (bench/real_size_physics.py: 2 cm parts
-        # beside 50 cm ones lost 66 of 73 bodies before)
+        # a body larger than the spawn range's low end (the 0.5 m crate beside 2 mm resistors: 112 m) never
+        # starts inside the floor or the tray, and the floor collider is never shallower than the largest body
         base = spec.container.extent_m[2] if spec.container is not None else 0.0
         assert all(o.position[2] - o.size_m / 2 >= base - 1e-6 for o in spec.objects)
         assert spec.physics.floor_collider_depth >= max(o.size_m for o in spec.objects) - 1e-6
