@@ -241,6 +241,16 @@ def test_a_model_texture_that_does_not_decode_flags_the_object_and_is_never_rend
                               "over the limit of 67,108,864 ([ingest] max_image_pixels); not decoded (Pillow's "
                               "decompression-bomb check)")]
     assert "warning: cut: texture tex.png does not decode: damaged png" in err
+    # scenes never draw them (their USD conversion would stop on the image, Blender would paint it)
+    from mixcount.catalog.models import Split
+    from mixcount.catalog.pool_loader import load_pool
+
+    cat = open_catalog(db_url, data_dir="")
+    with cat.session() as s:
+        s.add_all([Split(object_id=o.id, split="train", method="random") for o in objs.values()])
+        s.commit()
+        assert [o.name for o in load_pool(s, split="train")] == ["whole"]
+    cat.close()
 
     # canonical renders: the three are not sent to Blender (it painted them black, and spent 78 s on the bomb)
     rc = __import__("mixcount.cli", fromlist=["main"]).main(

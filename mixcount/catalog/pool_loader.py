@@ -31,6 +31,9 @@ from mixcount.scene.object_records import EnvironmentRecord, MaterialRecord, Obj
 from mixcount.scene.spec import Captions
 
 COLOUR_VARIANT = "colour_variant"  # mixcount.curation.flag_kinds.COLOUR_VARIANT (no import: scene side stays light)
+# mixcount.catalog.tolerated: a texture that did not decode whole at ingest; such an object is never drawn
+# (Blender would paint the image black or magenta, the USD conversion stops on it)
+DAMAGED_TEXTURE = "damaged_texture"
 
 
 def colour_variants(session: Session) -> dict[int, set[int]]:
@@ -60,14 +63,16 @@ def colour_variants(session: Session) -> dict[int, set[int]]:
 
 
 def load_pool(session: Session, *, split: Optional[str] = None, palette: Any = None) -> list[ObjectRecord]:
-    """Active objects with a split (optionally only ``split``), ordered by id (determinism). ``palette``
-    (``[palette]``): each untextured object's look for its parts without a colour (:func:`object_look`)."""
+    """Active objects with a split (optionally only ``split``) and no ``damaged_texture`` flag, ordered by id
+    (determinism). ``palette`` (``[palette]``): each untextured object's look for its parts without a colour
+    (:func:`object_look`)."""
     from mixcount.catalog.materials import object_look
 
+    damaged = select(Flag.object_id).where(Flag.kind == DAMAGED_TEXTURE)  # a texture that did not decode
     stmt = (
         select(CatalogObject, Split.split)
         .join(Split, Split.object_id == CatalogObject.id)
-        .where(CatalogObject.status == STATUS_ACTIVE)
+        .where(CatalogObject.status == STATUS_ACTIVE, CatalogObject.id.not_in(damaged))
         .order_by(CatalogObject.id)
     )
     if split is not None:
