@@ -122,6 +122,13 @@ def test_pile_framing_shows_the_paper_pixels_per_object(real_cfg):
     expected = cam.distance_factor * math.sqrt(2 * cam.pile_area * 50 * 0.36) * cam.distance_scale
     assert framed.camera.distance == pytest.approx(expected, rel=1e-5)
     assert framed.derivation["framing"] == "pile" and "footprint" in framed.derivation["distance_rule"]
+    # parts spread over a tray far larger than their pile: never closer than the fit (they stay in the frame)
+    wide = np.c_[rng.uniform(-20, 20, (50, 2)), np.full(50, 0.3)]
+    spread = frame_camera(cam, wide, sizes, 1.7, margin=0.02)
+    assert spread.camera.distance == pytest.approx(spread.derivation["fit_distance"], rel=1e-5)
+    assert spread.camera.distance > expected
+    inside = int(spread.derivation["counted_origins_in_frame"].split("/")[0])
+    assert inside >= math.ceil(cam.fit_share * 50)
 
 
 # ------------------------------------------------------------------------------------------- rendered

@@ -15,7 +15,8 @@ distance by the camera's ``framing`` rule:
 * ``pile``: ``distance_factor`` x the diagonal of a square of ``pile_area`` x the settled pile's one-layer
   footprint (the sum of the counted objects' largest sides squared) x ``distance_scale``: the container a
   paper scene fits to its pile (``container_pile_area``), so a real-size scene, whose container keeps its
-  real size, shows its objects at the paper's pixels per object (issue 70).
+  real size, shows its objects at the paper's pixels per object (issue 70); never closer than ``fit``
+  (parts spread over a tray much larger than their pile stay in the frame, at fewer pixels).
 * ``fixed``: the spec's pose as it is (specs written before framing existed, or a user's own camera).
 
 Distractors are not simulated: :func:`place_distractors` puts each on the floor where every camera sees
@@ -169,10 +170,13 @@ def frame_camera(cam: CameraSpec, counted: NDArray[Any], sizes: NDArray[Any], co
     elif cam.framing == "pile":
         area = float(cam.pile_area or 1.0) * float(np.sum(np.square(np.asarray(sizes, dtype=np.float64))))
         base = math.sqrt(2.0 * area) * (float(footprint_scale) if footprint_scale < 1.0 else 1.0)
-        dist = cam.distance_factor * base * cam.distance_scale
+        d_pile = cam.distance_factor * base * cam.distance_scale
+        d_fit = fit_distance(cam, target, pts, cam.fit_share, margin) * (1.0 + abs(cam.distance_scale - 1.0))
+        dist = max(d_pile, d_fit)
         derivation.update(distance_rule=f"{cam.distance_factor} x diagonal of a square of {cam.pile_area} x the "
-                                        f"settled pile's footprint ({len(pts)} objects) x distance_scale",
-                          base_diagonal=round(base, _R))
+                                        f"settled pile's footprint ({len(pts)} objects) x distance_scale, never "
+                                        f"closer than {cam.fit_share:.0%} of the settled counted origins in the frame",
+                          base_diagonal=round(base, _R), pile_distance=round(d_pile, _R), fit_distance=round(d_fit, _R))
     elif cam.framing == "fit":
         d_fit = fit_distance(cam, target, pts, cam.fit_share, margin)
         dist = d_fit * (1.0 + abs(cam.distance_scale - 1.0))
