@@ -246,18 +246,21 @@ def package_with_catalog(out_dir: Path, catalog: Any, config: Any, *, search: It
                            "dataset; name that catalog with --db; nothing was changed")
     return package_assets(out_dir, search=[*search, Path(catalog.usd_assets_dir)],
                           assets_dirs=[Path(catalog.usd_assets_dir)],
-                          sources=CatalogSources(catalog, config.ingest.extra_roots))
+                          sources=CatalogSources(catalog, config.ingest.extra_roots),
+                          take_out_copies=bool(recorded))  # unproven catalog: a refused copy is said, kept
 
 
 def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: Iterable[Path] = (),
-                   sources: Any = None) -> PackageReport:
+                   sources: Any = None, take_out_copies: bool = True) -> PackageReport:
     """Make ``OUT/assets/`` hold real copies of every file the dataset's stages use.
 
     Each symbolic link is replaced by a copy of its target; an entry whose link is broken, or that a
     stage names and that is missing, is looked for by name in ``search`` and ``$MIXCOUNT_ASSETS``. Copied
     USD layers get portable customLayerData. ``sources`` (a :class:`mixcount.dataset.sources.CatalogSources`;
     None: nothing checked, for datasets built without a catalog) refuses what did not come from the
-    libraries (module docstring). Writes ``OUT/package.json``. Raises :class:`PackageError` naming every
+    libraries (module docstring); a refused entry (a link, or a copy an older package made) is taken out
+    only with ``take_out_copies`` (the catalog is known to be the dataset's: settings.json names it), else
+    it is said and left as it was. Writes ``OUT/package.json``. Raises :class:`PackageError` naming every
     entry found nowhere (what was copied before stays; a rerun finishes the job)."""
     out_dir = Path(out_dir)
     assets = out_dir / ASSETS_DIR
@@ -278,7 +281,7 @@ def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: I
     for rel in sorted(present | wanted):
         dest = assets / rel
         if dest.exists() and not dest.is_symlink():
-            if _refused(sources, rel, dest, dest, report, verdicts):
+            if _refused(sources, rel, dest, dest if take_out_copies else None, report, verdicts):
                 continue
             report.kept.append(rel)
             continue
@@ -292,7 +295,7 @@ def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: I
                 continue  # an asset without textures has no texture folder
             missing.append(rel)
             continue
-        if _refused(sources, rel, src, dest, report, verdicts):
+        if _refused(sources, rel, src, dest if take_out_copies else None, report, verdicts):
             continue
         dest.parent.mkdir(parents=True, exist_ok=True)
         _copy(src, dest)
@@ -306,16 +309,17 @@ def package_assets(out_dir: Path, *, search: Iterable[Path] = (), assets_dirs: I
     return report
 
 
-def _refused(sources: Any, rel: str, target: Optional[Path], dest: Path, report: PackageReport,
+def _refused(sources: Any, rel: str, target: Optional[Path], dest: Optional[Path], report: PackageReport,
              verdicts: dict[str, Any]) -> bool:
-    """Whether ``rel`` is refused by ``sources`` (then it is taken out of the dataset and said)."""
+    """Whether ``rel`` is refused by ``sources`` (then it is said, and ``dest`` taken out of the dataset)."""
     if sources is None:
         return False
     verdict = sources.verdict(rel, target)
     verdicts[rel] = verdict
     if verdict.ok:
         return False
-    _remove_entry(dest)
+    if dest is not None:
+        _remove_entry(dest)
     report.refused.append((rel, str(verdict.refused)))
     return True
 
