@@ -94,7 +94,7 @@ def test_references_each_format_names(library: dict) -> None:
 
 def test_verdicts_keep_what_stays_in_the_library_and_refuse_what_leaves(library: dict) -> None:
     keys = library["keys"]
-    sources = CatalogSources(library["catalog"])
+    sources = CatalogSources(library["catalog"], [])
     ok = {name: sources.verdict(f"{keys[name]}.usdc", None) for name in keys}
     assert {n for n, v in ok.items() if v.ok} == {"robosuite", "gltf_inside", "glb"}
     soda = [s for s in ok["robosuite"].sources if s.path.endswith("soda.png")]
@@ -126,7 +126,7 @@ def test_a_file_dropped_into_the_assets_folder_is_taken_out_not_packaged(library
     (out / "assets" / "environments").mkdir(parents=True)
     (out / "assets" / "environments" / "evil.exr").write_bytes(b"not a map of this catalog")
     (out / "assets" / "notes.txt").write_bytes(b"nor this")
-    report = package_assets(out, sources=CatalogSources(library["catalog"]))
+    report = package_assets(out, sources=CatalogSources(library["catalog"], []))
     assert [e for e, _line in report.refused] == ["environments/evil.exr", "notes.txt"] and report.bytes == 0
     assert not any(p.is_file() for p in (out / "assets").rglob("*"))
     listed = json.loads((out / "package.json").read_text())

@@ -171,7 +171,7 @@ class CatalogSources:
     """Verdicts for the entries of a dataset composed from ``catalog`` (module docstring);
     ``extra_roots``: the folders allowed beyond each library NOW (``[ingest] extra_roots``)."""
 
-    def __init__(self, catalog: Any, extra_roots: Iterable[str | os.PathLike[str]] = ()) -> None:
+    def __init__(self, catalog: Any, extra_roots: Iterable[str | os.PathLike[str]]) -> None:
         from sqlalchemy import select
 
         from mixcount.catalog.models import CatalogObject, Environment, IngestRun, Material
