@@ -216,3 +216,26 @@ def test_render_fault_black_and_magenta(tmp_path: Path) -> None:
     canon[10:30, 20:40] = (shaded[10:30, 20:40] * np.array([200, 40, 190])).astype(np.uint8)
     Image.fromarray(canon).save(tmp_path / "plastic.png")
     assert M.render_fault(tmp_path / "plastic.png", tmp_path / "canon_mask.png") is None
+
+
+def test_a_reingest_does_not_decode_a_file_again_until_it_changes(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """DecodedFiles: a file decoded whole is remembered (by path, size, mtime, inode and the limit) across
+    catalogs opened again; one changed since (cut short here) is decoded again and refused."""
+    tex = tmp_path / "hopper.jpg"
+    tex.write_bytes((MPL_DATA / "grace_hopper.jpg").read_bytes())
+    memo_file = tmp_path / "data" / "decoded.json"
+    first = M.DecodedFiles(memo_file)
+    assert M.texture_warnings({"hopper.jpg": tex}, LIMIT, first) == []
+    first.save()
+    assert memo_file.is_file()
+
+    decodes: list[Path] = []
+    real_check = M.check_texture
+    monkeypatch.setattr(M, "check_texture", lambda f, p: decodes.append(Path(f)) or real_check(f, p))
+    again = M.DecodedFiles(memo_file)  # the next ingest: known, not decoded
+    assert M.texture_warnings({"hopper.jpg": tex}, LIMIT, again) == [] and decodes == []
+    assert M.texture_warnings({"hopper.jpg": tex}, LIMIT // 2, again) == [] and decodes == [tex]  # another limit
+    _cut(MPL_DATA / "grace_hopper.jpg", tex, 0.5)  # replaced by a damaged copy: checked and refused
+    found = M.texture_warnings({"hopper.jpg": tex}, LIMIT, again)
+    assert len(decodes) == 2 and len(found) == 1 and "truncated" in found[0]

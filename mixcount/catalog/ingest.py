@@ -43,7 +43,7 @@ from mixcount.catalog.derived import derive
 from mixcount.catalog.ingest_runs import close_interrupted_runs, done_running, note_running, run_failure
 from mixcount.catalog.layouts import SOURCE_DTC, SOURCE_FOLDER, SOURCE_OMNI, Candidate, discover  # noqa: F401
 from mixcount.catalog.layouts.parts import check_parts
-from mixcount.catalog.media_check import texture_warnings
+from mixcount.catalog.media_check import DecodedFiles, texture_warnings
 from mixcount.catalog.mesh import model_resources
 from mixcount.catalog.models import (
     STATUS_ACTIVE,
@@ -70,6 +70,9 @@ from mixcount.errors import IngestError
 from mixcount.frame import GLTF_EXTENSIONS, quiet_native_output
 from mixcount.library_root import bounded
 from mixcount.progress import ProgressReporter, as_reporter
+
+# the texture files the catalog decoded whole (media_check.DecodedFiles), in its data folder
+DECODED_FILES = "decoded_textures.json"
 
 # Fact columns copied from the analysis dict onto the row.
 FACT_FIELDS = (
@@ -161,9 +164,11 @@ def proxy_budget(config: IngestConfig) -> int:
     return config.proxy_max_vertices
 
 
-def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float, max_pixels: int) -> Prepared:
+def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float, max_pixels: int,
+            decoded: DecodedFiles | None = None) -> Prepared:
     """Size limit, header checks and hashes: everything that happens before mesh work. Every texture file is
-    decoded whole (``max_pixels``: ``[ingest] max_image_pixels``); one that does not flags the object."""
+    decoded whole (``max_pixels``: ``[ingest] max_image_pixels``); one that does not flags the object.
+    ``decoded``: the files the catalog already decoded whole, not decoded again (a re-ingest)."""
     prep = Prepared(cand)
     if cand.error:
         prep.error = cand.error
@@ -183,7 +188,7 @@ def prepare(cand: Candidate, *, settings: dict[str, Any], max_bytes: float, max_
         if roots is not None and not roots.contains(cand.model_path):  # a staged or derived copy: its folder too
             roots = roots.widened(cand.model_path.parent)
         resources = model_resources(cand.model_path, tolerated, roots)
-        tolerated.extend(texture_warnings(resources, max_pixels))  # decode before use (issue 68)
+        tolerated.extend(texture_warnings(resources, max_pixels, decoded))  # decode before use (issue 68)
         cand.warnings.extend(w for w in tolerated if w not in cand.warnings)
         files = {"model" + cand.model_path.suffix.lower(): cand.model_path}
         files.update({f"res:{k}": v for k, v in resources.items()})
@@ -401,6 +406,7 @@ def ingest_paths(
                     bar.advance()
                 else:
                     pending.append(prep)
+            run.decoded.save()
             if pending:
                 _analyse_all(session, pending, run, run.workers, run.count, bar)
             _turn_containers(session, run, candidates, known, config)
@@ -423,6 +429,7 @@ class _Run:
     workers: int
     collision_dir: Path
     max_pixels: int
+    decoded: DecodedFiles  # texture files this catalog already decoded whole (media_check)
 
     def count(self, outcome: str, prep: Prepared, error: str | None = None) -> None:
         summary = self.summary
@@ -435,7 +442,8 @@ class _Run:
             summary.warnings.extend((prep.cand.name, w) for w in prep.cand.warnings)
 
     def prepare(self, cand: Candidate) -> Prepared:
-        return prepare(cand, settings=self.settings, max_bytes=self.max_bytes, max_pixels=self.max_pixels)
+        return prepare(cand, settings=self.settings, max_bytes=self.max_bytes, max_pixels=self.max_pixels,
+                       decoded=self.decoded)
 
 
 def _discover(catalog: Any, paths: list[Path | str], ing: IngestConfig, *, layout: str,
@@ -470,7 +478,7 @@ def _start_run(catalog: Any, paths: list[Path | str], candidates: list[Candidate
         summary.layouts[cand.layout] = summary.layouts.get(cand.layout, 0) + 1
     run = _Run(summary, StoreContext(summary, catalog.renders_dir, catalog.data_dir / "descriptors"),
                settings_of(ing), ing.max_file_mb * 2**20, proxy_budget(ing), max(1, ing.workers),
-               catalog.collision_dir, ing.max_image_pixels)
+               catalog.collision_dir, ing.max_image_pixels, DecodedFiles(catalog.data_dir / DECODED_FILES))
     with catalog.session() as session:
         summary.interrupted_runs = close_interrupted_runs(session, catalog.data_dir)
         row = IngestRun(paths=json.dumps([str(p) for p in paths]), status="running")
