@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -38,6 +38,7 @@ from mixcount.catalog.models import (
 )
 from mixcount.errors import CaptionError, CaptionRequestError
 from mixcount.progress import ProgressReporter, as_reporter
+from mixcount.run.catalog_tasks import ray_tasks
 from mixcount.scene.caption_text import normalise_caption
 
 log = logging.getLogger("mixcount.captions.captioning")
@@ -140,10 +141,14 @@ def caption_catalog(
         with ThreadPoolExecutor(max_workers=workers) as pool:
             # Inputs (colours read from the render / model) are built in the workers too: they cost
             # more than a stub caption.
-            futures: dict[Future[CaptionResult], CatalogObject] = {}
-            for obj in todo:
-                item = CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id), palette=palette)
-                futures[pool.submit(_measure_and_caption, captioner, item, colour_source)] = obj
+            futures: dict[Any, CatalogObject] = {}
+            inputs = [CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id), palette=palette)
+                      for obj in todo]
+            if ray_tasks() is not None:  # --executor ray: each caption a Ray task, recorded here in order
+                futures = dict(zip(_ray_captions(captioner, inputs, colour_source), todo))
+            else:
+                for obj, item in zip(todo, inputs):
+                    futures[pool.submit(_measure_and_caption, captioner, item, colour_source)] = obj
             for fut in _as_completed_in_order(futures):
                 obj = futures[fut]
                 try:
@@ -373,7 +378,40 @@ def checked_result(captioner: Captioner, item: CaptionInput, result: CaptionResu
     return result
 
 
-def _as_completed_in_order(futures: dict[Future[CaptionResult], CatalogObject]) -> Iterable[Future[CaptionResult]]:
+class _Done:
+    """A caption a Ray task made (or the error that stopped it), read as a finished future is read."""
+
+    def __init__(self, got: Any) -> None:
+        self.got = got
+
+    def result(self) -> CaptionResult:
+        from mixcount.run.catalog_tasks import TaskFailed
+
+        if isinstance(self.got, TaskFailed):
+            raise CaptionRequestError(self.got.error, attempts=0)
+        result, error, attempts = self.got
+        if error is not None:
+            raise CaptionRequestError(error, attempts=attempts)
+        return result
+
+
+def caption_task(captioner: Captioner, item: CaptionInput, colour_source: str) -> tuple[Any, str | None, int]:
+    """Ray task of ``catalog caption --executor ray``: (result, None, attempts) or (None, the error as the
+    local path records it, attempts); never raises for one object's failure (it is not retried)."""
+    try:
+        return _measure_and_caption(captioner, item, colour_source), None, 0
+    except Exception as exc:  # noqa: BLE001 - recorded by the driver as the local path records it
+        message = str(exc) if isinstance(exc, CaptionError) else f"{type(exc).__name__}: {exc}"
+        return None, message, int(getattr(exc, "attempts", 1))
+
+
+def _ray_captions(captioner: Captioner, inputs: list[CaptionInput], colour_source: str) -> list[_Done]:
+    cluster = ray_tasks()
+    assert cluster is not None
+    return [_Done(got) for got in cluster.map(caption_task, [(captioner, it, colour_source) for it in inputs])]
+
+
+def _as_completed_in_order(futures: dict[Any, CatalogObject]) -> Iterable[Any]:
     """Completed futures in submission order: commits (and the DB) stay deterministic."""
     return list(futures)
 

@@ -80,7 +80,20 @@ def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
 
     In order, not as each finishes: the caller stores each result as a new catalog row, so the row ids (which
     the compositor draws by) are the same whichever worker finishes first; the same library ingested twice is
-    the same catalog. The workers still run ahead; only the storing waits for the earliest job."""
+    the same catalog. The workers still run ahead; only the storing waits for the earliest job.
+
+    Under ``--executor ray`` (:func:`mixcount.run.catalog_tasks.ray_tasks`) each analysis is a Ray task on the
+    cluster, stored here in the same order; a task that died on every try is the object's run failure."""
+    from mixcount.run.catalog_tasks import TaskFailed, ray_tasks
+
+    cluster = ray_tasks()
+    if cluster is not None:
+        for (job, _kw), got in zip(jobs, cluster.map(run_analysis, [(kw,) for _job, kw in jobs])):
+            if isinstance(got, TaskFailed):
+                finish(job, None, f"mesh analysis crashed on the Ray cluster: {got.error}")
+            else:
+                finish(job, *got)
+        return
     if n_workers <= 1 or len(jobs) == 1:
         for job, kwargs in jobs:
             facts, error = run_analysis(kwargs)

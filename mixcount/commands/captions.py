@@ -60,6 +60,10 @@ def caption_cmd(
              "(caption_collision) for review.",
     ),
     json_out: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout instead of a line."),
+    executor: str = typer.Option("local", "--executor", help="local (processes here) or ray (the per-object "
+                                 "work as Ray tasks; the catalog is written here: docs/ray.md)."),
+    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor "
+                                          "ray (default: start a local cluster)."),
 ) -> None:
     """Caption every active object at three tiers (short / concise / detailed); resumable. Exits 3 when
     any object failed to caption (one line each; a rerun captions only those)."""
@@ -77,10 +81,13 @@ def caption_cmd(
         quiet.addHandler(logging.NullHandler())
     catalog = st.catalog(write=True)
     try:
-        summary = caption_catalog(
-            catalog, cap, force=force, dedupe=dedupe, progress=RichProgress(),
-            colour_source=conf.colour_source, concurrency=conf.concurrency, palette=cfg.palette,
-        )
+        from mixcount.run.catalog_tasks import catalog_executor
+
+        with catalog_executor(executor, address):
+            summary = caption_catalog(
+                catalog, cap, force=force, dedupe=dedupe, progress=RichProgress(),
+                colour_source=conf.colour_source, concurrency=conf.concurrency, palette=cfg.palette,
+            )
         from mixcount.catalog.containers import refresh_containers
 
         with catalog.session() as session:  # captions may name containers ("a wooden tray")

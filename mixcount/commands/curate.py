@@ -22,6 +22,10 @@ def render_cmd(
     ids: list[int] = typer.Option([], "--id", help="Only these object ids (repeatable)."),
     only_failed: bool = typer.Option(False, "--only-failed", help="Only the objects whose last render failed "
                                      "(what a run with failures says to rerun)."),
+    executor: str = typer.Option("local", "--executor", help="local (processes here) or ray (the per-object "
+                                 "work as Ray tasks; the catalog is written here: docs/ray.md)."),
+    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor "
+                                          "ray (default: start a local cluster)."),
     json_out: bool = json_option("the summary"),
 ) -> None:
     """Canonical white-background renders of active objects (bpy worker processes; resumable). Exits 3
@@ -36,8 +40,12 @@ def render_cmd(
             if not ids:
                 result("render: no object has a failed render", {"objects": 0, "failed": 0}, json_out)
                 return
-        summary = render_catalog(catalog, st.config().canonical_render, object_ids=ids or None, include_excluded=include_excluded,
-                                 force=force, progress=RichProgress(), palette=st.config().palette)
+        from mixcount.run.catalog_tasks import catalog_executor
+
+        with catalog_executor(executor, address):
+            summary = render_catalog(catalog, st.config().canonical_render, object_ids=ids or None,
+                                     include_excluded=include_excluded, force=force, progress=RichProgress(),
+                                     palette=st.config().palette)
         failed = [(f"#{f['id']} {f['name']}", str(f["error"])) for f in summary.failures]
         log = failure_log(catalog, "catalog-render", failed) if failed else None
     finally:
@@ -62,6 +70,10 @@ def failed_render_ids(catalog) -> list[int]:  # type: ignore[no-untyped-def]
 
 def filter_cmd(
     ctx: typer.Context,
+    executor: str = typer.Option("local", "--executor", help="local (processes here) or ray (the per-object "
+                                 "work as Ray tasks; the catalog is written here: docs/ray.md)."),
+    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor "
+                                          "ray (default: start a local cluster)."),
     json_out: bool = json_option("the summary"),
 ) -> None:
     """Flag duplicates and degenerate/outlier objects, exclude all but one per duplicate group (idempotent).
@@ -71,7 +83,10 @@ def filter_cmd(
     st = state(ctx)
     catalog = st.catalog(write=True)
     try:
-        summary = run_filter(catalog, st.config())
+        from mixcount.run.catalog_tasks import catalog_executor
+
+        with catalog_executor(executor, address):
+            summary = run_filter(catalog, st.config())
         by_object: dict[str, list[str]] = {}
         for f in summary.descriptor_failures:  # an object may fail more than one descriptor: one line
             by_object.setdefault(f"#{f['id']} {f['name']}", []).append(str(f["error"]))

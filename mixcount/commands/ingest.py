@@ -54,6 +54,10 @@ def ingest_cmd(
         [], "--metadata",
         help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
              "licence; repeatable. Files beside the models and in the root's metadata/ folder are found anyway."),
+    executor: str = typer.Option("local", "--executor", help="local (processes here) or ray (the per-object "
+                                 "work as Ray tasks; the catalog is written here: docs/ray.md)."),
+    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address host:port for --executor "
+                                          "ray (default: start a local cluster)."),
 ) -> None:
     """Ingest 3D objects: mesh facts in metres/Z-up, hashes, collision meshes; idempotent and resumable."""
     from mixcount.catalog.ingest import check_up_axis, ingest_paths
@@ -72,11 +76,14 @@ def ingest_cmd(
 
     check_units(units)
     check_parts(parts)
+    from mixcount.run.catalog_tasks import catalog_executor
+
     catalog = st.catalog(create=True)
     try:
-        summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
-                               layout=layout, metadata_files=metadata, up_axis=up_axis, units=units,
-                               parts=parts, size_of=size_of, allow_roots=allow_root)
+        with catalog_executor(executor, address):
+            summary = ingest_paths(catalog, paths, config=cfg, progress=RichProgress(), strict=strict,
+                                   layout=layout, metadata_files=metadata, up_axis=up_axis, units=units,
+                                   parts=parts, size_of=size_of, allow_roots=allow_root)
     except KeyboardInterrupt:
         console.print("[yellow]ingest interrupted:[/] objects finished so far are committed; "
                       "run the same command again to finish", soft_wrap=True)

@@ -177,7 +177,7 @@ def render_catalog(
 ) -> RenderSummary:
     """Render every active (and optionally excluded) object whose render is missing or stale; ``palette``
     (``[palette]``) gives untextured objects' parts without a colour their look."""
-    from mixcount.worker.canonical_runner import RenderOutcome, run_jobs
+    from mixcount.worker.canonical_runner import RenderOutcome, run_jobs, run_jobs_on_ray
 
     settings = render_settings(config)
     shash = settings_hash(settings)
@@ -241,9 +241,16 @@ def render_catalog(
 
     for key, reason in refused:
         on_result(RenderOutcome(key, None, reason))
+    from mixcount.run.catalog_tasks import ray_tasks
+
+    cluster = ray_tasks()  # --executor ray: the renders run as Ray tasks, the rows are written here
     try:
-        run_jobs(jobs, on_result=on_result, workers=config.workers, timeout_s=config.timeout_s,
-                 threads_per_worker=config.threads)
+        if cluster is not None:
+            run_jobs_on_ray(cluster, jobs, on_result=on_result, timeout_s=config.timeout_s,
+                            threads_per_worker=config.threads)
+        else:
+            run_jobs(jobs, on_result=on_result, workers=config.workers, timeout_s=config.timeout_s,
+                     threads_per_worker=config.threads)
     finally:
         bar.stop()
     return summary

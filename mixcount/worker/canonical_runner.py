@@ -72,3 +72,31 @@ def run_jobs(jobs: Sequence[Job], *, on_result: Callable[[RenderOutcome], None],
         finally:
             # interrupted: do not wait for the renders in progress
             pool.close(kill=seen < len(jobs), join_s=30.0)
+
+
+RAY_CHUNK = 8  # canonical renders per Ray task: one bpy start (~2 s) shared by this many objects
+
+
+def render_chunk(jobs: Sequence[Job], timeout_s: float, threads: int) -> list[RenderOutcome]:
+    """Ray task of ``catalog render --executor ray``: ``jobs`` rendered in order by one bpy worker of this
+    node (:func:`run_jobs` with one worker, ``threads`` Cycles threads, 0: 1), one outcome each."""
+    got: list[RenderOutcome] = []
+    run_jobs(jobs, on_result=got.append, workers=1, timeout_s=timeout_s, threads_per_worker=max(1, int(threads)))
+    done = {o.key for o in got}
+    got += [RenderOutcome(key, None, "render worker stopped before this object") for key, _ in jobs if key not in done]
+    return got
+
+
+def run_jobs_on_ray(cluster: Any, jobs: Sequence[Job], *, on_result: Callable[[RenderOutcome], None],
+                    timeout_s: float, threads_per_worker: int) -> None:
+    """:func:`run_jobs` on a Ray cluster (:class:`mixcount.run.catalog_tasks.RayTasks`): chunks of
+    :data:`RAY_CHUNK` jobs as tasks, ``on_result`` called here, in the order of ``jobs``; a chunk whose
+    task died on every try fails its objects with the reason."""
+    from mixcount.run.catalog_tasks import TaskFailed, chunks
+
+    parts = chunks(list(jobs), RAY_CHUNK)
+    for part, got in zip(parts, cluster.map(render_chunk, [(p, timeout_s, threads_per_worker) for p in parts])):
+        if isinstance(got, TaskFailed):
+            got = [RenderOutcome(key, None, got.error) for key, _ in part]
+        for outcome in got:
+            on_result(outcome)

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
@@ -114,31 +115,79 @@ class FilterSummary:
 
 
 def _describe(catalog: Catalog, session: Session, items: list[Item], summary: FilterSummary) -> None:
-    cache = catalog.data_dir / "descriptors"
+    """Each item's descriptors (:func:`describe_one`), here or, under ``--executor ray``, as Ray tasks
+    (:func:`mixcount.run.catalog_tasks.ray_tasks`) whose results are set here in the items' order."""
+    from mixcount.run.catalog_tasks import TaskFailed, ray_tasks
+
+    cache = str(catalog.data_dir / "descriptors")
+    work = []
     for it in items:
         obj = it.obj
         it.appearance = appearance_kind(obj)
-        try:
-            it.shape = D.load_shape(obj.model_path, units=obj.source_units, up_axis=obj.source_up_axis,
-                                    cache_dir=cache, key=(obj.geometry_hash or "")[:32] or None)
-        except Exception as exc:  # a model that ingested but no longer loads: reported, batch goes on
-            summary.descriptor_failures.append({"id": obj.id, "name": obj.name, "error": f"{type(exc).__name__}: {exc}"})
-        try:
-            points, colours = A.load_samples(obj.model_path, cache_dir=cache, key=(obj.content_hash or "")[:32] or None)
-            it.surface = A.surface_look(points, colours)
-        except Exception as exc:  # noqa: BLE001 - as above
-            summary.descriptor_failures.append({"id": obj.id, "name": obj.name,
-                                                "error": f"surface appearance: {type(exc).__name__}: {exc}"})
         path = canonical_render_path(session, obj.id)
-        if path is None:
-            summary.missing_renders += 1
+        work.append((obj.model_path, obj.source_units, obj.source_up_axis, cache, (obj.geometry_hash or "")[:32] or None,
+                     (obj.content_hash or "")[:32] or None, str(path) if path is not None else None))
+    cluster = ray_tasks()
+    described = cluster.map(describe_one, work) if cluster is not None else (describe_one(*w) for w in work)
+    for it, got in zip(items, described):
+        obj = it.obj
+        if isinstance(got, TaskFailed):
+            summary.descriptor_failures.append({"id": obj.id, "name": obj.name, "error": got.error})
             continue
-        try:
-            it.look = D.appearance_descriptor(path, mask_path_for(path))
-        except OSError as exc:
-            summary.descriptor_failures.append({"id": obj.id, "name": obj.name, "error": f"render unreadable: {exc}"})
+        it.shape, it.surface, it.look, errors, missing = got
+        summary.missing_renders += int(missing)
+        summary.descriptor_failures.extend({"id": obj.id, "name": obj.name, "error": e} for e in errors)
 
 
+def describe_one(model_path: str, units: str | None, up_axis: str | None, cache_dir: str, shape_key: str | None,
+                 surface_key: str | None, render: str | None) -> tuple[Any, Any, Any, list[str], bool]:
+    """One object's (shape, surface look, render look, errors, render missing): what the filter knows of it
+    alone. Each failing descriptor is one error line and None (a model that ingested but no longer loads:
+    reported, the batch goes on). A Ray task under ``--executor ray``."""
+    cache = Path(cache_dir)
+    shape = surface = look = None
+    errors: list[str] = []
+    try:
+        shape = D.load_shape(model_path, units=units, up_axis=up_axis, cache_dir=cache, key=shape_key)
+    except Exception as exc:  # noqa: BLE001
+        errors.append(f"{type(exc).__name__}: {exc}")
+    try:
+        points, colours = A.load_samples(model_path, cache_dir=cache, key=surface_key)
+        surface = A.surface_look(points, colours)
+    except Exception as exc:  # noqa: BLE001 - as above
+        errors.append(f"surface appearance: {type(exc).__name__}: {exc}")
+    if render is None:
+        return shape, surface, look, errors, True
+    try:
+        look = D.appearance_descriptor(Path(render), mask_path_for(render))
+    except OSError as exc:
+        errors.append(f"render unreadable: {exc}")
+    return shape, surface, look, errors, False
+
+
+def align_on_ray(items: list[Item], th: Any, layouts: LayoutCache, compare: list[tuple[Item, Item]]) -> None:
+    """Under ``--executor ray``: the pair rules' costly figures (alignments, layout distances: what
+    :class:`LayoutCache` keeps) of ``compare`` computed as Ray tasks, a chunk of pairs each, and merged
+    into ``layouts``; the rules then run here on the filled cache. Without a cluster: nothing."""
+    from mixcount.run.catalog_tasks import TaskFailed, chunks, ray_tasks
+
+    cluster = ray_tasks()
+    if cluster is None or not compare:
+        return
+    known = cluster.put(dict(layouts.values))
+    parts = chunks(compare, max(1, len(compare) // (4 * cluster.cpus()) or 1))
+    for got in cluster.map(pair_figures, [(p, th, known) for p in parts]):
+        if not isinstance(got, TaskFailed):  # a lost chunk: its pairs are computed here by the rules
+            layouts.values.update(got)
+            layouts.dirty = layouts.dirty or bool(got)
+
+
+def pair_figures(pairs: list[tuple[Item, Item]], th: Any, known: dict[str, float]) -> dict[str, float]:
+    """Ray task: the :class:`LayoutCache` values the pair rules compute for ``pairs`` and ``known`` lacks."""
+    cache = LayoutCache(None)
+    cache.values = dict(known)
+    pair_flags([it for p in pairs for it in p], th, cache, pairs)
+    return {k: v for k, v in cache.values.items() if k not in known}
 
 
 def candidate_items(items: list[Item], k: int) -> list[tuple[Item, Item]]:
@@ -208,6 +257,7 @@ def _run_filter(catalog: Catalog, config: Config, *, ground_truth: bool) -> Filt
         layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{CL.LAYOUT_VERSION}.json")
         compare = candidate_items(items, th.candidates)
         summary.candidate_pairs = len(compare)
+        align_on_ray(items, th, layouts, compare)
         found = pair_flags(items, th, layouts, compare) + quality_flags(items, broken, th)
         layouts.save()
 
