@@ -89,12 +89,14 @@ def render_chunk(jobs: Sequence[Job], timeout_s: float, threads: int) -> list[Re
 
 def run_jobs_on_ray(cluster: Any, jobs: Sequence[Job], *, on_result: Callable[[RenderOutcome], None],
                     timeout_s: float, threads_per_worker: int) -> None:
-    """:func:`run_jobs` on a Ray cluster (:class:`mixcount.run.catalog_tasks.RayTasks`): chunks of
-    :data:`RAY_CHUNK` jobs as tasks, ``on_result`` called here, in the order of ``jobs``; a chunk whose
+    """:func:`run_jobs` on a Ray cluster (:class:`mixcount.run.catalog_tasks.RayTasks`): chunks of at most
+    :data:`RAY_CHUNK` jobs (fewer where a CPU of the cluster would get less than two chunks) as tasks,
+    ``on_result`` called here, in the order of ``jobs``; a chunk whose
     task died on every try fails its objects with the reason."""
     from mixcount.run.catalog_tasks import TaskFailed, chunks
 
-    parts = chunks(list(jobs), RAY_CHUNK)
+    per = max(1, min(RAY_CHUNK, -(-len(jobs) // (2 * cluster.cpus()))))  # two chunks a CPU at least
+    parts = chunks(list(jobs), per)
     for part, got in zip(parts, cluster.map(render_chunk, [(p, timeout_s, threads_per_worker) for p in parts])):
         if isinstance(got, TaskFailed):
             got = [RenderOutcome(key, None, got.error) for key, _ in part]
