@@ -13,6 +13,9 @@ from rich.markup import escape
 from mixcount.commands.common import RichProgress, check_catalog_file, console, out, result, state
 from mixcount.errors import CatalogError, PartialFailure
 
+SIZE_OF_HELP = ("The real size (largest side: \"14 mm\", \"3.5 in\", \"0.2\" in metres) of every object under FOLDER "
+                "whose metadata.json states no \"size\"; repeatable (docs/ingest.md, \"Sizes\").")
+
 
 def ingest_cmd(
     ctx: typer.Context,
@@ -46,10 +49,7 @@ def ingest_cmd(
         help="A folder outside the library that its files may reference or link into (repeatable; added to "
              "ingest.extra_roots). Anything else outside the folder named is refused for that object "
              "(docs/ingest.md, \"The library root is the boundary\")."),
-    size_of: list[str] = typer.Option(
-        [], "--size-of", metavar="FOLDER=SIZE",
-        help="The real size (largest side: \"14 mm\", \"3.5 in\", \"0.2\" in metres) of every object under FOLDER "
-             "whose metadata.json states no \"size\"; repeatable (docs/ingest.md, \"Sizes\")."),
+    size_of: list[str] = typer.Option([], "--size-of", metavar="FOLDER=SIZE", help=SIZE_OF_HELP),
     metadata: list[Path] = typer.Option(
         [], "--metadata",
         help="Side metadata file (JSON, JSONL or CSV, .gz allowed) mapping model ids to name, category and "
