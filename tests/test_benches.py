@@ -284,6 +284,17 @@ def test_real_size_physics_bench(tmp_path: Path) -> None:
     assert row["scales"][0] * 0.0012 >= 0.45  # the smallest part at the paper's smallest scene size
 
 
+@pytest.mark.ray
+def test_ray_catalog_bench(tmp_path: Path) -> None:
+    """bench/ray_catalog.py --smoke: a 1-object demo library ingested locally and on a two-node Ray cluster
+    (its own, killed at the end) gives the same catalog; the figures are there."""
+    doc = run_smoke("ray_catalog", None, args=("--work", str(tmp_path / "rc")))[-1]
+    check_figures(doc, ["runs.local.total_s", "runs.ray.total_s", "runs.ray.objects_differing", "runs.ray.objects"])
+    ray = doc["runs"]["ray"]
+    assert ray["same_catalog"] is True and ray["objects"] == doc["runs"]["local"]["objects"] > 0
+    assert ray["exit"] == {"ingest": 0}
+
+
 def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     """A bench added to bench/ without ``--smoke`` or without its test above fails here (bench/pools.py is
     the benches' shared helper and bench/count_sheet.py, which draws docs/count_targets_look.png from
