@@ -19,7 +19,7 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
@@ -144,13 +144,13 @@ def caption_catalog(
             futures: dict[Any, CatalogObject] = {}
             inputs = [CaptionInput.from_object(obj, render_path=render_path_for(session, obj.id), palette=palette)
                       for obj in todo]
-            if ray_tasks() is not None:  # --executor ray: each caption a Ray task, recorded here in order
-                futures = dict(zip(_ray_captions(captioner, inputs, colour_source), todo))
+            if ray_tasks() is not None:  # --executor ray: each caption a Ray task, recorded here as it comes, in order
+                done: Iterable[tuple[Any, CatalogObject]] = zip(_ray_captions(captioner, inputs, colour_source), todo)
             else:
                 for obj, item in zip(todo, inputs):
                     futures[pool.submit(_measure_and_caption, captioner, item, colour_source)] = obj
-            for fut in _as_completed_in_order(futures):
-                obj = futures[fut]
+                done = ((fut, futures[fut]) for fut in _as_completed_in_order(futures))
+            for fut, obj in done:
                 try:
                     result = fut.result()
                 except Exception as exc:  # noqa: BLE001 - one object's failure (bad file, bad answer) is recorded; the batch goes on
@@ -405,10 +405,12 @@ def caption_task(captioner: Captioner, item: CaptionInput, colour_source: str) -
         return None, message, int(getattr(exc, "attempts", 1))
 
 
-def _ray_captions(captioner: Captioner, inputs: list[CaptionInput], colour_source: str) -> list[_Done]:
+def _ray_captions(captioner: Captioner, inputs: list[CaptionInput], colour_source: str) -> Iterator[_Done]:
+    """Each input's caption from a Ray task, as it comes back (in order): a stopped run keeps those recorded."""
     cluster = ray_tasks()
     assert cluster is not None
-    return [_Done(got) for got in cluster.map(caption_task, [(captioner, it, colour_source) for it in inputs])]
+    for got in cluster.map(caption_task, [(captioner, it, colour_source) for it in inputs]):
+        yield _Done(got)
 
 
 def _as_completed_in_order(futures: dict[Any, CatalogObject]) -> Iterable[Any]:
