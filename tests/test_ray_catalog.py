@@ -186,16 +186,15 @@ def test_a_task_that_dies_on_every_try_is_a_failure_with_its_reason(two_nodes: t
 
 def test_an_analysis_lost_on_the_cluster_is_the_runs_failure(monkeypatch: pytest.MonkeyPatch) -> None:
     """What analyse_all records for a TaskFailed: a reason ingest counts as the run's failure (exit 3)."""
-    from mixcount.catalog import analysis_pool
+    from mixcount.catalog import analysis_pool, step_executor
     from mixcount.catalog.ingest_runs import run_failure
-    from mixcount.run import catalog_tasks
 
     class Lost:
         def map(self, fn: Any, args: list[tuple[Any, ...]]) -> Iterator[Any]:
             assert fn is analysis_pool.run_analysis
-            yield from [({"faces": 1}, None), catalog_tasks.TaskFailed("ray task failed after retries: NodeDiedError: x")]
+            yield from [({"faces": 1}, None), step_executor.TaskFailed("ray task failed after retries: NodeDiedError: x")]
 
-    monkeypatch.setattr(catalog_tasks, "ray_tasks", lambda: Lost())
+    monkeypatch.setattr(step_executor, "ray_tasks", lambda: Lost())
     seen: list[tuple[str, Any, Any]] = []
     analysis_pool.analyse_all([("a", {}), ("b", {})], 2, lambda job, facts, error: seen.append((job, facts, error)))
     assert seen[0] == ("a", {"faces": 1}, None)

@@ -36,9 +36,9 @@ from mixcount.catalog.models import (
     CatalogObject,
     Flag,
 )
+from mixcount.catalog.step_executor import ray_tasks
 from mixcount.errors import CaptionError, CaptionRequestError
 from mixcount.progress import ProgressReporter, as_reporter
-from mixcount.run.catalog_tasks import ray_tasks
 from mixcount.scene.caption_text import normalise_caption
 
 log = logging.getLogger("mixcount.captions.captioning")
@@ -385,7 +385,7 @@ class _Done:
         self.got = got
 
     def result(self) -> CaptionResult:
-        from mixcount.run.catalog_tasks import TaskFailed
+        from mixcount.catalog.step_executor import TaskFailed
 
         if isinstance(self.got, TaskFailed):
             raise CaptionRequestError(self.got.error, attempts=0)

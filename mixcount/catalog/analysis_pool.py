@@ -82,9 +82,9 @@ def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
     the compositor draws by) are the same whichever worker finishes first; the same library ingested twice is
     the same catalog. The workers still run ahead; only the storing waits for the earliest job.
 
-    Under ``--executor ray`` (:func:`mixcount.run.catalog_tasks.ray_tasks`) each analysis is a Ray task on the
+    Under ``--executor ray`` (:func:`mixcount.catalog.step_executor.ray_tasks`) each analysis is a Ray task on the
     cluster, stored here in the same order; a task that died on every try is the object's run failure."""
-    from mixcount.run.catalog_tasks import TaskFailed, ray_tasks
+    from mixcount.catalog.step_executor import TaskFailed, ray_tasks
 
     cluster = ray_tasks()
     if cluster is not None:

@@ -241,7 +241,7 @@ def render_catalog(
 
     for key, reason in refused:
         on_result(RenderOutcome(key, None, reason))
-    from mixcount.run.catalog_tasks import ray_tasks
+    from mixcount.catalog.step_executor import ray_tasks
 
     cluster = ray_tasks()  # --executor ray: the renders run as Ray tasks, the rows are written here
     try:

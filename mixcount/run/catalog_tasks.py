@@ -21,31 +21,17 @@ for, so the local path needs no Ray.
 from __future__ import annotations
 
 import contextlib
-import contextvars
 import logging
-from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Optional, Sequence
 
+from mixcount.catalog.step_executor import TaskFailed, chunks, ray_tasks, release, use_cluster
 from mixcount.errors import ExecutorError
+
+__all__ = ["EXECUTORS", "RayTasks", "TaskFailed", "catalog_executor", "chunks", "ray_tasks", "task_error"]
 
 EXECUTORS = ("local", "ray")
 MAX_RETRIES = 2  # a task whose worker or node died runs again this many times, then fails its objects
 MAX_ERROR_CHARS = 400
-
-_current: contextvars.ContextVar[Optional["RayTasks"]] = contextvars.ContextVar("catalog_ray_tasks", default=None)
-
-
-@dataclass(frozen=True)
-class TaskFailed:
-    """What :meth:`RayTasks.map` yields for work whose task could not finish (after its retries)."""
-
-    error: str
-
-
-def ray_tasks() -> Optional["RayTasks"]:
-    """The Ray cluster the current catalog command runs its per-object work on, or None (local)."""
-    return _current.get()
-
 
 @contextlib.contextmanager
 def catalog_executor(kind: str, address: Optional[str] = None, *,
@@ -60,11 +46,11 @@ def catalog_executor(kind: str, address: Optional[str] = None, *,
         yield None
         return
     tasks = RayTasks(address, max_retries=max_retries)
-    token = _current.set(tasks)
+    token = use_cluster(tasks)
     try:
         yield tasks
     finally:
-        _current.reset(token)
+        release(token)
         tasks.close()
 
 
@@ -142,9 +128,3 @@ def task_error(exc: BaseException) -> str:
     """One line for a task that did not finish: the Ray error's type and first line."""
     first = (str(exc).strip().splitlines() or [""])[0]
     return f"ray task failed after retries: {type(exc).__name__}: {first}"[:MAX_ERROR_CHARS]
-
-
-def chunks(items: Sequence[Any], size: int) -> list[list[Any]]:
-    """``items`` cut into lists of at most ``size`` (at least 1), in order."""
-    size = max(1, int(size))
-    return [list(items[i:i + size]) for i in range(0, len(items), size)]

@@ -93,7 +93,7 @@ def run_jobs_on_ray(cluster: Any, jobs: Sequence[Job], *, on_result: Callable[[R
     :data:`RAY_CHUNK` jobs (fewer where a CPU of the cluster would get less than two chunks) as tasks,
     ``on_result`` called here, in the order of ``jobs``; a chunk whose
     task died on every try fails its objects with the reason."""
-    from mixcount.run.catalog_tasks import TaskFailed, chunks
+    from mixcount.catalog.step_executor import TaskFailed, chunks
 
     per = max(1, min(RAY_CHUNK, -(-len(jobs) // (2 * cluster.cpus()))))  # two chunks a CPU at least
     parts = chunks(list(jobs), per)

@@ -116,8 +116,8 @@ class FilterSummary:
 
 def _describe(catalog: Catalog, session: Session, items: list[Item], summary: FilterSummary) -> None:
     """Each item's descriptors (:func:`describe_one`), here or, under ``--executor ray``, as Ray tasks
-    (:func:`mixcount.run.catalog_tasks.ray_tasks`) whose results are set here in the items' order."""
-    from mixcount.run.catalog_tasks import TaskFailed, ray_tasks
+    (:func:`mixcount.catalog.step_executor.ray_tasks`) whose results are set here in the items' order."""
+    from mixcount.catalog.step_executor import TaskFailed, ray_tasks
 
     cache = str(catalog.data_dir / "descriptors")
     work = []
@@ -169,7 +169,7 @@ def align_on_ray(items: list[Item], th: Any, layouts: LayoutCache, compare: list
     """Under ``--executor ray``: the pair rules' costly figures (alignments, layout distances: what
     :class:`LayoutCache` keeps) of ``compare`` computed as Ray tasks, a chunk of pairs each, and merged
     into ``layouts``; the rules then run here on the filled cache. Without a cluster: nothing."""
-    from mixcount.run.catalog_tasks import TaskFailed, chunks, ray_tasks
+    from mixcount.catalog.step_executor import TaskFailed, chunks, ray_tasks
 
     cluster = ray_tasks()
     if cluster is None or not compare:
