@@ -63,7 +63,7 @@ class RayTasks:
             import ray
         except ImportError as exc:  # pragma: no cover - ray is a pinned dependency
             raise ExecutorError("the ray executor needs the 'ray' package") from exc
-        from mixcount.run.ray_executor import _probe
+        from mixcount.run.ray_executor import probe_address
         from mixcount.worker.client import in_package_root
 
         self._ray = ray
@@ -73,7 +73,7 @@ class RayTasks:
             kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
                                           configure_logging=True)
             if address:
-                _probe(address, connect_timeout_s)
+                probe_address(address, connect_timeout_s)
             try:  # from the package's folder: Ray puts the driver's current folder first on its workers' sys.path
                 with in_package_root():
                     if address:

@@ -124,7 +124,7 @@ H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x0
 PROBE_S = 10.0  # the most the probe of a cluster address waits, connect to answer
 
 
-def _probe(address: str, timeout: float) -> None:
+def probe_address(address: str, timeout: float) -> None:
     """Fail fast, within :data:`PROBE_S`, on a ``host:port`` that is not a Ray cluster's GCS: nobody listens
     (ray.init would retry for minutes), or something listens but does not answer as a gRPC (HTTP/2) server
     (a silent port, the dashboard's HTTP port): ray.init then retried for ever (over 400 s seen) with no
@@ -155,6 +155,9 @@ def _probe(address: str, timeout: float) -> None:
             f"{address} is not a Ray cluster: something listens there but sent nothing a Ray GCS (a gRPC server) sends within "
             f"{wait:g} s; give the head's address as `ray start --head` prints it (port 6379 by default), not the "
             "dashboard's")
+
+
+_probe = probe_address  # the name tests/test_captions_deadline.py calls
 
 
 def _rss_kb(pid: Optional[int]) -> Optional[int]:
@@ -193,7 +196,7 @@ class RayExecutor:
             kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
                                           configure_logging=True)
             if address:
-                _probe(address, connect_timeout_s)
+                probe_address(address, connect_timeout_s)
             from mixcount.worker.client import in_package_root
 
             try:  # from the package's folder: Ray puts the driver's current folder first on its workers' sys.path
