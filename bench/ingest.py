@@ -219,8 +219,10 @@ def run_captures_step(args: argparse.Namespace) -> int:
         catalog.close()
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    cpu = sum(u.ru_utime + u.ru_stime for u in (resource.getrusage(resource.RUSAGE_SELF),
+                                                 resource.getrusage(resource.RUSAGE_CHILDREN)))
     worker = kids if kids > 0 and args.captures_step != "filter" else own
-    print(json.dumps({"peak_rss_mb_per_worker": round(worker, 1), "parent_rss_mb": round(own, 1),
+    print(json.dumps({"peak_rss_mb_per_worker": round(worker, 1), "parent_rss_mb": round(own, 1), "cpu_s": round(cpu, 2),
                       "detail": {k: v for k, v in detail.items() if k in ("new", "broken", "broken_objects", "warnings",
                                                                        "rendered", "failed", "failures", "objects",
                                                                        "flags")}}))
@@ -253,7 +255,9 @@ def run_captures(args: argparse.Namespace) -> int:
         # worker-seconds per object: a step's wall time x the processes it kept busy, over the objects
         busy = 1 if name == "filter" else min(args.workers, k)
         st["s_per_object"] = round(st["wall_s"] * busy / k, 2)
-        print(f"{name}: {st['wall_s']} s for {k} objects ({st['s_per_object']} worker-s per object), peak "
+        st["cpu_s_per_object"] = round(st["cpu_s"] / k, 2)  # steadier than wall on a loaded machine
+        print(f"{name}: {st['wall_s']} s for {k} objects ({st['s_per_object']} worker-s, {st['cpu_s_per_object']} "
+              f"CPU-s per object), peak "
               f"{st['peak_rss_mb_per_worker']} MB per worker", file=sys.stderr)
     per_obj = sum(st["s_per_object"] for st in steps.values())
     hours = 2000 * per_obj / 3600.0
@@ -261,7 +265,9 @@ def run_captures(args: argparse.Namespace) -> int:
         "bench": "ingest_captures", "objects": k, "faces": n_faces, "texture_px": px, "workers": args.workers,
         "render": {k2.split(".")[1]: v for k2, v in render.items()},
         "steps": steps,
-        "extrapolated_2000": {"worker_hours": round(hours, 2), "hours_at_workers": round(hours / args.workers, 2),
+        "extrapolated_2000": {"worker_hours": round(hours, 2),
+                              "cpu_hours_at_workers": round(2000 * sum(st["cpu_s_per_object"] for st in steps.values())
+                                                            / 3600.0 / args.workers, 2), "hours_at_workers": round(hours / args.workers, 2),
                               "peak_rss_mb_per_worker": max(st["peak_rss_mb_per_worker"] for st in steps.values()),
                               "by_step_hours": {n: round(2000 * st["s_per_object"] / 3600.0 / args.workers, 2)
                                                 for n, st in steps.items()}},
