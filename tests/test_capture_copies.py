@@ -1,7 +1,8 @@
 """Copies of real captures as other sources make them (issue 57; tests/capture_copies.py), each kind of copy on
 its own, and look-alikes of one kind that must stay apart. A lean slice runs here: pybullet's textured duck
-and glmark2-data's untextured Stanford bunny, each with its six copies (another print, another resolution,
-a squash, other units, another pose, re-indexed), and metaworld's cup, pybullet's mug and genesis-world's
+and glmark2-data's untextured Stanford bunny, each with its seven copies (another print, another resolution,
+a squash, other units, another pose, re-indexed, and a compound of units, squash, pose and resolution or print:
+issue 69), and metaworld's cup, pybullet's mug and genesis-world's
 bolt and nut beside them. The whole pool
 (13 originals of five packages, the held-back part apart) is ``python bench/curation_copies.py``.
 
