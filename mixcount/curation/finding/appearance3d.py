@@ -128,14 +128,14 @@ def _part_colours(geom: Any, faces: np.ndarray, bary: np.ndarray) -> np.ndarray:
         if vc is not None:
             colour *= np.einsum("nk,nkc->nc", bary, vc[tri])
         texture = base_colour_texture(visual)
-        image = None if texture is None else texture.astype(np.float64) / 255.0
         uv = getattr(visual, "uv", None)
-        if image is not None and uv is not None and len(uv) == len(geom.vertices):
+        if texture is not None and uv is not None and len(uv) == len(geom.vertices):
             pts = np.einsum("nk,nkd->nd", bary, np.asarray(uv, dtype=np.float64)[tri])
-            h, w = image.shape[:2]
+            h, w = texture.shape[:2]
             x = np.mod(pts[:, 0], 1.0) * (w - 1)
             y = (1.0 - np.mod(pts[:, 1], 1.0)) * (h - 1)  # trimesh flips glTF's V on load
-            colour *= image[y.round().astype(int), x.round().astype(int)]
+            # only the sampled texels to float: a 4K texture whole in float64 was 400 MB (issue 69)
+            colour *= texture[y.round().astype(int), x.round().astype(int)].astype(np.float64) / 255.0
         return np.clip(colour, 0.0, 1.0)
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.defined:
         if visual.kind == "face":
