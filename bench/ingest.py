@@ -20,6 +20,12 @@ the filter process), and the three extrapolated to 2,000 objects at ``--workers`
 "peak_rss_mb_per_worker": ...}, "render": {...}, "filter": {...}}, "extrapolated_2000": {"hours": ...}}.
 ``--smoke`` with it: 2 objects of 20,000 faces, 256 px textures, 64 px renders (the suite runs it).
 
+``--stages``: where one such object's seconds go (issue 69), in this process, one stage after another, CPU and
+wall seconds each: ingest's hashing, its load (parse, whole-mesh facts, the reduced copy), geometry hash,
+collision mesh and proxy; the filter's shape descriptor and surface samples; the canonical render's import,
+its Cycles render and its albedo pass (bpy in this process, so last). One JSON line {"bench":
+"ingest_stages", "stages": {name: {"cpu_s", "wall_s"}}, "peak_rss_mb": ...}. ``--smoke``: 20,000 faces.
+
 ``--pybullet``: real folders as they come (issue 52). 20 models of pybullet's own ``pybullet_data`` are
 copied into folders named by a person (``Rubber duck/``, ``red_mug/``, ``blue_mug/``), each with what the
 package ships beside the model (.mtl or none, textures, the URDF, collision companions), then ingested
@@ -39,6 +45,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -229,6 +236,95 @@ def run_captures_step(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_stages(args: argparse.Namespace) -> int:
+    """``--stages``: one capture-like object through each stage in this process (docstring above)."""
+    import resource
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import big_meshes as B
+
+    from mixcount.catalog import hashing
+    from mixcount.catalog.mesh import build_collision_mesh, geometry_hash, load_normalised
+    from mixcount.catalog.proxies import proxy_from_collision
+    from mixcount.curation.finding import appearance3d as A
+    from mixcount.curation.finding import descriptors as D
+
+    faces, px = (20_000, 256) if args.smoke else (args.faces, args.texture_px)
+    config = load_config(values={"canonical_render.resolution": 64 if args.smoke else 512,
+                                 "canonical_render.samples": 2 if args.smoke else 16})
+    stages: dict[str, dict[str, float]] = {}
+
+    def timed(name: str, fn: Any, *a: Any, **k: Any) -> Any:
+        r0, w0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+        out = fn(*a, **k)
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
+        stages[name] = {"cpu_s": round(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime, 2),
+                        "wall_s": round(time.perf_counter() - w0, 2)}
+        print(f"{name}: {stages[name]}", file=sys.stderr)
+        return out
+
+    with tempfile.TemporaryDirectory(prefix="mixcount-stages-") as tmp:
+        glb = Path(tmp) / "3d-asset.glb"
+        verts, tris, uv = B.lumpy_grid(faces, seed=0, radius=0.04)
+        B.write_textured_glb(glb, verts, tris, uv, px, seed=0)
+        del verts, tris, uv
+        ing = config.ingest
+        timed("ingest: hashing", hashing.files_hash, {"model.glb": glb})
+        norm = timed("ingest: load, whole-mesh facts, reduced copy", load_normalised, glb, units="m", up_axis="Y",
+                     face_budget=ing.facts_face_budget)
+        ghash = timed("ingest: geometry hash", geometry_hash, norm.mesh)
+        col = Path(tmp) / "col" / f"{ghash[:32]}_{ing.collision_face_budget}.ply"
+        timed("ingest: collision mesh", build_collision_mesh, norm.mesh, col, ing.collision_face_budget)
+        timed("ingest: proxy", proxy_from_collision, col, ghash, col.parent, ing.proxy_max_vertices)
+        del norm
+        timed("filter: shape descriptor", D.load_shape, str(glb), units="m", up_axis="Y", cache_dir=None, key=None)
+        timed("filter: surface samples", A.load_samples, str(glb), cache_dir=None, key=None)
+        # bpy in a child: it fails to load beside pymeshlab's own Embree (undefined symbol rtcGetSceneTraversable)
+        import subprocess
+
+        cmd = [sys.executable, __file__, "--stages-render", str(glb)] + (["--smoke"] if args.smoke else [])
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise SystemExit(f"render stages failed:\n{proc.stderr[-2000:]}")
+        child = json.loads(proc.stdout.strip().splitlines()[-1])
+        stages.update(child["stages"])
+        print("\n".join(f"{k}: {v}" for k, v in child["stages"].items()), file=sys.stderr)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"bench": "ingest_stages", "faces": faces, "texture_px": px, "stages": stages,
+                      "peak_rss_mb": round(peak, 1), "render_peak_rss_mb": child["peak_rss_mb"]}))
+    return 0
+
+
+def run_render_stages(args: argparse.Namespace) -> int:
+    """``--stages``' child: the canonical render of one model with 1 Cycles thread (as each of 2 workers on
+    2 cores), its import and albedo pass timed apart; the rest of the whole is the Cycles render itself."""
+    import resource
+
+    from mixcount.engine import canonical_render as C
+    from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalSettings
+
+    config = load_config(values={"canonical_render.resolution": 64 if args.smoke else 512,
+                                 "canonical_render.samples": 2 if args.smoke else 16})
+    glb = Path(args.stages_render)
+    req = CanonicalRequest(model_path=str(glb), out_dir=str(glb.parent / "render"), stem="x", threads=1,
+                           settings=CanonicalSettings.from_config(config.canonical_render), up_axis="Y")
+    stages: dict[str, dict[str, float]] = {}
+
+    def timed(name: str, fn: Any, *a: Any, **k: Any) -> Any:
+        r0, w0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+        out = fn(*a, **k)
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
+        stages[name] = {"cpu_s": round(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime, 2),
+                        "wall_s": round(time.perf_counter() - w0, 2)}
+        return out
+
+    for name in ("import_model", "render_albedo"):
+        setattr(C, name, (lambda n, f: lambda *a, **k: timed(f"render: {n}", f, *a, **k))(name, getattr(C, name)))
+    timed("render: whole (1 thread)", C.render_object, req)
+    print(json.dumps({"stages": stages, "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}))
+    return 0
+
+
 def run_captures(args: argparse.Namespace) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import big_meshes as B
@@ -289,12 +385,18 @@ def main() -> int:
     parser.add_argument("--captures", type=int, default=0, help="K capture-like DTC objects through ingest, render, filter")
     parser.add_argument("--faces", type=int, default=1_200_000, help="--captures: faces per object")
     parser.add_argument("--texture-px", type=int, default=4096, help="--captures: texture side in pixels")
+    parser.add_argument("--stages", action="store_true", help="one capture-like object, seconds per stage")
+    parser.add_argument("--stages-render", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--captures-step", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--captures-db", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--captures-set", default="{}", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.captures_step:
         return run_captures_step(args)
+    if args.stages_render:
+        return run_render_stages(args)
+    if args.stages:
+        return run_stages(args)
     if args.captures:
         return run_captures(args)
     if args.pybullet:
