@@ -279,6 +279,7 @@ def run_stages(args: argparse.Namespace) -> int:
         del norm
         timed("filter: shape descriptor", D.load_shape, str(glb), units="m", up_axis="Y", cache_dir=None, key=None)
         timed("filter: surface samples", A.load_samples, str(glb), cache_dir=None, key=None)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         # bpy in a child: it fails to load beside pymeshlab's own Embree (undefined symbol rtcGetSceneTraversable)
         import subprocess
 
@@ -289,7 +290,6 @@ def run_stages(args: argparse.Namespace) -> int:
         child = json.loads(proc.stdout.strip().splitlines()[-1])
         stages.update(child["stages"])
         print("\n".join(f"{k}: {v}" for k, v in child["stages"].items()), file=sys.stderr)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(json.dumps({"bench": "ingest_stages", "faces": faces, "texture_px": px, "stages": stages,
                       "peak_rss_mb": round(peak, 1), "render_peak_rss_mb": child["peak_rss_mb"]}))
     return 0
@@ -321,7 +321,10 @@ def run_render_stages(args: argparse.Namespace) -> int:
     for name in ("import_model", "render_albedo"):
         setattr(C, name, (lambda n, f: lambda *a, **k: timed(f"render: {n}", f, *a, **k))(name, getattr(C, name)))
     timed("render: whole (1 thread)", C.render_object, req)
-    print(json.dumps({"stages": stages, "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}))
+    # VmHWM: this process's own peak (ru_maxrss keeps the forking parent's across exec)
+    hwm = next(int(line.split()[1]) for line in Path("/proc/self/status").read_text().splitlines()
+               if line.startswith("VmHWM:"))
+    print(json.dumps({"stages": stages, "peak_rss_mb": round(hwm / 1024, 1)}))
     return 0
 
 
