@@ -4,7 +4,8 @@
   spp), filtered and captioned with ``--executor ray --address`` gives the same catalog as the local
   executor: the same ``catalog list --json`` documents (objects, facts, flags with their reasons, statuses,
   captions), timestamps and absolute paths aside; the render step's second node is SIGKILLed while one of
-  its render tasks runs, and the run still finishes (Ray runs the lost task again on the head);
+  its render tasks runs, and the run still finishes (Ray runs the lost task again on the head); run again,
+  the render has nothing left to do;
 * a task whose process dies on every try comes back as a failure with its reason, and ingest records such
   an object as the run's failure (exit 3 in the CLI, as a crashed local worker).
 
@@ -144,6 +145,9 @@ def test_ray_catalog_is_the_local_catalog_with_a_node_killed(two_nodes: tuple[Cl
     for step in (["filter"], ["caption"]):
         got = mix(ray, "catalog", *step, *on_ray)
         assert got.returncode == 0, got.stderr[-2000:]
+
+    again = mix(ray, "catalog", "render", *on_ray)  # run again: goes on where the catalog is (nothing left)
+    assert again.returncode == 0 and " 0 rendered" in again.stdout + again.stderr
 
     a, b = documents(local), documents(ray)
     assert len(a) == len(b) >= 10
