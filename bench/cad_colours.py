@@ -37,10 +37,23 @@ def file_colours(path: Path) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("steps", nargs="+", type=Path)
+    parser.add_argument("steps", nargs="*", type=Path)
+    parser.add_argument("--smoke", action="store_true",
+                        help="the smoke run of tests/test_benches.py: one coloured STEP part of kicad-demos, 32 px")
     parser.add_argument("--resolution", type=int, default=128)
     parser.add_argument("--keep", type=Path, default=None, help="work in this folder and keep it (renders)")
     args = parser.parse_args(argv)
+    if args.smoke:
+        sys.path.insert(0, str(ROOT / "tests"))
+        from public_packages import deb_tree  # type: ignore[import-not-found]
+
+        root, why = deb_tree("kicad-demos")
+        if root is None:
+            print(json.dumps({"skipped": why}))
+            return 0
+        args.steps, args.resolution = [root / "usr/share/kicad/demos/stickhub/3dmodels/APHB1608.step"], 32
+    if not args.steps:
+        parser.error("name at least one STEP file")
     from sqlalchemy import select
 
     from mixcount.captions.colours import render_pixels, summarise
@@ -62,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"{' '.join(step)} failed")
     cat = open_catalog(db[1], data_dir="")
     print("part\tin file\tin render (share)\tshort caption\tcategory\tunit")
+    rows = []
     try:
         with cat.session() as s:
             for obj in s.scalars(select(CatalogObject).order_by(CatalogObject.name)):
@@ -76,9 +90,13 @@ def main(argv: list[str] | None = None) -> int:
                 unit = shown_unit(obj.source_units, units_reason_of(obj.metadata_json))
                 print(f"{obj.name}\t{', '.join(file_colours(step)) if step.is_file() else '?'}\t{shares}\t{short}\t"
                       f"{obj.category}\t{unit}")
+                rows.append({"part": obj.name, "file_colours": len(file_colours(step)) if step.is_file() else 0,
+                             "render_colours": len(shares.split(", ")) if shares else 0, "unit": unit,
+                             "category": obj.category})
     finally:
         cat.close()
     print(json.dumps({"work": str(work)}), file=sys.stderr)
+    print(json.dumps({"parts": len(rows), "rows": rows}))
     return 0
 
 

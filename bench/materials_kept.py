@@ -148,7 +148,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("paths", nargs="*", type=Path)
     parser.add_argument("--parts", nargs="+", type=Path, default=[], help="files merged as one object's parts")
+    parser.add_argument("--smoke", action="store_true",
+                        help="the smoke run of tests/test_benches.py: two coloured STEP parts of Debian's kicad-demos")
     args = parser.parse_args(argv)
+    if args.smoke:
+        found, why = smoke_inputs()
+        if found is None:
+            print(json.dumps({"skipped": why}))
+            return 0
+        args.paths = found
     files: list[Path] = []
     for p in args.paths:
         files.extend(sorted(f for f in p.rglob("*") if f.suffix.lower() in KINDS) if p.is_dir() else [p])
@@ -179,7 +187,24 @@ def main(argv: list[str] | None = None) -> int:
         t[3] += got
     for kind, (n, kept, want, got) in sorted(totals.items()):
         print(f"# {kind}: {n} files, all looks kept in {kept}; looks in files {want}, in assets {got}")
+    print(json.dumps({kind: {"files": n, "kept_all": kept, "looks_in_files": want, "looks_in_assets": got}
+                      for kind, (n, kept, want, got) in sorted(totals.items())}))
     return 0
+
+
+SMOKE_PARTS = ("APHB1608.step", "Crystal_SMD_4P_2520.step")  # an LED and a crystal: 2-4 colours each
+
+
+def smoke_inputs() -> tuple[list[Path] | None, str]:
+    """The smoke run's STEP files (fetched and cached by tests/public_packages.py), or None and why not."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from public_packages import deb_tree  # type: ignore[import-not-found]
+
+    root, why = deb_tree("kicad-demos")
+    if root is None:
+        return None, why
+    folder = root / "usr/share/kicad/demos/stickhub/3dmodels"
+    return [folder / name for name in SMOKE_PARTS], ""
 
 
 if __name__ == "__main__":

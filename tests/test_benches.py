@@ -295,6 +295,29 @@ def test_ray_catalog_bench(tmp_path: Path) -> None:
     assert ray["exit"] == {"ingest": 0}
 
 
+def test_materials_kept_bench() -> None:
+    """Issue 70 item 1: two coloured KiCad STEP parts keep more than one look each in their converted assets
+    (the old conversion kept one per part: looks in assets == files)."""
+    doc = run_smoke("materials_kept", None)[-1]
+    if "skipped" in doc:
+        pytest.skip(doc["skipped"])
+    step = doc["STEP"]
+    check_figures(step, ["files", "kept_all", "looks_in_files", "looks_in_assets"])
+    assert step["files"] == 2 and step["looks_in_assets"] > step["files"]
+    assert step["looks_in_assets"] >= 0.8 * step["looks_in_files"]
+
+
+@pytest.mark.blender
+def test_cad_colours_bench() -> None:
+    """Issue 70 items 1 and 6: a coloured KiCad LED through ingest, render and caption: several colours in
+    its render, and the unit shown is the file's own (mm)."""
+    doc = run_smoke("cad_colours", None)[-1]
+    if "skipped" in doc:
+        pytest.skip(doc["skipped"])
+    (row,) = doc["rows"]
+    assert row["file_colours"] >= 2 and row["render_colours"] >= 2 and row["unit"].startswith("mm")
+
+
 def test_every_bench_has_a_smoke_mode_and_a_test_here() -> None:
     """A bench added to bench/ without ``--smoke`` or without its test above fails here (bench/pools.py is
     the benches' shared helper and bench/count_sheet.py, which draws docs/count_targets_look.png from
