@@ -175,6 +175,8 @@ SLOWEST_MODULES_FIRST = (
     "test_curate_demo.py",  # 93 s
     "test_split_library.py",  # 68 s
     "test_ray_executor.py",  # 68 s
+    "test_ray_catalog.py",  # ~120 s alone on a loaded machine (issue 69: catalog steps on Ray)
+    "test_hostile_library.py",  # 60-75 s alone on a loaded machine (issue 68)
     "test_readme_flow.py",  # 57 s
     "test_cross_source.py",  # 45 s
     "test_blender_worker.py",  # 43 s
