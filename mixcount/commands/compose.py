@@ -255,15 +255,7 @@ def ingest_env_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(..., h
     first, and one that does not decode is recorded broken and never drawn."""
     from mixcount.catalog.environments import ingest_environments
 
-    st = state(ctx)
-    ing = st.config().ingest
-    catalog = st.catalog(create=True)
-    try:
-        summary = ingest_environments(catalog, paths, max_pixels=ing.max_image_pixels,
-                                      extra_roots=[*ing.extra_roots, *map(str, allow_root)])
-    finally:
-        catalog.close()  # the writer lock goes with it
-    _assets_result("environments", summary, json_out, st, ctx)
+    _ingest_assets(ctx, "environments", ingest_environments, paths, allow_root, json_out)
 
 
 def ingest_materials_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(..., help="Folders of PBR texture sets."),
@@ -273,15 +265,22 @@ def ingest_materials_cmd(ctx: typer.Context, paths: list[Path] = typer.Argument(
     first, and a set with one that does not decode is recorded broken and never drawn."""
     from mixcount.catalog.environments import ingest_materials
 
+    _ingest_assets(ctx, "materials", ingest_materials, paths, allow_root, json_out)
+
+
+def _ingest_assets(ctx: typer.Context, what: str, ingest: Any, paths: list[Path], allow_root: list[Path],
+                   json_out: bool) -> None:
+    """``ingest-env`` / ``ingest-materials``: ``ingest`` (the catalog step) under the library boundary
+    (``[ingest] extra_roots`` and ``--allow-root``) and the pixel limit, then the result and its exit code."""
     st = state(ctx)
     ing = st.config().ingest
     catalog = st.catalog(create=True)
     try:
-        summary = ingest_materials(catalog, paths, max_pixels=ing.max_image_pixels,
-                                   extra_roots=[*ing.extra_roots, *map(str, allow_root)])
+        summary = ingest(catalog, paths, max_pixels=ing.max_image_pixels,
+                         extra_roots=[*ing.extra_roots, *map(str, allow_root)])
     finally:
         catalog.close()  # the writer lock goes with it
-    _assets_result("materials", summary, json_out, st, ctx)
+    _assets_result(what, summary, json_out, st, ctx)
 
 
 def merge_cmd(

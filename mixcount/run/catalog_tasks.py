@@ -21,7 +21,6 @@ for, so the local path needs no Ray.
 from __future__ import annotations
 
 import contextlib
-import logging
 from typing import Any, Callable, Iterator, Optional, Sequence
 
 from mixcount.catalog.step_executor import TaskFailed, chunks, ray_tasks, release, use_cluster
@@ -63,27 +62,13 @@ class RayTasks:
             import ray
         except ImportError as exc:  # pragma: no cover - ray is a pinned dependency
             raise ExecutorError("the ray executor needs the 'ray' package") from exc
-        from mixcount.run.ray_executor import probe_address
-        from mixcount.worker.client import in_package_root
+        from mixcount.run.ray_executor import init_ray
 
         self._ray = ray
         self.max_retries = int(max_retries)
         self._own_init = False
         if not ray.is_initialized():
-            kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
-                                          configure_logging=True)
-            if address:
-                probe_address(address, connect_timeout_s)
-            try:  # from the package's folder: Ray puts the driver's current folder first on its workers' sys.path
-                with in_package_root():
-                    if address:
-                        ray.init(address=address, **kwargs)
-                    else:
-                        ray.init(num_cpus=local_cpus, _node_ip_address="127.0.0.1",
-                                 object_store_memory=200 * 1024 * 1024, **kwargs)
-            except Exception as exc:  # noqa: BLE001 - ConnectionError, RuntimeError, ...: one clear message
-                where = f"reach the Ray cluster at {address}" if address else "start a local Ray cluster"
-                raise ExecutorError(f"cannot {where}: {type(exc).__name__}: {exc}") from exc
+            init_ray(address, connect_timeout_s, local_cpus=local_cpus, object_store_mb=200)
             self._own_init = True
         self._remote: dict[Callable[..., Any], Any] = {}
 

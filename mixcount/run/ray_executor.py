@@ -160,6 +160,33 @@ def probe_address(address: str, timeout: float) -> None:
 _probe = probe_address  # the name tests/test_captions_deadline.py calls
 
 
+def init_ray(address: Optional[str], connect_timeout_s: float, *, local_cpus: int, object_store_mb: int) -> None:
+    """``ray.init`` for this driver, shared by compose's and the catalog steps' executors: the cluster at
+    ``address`` (probed first: a port that is no Ray GCS fails in one line) or, without one, a private local
+    cluster of ``local_cpus`` CPUs. Called from the package's folder, since Ray puts the driver's current
+    folder first on its workers' ``sys.path``; any failure is one :class:`ExecutorError` line."""
+    import logging
+
+    import ray
+
+    from mixcount.worker.client import in_package_root
+
+    kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
+                                  configure_logging=True)
+    if address:
+        probe_address(address, connect_timeout_s)
+    try:
+        with in_package_root():
+            if address:
+                ray.init(address=address, **kwargs)
+            else:
+                ray.init(num_cpus=local_cpus, _node_ip_address="127.0.0.1",
+                         object_store_memory=object_store_mb * 1024 * 1024, **kwargs)
+    except Exception as exc:  # noqa: BLE001 - ConnectionError, RuntimeError, ...: one clear message
+        where = f"reach the Ray cluster at {address}" if address else "start a local Ray cluster"
+        raise RayExecutorError(f"cannot {where}: {type(exc).__name__}: {exc}") from exc
+
+
 def _rss_kb(pid: Optional[int]) -> Optional[int]:
     """Resident memory of ``pid`` in KiB from /proc (None where unknown)."""
     if not pid:
@@ -186,33 +213,18 @@ class RayExecutor:
             import ray
         except ImportError as exc:  # pragma: no cover - ray is a pinned dependency
             raise RayExecutorError("the ray executor needs the 'ray' package") from exc
-        import logging
 
         self._ray = ray
         self.address = address
         self.threads = threads
         self._own_init = False
         if not ray.is_initialized():
-            kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
-                                          configure_logging=True)
-            if address:
-                probe_address(address, connect_timeout_s)
-            from mixcount.worker.client import in_package_root
-
-            try:  # from the package's folder: Ray puts the driver's current folder first on its workers' sys.path
-                with in_package_root():
-                    if address:
-                        ray.init(address=address, **kwargs)
-                    else:
-                        if slots or device in (None, "cpu"):
-                            n = max(1, int(slots or 1))
-                        else:  # GPU actors, as many as GPUs: CPUs for all of them
-                            n = max(1, (os.cpu_count() or 1) // max(1, int(cpus_per_slot)))
-                        ray.init(num_cpus=max(1, int(round(n * cpus_per_slot))), _node_ip_address="127.0.0.1",
-                                 object_store_memory=int(object_store_mb) * 1024 * 1024, **kwargs)
-            except Exception as exc:  # noqa: BLE001 - ConnectionError, RuntimeError, ...: one clear message
-                raise RayExecutorError(f"cannot {'reach the Ray cluster at ' + address if address else 'start a local Ray cluster'}: "
-                                       f"{type(exc).__name__}: {exc}") from exc
+            if slots or device in (None, "cpu"):
+                n = max(1, int(slots or 1))
+            else:  # GPU actors, as many as GPUs: CPUs for all of them
+                n = max(1, (os.cpu_count() or 1) // max(1, int(cpus_per_slot)))
+            init_ray(address, connect_timeout_s, local_cpus=max(1, int(round(n * cpus_per_slot))),
+                     object_store_mb=int(object_store_mb))
             self._own_init = True
         try:
             self.device = cluster_device(device, float(ray.cluster_resources().get("GPU", 0.0)), gpus_per_slot)
