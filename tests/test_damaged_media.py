@@ -243,14 +243,22 @@ def test_a_model_texture_that_does_not_decode_flags_the_object_and_is_never_rend
     assert "warning: cut: texture tex.png does not decode: damaged png" in err
     # scenes never draw them (their USD conversion would stop on the image, Blender would paint it)
     from mixcount.catalog.models import Split
-    from mixcount.catalog.pool_loader import load_pool
+    from mixcount.catalog.pool_loader import damaged_texture_note, load_pool
 
     cat = open_catalog(db_url, data_dir="")
     with cat.session() as s:
         s.add_all([Split(object_id=o.id, split="train", method="random") for o in objs.values()])
         s.commit()
         assert [o.name for o in load_pool(s, split="train")] == ["whole"]
+        note = damaged_texture_note(s, "train")  # and a run says so at its start
+        assert damaged_texture_note(s, "test") is None
     cat.close()
+    assert note is not None and note.startswith("3 object(s) of split 'train' are left out of scenes because a "
+                                                "texture did not decode at ingest (bomb, cut, liar;")
+    dry = __import__("mixcount.cli", fromlist=["main"]).main(
+        ["--db", db_url, "--config", "quick", "compose", "--n", "1", "--split", "train", "--dry-run",
+         "--out", str(tmp_path / "dry")])
+    assert dry == 0 and note in " ".join(capsys.readouterr().err.split())
 
     # canonical renders: the three are not sent to Blender (it painted them black, and spent 78 s on the bomb)
     rc = __import__("mixcount.cli", fromlist=["main"]).main(

@@ -62,6 +62,26 @@ def colour_variants(session: Session) -> dict[int, set[int]]:
     return {k: v - set(group_of.get(k, [k])) for k, v in out.items()}
 
 
+def damaged_texture_note(session: Session, split: str) -> Optional[str]:
+    """The one line naming the active objects of ``split`` that :func:`load_pool` leaves out because a
+    texture of theirs did not decode at ingest (flag ``damaged_texture``), or None: a run says it at its
+    start instead of drawing fewer objects than the split table shows without a word."""
+    rows = session.execute(
+        select(CatalogObject.name, Flag.reason)
+        .join(Flag, Flag.object_id == CatalogObject.id)
+        .join(Split, Split.object_id == CatalogObject.id)
+        .where(Flag.kind == DAMAGED_TEXTURE, CatalogObject.status == STATUS_ACTIVE, Split.split == split)
+        .order_by(CatalogObject.id)
+    ).all()
+    names = list(dict.fromkeys(str(name) for name, _ in rows))
+    if not names:
+        return None
+    more = f" and {len(names) - 5} more" if len(names) > 5 else ""
+    return (f"{len(names)} object(s) of split {split!r} are left out of scenes because a texture did not decode "
+            f"at ingest ({', '.join(names[:5])}{more}; `mixcount catalog show ID` gives the reason): replace the "
+            "file and run catalog ingest again")
+
+
 def load_pool(session: Session, *, split: Optional[str] = None, palette: Any = None) -> list[ObjectRecord]:
     """Active objects with a split (optionally only ``split``) and no ``damaged_texture`` flag, ordered by id
     (determinism). ``palette`` (``[palette]``): each untextured object's look for its parts without a colour

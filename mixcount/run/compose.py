@@ -25,7 +25,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Sequence
 
 from mixcount.config import Config
 from mixcount.errors import AssetError, CompositionError, MixcountError, StoppedByUser, StorageError, os_error_line
@@ -81,7 +81,7 @@ def compose_scenes(
     environments: tuple = (), materials: tuple = (), progress: ProgressReporter | bool | None = None, oracle: bool = False,
     on_outcome: Optional[Callable[[SceneOutcome], None]] = None, passes: Optional[str | list[str]] = None,
     merge: Optional[bool] = None, catalog: Optional[str] = None, mixed_settings: bool = False,
-    count_target: Any = None,
+    count_target: Any = None, notes: Sequence[str] = (),
 ) -> ComposeSummary:
     """Render until ``n`` scenes of ``compose.split`` are complete in ``out_dir`` (see module docstring).
 
@@ -92,7 +92,8 @@ def compose_scenes(
     ``catalog`` (the catalog's URL) and the run's dataset settings are checked against those of the scenes
     already in ``out_dir`` (:mod:`mixcount.dataset.settings`): other settings are a CompositionError unless
     ``mixed_settings``, which records them as another variant. ``count_target``: ``scene.count_target``
-    as :class:`~mixcount.run.compose_entry.ComposeJob` parsed it (None: parsed here when views need it)."""
+    as :class:`~mixcount.run.compose_entry.ComposeJob` parsed it (None: parsed here when views need it).
+    ``notes``: lines about the inputs said at the start with the run's own warnings (objects left out)."""
     from mixcount.dataset.settings import check_settings, dataset_settings
     from mixcount.scene.environment_sampling import environments_to_draw
     from mixcount.scene.sampler import container_warning, size_warning
@@ -136,7 +137,7 @@ def compose_scenes(
 
     small = plan_warning(first_scenes_px(config, pool, environments, materials, n))
     for warning in [container_warning(pool, comp.split, config.scene), size_warning(pool, comp.split, config.scene),
-                    *missing_steps(pool, comp.split), small]:
+                    *missing_steps(pool, comp.split), small, *notes]:
         if warning:  # once per run, not once per scene
             summary.warnings.append(warning)
             bar.note(warning)

@@ -32,6 +32,7 @@ class ComposeInputs:
     pool: list[Any]
     environments: list[Any]
     materials: list[Any]
+    notes: list[str]  # what the run says at its start about objects of its split left out of the pool
 
 
 @dataclass(frozen=True)
@@ -46,11 +47,12 @@ class ScenePlan:
 def load_inputs(catalog: Any, config: Config) -> ComposeInputs:
     """The pool, environments and materials of ``catalog``; a CompositionError, before anything is
     written, when no active object is in ``compose.split`` (:func:`require_split`)."""
-    from mixcount.catalog.pool_loader import load_environments, load_materials, load_pool
+    from mixcount.catalog.pool_loader import damaged_texture_note, load_environments, load_materials, load_pool
 
     with catalog.session() as session:
+        damaged = damaged_texture_note(session, config.compose.split)
         inputs = ComposeInputs(load_pool(session, palette=config.palette), load_environments(session),
-                               load_materials(session))
+                               load_materials(session), [damaged] if damaged else [])
     require_split(inputs.pool, config.compose.split)
     return inputs
 
@@ -86,7 +88,7 @@ class ComposeJob:
         inputs = load_inputs(catalog, config)
         pool, envs, mats = inputs.pool, inputs.environments, inputs.materials
         lines = [w for w in [container_warning(pool, split, config.scene), size_warning(pool, split, config.scene)]
-                 if w] + missing_steps(pool, split)
+                 if w] + missing_steps(pool, split) + inputs.notes
         plan = dry_plan(out_dir, split, base, n,
                         lambda seed: sample_scene(seed, split, config, pool, environments=envs, materials=mats),
                         int(n * config.compose.max_attempts_factor) + 4)
@@ -125,7 +127,7 @@ class ComposeJob:
                                   assets_dir=Path(catalog.usd_assets_dir).resolve(), n=self.n,
                                   environments=tuple(inputs.environments), materials=tuple(inputs.materials),
                                   executor=executor, progress=progress, mixed_settings=mixed_settings,
-                                  catalog=catalog.url, count_target=self.count_target)
+                                  catalog=catalog.url, count_target=self.count_target, notes=inputs.notes)
         finally:
             if executor is not None:
                 executor.close()
