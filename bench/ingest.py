@@ -55,6 +55,18 @@ from mixcount.config import load_config  # noqa: E402
 from mixcount.demo.library import generate_demo_library  # noqa: E402
 
 
+def stage_timed(stages: dict[str, dict[str, float]], name: str, fn: Any, *a: Any, **k: Any) -> Any:
+    """``fn(*a, **k)`` with this process's CPU seconds and wall seconds recorded as ``stages[name]``."""
+    import resource
+
+    r0, w0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    out = fn(*a, **k)
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    stages[name] = {"cpu_s": round(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime, 2),
+                    "wall_s": round(time.perf_counter() - w0, 2)}
+    return out
+
+
 def densify(lib: Path, times: int) -> None:
     """Subdivide every part of every readable GLB in ``lib`` ``times`` times (capture-like density)."""
     import trimesh
@@ -255,11 +267,7 @@ def run_stages(args: argparse.Namespace) -> int:
     stages: dict[str, dict[str, float]] = {}
 
     def timed(name: str, fn: Any, *a: Any, **k: Any) -> Any:
-        r0, w0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        out = fn(*a, **k)
-        r1 = resource.getrusage(resource.RUSAGE_SELF)
-        stages[name] = {"cpu_s": round(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime, 2),
-                        "wall_s": round(time.perf_counter() - w0, 2)}
+        out = stage_timed(stages, name, fn, *a, **k)
         print(f"{name}: {stages[name]}", file=sys.stderr)
         return out
 
@@ -298,7 +306,6 @@ def run_stages(args: argparse.Namespace) -> int:
 def run_render_stages(args: argparse.Namespace) -> int:
     """``--stages``' child: the canonical render of one model with 1 Cycles thread (as each of 2 workers on
     2 cores), its import and albedo pass timed apart; the rest of the whole is the Cycles render itself."""
-    import resource
 
     from mixcount.engine import canonical_render as C
     from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalSettings
@@ -311,12 +318,7 @@ def run_render_stages(args: argparse.Namespace) -> int:
     stages: dict[str, dict[str, float]] = {}
 
     def timed(name: str, fn: Any, *a: Any, **k: Any) -> Any:
-        r0, w0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        out = fn(*a, **k)
-        r1 = resource.getrusage(resource.RUSAGE_SELF)
-        stages[name] = {"cpu_s": round(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime, 2),
-                        "wall_s": round(time.perf_counter() - w0, 2)}
-        return out
+        return stage_timed(stages, name, fn, *a, **k)
 
     for name in ("import_model", "render_albedo"):
         setattr(C, name, (lambda n, f: lambda *a, **k: timed(f"render: {n}", f, *a, **k))(name, getattr(C, name)))
