@@ -50,11 +50,11 @@ def load_inputs(catalog: Any, config: Config) -> ComposeInputs:
     from mixcount.catalog.pool_loader import damaged_texture_note, load_environments, load_materials, load_pool
 
     with catalog.session() as session:
+        pool, environments, materials = (load_pool(session, palette=config.palette), load_environments(session),
+                                         load_materials(session))
+        require_split(pool, config.compose.split)  # an empty split stops here, before the note is looked up
         damaged = damaged_texture_note(session, config.compose.split)
-        inputs = ComposeInputs(load_pool(session, palette=config.palette), load_environments(session),
-                               load_materials(session), [damaged] if damaged else [])
-    require_split(inputs.pool, config.compose.split)
-    return inputs
+    return ComposeInputs(pool, environments, materials, [damaged] if damaged else [])
 
 
 @dataclass(frozen=True)
