@@ -234,6 +234,7 @@ class FilterConfig:
     mesh_quality_min_fraction: float
     exclude_mesh_quality: bool
     mesh_quality_exclude_score: float
+    workers: int
 
 
 @dataclass(frozen=True)

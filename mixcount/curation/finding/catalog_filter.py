@@ -48,9 +48,10 @@ excluded itself (their flag reason carries :data:`EXCLUDED_MARK`).
 from __future__ import annotations
 
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 from sqlalchemy import delete, select
@@ -71,8 +72,9 @@ from mixcount.config import Config
 from mixcount.curation.finding import appearance3d as A
 from mixcount.curation.finding import colour_layout as CL
 from mixcount.curation.finding import descriptors as D
+from mixcount.curation.finding import pair_evidence as E
 from mixcount.curation.finding.candidates import candidate_pairs, queries
-from mixcount.curation.finding.copy_rules import pair_flags
+from mixcount.curation.finding.copy_rules import pair_flags, shape_gate
 from mixcount.curation.finding.filter_items import Found, Item, LayoutCache, appearance_kind, object_label
 from mixcount.curation.finding.ground_truth import evaluate_against_ground_truth
 from mixcount.curation.finding.quality_flags import quality_flags
@@ -114,10 +116,12 @@ class FilterSummary:
 
 
 
-def _describe(catalog: Catalog, session: Session, items: list[Item], summary: FilterSummary) -> None:
-    """Each item's descriptors (:func:`describe_one`), here or, under ``--executor ray``, as Ray tasks
-    (:func:`mixcount.catalog.step_executor.ray_tasks`) whose results are set here in the items' order."""
-    from mixcount.catalog.step_executor import TaskFailed, ray_tasks
+def _describe(catalog: Catalog, session: Session, items: list[Item], summary: FilterSummary,
+              cluster: Any = None) -> None:
+    """Each item's descriptors (:func:`describe_one`), in this process or as tasks of ``cluster`` (a Ray
+    cluster under ``--executor ray``, or ``[filter] workers`` local processes: :func:`filter_executor`),
+    whose results are set here in the items' order."""
+    from mixcount.catalog.step_executor import TaskFailed
 
     cache = str(catalog.data_dir / "descriptors")
     work = []
@@ -127,7 +131,6 @@ def _describe(catalog: Catalog, session: Session, items: list[Item], summary: Fi
         path = canonical_render_path(session, obj.id)
         work.append((obj.model_path, obj.source_units, obj.source_up_axis, cache, (obj.geometry_hash or "")[:32] or None,
                      (obj.content_hash or "")[:32] or None, str(path) if path is not None else None))
-    cluster = ray_tasks()
     described = cluster.map(describe_one, work) if cluster is not None else (describe_one(*w) for w in work)
     for it, got in zip(items, described):
         obj = it.obj
@@ -165,25 +168,44 @@ def describe_one(model_path: str, units: str | None, up_axis: str | None, cache_
     return shape, surface, look, errors, False
 
 
-def align_on_ray(items: list[Item], th: Any, layouts: LayoutCache, compare: list[tuple[Item, Item]]) -> None:
-    """Under ``--executor ray``: the pair rules' costly figures (alignments, layout distances: what
-    :class:`LayoutCache` keeps) of ``compare`` computed as Ray tasks, a chunk of pairs each, and merged
-    into ``layouts``; the rules then run here on the filled cache. Without a cluster: nothing."""
-    from mixcount.catalog.step_executor import TaskFailed, chunks, ray_tasks
+def figures_in_parallel(cluster: Any, th: Any, layouts: LayoutCache, compare: list[tuple[Item, Item]]) -> None:
+    """The pair rules' costly figures (alignments, primitive fits, layout distances: what
+    :class:`LayoutCache` keeps) of ``compare`` computed as tasks of ``cluster`` (Ray, or local processes),
+    a chunk of pairs each, and merged into ``layouts``; the rules then run here on the filled cache, so the
+    flags are those of one process. Without a cluster: nothing (the rules compute them as they go)."""
+    from mixcount.catalog.step_executor import TaskFailed, chunks
 
-    cluster = ray_tasks()
     if cluster is None or not compare:
         return
-    known = cluster.put(dict(layouts.values))
+    known = dict(layouts.values)
+    # each object's primitive distance once, first: a chunk of pairs would otherwise fit the primitives of
+    # every object it holds again (an object sits in ~2k candidate pairs, spread over the chunks)
+    gated = sorted({id(it): it for p in compare if shape_gate(p[0], p[1], th) for it in p}.values(),
+                   key=lambda it: it.obj.id)
+    if gated:
+        for got in cluster.map(primitive_figures, [(c, th, known) for c in chunks(gated, max(1, len(gated) // (4 * cluster.cpus())))]):
+            if not isinstance(got, TaskFailed):
+                known.update(got)
+    shared = cluster.put(known)
     parts = chunks(compare, max(1, len(compare) // (4 * cluster.cpus()) or 1))
-    for got in cluster.map(pair_figures, [(p, th, known) for p in parts]):
+    for got in [*([known] if len(known) > len(layouts.values) else []),
+                *cluster.map(pair_figures, [(p, th, shared) for p in parts])]:
         if not isinstance(got, TaskFailed):  # a lost chunk: its pairs are computed here by the rules
             layouts.values.update(got)
             layouts.dirty = layouts.dirty or bool(got)
 
 
+def primitive_figures(items: list[Item], th: Any, known: dict[str, float]) -> dict[str, float]:
+    """A task (Ray or a local process): the primitive distances of ``items`` that ``known`` lacks."""
+    cache = LayoutCache(None)
+    cache.values = dict(known)
+    for it in items:
+        E.primitive(it, th, cache)
+    return {k: v for k, v in cache.values.items() if k not in known}
+
+
 def pair_figures(pairs: list[tuple[Item, Item]], th: Any, known: dict[str, float]) -> dict[str, float]:
-    """Ray task: the :class:`LayoutCache` values the pair rules compute for ``pairs`` and ``known`` lacks."""
+    """A task (Ray or a local process): the :class:`LayoutCache` values the pair rules compute for ``pairs`` and ``known`` lacks."""
     cache = LayoutCache(None)
     cache.values = dict(known)
     pair_flags([it for p in pairs for it in p], th, cache, pairs)
@@ -221,6 +243,22 @@ def _groups(pairs: Iterable[tuple[int, int]]) -> list[list[int]]:
     return connected_groups(pairs)
 
 
+@contextmanager
+def filter_executor(th: Any) -> Iterator[Any]:
+    """Where the filter's per-object descriptors and per-pair figures run: the Ray cluster of the command
+    (``--executor ray``), else ``[filter] workers`` forked processes of this machine
+    (:class:`mixcount.catalog.step_executor.LocalProcesses`; before issue 69 the local filter used one
+    core of many), else None: this process."""
+    from mixcount.catalog.step_executor import LocalProcesses, ray_tasks
+
+    cluster = ray_tasks()
+    if cluster is not None or th.workers <= 1:
+        yield cluster
+        return
+    with LocalProcesses(th.workers) as local:
+        yield local
+
+
 def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -> FilterSummary:
     """Recompute every filter flag, re-pick duplicate keepers, re-apply review decisions (idempotent).
 
@@ -252,12 +290,13 @@ def _run_filter(catalog: Catalog, config: Config, *, ground_truth: bool) -> Filt
         live = [o for o in objects if o.status in (STATUS_ACTIVE, STATUS_EXCLUDED)]
         broken = [o for o in objects if o.status == STATUS_BROKEN]
         items = [Item(o) for o in live]
-        _describe(catalog, session, items, summary)
+        with filter_executor(th) as cluster:
+            _describe(catalog, session, items, summary, cluster)
+            layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{CL.LAYOUT_VERSION}.json")
+            compare = candidate_items(items, th.candidates)
+            summary.candidate_pairs = len(compare)
+            figures_in_parallel(cluster, th, layouts, compare)
         item_of = {it.obj.id: it for it in items}
-        layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{CL.LAYOUT_VERSION}.json")
-        compare = candidate_items(items, th.candidates)
-        summary.candidate_pairs = len(compare)
-        align_on_ray(items, th, layouts, compare)
         found = pair_flags(items, th, layouts, compare) + quality_flags(items, broken, th)
         layouts.save()
 

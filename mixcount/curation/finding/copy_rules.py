@@ -40,12 +40,19 @@ from mixcount.curation.flag_kinds import LOOK_ALIKE, POSSIBLE_COPY
 from mixcount.sizes import SizeEvidence
 
 
+def shape_gate(x: Item, y: Item, th: FilterConfig) -> bool:
+    """The cheap gates of :func:`shape_facts` (D2 and principal proportions, both descriptors there): False
+    where they already tell the shapes apart and no alignment is made."""
+    if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
+        return False
+    return not (D.d2_distance(x.shape, y.shape) > th.copy_gate_d2
+                or D.moment_distance(x.shape, y.shape) > th.cross_source_proportions)
+
+
 def shape_facts(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tuple[float, float, float] | None:
     """(aligned shape distance, nearer primitive distance, surface colour distance), or None when the
     cheap gates already tell the shapes apart (or a descriptor is missing)."""
-    if x.surface is None or y.surface is None or x.shape is None or y.shape is None:
-        return None
-    if D.d2_distance(x.shape, y.shape) > th.copy_gate_d2 or D.moment_distance(x.shape, y.shape) > th.cross_source_proportions:
+    if not shape_gate(x, y, th):
         return None
     d = E.aligned_distance(x, y, th, layouts)
     prim = min(E.primitive(x, th, layouts), E.primitive(y, th, layouts))

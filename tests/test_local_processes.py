@@ -1,0 +1,73 @@
+"""`catalog filter` on every core of this machine (issue 69): :class:`LocalProcesses` keeps the cluster's
+contract (results in order, a dead worker told from the others), and the filter's flags are those of one
+process whatever ``[filter] workers`` is."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from mixcount.catalog.step_executor import LocalProcesses, TaskFailed
+
+ROOT = Path(__file__).resolve().parent.parent
+MIX = ROOT / ".venv" / "bin" / "mixcount"
+
+
+def square_or_die(x: int) -> int:
+    """x squared; 13 kills its own worker process as a segfault would."""
+    if x == 13:
+        os.kill(os.getpid(), signal.SIGSEGV)
+    return x * x
+
+
+def test_results_come_back_in_order_and_a_dead_worker_is_one_failure() -> None:
+    with LocalProcesses(2) as pool:
+        assert pool.cpus() == 2
+        assert pool.put({"a": 1}) == {"a": 1}
+        assert pool.map(square_or_die, [(k,) for k in range(8)]) == [k * k for k in range(8)]
+        got = pool.map(square_or_die, [(k,) for k in (11, 12, 13, 14, 15)])
+        assert [g for g in got if not isinstance(g, TaskFailed)] == [121, 144, 196, 225]
+        assert isinstance(got[2], TaskFailed) and "died" in got[2].error
+        # the broken pool was replaced: the next map works as before
+        assert pool.map(square_or_die, [(3,), (4,)]) == [9, 16]
+
+
+def _catalog(db: Path, *folders: Path) -> list[dict]:
+    """``catalog list --json`` with the catalog folders (``folders``: the copy's original too) as ``DB``."""
+    out = subprocess.run([str(MIX), "--db", str(db), "catalog", "list", "--json"], capture_output=True, text=True,
+                         check=True, cwd=ROOT).stdout
+    for folder in (db.parent, *folders):
+        out = out.replace(str(folder), "DB")
+    return [{k: v for k, v in o.items() if k not in ("created_at", "updated_at", "ingest_run_id")} for o in json.loads(out)]
+
+
+@pytest.mark.skipif(not MIX.exists(), reason="needs the project's .venv (make setup)")
+def test_filter_flags_are_the_same_with_one_process_and_with_two(tmp_path: Path) -> None:
+    from mixcount.demo.library import generate_demo_library
+
+    lib = tmp_path / "lib"
+    generate_demo_library(lib, seed=3, n_objects=14)
+    opts = ["--config", "configs/quick.toml", "--set", "canonical_render.resolution=48",
+            "--set", "canonical_render.samples=1"]
+    first = tmp_path / "one" / "catalog.db"
+    first.parent.mkdir()
+    for args in (["catalog", "ingest", str(lib)], ["catalog", "render"]):
+        subprocess.run([str(MIX), "--db", str(first), *opts, *args], check=True, capture_output=True, cwd=ROOT)
+    second = tmp_path / "two" / "catalog.db"
+    subprocess.run(["cp", "-r", str(first.parent), str(second.parent)], check=True)
+    summaries = []
+    for db, workers in ((first, 1), (second, 2)):
+        got = subprocess.run([str(MIX), "--db", str(db), *opts, "--set", f"filter.workers={workers}", "catalog", "filter"],
+                             capture_output=True, text=True, cwd=ROOT)
+        assert got.returncode == 0, got.stderr
+        summaries.append(got.stdout.splitlines()[0])
+    assert summaries[0] == summaries[1]
+    assert "candidate pairs compared" in summaries[0]
+    one, two = _catalog(first), _catalog(second, first.parent)  # the copy keeps the paths of the first
+    assert sum(len(o["flags"]) for o in one) > 10  # the library's traps were found: something to compare
+    assert one == two
