@@ -60,12 +60,38 @@ def _check_type(key: str, default: Any, value: Any) -> Any:
             return value
     elif isinstance(default, list):
         if isinstance(value, list):
+            _check_items(key, default, value)
             return value
     else:
         return value
     raise ConfigError(
         f"config key {key!r} expects {type(default).__name__}, got {type(value).__name__} ({value!r})"
     )
+
+
+def _item_kind(item: Any) -> str:
+    if isinstance(item, bool):
+        return "bool"
+    if isinstance(item, (int, float)):
+        return "number"
+    return {"dict": "table", "list": "array"}.get(type(item).__name__, type(item).__name__)
+
+
+def _check_items(key: str, default: list[Any], value: list[Any]) -> None:
+    """Each item of a list value must be of a kind the default's items are (numbers, names, tables).
+
+    Every reader of a list key (set arithmetic on names, ranges of two numbers, palette tables) trusts its
+    items; a ``--set scene.floor_patterns=[[1]]`` must stop here as one ConfigError, not as a TypeError deep
+    in a validator. A list key whose default is empty (``ingest.extra_roots``,
+    ``scene.counted_exclude_categories``) holds names or paths: strings.
+    """
+    kinds = {_item_kind(item) for item in default} or {"str"}
+    kinds = {"string" if k == "str" else k for k in kinds}
+    for item in value:
+        if {"str": "string"}.get(_item_kind(item), _item_kind(item)) not in kinds:
+            want = " or ".join(sorted(kinds))
+            raise ConfigError(f"config key {key!r} holds items of kind {want}, got {_item_kind(item)} "
+                              f"({str(item)[:40]!r}) in {str(value)[:80]}")
 
 
 RENAMED_SECTIONS = {"render": "canonical_render"}  # old section name -> new (refused with the new name)

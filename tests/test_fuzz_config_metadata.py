@@ -35,12 +35,39 @@ FLOAT_KEY = next(k for k in KEYS if isinstance(load_config().to_dict()[k.split("
 @fuzz(300)
 @example(FLOAT_KEY, "1" + "0" * 400, "=")  # found at 3,000 cases: an OverflowError in the float coercion
 @example("scene.n_objects", deep(3000), "=")  # found at 300 cases: a RecursionError in tomllib
+@example("scene.floor_patterns", "[[1]]", "=")  # found in CI: a TypeError (unhashable list) in the scene validator
 @given(st.one_of(st.sampled_from(KEYS), st.text(max_size=15)), VALUE, st.sampled_from(["=", "", "=="]))
 def test_set_overrides(key: str, value: str, sep: str) -> None:
     try:
         load_config([], [f"{key}{sep}{value}"])
     except ConfigError as exc:
         assert str(exc)
+
+
+def _value_at(dotted: str) -> object:
+    node: object = load_config().to_dict()
+    for part in dotted.split("."):
+        node = node[part]  # type: ignore[index]
+    return node
+
+
+LIST_KEYS = [k for k in KEYS if isinstance(_value_at(k), list)]
+ITEMS_OF_EVERY_KIND = ["[[1]]", "[1]", '["x"]', "[true]", "[{a = 1}]", "[1.5, \"a\"]", "[[]]"]
+
+
+@pytest.mark.parametrize("key", LIST_KEYS)
+def test_list_items_of_another_kind_are_one_config_error(key: str) -> None:
+    """Every list key, every kind of item: it loads or stops as one ConfigError that names the key (the
+    class of the CI failure above, not only floor_patterns)."""
+    assert len(LIST_KEYS) >= 30
+    refused = 0
+    for value in ITEMS_OF_EVERY_KIND:
+        try:
+            load_config([], [f"{key}={value}"])
+        except ConfigError as exc:
+            refused += 1
+            assert key.split(".")[-1] in str(exc), str(exc)
+    assert refused >= 4  # at most three kinds (an array of arrays is never one) can fit a key
 
 
 @pytest.fixture(scope="module")
