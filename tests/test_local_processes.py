@@ -29,12 +29,16 @@ def test_results_come_back_in_order_and_a_dead_worker_is_one_failure() -> None:
     with LocalProcesses(2) as pool:
         assert pool.cpus() == 2
         assert pool.put({"a": 1}) == {"a": 1}
-        assert pool.map(square_or_die, [(k,) for k in range(8)]) == [k * k for k in range(8)]
-        got = pool.map(square_or_die, [(k,) for k in (11, 12, 13, 14, 15)])
+        assert list(pool.map(square_or_die, [(k,) for k in range(8)])) == [k * k for k in range(8)]
+        got = list(pool.map(square_or_die, [(k,) for k in (11, 12, 13, 14, 15)]))
         assert [g for g in got if not isinstance(g, TaskFailed)] == [121, 144, 196, 225]
         assert isinstance(got[2], TaskFailed) and "died" in got[2].error
         # the broken pool was replaced: the next map works as before
-        assert pool.map(square_or_die, [(3,), (4,)]) == [9, 16]
+        assert list(pool.map(square_or_die, [(3,), (4,)])) == [9, 16]
+        # a task that raises is one failure with its reason, as a Ray task's is; the others come back
+        got = list(pool.map(square_or_die, [(2,), ("x",), (5,)]))
+        assert got[0] == 4 and got[2] == 25
+        assert isinstance(got[1], TaskFailed) and got[1].error.startswith("TypeError:"), got[1]
 
 
 def _catalog(db: Path, *folders: Path) -> list[dict]:
@@ -66,6 +70,9 @@ def test_filter_flags_are_the_same_with_one_process_and_with_two(tmp_path: Path)
                              capture_output=True, text=True, cwd=ROOT)
         assert got.returncode == 0, got.stderr
         summaries.append(got.stdout.splitlines()[0])
+        # progress on stderr (plain lines: not a terminal) for each phase, whichever executor ran it
+        for phase in ("filter: descriptors: ", "filter: primitive fits: ", "filter: pair figures: "):
+            assert phase in got.stderr, (workers, got.stderr[-2000:])
     assert summaries[0] == summaries[1]
     assert "candidate pairs compared" in summaries[0]
     one, two = _catalog(first), _catalog(second, first.parent)  # the copy keeps the paths of the first

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import contextvars
 from dataclasses import dataclass
-from typing import Any, Optional, Sequence
+from typing import Any, Iterator, Optional, Sequence
 
 _current: contextvars.ContextVar[Optional[Any]] = contextvars.ContextVar("catalog_step_cluster", default=None)
 
@@ -72,25 +72,63 @@ class LocalProcesses:
     def put(self, value: Any) -> Any:
         return value  # a forked worker gets it with each task's arguments
 
-    def map(self, fn: Any, args: Sequence[Sequence[Any]]) -> list[Any]:
+    def map(self, fn: Any, args: Sequence[Sequence[Any]]) -> Iterator[Any]:
+        """``fn(*a)`` for each ``a`` on the workers, yielded in the order of ``args`` as each is done (so a
+        caller can show progress); a task that raised yields a :class:`TaskFailed` with its type and first
+        line, as a Ray task that failed does."""
         from concurrent.futures import ProcessPoolExecutor
         from concurrent.futures.process import BrokenProcessPool
 
         if not args:
-            return []
+            return
         if self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(args)))
         futures = [self._pool.submit(fn, *a) for a in args]
-        out: list[Any] = []
-        for fut, a in zip(futures, args):
+        failed = False
+        try:
+            for fut, a in zip(futures, args):
+                try:
+                    got = fut.result()
+                except BrokenProcessPool:
+                    got = _alone(fn, a)
+                except Exception as exc:  # noqa: BLE001 - any error of the task's own code
+                    got = TaskFailed(_one_line(exc))
+                failed = failed or isinstance(got, TaskFailed)
+                yield got
+        finally:
+            if failed or getattr(self._pool, "_broken", False):
+                self._pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = None  # a fresh pool for the next map
+
+
+class InThisProcess:
+    """The cluster contract run in this process, one task after the other: what ``[filter] workers = 1``
+    uses, so the filter takes one path (figures computed by chunk, the rules on the filled cache, progress
+    per chunk) whichever executor runs its tasks."""
+
+    def __enter__(self) -> "InThisProcess":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def cpus(self) -> int:
+        return 1
+
+    def put(self, value: Any) -> Any:
+        return value
+
+    def map(self, fn: Any, args: Sequence[Sequence[Any]]) -> Iterator[Any]:
+        for a in args:
             try:
-                out.append(fut.result())
-            except BrokenProcessPool:
-                out.append(_alone(fn, a))
-        if any(isinstance(o, TaskFailed) for o in out) or getattr(self._pool, "_broken", False):
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None  # a fresh pool for the next map
-        return out
+                yield fn(*a)
+            except Exception as exc:  # noqa: BLE001 - as a worker's task error
+                yield TaskFailed(_one_line(exc))
+
+
+def _one_line(exc: BaseException) -> str:
+    first = (str(exc).strip().splitlines() or [""])[0]
+    return f"{type(exc).__name__}: {first}"[:500]
 
 
 def _alone(fn: Any, a: Sequence[Any]) -> Any:
@@ -103,3 +141,5 @@ def _alone(fn: Any, a: Sequence[Any]) -> Any:
             return solo.submit(fn, *a).result()
         except BrokenProcessPool as exc:
             return TaskFailed(f"its worker process died: {exc}")
+        except Exception as exc:  # noqa: BLE001 - the task's own error, as in LocalProcesses.map
+            return TaskFailed(_one_line(exc))

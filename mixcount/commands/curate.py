@@ -86,7 +86,7 @@ def filter_cmd(
         from mixcount.run.catalog_tasks import catalog_executor
 
         with catalog_executor(executor, address):
-            summary = run_filter(catalog, st.config())
+            summary = run_filter(catalog, st.config(), progress=RichProgress())
         by_object: dict[str, list[str]] = {}
         for f in summary.descriptor_failures:  # an object may fail more than one descriptor: one line
             by_object.setdefault(f"#{f['id']} {f['name']}", []).append(str(f["error"]))

@@ -92,6 +92,7 @@ from mixcount.curation.flag_kinds import (
     severity,
 )
 from mixcount.curation.renders import canonical_render_path, mask_path_for
+from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.threads import one_blas_thread
 
 
@@ -117,7 +118,7 @@ class FilterSummary:
 
 
 def _describe(catalog: Catalog, session: Session, items: list[Item], summary: FilterSummary,
-              cluster: Any = None) -> None:
+              cluster: Any = None, progress: ProgressReporter | None = None) -> None:
     """Each item's descriptors (:func:`describe_one`), in this process or as tasks of ``cluster`` (a Ray
     cluster under ``--executor ray``, or ``[filter] workers`` local processes: :func:`filter_executor`),
     whose results are set here in the items' order."""
@@ -132,7 +133,10 @@ def _describe(catalog: Catalog, session: Session, items: list[Item], summary: Fi
         work.append((obj.model_path, obj.source_units, obj.source_up_axis, cache, (obj.geometry_hash or "")[:32] or None,
                      (obj.content_hash or "")[:32] or None, str(path) if path is not None else None))
     described = cluster.map(describe_one, work) if cluster is not None else (describe_one(*w) for w in work)
+    bar = as_reporter(progress)
+    bar.start("filter: descriptors", len(items))
     for it, got in zip(items, described):
+        bar.advance()
         obj = it.obj
         if isinstance(got, TaskFailed):
             summary.descriptor_failures.append({"id": obj.id, "name": obj.name, "error": got.error})
@@ -140,6 +144,7 @@ def _describe(catalog: Catalog, session: Session, items: list[Item], summary: Fi
         it.shape, it.surface, it.look, errors, missing = got
         summary.missing_renders += int(missing)
         summary.descriptor_failures.extend({"id": obj.id, "name": obj.name, "error": e} for e in errors)
+    bar.stop()
 
 
 def describe_one(model_path: str, units: str | None, up_axis: str | None, cache_dir: str, shape_key: str | None,
@@ -168,31 +173,53 @@ def describe_one(model_path: str, units: str | None, up_axis: str | None, cache_
     return shape, surface, look, errors, False
 
 
-def figures_in_parallel(cluster: Any, th: Any, layouts: LayoutCache, compare: list[tuple[Item, Item]]) -> None:
+PAIRS_PER_TASK = 200  # at most this many pairs in one pair-figures task, at most OBJECTS_PER_TASK objects in
+OBJECTS_PER_TASK = 50  # one primitive-fits task: progress moves, and a lost task (a node killed) costs little
+
+
+def _chunk_size(n: int, cpus: int, most: int) -> int:
+    """Tasks of about a quarter of ``n`` per CPU (so the cluster's CPUs stay busy to the end), at most ``most``."""
+    return max(1, min(most, n // (4 * max(1, cpus))))
+
+
+def figures_in_parallel(cluster: Any, th: Any, layouts: LayoutCache, compare: list[tuple[Item, Item]],
+                        progress: ProgressReporter | None = None) -> None:
     """The pair rules' costly figures (alignments, primitive fits, layout distances: what
-    :class:`LayoutCache` keeps) of ``compare`` computed as tasks of ``cluster`` (Ray, or local processes),
-    a chunk of pairs each, and merged into ``layouts``; the rules then run here on the filled cache, so the
-    flags are those of one process. Without a cluster: nothing (the rules compute them as they go)."""
+    :class:`LayoutCache` keeps) of ``compare`` computed as tasks of ``cluster`` (Ray, local processes or
+    this process), a chunk of pairs each, and merged into ``layouts``; the rules then run here on the filled
+    cache, so the flags are those of one process. Without a cluster: nothing (the rules compute them as they
+    go)."""
     from mixcount.catalog.step_executor import TaskFailed, chunks
 
     if cluster is None or not compare:
         return
+    bar = as_reporter(progress)
     known = dict(layouts.values)
     # each object's primitive distance once, first: a chunk of pairs would otherwise fit the primitives of
     # every object it holds again (an object sits in ~2k candidate pairs, spread over the chunks)
     gated = sorted({id(it): it for p in compare if shape_gate(p[0], p[1], th) for it in p}.values(),
                    key=lambda it: it.obj.id)
     if gated:
-        for got in cluster.map(primitive_figures, [(c, th, known) for c in chunks(gated, max(1, len(gated) // (4 * cluster.cpus())))]):
+        shared = cluster.put(known)
+        parts = chunks(gated, _chunk_size(len(gated), cluster.cpus(), OBJECTS_PER_TASK))
+        bar.start("filter: primitive fits", len(gated))
+        for part, got in zip(parts, cluster.map(primitive_figures, [(c, th, shared) for c in parts])):
+            bar.advance(len(part))
             if not isinstance(got, TaskFailed):
                 known.update(got)
+        bar.stop()
     shared = cluster.put(known)
-    parts = chunks(compare, max(1, len(compare) // (4 * cluster.cpus()) or 1))
-    for got in [*([known] if len(known) > len(layouts.values) else []),
-                *cluster.map(pair_figures, [(p, th, shared) for p in parts])]:
+    parts = chunks(compare, _chunk_size(len(compare), cluster.cpus(), PAIRS_PER_TASK))
+    if len(known) > len(layouts.values):
+        layouts.values.update(known)
+        layouts.dirty = True
+    bar.start("filter: pair figures", len(compare))
+    for part, got in zip(parts, cluster.map(pair_figures, [(p, th, shared) for p in parts])):
+        bar.advance(len(part))
         if not isinstance(got, TaskFailed):  # a lost chunk: its pairs are computed here by the rules
             layouts.values.update(got)
             layouts.dirty = layouts.dirty or bool(got)
+    bar.stop()
 
 
 def primitive_figures(items: list[Item], th: Any, known: dict[str, float]) -> dict[str, float]:
@@ -248,28 +275,31 @@ def filter_executor(th: Any) -> Iterator[Any]:
     """Where the filter's per-object descriptors and per-pair figures run: the Ray cluster of the command
     (``--executor ray``), else ``[filter] workers`` forked processes of this machine
     (:class:`mixcount.catalog.step_executor.LocalProcesses`; before issue 69 the local filter used one
-    core of many), else None: this process."""
-    from mixcount.catalog.step_executor import LocalProcesses, ray_tasks
+    core of many), else this process one task after the other
+    (:class:`mixcount.catalog.step_executor.InThisProcess`): one path for every executor."""
+    from mixcount.catalog.step_executor import InThisProcess, LocalProcesses, ray_tasks
 
     cluster = ray_tasks()
-    if cluster is not None or th.workers <= 1:
+    if cluster is not None:
         yield cluster
         return
-    with LocalProcesses(th.workers) as local:
+    with (LocalProcesses(th.workers) if th.workers > 1 else InThisProcess()) as local:
         yield local
 
 
-def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True) -> FilterSummary:
+def run_filter(catalog: Catalog, config: Config, *, ground_truth: bool = True,
+               progress: ProgressReporter | None = None) -> FilterSummary:
     """Recompute every filter flag, re-pick duplicate keepers, re-apply review decisions (idempotent).
 
     ``config.filter`` holds the thresholds; ``config.containers`` the container rules recomputed at the end.
     Runs with one BLAS thread (:func:`mixcount.threads.one_blas_thread`: the shape alignment's many tiny
     matrices are several times faster so, with the same results)."""
     with one_blas_thread():
-        return _run_filter(catalog, config, ground_truth=ground_truth)
+        return _run_filter(catalog, config, ground_truth=ground_truth, progress=progress)
 
 
-def _run_filter(catalog: Catalog, config: Config, *, ground_truth: bool) -> FilterSummary:
+def _run_filter(catalog: Catalog, config: Config, *, ground_truth: bool,
+                progress: ProgressReporter | None) -> FilterSummary:
     th = config.filter
     summary = FilterSummary()
     with catalog.session() as session:
@@ -291,11 +321,11 @@ def _run_filter(catalog: Catalog, config: Config, *, ground_truth: bool) -> Filt
         broken = [o for o in objects if o.status == STATUS_BROKEN]
         items = [Item(o) for o in live]
         with filter_executor(th) as cluster:
-            _describe(catalog, session, items, summary, cluster)
+            _describe(catalog, session, items, summary, cluster, progress)
             layouts = LayoutCache(catalog.data_dir / "descriptors" / f"layouts_{A.APPEARANCE_VERSION}_{CL.LAYOUT_VERSION}.json")
             compare = candidate_items(items, th.candidates)
             summary.candidate_pairs = len(compare)
-            figures_in_parallel(cluster, th, layouts, compare)
+            figures_in_parallel(cluster, th, layouts, compare, progress)
         item_of = {it.obj.id: it for it in items}
         found = pair_flags(items, th, layouts, compare) + quality_flags(items, broken, th)
         layouts.save()

@@ -108,49 +108,39 @@ class LayoutCache:
         return f"{a}:{b}:{gain:.4f}" if a and b else None
 
     def layout(self, x: Item, y: Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float, search_above: float) -> float:
-        key = self.key(x, y, gain)
-        if key is not None and key in self.values:
-            return self.values[key]
-        value = CL.layout_distance(first, other, search_above=search_above)
-        if key is not None:
-            self.values[key] = round(value, 6)
-            self.dirty = True
-        return value
+        return self._remember(self.key(x, y, gain),
+                              lambda: CL.layout_distance(first, other, search_above=search_above))
 
     def refined(self, x: Item, y: Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float) -> float:
         """Layout distance after a local rotation refinement, both ways (cross-source copies), cached."""
         key = self.key(x, y, gain)
         key = f"refined:{key}" if key is not None else None
-        if key is not None and key in self.values:
-            return self.values[key]
-        value = min(CL.refined_layout_distance(first, other), CL.refined_layout_distance(other, first))
-        if key is not None:
-            self.values[key] = round(value, 6)
-            self.dirty = True
-        return value
+        return self._remember(key, lambda: min(CL.refined_layout_distance(first, other),
+                                               CL.refined_layout_distance(other, first)))
 
     def occupancy(self, x: Item, y: Item) -> float:
         """Axis-normalised shape distance (:func:`~mixcount.curation.finding.colour_layout.occupancy_distance`), cached."""
         key = self.key(x, y, 1.0)
         key = f"occupancy:{key}" if key is not None else None
-        if key is not None and key in self.values:
-            return self.values[key]
-        value = CL.occupancy_distance(x.shape_look(), y.shape_look())
-        if key is not None:
-            self.values[key] = round(value, 6)
-            self.dirty = True
-        return value
+        return self._remember(key, lambda: CL.occupancy_distance(x.shape_look(), y.shape_look()))
 
     def cached(self, x: Item, y: Item, tag: str, compute: Callable[[], float]) -> float:
         """``compute()`` for the pair (or one object when ``x is y``), cached under ``tag`` and the
         shape-match version."""
         key = self.key(x, y, 1.0)
         key = f"{tag}-{S.MATCH_VERSION}:{key}" if key is not None else None
+        return self._remember(key, compute)
+
+    def _remember(self, key: str | None, compute: Callable[[], float]) -> float:
+        """The cached figure of ``key``, else ``compute()`` rounded to 6 decimals and kept. The rules always
+        read the rounded figure, computed now or read back: a first run, a re-run on the saved cache and a
+        run whose figures came from worker processes or Ray tasks then take the same side of every
+        threshold (a rule once read the unrounded figure on the first run and the rounded one after)."""
         if key is not None and key in self.values:
             return self.values[key]
-        value = float(compute())
+        value = round(float(compute()), 6)
         if key is not None:
-            self.values[key] = round(value, 6)
+            self.values[key] = value
             self.dirty = True
         return value
 
