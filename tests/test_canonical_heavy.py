@@ -4,8 +4,8 @@ render) and OIDN's ``heavy_denoise_prefilter``; a model at or under it renders b
 render rows keep their settings hash.
 
 Real bpy in one worker process (48 px, 4 samples): a vertex-coloured icosphere (1280 triangles) rendered with
-the default threshold (light), with ``heavy_faces = 0`` (heavy) and with other heavy settings that must not
-touch a light object."""
+the default threshold (light), with ``heavy_faces = 0`` (heavy), with other heavy settings that must not
+touch a light object, and heavy with the light path's prefilter (ACCURATE: the same bytes as light)."""
 
 from __future__ import annotations
 
@@ -86,7 +86,8 @@ def test_heavy_path_matches_the_light_path_and_light_stays_byte_identical(tmp_pa
     model = painted_ball(tmp_path / "ball.ply")
     obj = types.SimpleNamespace(model_path=str(model), id=1, source_up_axis="")
     runs = {"light": (), "heavy": ("canonical_render.heavy_faces=0",),
-            "light_other": ("canonical_render.heavy_faces=5000", "canonical_render.heavy_denoise_prefilter=NONE")}
+            "light_other": ("canonical_render.heavy_faces=5000", "canonical_render.heavy_denoise_prefilter=NONE"),
+            "heavy_accurate": ("canonical_render.heavy_faces=0", "canonical_render.heavy_denoise_prefilter=ACCURATE")}
     jobs = [(name, canonical_request(small_config(*over).canonical_render, obj, tmp_path / name))
             for name, over in runs.items()]
     seen: dict[str, Any] = {}
@@ -94,13 +95,17 @@ def test_heavy_path_matches_the_light_path_and_light_stays_byte_identical(tmp_pa
     for name in runs:
         assert seen[name].result is not None, seen[name].error
     res = {name: seen[name].result for name in runs}
-    assert [(r.faces, r.heavy) for r in res.values()] == [(1280, False), (1280, True), (1280, False)]
+    assert [(r.faces, r.heavy) for r in res.values()] == [(1280, False), (1280, True), (1280, False), (1280, True)]
 
     view = {name: r.views[0] for name, r in res.items()}
     # light: the same bytes whatever the heavy settings (RGB, mask, albedo)
     for pick in (lambda v: v.path, lambda v: v.mask_path, lambda v: albedo_path_for(v.path)):
         assert Path(pick(view["light"])).read_bytes() == Path(pick(view["light_other"])).read_bytes()
     assert not [p.name for p in (tmp_path / "heavy").iterdir() if p.name.startswith(".")]  # no EXR left behind
+    # the colour passes do not change the combined image, and at the light path's albedo samples (4 here, as
+    # ALBEDO_SAMPLES) and its prefilter the heavy path writes the same files: one render does the work of two
+    for pick in (lambda v: v.path, lambda v: v.mask_path, lambda v: albedo_path_for(v.path)):
+        assert Path(pick(view["light"])).read_bytes() == Path(pick(view["heavy_accurate"])).read_bytes()
 
     mask = image(view["light"].mask_path)
     assert np.array_equal(image(view["heavy"].mask_path), mask)
