@@ -90,7 +90,11 @@ def object_settings_hash(config: CanonicalRenderConfig, obj: CatalogObject) -> s
     heavy object hashes :func:`heavy_render_settings`: its render came from the other path (one render,
     FAST prefilter), so it renders again once, and again whenever ``heavy_denoise_prefilter`` or
     :data:`HEAVY_VERSION` changes. Changing ``heavy_faces`` re-renders exactly the objects whose side of
-    the threshold changed. The value of ``heavy_faces`` itself is in neither hash: it only picks the path."""
+    the threshold changed. The value of ``heavy_faces`` itself is in neither hash: it only picks the path.
+
+    The rows record this expectation (from ``face_count``), not the worker's own count
+    (:attr:`CanonicalResult.heavy`): where the two counts fall on either side of the threshold (a file the two
+    readers triangulate differently) the object is rendered once and not again each run."""
     settings = heavy_render_settings(config) if is_heavy(config, obj) else render_settings(config)
     return settings_hash(settings)
 
