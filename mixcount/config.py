@@ -208,6 +208,15 @@ class CanonicalRenderConfig:
     workers: int
     threads: int
     timeout_s: float
+    heavy_faces: int  # more triangles than this: one render gives RGB and albedo (engine.canonical_render)
+    heavy_denoise_prefilter: str  # OIDN prefilter of a heavy model's render (DENOISE_PREFILTERS)
+
+    def validate(self) -> None:
+        if not (isinstance(self.heavy_faces, int) and self.heavy_faces >= 0):
+            raise ConfigError(f"canonical_render.heavy_faces must be an integer >= 0, got {self.heavy_faces!r}")
+        if self.heavy_denoise_prefilter not in DENOISE_PREFILTERS:
+            raise ConfigError(f"canonical_render.heavy_denoise_prefilter must be one of {', '.join(DENOISE_PREFILTERS)}, "
+                              f"got {self.heavy_denoise_prefilter!r}")
 
 
 @dataclass(frozen=True)

@@ -163,13 +163,15 @@ def test_contract_json_round_trip() -> None:
     settled = SettleResult(poses_file="/x/settled.json", frames_run=140, seconds={"import": 1.5, "physics": 8.25})
     assert SettleResult.from_dict(json.loads(json.dumps(settled.to_dict()))) == settled
     look = CanonicalSettings(resolution=64, samples=4, denoise=True, elevation_deg=30.0, azimuth_deg=10.0,
-                             extra_views=2, margin=0.1, world_strength=0.5, sun_strength=2.0)
+                             extra_views=2, margin=0.1, world_strength=0.5, sun_strength=2.0,
+                             heavy_faces=300000, heavy_denoise_prefilter="FAST")
     canonical = CanonicalRequest(model_path="/m.glb", out_dir="/r", stem="obj_000001", threads=0, settings=look,
                                  up_axis="")
     assert CanonicalRequest.from_dict(json.loads(json.dumps(canonical.to_dict()))) == canonical
     assert canonical.views() == (("canonical", 10.0), ("view_1", 130.0), ("view_2", 250.0))
     rendered = CanonicalResult(views=(CanonicalView(view="canonical", path="/r/a.png", mask_path="/r/a_mask.png",
-                                                    coverage=0.25, width=64, height=64),))
+                                                    coverage=0.25, width=64, height=64),),
+                               faces=1280, heavy=False)
     assert CanonicalResult.from_dict(json.loads(json.dumps(rendered.to_dict()))) == rendered
     warm = MeshCacheRequest(assets=("/a.usdc",), mode="zstd")
     assert MeshCacheRequest.from_dict(json.loads(json.dumps(warm.to_dict()))) == warm

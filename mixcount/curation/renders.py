@@ -11,7 +11,8 @@ another catalog in the same folder may have overwritten) still resolves, but cou
 ``catalog render`` renders it again into the catalog's folder.
 
 Resumable: an object is skipped when every view's row matches its current model key and the current
-settings hash and the files exist. A failed object gets a row with ``error`` (reason) and is retried on
+settings hash (:func:`object_settings_hash`: the heavy path's settings count only for heavy objects) and the
+files exist. A failed object gets a row with ``error`` (reason) and is retried on
 the next run; the batch always goes on.
 """
 
@@ -37,6 +38,8 @@ RENDER_VERSION = "canonical-v3"  # bump when the renderer changes what a render 
 # v3: palette looks for uncoloured parts, the albedo pass written beside each view)
 SETTING_KEYS = ("resolution", "samples", "denoise", "elevation_deg", "azimuth_deg", "extra_views", "margin",
                 "world_strength", "sun_strength")
+HEAVY_VERSION = "heavy-v1"  # bump when the heavy path (engine.canonical_render.configure_heavy) changes its picture
+HEAVY_SETTING_KEYS = ("heavy_denoise_prefilter",)
 
 
 @dataclass
@@ -45,7 +48,7 @@ class RenderSummary:
     rendered: int = 0
     skipped: int = 0
     failed: int = 0
-    settings_hash: str = ""
+    settings_hash: str = ""  # of a light object (object_settings_hash); heavy objects carry their own
     failures: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
@@ -61,6 +64,39 @@ def render_settings(config: CanonicalRenderConfig) -> dict[str, Any]:
 
 def settings_hash(settings: dict[str, Any]) -> str:
     return json_hash(settings)[:32]
+
+
+def is_heavy(config: CanonicalRenderConfig, obj: CatalogObject) -> bool:
+    """Whether the catalog expects ``obj`` to take the heavy render path: its ``face_count`` (triangles, as
+    trimesh read the file at ingest) over ``heavy_faces``. The worker decides on its own count of the
+    imported triangles (:func:`mixcount.engine.canonical_render.triangle_count`), the same number for a
+    file both read alike; an object without a face count is expected light."""
+    return obj.face_count is not None and int(obj.face_count) > config.heavy_faces
+
+
+def heavy_render_settings(config: CanonicalRenderConfig) -> dict[str, Any]:
+    """A heavy object's settings: :func:`render_settings` plus the heavy path's version and keys."""
+    settings = render_settings(config)
+    settings.update({key: getattr(config, key) for key in HEAVY_SETTING_KEYS}, heavy=HEAVY_VERSION)
+    return settings
+
+
+def object_settings_hash(config: CanonicalRenderConfig, obj: CatalogObject) -> str:
+    """The settings hash an object's render rows must carry to be up to date.
+
+    A light object (face_count <= heavy_faces, or unknown) hashes :func:`render_settings` alone: exactly the
+    hash every render had before the heavy path existed, so a catalog rendered then keeps its light
+    renders, and neither ``heavy_faces`` nor ``heavy_denoise_prefilter`` ever re-renders a light object. A
+    heavy object hashes :func:`heavy_render_settings`: its render came from the other path (one render,
+    FAST prefilter), so it renders again once, and again whenever ``heavy_denoise_prefilter`` or
+    :data:`HEAVY_VERSION` changes. Changing ``heavy_faces`` re-renders exactly the objects whose side of
+    the threshold changed. The value of ``heavy_faces`` itself is in neither hash: it only picks the path.
+
+    The rows record this expectation (from ``face_count``), not the worker's own count
+    (:attr:`CanonicalResult.heavy`): where the two counts fall on either side of the threshold (a file the two
+    readers triangulate differently) the object is rendered once and not again each run."""
+    settings = heavy_render_settings(config) if is_heavy(config, obj) else render_settings(config)
+    return settings_hash(settings)
 
 
 def view_names(extra_views: int) -> list[str]:
@@ -189,6 +225,7 @@ def render_catalog(
     refused: list[tuple[str, str]] = []  # objects whose texture did not decode at ingest: never sent to Blender
     names: dict[str, str] = {}
     hashes: dict[str, str] = {}
+    shashes: dict[str, str] = {}  # object key -> its settings hash (object_settings_hash)
     with catalog.session() as session:
         damaged = damaged_textures(session)
         query = select(CatalogObject).where(CatalogObject.status.in_(statuses)).order_by(CatalogObject.id)
@@ -198,11 +235,12 @@ def render_catalog(
             summary.objects += 1
             rows = {r.view: r for r in session.scalars(select(Render).where(Render.object_id == obj.id))}
             look = render_look(palette, obj)
-            if not force and _up_to_date(rows, obj, views, shash, out_dir, look):
+            ohash = object_settings_hash(config, obj)
+            if not force and _up_to_date(rows, obj, views, ohash, out_dir, look):
                 summary.skipped += 1
                 continue
             key = str(obj.id)
-            names[key], hashes[key] = obj.name, model_key(obj, look)
+            names[key], hashes[key], shashes[key] = obj.name, model_key(obj, look), ohash
             if obj.id in damaged:
                 refused.append((key, f"not rendered: {damaged[obj.id]} (flag damaged_texture: replace the file)"))
                 continue
@@ -225,13 +263,13 @@ def render_catalog(
                     row = _upsert(session, oid, v.view)
                     row.path = str(Path(v.path).resolve())
                     row.width, row.height = v.width, v.height
-                    row.model_hash, row.settings_hash, row.error = hashes[key], shash, None
+                    row.model_hash, row.settings_hash, row.error = hashes[key], shashes[key], None
                     row.created_at = utcnow()
                 summary.rendered += 1
             else:
                 row = _upsert(session, oid, CANONICAL)
                 row.path, row.width, row.height = None, None, None
-                row.model_hash, row.settings_hash = hashes[key], shash
+                row.model_hash, row.settings_hash = hashes[key], shashes[key]
                 row.error = str(outcome.error or "unknown render failure")
                 row.created_at = utcnow()
                 summary.failed += 1

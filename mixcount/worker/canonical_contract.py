@@ -38,6 +38,8 @@ class CanonicalSettings:
     margin: float
     world_strength: float
     sun_strength: float
+    heavy_faces: int  # a model of more triangles than this takes the heavy path (engine.canonical_render)
+    heavy_denoise_prefilter: str  # ... and its render's OIDN prefilter
 
     @classmethod
     def from_config(cls, config: CanonicalRenderConfig) -> "CanonicalSettings":
@@ -95,11 +97,14 @@ class CanonicalView:
 @dataclass(frozen=True)
 class CanonicalResult:
     views: tuple[CanonicalView, ...]
+    faces: int = -1  # triangles of the imported meshes (-1: not counted)
+    heavy: bool = False  # whether it took the heavy path (faces > settings.heavy_faces)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"views": [asdict(v) for v in self.views]}
+        return {"views": [asdict(v) for v in self.views], "faces": self.faces, "heavy": self.heavy}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "CanonicalResult":
         v = known_fields(cls, d)
-        return cls(views=tuple(CanonicalView(**known_fields(CanonicalView, x)) for x in v["views"]))
+        return cls(views=tuple(CanonicalView(**known_fields(CanonicalView, x)) for x in v["views"]),
+                   faces=int(v["faces"]), heavy=bool(v["heavy"]))
