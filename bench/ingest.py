@@ -305,7 +305,9 @@ def run_stages(args: argparse.Namespace) -> int:
 
 def run_render_stages(args: argparse.Namespace) -> int:
     """``--stages``' child: the canonical render of one model with 1 Cycles thread (as each of 2 workers on
-    2 cores), its import and albedo pass timed apart; the rest of the whole is the Cycles render itself."""
+    2 cores), its import and albedo timed apart (a light model's second render, ``render_albedo``; a heavy
+    one's passes of its one render, ``save_colour_passes`` + ``write_albedo``); the rest of the whole is
+    the Cycles render itself."""
 
     from mixcount.engine import canonical_render as C
     from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalSettings
@@ -320,7 +322,8 @@ def run_render_stages(args: argparse.Namespace) -> int:
     def timed(name: str, fn: Any, *a: Any, **k: Any) -> Any:
         return stage_timed(stages, name, fn, *a, **k)
 
-    for name in ("import_model", "render_albedo"):
+    # the light path's second render (render_albedo), or the heavy path's passes of the one render
+    for name in ("import_model", "render_albedo", "save_colour_passes", "write_albedo"):
         setattr(C, name, (lambda n, f: lambda *a, **k: timed(f"render: {n}", f, *a, **k))(name, getattr(C, name)))
     timed("render: whole (1 thread)", C.render_object, req)
     # VmHWM: this process's own peak (ru_maxrss keeps the forking parent's across exec)
