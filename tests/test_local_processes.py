@@ -78,3 +78,41 @@ def test_filter_flags_are_the_same_with_one_process_and_with_two(tmp_path: Path)
     one, two = _catalog(first), _catalog(second, first.parent)  # the copy keeps the paths of the first
     assert sum(len(o["flags"]) for o in one) > 10  # the library's traps were found: something to compare
     assert one == two
+
+
+class StoppedAfterOneTask:
+    """A cluster whose run is stopped (Ctrl-C) after its first pair-figures task came back: stands for a
+    filter interrupted an hour into its alignments (the real tasks run in the test above)."""
+
+    def __init__(self) -> None:
+        self.known_sent: list[dict] = []
+
+    def cpus(self) -> int:
+        return 1
+
+    def put(self, value: dict) -> dict:
+        self.known_sent.append(dict(value))
+        return value
+
+    def map(self, fn, args):  # noqa: ANN001, ANN201 - the cluster contract
+        yield {"pair-figure-a": 0.25}
+        raise KeyboardInterrupt
+
+
+def test_a_stopped_filter_keeps_the_figures_it_had(tmp_path: Path) -> None:
+    from types import SimpleNamespace
+
+    from mixcount.config import load_config
+    from mixcount.curation.finding.catalog_filter import figures_in_parallel
+    from mixcount.curation.finding.filter_items import Item, LayoutCache
+
+    th = load_config().filter
+    pairs = [(Item(SimpleNamespace(id=i)), Item(SimpleNamespace(id=i + 1))) for i in range(3)]  # type: ignore[arg-type]
+    path = tmp_path / "layouts.json"
+    with pytest.raises(KeyboardInterrupt):
+        figures_in_parallel(StoppedAfterOneTask(), th, LayoutCache(path), pairs)
+    assert json.loads(path.read_text()) == {"pair-figure-a": 0.25}
+    again = StoppedAfterOneTask()
+    with pytest.raises(KeyboardInterrupt):
+        figures_in_parallel(again, th, LayoutCache(path), pairs)
+    assert again.known_sent[-1] == {"pair-figure-a": 0.25}  # the rerun's tasks start from what was kept

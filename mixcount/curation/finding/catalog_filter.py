@@ -47,6 +47,7 @@ excluded itself (their flag reason carries :data:`EXCLUDED_MARK`).
 
 from __future__ import annotations
 
+import time
 from collections import defaultdict
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -175,6 +176,7 @@ def describe_one(model_path: str, units: str | None, up_axis: str | None, cache_
 
 PAIRS_PER_TASK = 200  # at most this many pairs in one pair-figures task, at most OBJECTS_PER_TASK objects in
 OBJECTS_PER_TASK = 50  # one primitive-fits task: progress moves, and a lost task (a node killed) costs little
+SAVE_EVERY_S = 60.0  # the pair-figure cache is written this often while the figures come in
 
 
 def _chunk_size(n: int, cpus: int, most: int) -> int:
@@ -194,32 +196,42 @@ def figures_in_parallel(cluster: Any, th: Any, layouts: LayoutCache, compare: li
     if cluster is None or not compare:
         return
     bar = as_reporter(progress)
-    known = dict(layouts.values)
-    # each object's primitive distance once, first: a chunk of pairs would otherwise fit the primitives of
-    # every object it holds again (an object sits in ~2k candidate pairs, spread over the chunks)
-    gated = sorted({id(it): it for p in compare if shape_gate(p[0], p[1], th) for it in p}.values(),
-                   key=lambda it: it.obj.id)
-    if gated:
-        shared = cluster.put(known)
-        parts = chunks(gated, _chunk_size(len(gated), cluster.cpus(), OBJECTS_PER_TASK))
-        bar.start("filter: primitive fits", len(gated))
-        for part, got in zip(parts, cluster.map(primitive_figures, [(c, th, shared) for c in parts])):
-            bar.advance(len(part))
-            if not isinstance(got, TaskFailed):
-                known.update(got)
-        bar.stop()
-    shared = cluster.put(known)
-    parts = chunks(compare, _chunk_size(len(compare), cluster.cpus(), PAIRS_PER_TASK))
-    if len(known) > len(layouts.values):
-        layouts.values.update(known)
+    saved_at = time.monotonic()
+
+    def merge(got: Any) -> None:
+        """A task's figures into the cache, saved every SAVE_EVERY_S: a filter stopped or killed after
+        an hour of alignments goes on from what it had (the rerun's tasks find those figures known)."""
+        nonlocal saved_at
+        if isinstance(got, TaskFailed) or not got:  # a lost chunk: its pairs are computed here by the rules
+            return
+        layouts.values.update(got)
         layouts.dirty = True
-    bar.start("filter: pair figures", len(compare))
-    for part, got in zip(parts, cluster.map(pair_figures, [(p, th, shared) for p in parts])):
-        bar.advance(len(part))
-        if not isinstance(got, TaskFailed):  # a lost chunk: its pairs are computed here by the rules
-            layouts.values.update(got)
-            layouts.dirty = layouts.dirty or bool(got)
-    bar.stop()
+        if time.monotonic() - saved_at >= SAVE_EVERY_S:
+            layouts.save()
+            saved_at = time.monotonic()
+
+    try:
+        # each object's primitive distance once, first: a chunk of pairs would otherwise fit the primitives
+        # of every object it holds again (an object sits in ~2k candidate pairs, spread over the chunks)
+        gated = sorted({id(it): it for p in compare if shape_gate(p[0], p[1], th) for it in p}.values(),
+                       key=lambda it: it.obj.id)
+        if gated:
+            shared = cluster.put(dict(layouts.values))
+            parts = chunks(gated, _chunk_size(len(gated), cluster.cpus(), OBJECTS_PER_TASK))
+            bar.start("filter: primitive fits", len(gated))
+            for part, got in zip(parts, cluster.map(primitive_figures, [(c, th, shared) for c in parts])):
+                bar.advance(len(part))
+                merge(got)
+            bar.stop()
+        shared = cluster.put(dict(layouts.values))
+        parts = chunks(compare, _chunk_size(len(compare), cluster.cpus(), PAIRS_PER_TASK))
+        bar.start("filter: pair figures", len(compare))
+        for part, got in zip(parts, cluster.map(pair_figures, [(p, th, shared) for p in parts])):
+            bar.advance(len(part))
+            merge(got)
+        bar.stop()
+    finally:
+        layouts.save()  # also on Ctrl-C or an error: what was computed is kept
 
 
 def primitive_figures(items: list[Item], th: Any, known: dict[str, float]) -> dict[str, float]:
