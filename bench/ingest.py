@@ -353,7 +353,7 @@ def run_captures(args: argparse.Namespace) -> int:
         print(f"generated {k} objects of {n_faces} faces, {px} px textures in {time.perf_counter() - t0:.1f} s",
               file=sys.stderr)
         db = str(Path(tmp) / "bench.db")
-        values = {"_lib": str(lib), **render}
+        values = {"_lib": str(lib), **render, **json.loads(args.captures_set)}
         steps = {name: _step(name, db, args.workers, values) for name in ("ingest", "render", "filter")}
     for name, st in steps.items():
         # worker-seconds per object: a step's wall time x the processes it kept busy, over the objects
@@ -397,7 +397,9 @@ def main() -> int:
     parser.add_argument("--stages-render", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--captures-step", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--captures-db", default=None, help=argparse.SUPPRESS)
-    parser.add_argument("--captures-set", default="{}", help=argparse.SUPPRESS)
+    parser.add_argument("--captures-set", default="{}",
+                        help='--captures: config values as JSON for every step, e.g. \'{"canonical_render.heavy_faces": 100000000}\' '
+                             "(the light render path for an A/B)")
     args = parser.parse_args()
     if args.captures_step:
         return run_captures_step(args)
