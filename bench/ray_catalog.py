@@ -93,6 +93,8 @@ def run(db: Path, library: Path, steps: tuple[str, ...], extra: list[str], kill:
             codes[step] = mix(db, *step_args(step, library), *extra).returncode
         seconds[step] = round(time.perf_counter() - t0, 1)
         loads[step] = load()
+        print(f"  {db.parent.name}: {step} done in {seconds[step]} s, exit {codes[step]}, load {loads[step]}",
+              file=sys.stderr, flush=True)
     return {"seconds": seconds, "total_s": round(sum(seconds.values()), 1), "exit": codes, "load_after": loads,
             **({"node_killed_after_s": killed_at} if kill is not None else {})}
 
