@@ -210,26 +210,24 @@ def figures_in_parallel(cluster: Any, th: Any, layouts: LayoutCache, compare: li
             layouts.save()
             saved_at = time.monotonic()
 
+    def phase(label: str, fn: Any, work: list[Any], most: int) -> None:
+        """``fn`` over ``work`` in tasks of at most ``most`` items, the figures known so far shared."""
+        shared = cluster.put(dict(layouts.values))
+        parts = chunks(work, _chunk_size(len(work), cluster.cpus(), most))
+        bar.start(label, len(work))
+        for part, got in zip(parts, cluster.map(fn, [(p, th, shared) for p in parts])):
+            bar.advance(len(part))
+            merge(got)
+        bar.stop()
+
     try:
         # each object's primitive distance once, first: a chunk of pairs would otherwise fit the primitives
         # of every object it holds again (an object sits in ~2k candidate pairs, spread over the chunks)
         gated = sorted({id(it): it for p in compare if shape_gate(p[0], p[1], th) for it in p}.values(),
                        key=lambda it: it.obj.id)
         if gated:
-            shared = cluster.put(dict(layouts.values))
-            parts = chunks(gated, _chunk_size(len(gated), cluster.cpus(), OBJECTS_PER_TASK))
-            bar.start("filter: primitive fits", len(gated))
-            for part, got in zip(parts, cluster.map(primitive_figures, [(c, th, shared) for c in parts])):
-                bar.advance(len(part))
-                merge(got)
-            bar.stop()
-        shared = cluster.put(dict(layouts.values))
-        parts = chunks(compare, _chunk_size(len(compare), cluster.cpus(), PAIRS_PER_TASK))
-        bar.start("filter: pair figures", len(compare))
-        for part, got in zip(parts, cluster.map(pair_figures, [(p, th, shared) for p in parts])):
-            bar.advance(len(part))
-            merge(got)
-        bar.stop()
+            phase("filter: primitive fits", primitive_figures, gated, OBJECTS_PER_TASK)
+        phase("filter: pair figures", pair_figures, compare, PAIRS_PER_TASK)
     finally:
         layouts.save()  # also on Ctrl-C or an error: what was computed is kept
 
