@@ -92,7 +92,7 @@ class LocalProcesses:
                 except BrokenProcessPool:
                     got = _alone(fn, a)
                 except Exception as exc:  # noqa: BLE001 - any error of the task's own code
-                    got = TaskFailed(_one_line(exc))
+                    got = TaskFailed(error_line(exc))
                 failed = failed or isinstance(got, TaskFailed)
                 yield got
         finally:
@@ -123,12 +123,13 @@ class InThisProcess:
             try:
                 yield fn(*a)
             except Exception as exc:  # noqa: BLE001 - as a worker's task error
-                yield TaskFailed(_one_line(exc))
+                yield TaskFailed(error_line(exc))
 
 
-def _one_line(exc: BaseException) -> str:
+def error_line(exc: BaseException, limit: int = 500) -> str:
+    """One line for a task's error: its type and the first line of its message (every executor's failures)."""
     first = (str(exc).strip().splitlines() or [""])[0]
-    return f"{type(exc).__name__}: {first}"[:500]
+    return f"{type(exc).__name__}: {first}"[:limit]
 
 
 def _alone(fn: Any, a: Sequence[Any]) -> Any:
@@ -142,4 +143,4 @@ def _alone(fn: Any, a: Sequence[Any]) -> Any:
         except BrokenProcessPool as exc:
             return TaskFailed(f"its worker process died: {exc}")
         except Exception as exc:  # noqa: BLE001 - the task's own error, as in LocalProcesses.map
-            return TaskFailed(_one_line(exc))
+            return TaskFailed(error_line(exc))

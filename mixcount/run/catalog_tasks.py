@@ -23,7 +23,7 @@ from __future__ import annotations
 import contextlib
 from typing import Any, Callable, Iterator, Optional, Sequence
 
-from mixcount.catalog.step_executor import TaskFailed, chunks, ray_tasks, release, use_cluster
+from mixcount.catalog.step_executor import TaskFailed, chunks, error_line, ray_tasks, release, use_cluster
 from mixcount.errors import ExecutorError
 
 __all__ = ["EXECUTORS", "RayTasks", "TaskFailed", "catalog_executor", "chunks", "ray_tasks", "task_error"]
@@ -111,5 +111,4 @@ class RayTasks:
 
 def task_error(exc: BaseException) -> str:
     """One line for a task that did not finish: the Ray error's type and first line."""
-    first = (str(exc).strip().splitlines() or [""])[0]
-    return f"ray task failed after retries: {type(exc).__name__}: {first}"[:MAX_ERROR_CHARS]
+    return f"ray task failed after retries: {error_line(exc, MAX_ERROR_CHARS)}"[:MAX_ERROR_CHARS]
