@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 
@@ -109,16 +109,34 @@ def main(argv: list[str] | None = None) -> int:
     usage errors (the usage line and one line of error), a :class:`MixcountError` (its message), an
     ``OSError`` (cause and path, one line); 3 the command finished but items failed
     (:class:`PartialFailure`: one line per failed item, the count, how to rerun only those; also when every
-    item failed); 130 Ctrl-C, with one line (:class:`StoppedByUser`: what a run kept and how to go on).
+    item failed); 130 Ctrl-C and 143 SIGTERM (:mod:`mixcount.stop_signals`), with one line
+    (:class:`StoppedByUser`: what a run kept and how to go on).
     Never a traceback for any of them; every message is printed as plain text (:func:`print_error`)."""
     # typer vendors click as ``typer._click``: its exceptions are not ``click.exceptions`` classes.
     from typer._click import exceptions as click_exc
 
+    from mixcount.stop_signals import stop_on_sigterm
+
+    with stop_on_sigterm():  # SIGTERM (kill, docker stop, Slurm) stops a command as Ctrl-C does
+        return _run(argv, click_exc)
+
+
+def _stop_code(message: str) -> int:
+    """Print a stop's line and give its exit code: 130 for Ctrl-C, 143 for SIGTERM (mixcount.stop_signals)."""
+    from mixcount.stop_signals import SIGTERM_EXIT, stopped_by
+
+    if stopped_by() == "SIGTERM":
+        print_error(message.replace("stopped by the user", "stopped by SIGTERM"), label="")
+        return SIGTERM_EXIT
+    print_error(message, label="")
+    return 130
+
+
+def _run(argv: list[str] | None, click_exc: Any) -> int:
     try:
         result = app(args=argv, standalone_mode=False, prog_name="mixcount")
     except StoppedByUser as exc:
-        print_error(str(exc), label="")
-        return 130
+        return _stop_code(str(exc))
     except PartialFailure as exc:
         print_partial(exc)
         return exc.exit_code
@@ -129,21 +147,19 @@ def main(argv: list[str] | None = None) -> int:
         print_error(os_error_line(exc))
         return 2
     except (KeyboardInterrupt, typer.Abort):
-        print_error("stopped by the user", label="")
-        return 130
+        return _stop_code("stopped by the user")
     except click_exc.ClickException as exc:  # usage errors: bad option, bad value, unknown command
         exc.show()
-        return exc.exit_code
+        return int(exc.exit_code)
     except SystemExit as exc:  # typer's own exits (--help)
         return int(exc.code or 0)
     # In non-standalone mode typer returns the code of typer.Exit(n), and 130 for a Ctrl-C that it caught
     # as a KeyboardInterrupt (a command with more to say raises StoppedByUser instead).
     if isinstance(result, int) and not isinstance(result, bool) and result:
         if result == 130:
-            print_error("stopped by the user", label="")
+            return _stop_code("stopped by the user")
         return result
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -11,6 +11,7 @@ contract only and on no Ray code.
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 from dataclasses import dataclass
 from typing import Any, Iterator, Optional, Sequence
@@ -61,10 +62,15 @@ class LocalProcesses:
     def __enter__(self) -> "LocalProcesses":
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if self._pool is None:
+            return
+        if exc_type is not None:  # stopped (Ctrl-C, SIGTERM) or failed: end the tasks in flight, do not wait
+            for proc in list((getattr(self._pool, "_processes", None) or {}).values()):
+                with contextlib.suppress(OSError, AttributeError):
+                    proc.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = None
 
     def cpus(self) -> int:
         return self.workers

@@ -169,6 +169,7 @@ def init_ray(address: Optional[str], connect_timeout_s: float, *, local_cpus: in
 
     import ray
 
+    from mixcount.stop_signals import keep_ours_over
     from mixcount.worker.client import in_package_root
 
     kwargs: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING,
@@ -176,7 +177,7 @@ def init_ray(address: Optional[str], connect_timeout_s: float, *, local_cpus: in
     if address:
         probe_address(address, connect_timeout_s)
     try:
-        with in_package_root():
+        with in_package_root(), keep_ours_over():  # ray.init sets SIGTERM to sys.exit(15): ours stops as Ctrl-C
             if address:
                 ray.init(address=address, **kwargs)
             else:
