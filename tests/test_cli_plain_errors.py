@@ -161,3 +161,27 @@ def test_cli_turns_ctrl_c_into_one_line_and_exit_130(raised: BaseException, line
     monkeypatch.setattr(cli, "app", tiny)
     code, lines = run_cli([], capsys)
     assert code == 130 and lines == [line]
+
+
+def test_cli_turns_sigterm_into_one_line_and_exit_143(monkeypatch, capsys) -> None:
+    """SIGTERM takes the Ctrl-C path (mixcount.stop_signals): compose's "N scenes finished and kept" line
+    reads "stopped by SIGTERM; ..." and the code is 143, the shell's for SIGTERM."""
+    import os
+    import signal
+    import time
+
+    tiny = typer.Typer()
+
+    @tiny.command()
+    def run() -> None:
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(10)  # the handler raises KeyboardInterrupt here
+        except KeyboardInterrupt:
+            raise StoppedByUser("stopped by the user; 1 scene finished and kept; rerun the same command to go on") from None
+
+    monkeypatch.setattr(cli, "app", tiny)
+    before = signal.getsignal(signal.SIGTERM)
+    code, lines = run_cli([], capsys)
+    assert code == 143 and lines == ["stopped by SIGTERM; 1 scene finished and kept; rerun the same command to go on"]
+    assert signal.getsignal(signal.SIGTERM) is before  # the command's handler is gone with the command
