@@ -84,18 +84,26 @@ def test_heavy_path_matches_the_light_path_and_light_stays_byte_identical(tmp_pa
     from mixcount.worker.canonical_runner import run_jobs
 
     model = painted_ball(tmp_path / "ball.ply")
-    obj = types.SimpleNamespace(model_path=str(model), id=1, source_up_axis="")
+    obj = types.SimpleNamespace(model_path=str(model), id=1, source_up_axis="", face_count=1280)
     runs = {"light": (), "heavy": ("canonical_render.heavy_faces=0",),
             "light_other": ("canonical_render.heavy_faces=5000", "canonical_render.heavy_denoise_prefilter=NONE"),
             "heavy_accurate": ("canonical_render.heavy_faces=0", "canonical_render.heavy_denoise_prefilter=ACCURATE")}
     jobs = [(name, canonical_request(small_config(*over).canonical_render, obj, tmp_path / name))
             for name, over in runs.items()]
+    # one decider: the catalog's face count picks the path and the request carries it; the worker counts
+    # Blender's triangles itself only for a request that does not say (None)
+    zero = small_config("canonical_render.heavy_faces=0").canonical_render
+    uncounted = canonical_request(zero, types.SimpleNamespace(**{**vars(obj), "face_count": None}), tmp_path / "said")
+    assert [req.heavy for _, req in jobs] == [False, True, False, True] and uncounted.heavy is False
+    jobs += [("said_light", uncounted),
+             ("worker_counts", dataclasses.replace(uncounted, heavy=None, out_dir=str(tmp_path / "counted")))]
     seen: dict[str, Any] = {}
     run_jobs(jobs, on_result=lambda o: seen.__setitem__(o.key, o), workers=1, timeout_s=120.0, threads_per_worker=0)
-    for name in runs:
+    for name, _ in jobs:
         assert seen[name].result is not None, seen[name].error
-    res = {name: seen[name].result for name in runs}
-    assert [(r.faces, r.heavy) for r in res.values()] == [(1280, False), (1280, True), (1280, False), (1280, True)]
+    res = {name: seen[name].result for name, _ in jobs}
+    assert [(r.faces, r.heavy) for r in res.values()] == [(1280, False), (1280, True), (1280, False), (1280, True),
+                                                          (1280, False), (1280, True)]
 
     view = {name: r.views[0] for name, r in res.items()}
     # light: the same bytes whatever the heavy settings (RGB, mask, albedo)

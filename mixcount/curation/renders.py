@@ -67,10 +67,10 @@ def settings_hash(settings: dict[str, Any]) -> str:
 
 
 def is_heavy(config: CanonicalRenderConfig, obj: CatalogObject) -> bool:
-    """Whether the catalog expects ``obj`` to take the heavy render path: its ``face_count`` (triangles, as
-    trimesh read the file at ingest) over ``heavy_faces``. The worker decides on its own count of the
-    imported triangles (:func:`mixcount.engine.canonical_render.triangle_count`), the same number for a
-    file both read alike; an object without a face count is expected light."""
+    """Whether ``obj`` takes the heavy render path: its ``face_count`` (triangles, as trimesh read the file
+    at ingest) over ``heavy_faces``; an object without a face count is light. The one rule for both the
+    path (sent in the request: :func:`canonical_request`) and the settings hash its rows carry
+    (:func:`object_settings_hash`)."""
     return obj.face_count is not None and int(obj.face_count) > config.heavy_faces
 
 
@@ -91,10 +91,8 @@ def object_settings_hash(config: CanonicalRenderConfig, obj: CatalogObject) -> s
     FAST prefilter), so it renders again once, and again whenever ``heavy_denoise_prefilter`` or
     :data:`HEAVY_VERSION` changes. Changing ``heavy_faces`` re-renders exactly the objects whose side of
     the threshold changed. The value of ``heavy_faces`` itself is in neither hash: it only picks the path.
-
-    The rows record this expectation (from ``face_count``), not the worker's own count
-    (:attr:`CanonicalResult.heavy`): where the two counts fall on either side of the threshold (a file the two
-    readers triangulate differently) the object is rendered once and not again each run."""
+    The worker renders the path :func:`is_heavy` picks (the request carries it), so the hash always names
+    the path the picture came from."""
     settings = heavy_render_settings(config) if is_heavy(config, obj) else render_settings(config)
     return settings_hash(settings)
 
@@ -110,7 +108,7 @@ def canonical_request(config: CanonicalRenderConfig, obj: CatalogObject, out_dir
     runner's: it shares the cores among its workers); ``look`` for its parts without a colour."""
     return CanonicalRequest(model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}",
                             threads=config.threads, settings=CanonicalSettings.from_config(config),
-                            up_axis=obj.source_up_axis or "", look=look)
+                            up_axis=obj.source_up_axis or "", look=look, heavy=is_heavy(config, obj))
 
 
 def render_look(palette: Any, obj: CatalogObject) -> Optional[tuple[float, ...]]:

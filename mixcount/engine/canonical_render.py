@@ -23,8 +23,9 @@ request's ``up_axis``), so the canonical render shows the object standing as the
 Outputs per view: ``<stem>.png`` (RGB on white), ``<stem>_mask.png`` (8-bit coverage, the film alpha) and
 ``<stem>_albedo.png`` (the surface colour without shading, :func:`render_albedo`).
 
-Heavy models (more triangles than ``canonical_render.heavy_faces``, counted on the imported meshes by
-:func:`triangle_count`): the albedo's colour passes ride along with the RGB render and are read from its
+Heavy models (more triangles than ``canonical_render.heavy_faces``: the catalog decides by the face count
+its render rows are hashed with and says so in the request's ``heavy``; a request without it is counted on
+the imported meshes by :func:`triangle_count`): the albedo's colour passes ride along with the RGB render and are read from its
 render result (:func:`save_colour_passes`) instead of a second render of the scene, and OIDN's prefilter is
 ``heavy_denoise_prefilter`` (FAST) instead of Blender's ACCURATE. On a 1.2 M-face capture with 4K textures
 the second render costs ~3.4 s a view and the ACCURATE prefilter ~7 CPU-s (docs/performance.md). Models at
@@ -433,7 +434,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     look = req.settings
     configure_render(scene, resolution=look.resolution, samples=look.samples, denoise=look.denoise, threads=req.threads)
     faces = triangle_count(objects)
-    heavy = faces > look.heavy_faces
+    heavy = faces > look.heavy_faces if req.heavy is None else bool(req.heavy)  # the catalog's say, if it said
     if heavy:
         configure_heavy(scene, look.heavy_denoise_prefilter)
     add_lighting(scene, world_strength=look.world_strength, sun_strength=look.sun_strength, azimuth_deg=look.azimuth_deg)

@@ -68,6 +68,10 @@ class CanonicalRequest:
     # (sRGB r, g, b, metallic, roughness) for the model's parts without texture, vertex colours or material
     # ([palette], mixcount.catalog.materials.object_look); None: they keep the importer's default
     look: Optional[tuple[float, ...]] = None
+    # which render path: True heavy, False light, None the worker's own triangle count against
+    # settings.heavy_faces. The catalog always says (curation.renders.is_heavy, from the face count its
+    # render rows are hashed with), so one rule picks both the path and the hash that records it.
+    heavy: Optional[bool] = None
 
     def views(self) -> tuple[tuple[str, float], ...]:
         return canonical_views(self.settings.extra_views, self.settings.azimuth_deg)

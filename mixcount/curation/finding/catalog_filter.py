@@ -119,10 +119,10 @@ class FilterSummary:
 
 
 def _describe(catalog: Catalog, session: Session, items: list[Item], summary: FilterSummary,
-              cluster: Any = None, progress: ProgressReporter | None = None) -> None:
-    """Each item's descriptors (:func:`describe_one`), in this process or as tasks of ``cluster`` (a Ray
-    cluster under ``--executor ray``, or ``[filter] workers`` local processes: :func:`filter_executor`),
-    whose results are set here in the items' order."""
+              cluster: Any, progress: ProgressReporter | None = None) -> None:
+    """Each item's descriptors (:func:`describe_one`) as tasks of ``cluster`` (:func:`filter_executor`: a
+    Ray cluster under ``--executor ray``, ``[filter] workers`` local processes, or this process), whose
+    results are set here in the items' order."""
     from mixcount.catalog.step_executor import TaskFailed
 
     cache = str(catalog.data_dir / "descriptors")
@@ -133,7 +133,7 @@ def _describe(catalog: Catalog, session: Session, items: list[Item], summary: Fi
         path = canonical_render_path(session, obj.id)
         work.append((obj.model_path, obj.source_units, obj.source_up_axis, cache, (obj.geometry_hash or "")[:32] or None,
                      (obj.content_hash or "")[:32] or None, str(path) if path is not None else None))
-    described = cluster.map(describe_one, work) if cluster is not None else (describe_one(*w) for w in work)
+    described = cluster.map(describe_one, work)
     bar = as_reporter(progress)
     bar.start("filter: descriptors", len(items))
     for it, got in zip(items, described):
@@ -188,12 +188,11 @@ def figures_in_parallel(cluster: Any, th: Any, layouts: LayoutCache, compare: li
                         progress: ProgressReporter | None = None) -> None:
     """The pair rules' costly figures (alignments, primitive fits, layout distances: what
     :class:`LayoutCache` keeps) of ``compare`` computed as tasks of ``cluster`` (Ray, local processes or
-    this process), a chunk of pairs each, and merged into ``layouts``; the rules then run here on the filled
-    cache, so the flags are those of one process. Without a cluster: nothing (the rules compute them as they
-    go)."""
+    this process: :func:`filter_executor`), a chunk of pairs each, and merged into ``layouts``; the rules then
+    run here on the filled cache, so the flags are those of one process."""
     from mixcount.catalog.step_executor import TaskFailed, chunks
 
-    if cluster is None or not compare:
+    if not compare:
         return
     bar = as_reporter(progress)
     saved_at = time.monotonic()
