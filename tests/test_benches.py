@@ -340,3 +340,15 @@ def test_house_bench() -> None:
     longest = list(figures["longest_files"].values())
     assert longest == sorted(longest, reverse=True) and len(longest) == 5
     assert figures["performance_md_lines"] > 0 and "config_path" not in figures
+
+
+@pytest.mark.blender
+def test_render_cost_bench() -> None:
+    """Issue 69 item 1: where a canonical render's CPU goes (sync/BVH, path tracing, each prefilter)."""
+    doc = run_smoke("render_cost", None)[-1]
+    assert doc["bench"] == "render_cost" and doc["faces"] > 10_000
+    cpu = doc["cpu_s"]
+    check_figures(doc, ["per_sample_cpu_s", "cpu_s.import", "cpu_s.sync_bvh_16px_1spp", "cpu_s.64px_4spp"])
+    assert set(cpu) == {"import", "sync_bvh_16px_1spp", "64px_1spp", "64px_4spp", "64px_4spp_denoise_FAST",
+                        "64px_4spp_denoise_ACCURATE"}
+    assert all(v >= 0 for v in cpu.values())
