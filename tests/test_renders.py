@@ -104,7 +104,7 @@ def test_runner_kills_hung_render_and_survives_crash(tmp_path, monkeypatch):
     monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")  # hang / crash hooks
     glb = tmp_path / "box.glb"
     coloured(trimesh.creation.box(extents=(0.04, 0.04, 0.04)), (200, 200, 30)).export(glb)
-    obj = types.SimpleNamespace(model_path=str(glb), id=1, source_up_axis="Y")
+    obj = types.SimpleNamespace(model_path=str(glb), id=1, source_up_axis="Y", face_count=12)
     base = canonical_request(small_config(resolution=32, samples=1, denoise=False).canonical_render, obj, tmp_path / "out")
     assert isinstance(base, CanonicalRequest) and base.stem == "obj_000001"
     jobs = [(key, dataclasses.replace(base, stem=stem))
