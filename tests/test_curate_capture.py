@@ -221,6 +221,7 @@ def test_capture_sized_scan_pairs_with_its_remeshed_scaled_turned_copy(catalog, 
     descriptors computed cold, then the comparison) is printed."""
     import time
 
+    from mixcount.catalog.step_executor import InThisProcess
     from mixcount.curation.finding import catalog_filter as F
     from mixcount.curation.finding.copy_rules import pair_flags
     from mixcount.curation.finding.filter_items import Item
@@ -237,7 +238,7 @@ def test_capture_sized_scan_pairs_with_its_remeshed_scaled_turned_copy(catalog, 
     with catalog.session() as s:
         items = [Item(o) for o in s.scalars(select(CatalogObject).order_by(CatalogObject.id))]
         t0 = time.perf_counter()
-        F._describe(catalog, s, items, F.FilterSummary())
+        F._describe(catalog, s, items, F.FilterSummary(), InThisProcess())  # in this process, as workers = 1
         t1 = time.perf_counter()
         found = pair_flags(items, config.filter)
         t2 = time.perf_counter()
