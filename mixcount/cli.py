@@ -161,5 +161,6 @@ def _run(argv: list[str] | None, click_exc: Any) -> int:
         return result
     return 0
 
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -2,9 +2,9 @@
 
 ``kill PID``, ``docker stop``, Slurm's time limit and systemd all send SIGTERM. Python's default for it is to
 die at once: no ``finally`` runs, so a filter stopped after an hour kept only what its last periodic save
-wrote, compose could leave a scene half-written on the way out, and the exit status (-15) said nothing of
-what was kept. Under ``--executor ray`` the driver behaved differently again, because ``ray.init`` installs
-its own SIGTERM handler (``sys.exit(15)``).
+wrote, pools were not shut down, compose never said which scenes it had finished, and the exit status (-15)
+said nothing of what was kept. Under ``--executor ray`` the driver behaved differently again, because
+``ray.init`` installs its own SIGTERM handler (``sys.exit(15)``).
 
 :func:`stop_on_sigterm` (the CLI's ``main`` holds it around every command) makes SIGTERM raise
 :class:`KeyboardInterrupt` in the command's process, so each command's Ctrl-C path runs (compose's

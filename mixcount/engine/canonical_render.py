@@ -25,8 +25,8 @@ Outputs per view: ``<stem>.png`` (RGB on white), ``<stem>_mask.png`` (8-bit cove
 
 Heavy models (more triangles than ``canonical_render.heavy_faces``: the catalog decides by the face count
 its render rows are hashed with and says so in the request's ``heavy``; a request without it is counted on
-the imported meshes by :func:`triangle_count`): the albedo's colour passes ride along with the RGB render and are read from its
-render result (:func:`save_colour_passes`) instead of a second render of the scene, and OIDN's prefilter is
+the imported meshes by :func:`triangle_count`): the albedo's colour passes ride along with the RGB render
+and are read from its render result (:func:`save_colour_passes`) instead of a second render of the scene, and OIDN's prefilter is
 ``heavy_denoise_prefilter`` (FAST) instead of Blender's ACCURATE. On a 1.2 M-face capture with 4K textures
 the second render costs ~3.4 s a view and the ACCURATE prefilter ~7 CPU-s (docs/performance.md). Models at
 or under the threshold take exactly the code path they always did: their files do not change.
