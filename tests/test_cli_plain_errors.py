@@ -185,3 +185,34 @@ def test_cli_turns_sigterm_into_one_line_and_exit_143(monkeypatch, capsys) -> No
     code, lines = run_cli([], capsys)
     assert code == 143 and lines == ["stopped by SIGTERM; 1 scene finished and kept; rerun the same command to go on"]
     assert signal.getsignal(signal.SIGTERM) is before  # the command's handler is gone with the command
+
+
+def test_a_scene_finished_while_stopping_is_counted_as_kept(tmp_path: Path) -> None:
+    """A SIGTERM reaches the driver alone: a scene still in flight can be completed by its worker thread while
+    the run stops. The stop's line counts the scenes finished on disk, not only the outcomes read: here the
+    third scene is complete before the stop is raised (the run reads two outcomes, then stops)."""
+    import time
+
+    config = load_config(["quick"], values={"compose.seed": 100, "compose.split": "train"})
+    pool, out = _pool(tmp_path), tmp_path / "out"
+    runner = lambda task, _worker: run_scene_task(task, FakeWorker(task.spec, lambda s: "ok", []))  # noqa: E731
+    seen: list[object] = []
+
+    def finished() -> list[str]:
+        return sorted(p.name for p in (out / "scenes").iterdir()
+                      if not p.name.startswith(".") and (p / "metadata.json").is_file())
+
+    def on_outcome(outcome: object) -> None:
+        seen.append(outcome)
+        if len(seen) == 2:  # the third scene is in flight: let its thread finish it, then stop
+            deadline = time.monotonic() + 60
+            while len(finished()) < 3 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            raise KeyboardInterrupt
+
+    with LocalExecutor(2, runner=runner, recycle_after=0, settle_ahead=False) as executor:
+        with pytest.raises(StoppedByUser) as stopped:
+            compose_scenes(pool=pool, config=config, out_dir=out, assets_dir=tmp_path / "assets", n=6,
+                           executor=executor, on_outcome=on_outcome)
+    assert len(finished()) == 3
+    assert str(stopped.value) == "stopped by the user; 3 scenes finished and kept; rerun the same command to go on"

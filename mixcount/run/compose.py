@@ -142,15 +142,19 @@ def compose_scenes(
             summary.warnings.append(warning)
             bar.note(warning)
     bar.start("compose", n)
+    stopped = False
     try:
         run.drive(executor, on_outcome)
-    except KeyboardInterrupt:  # Ctrl-C: finished scenes are complete on disk, a rerun passes over them
-        raise StoppedByUser(f"stopped by the user; {summary.written} scene{'' if summary.written == 1 else 's'} "
-                            "finished and kept; rerun the same command to go on") from None
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: finished scenes are complete on disk, a rerun passes over them
+        stopped = True
     finally:
         bar.stop()
         if own_executor:
             executor.close()
+    if stopped:  # counted after the executor closed: a scene it completed while stopping is kept too
+        kept = summary.written + run.finished_while_stopping()
+        raise StoppedByUser(f"stopped by the user; {kept} scene{'' if kept == 1 else 's'} "
+                            "finished and kept; rerun the same command to go on")
     summary.seconds = round(time.perf_counter() - t0, 3)
     summary.object_px = run.object_px()
     run.raise_if_stopped()
@@ -273,6 +277,7 @@ class _ComposeRun:
     device: str  # "cpu" | "gpu": compose.device as resolved for this run (mixcount.run.devices)
     attempts: int = 0
     in_flight: int = 0
+    pending: set[str] = field(default_factory=set)  # scene ids submitted and not yet come back
     fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
     largest_scene: int = 0  # bytes of the largest scene written by this run (how much free space one needs)
     external: dict[int, str] = field(default_factory=dict)  # object id -> its render's copy under OUT/exemplars
@@ -405,15 +410,25 @@ class _ComposeRun:
                     break
                 executor.submit(task)
                 self.in_flight += 1
+                self.pending.add(task.spec.scene_id)
             bar.update(completed=summary.written, info=self.info())
             if self.in_flight == 0:
                 break
             outcome = executor.next_outcome()
             self.in_flight -= 1
+            self.pending.discard(outcome.scene_id)
             self.record(outcome)
             if on_outcome is not None:
                 on_outcome(outcome)
             bar.update(completed=summary.written, info=self.info())
+
+    def finished_while_stopping(self) -> int:
+        """Scenes in flight when the run was stopped that are finished on disk now: a worker thread still
+        inside a scene's writing completes it while the executor closes (a SIGTERM reaches the driver
+        only), so the "kept" count of a stop is read from the folders, not from the outcomes alone."""
+        from mixcount.dataset.manifest import is_finished
+
+        return sum(1 for sid in self.pending if is_finished(self.out_dir / "scenes" / sid))
 
     def record(self, outcome: SceneOutcome) -> None:
         """Count one outcome; a failure whose cause no seed can fix (a full disk, ...) stops the run."""
