@@ -149,8 +149,8 @@ def compose_scenes(
         stopped = True
     finally:
         bar.stop()
-        if own_executor:
-            executor.close()
+        if own_executor or stopped:  # a stopped run's executor is done (close is idempotent): closed here,
+            executor.close()  # so its scenes in flight are finished or ended before they are counted
     if stopped:  # counted after the executor closed: a scene it completed while stopping is kept too
         kept = summary.written + run.finished_while_stopping()
         raise StoppedByUser(f"stopped by the user; {kept} scene{'' if kept == 1 else 's'} "
@@ -424,8 +424,9 @@ class _ComposeRun:
 
     def finished_while_stopping(self) -> int:
         """Scenes in flight when the run was stopped that are finished on disk now: a worker thread still
-        inside a scene's writing completes it while the executor closes (a SIGTERM reaches the driver
-        only), so the "kept" count of a stop is read from the folders, not from the outcomes alone."""
+        inside a scene's writing, or a Ray actor asked to close after its scene, completes it while the
+        executor closes (a SIGTERM reaches the driver only), so the "kept" count of a stop is read from the
+        folders, not from the outcomes alone."""
         from mixcount.dataset.manifest import is_finished
 
         return sum(1 for sid in self.pending if is_finished(self.out_dir / "scenes" / sid))
