@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any, Optional
+from typing import Optional
 
 import typer
 
@@ -112,13 +112,10 @@ def main(argv: list[str] | None = None) -> int:
     item failed); 130 Ctrl-C and 143 SIGTERM (:mod:`mixcount.stop_signals`), with one line
     (:class:`StoppedByUser`: what a run kept and how to go on).
     Never a traceback for any of them; every message is printed as plain text (:func:`print_error`)."""
-    # typer vendors click as ``typer._click``: its exceptions are not ``click.exceptions`` classes.
-    from typer._click import exceptions as click_exc
-
     from mixcount.stop_signals import stop_on_sigterm
 
     with stop_on_sigterm():  # SIGTERM (kill, docker stop, Slurm) stops a command as Ctrl-C does
-        return _run(argv, click_exc)
+        return _run(argv)
 
 
 def _stop_code(message: str) -> int:
@@ -132,7 +129,11 @@ def _stop_code(message: str) -> int:
     return 130
 
 
-def _run(argv: list[str] | None, click_exc: Any) -> int:
+def _run(argv: list[str] | None) -> int:
+    """The command, its errors turned into lines and exit codes (:func:`main`'s table)."""
+    # typer vendors click as ``typer._click``: its exceptions are not ``click.exceptions`` classes.
+    from typer._click import exceptions as click_exc
+
     try:
         result = app(args=argv, standalone_mode=False, prog_name="mixcount")
     except StoppedByUser as exc:

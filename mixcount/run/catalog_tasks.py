@@ -111,4 +111,4 @@ class RayTasks:
 
 def task_error(exc: BaseException) -> str:
     """One line for a task that did not finish: the Ray error's type and first line."""
-    return f"ray task failed after retries: {error_line(exc, MAX_ERROR_CHARS)}"[:MAX_ERROR_CHARS]
+    return f"ray task failed after retries: {error_line(exc)}"[:MAX_ERROR_CHARS]

@@ -276,7 +276,6 @@ class _ComposeRun:
     more_views: Optional[MoreViews]  # compose --views: each task's new cameras (None: the scene's own only)
     device: str  # "cpu" | "gpu": compose.device as resolved for this run (mixcount.run.devices)
     attempts: int = 0
-    in_flight: int = 0
     pending: set[str] = field(default_factory=set)  # scene ids submitted and not yet come back
     fatal: Optional[MixcountError] = None  # a fault no seed can fix: draw no new seed after it
     largest_scene: int = 0  # bytes of the largest scene written by this run (how much free space one needs)
@@ -403,19 +402,18 @@ class _ComposeRun:
     def drive(self, executor: Executor, on_outcome: Optional[Callable[[SceneOutcome], None]]) -> None:
         """Keep the executor's slots full until ``n`` scenes are written; after a fault drain, draw none."""
         summary, bar = self.summary, self.bar
-        while summary.written < self.n or (self.fatal is not None and self.in_flight):
-            while self.fatal is None and self.in_flight < executor.slots and summary.written + self.in_flight < self.n:
+        while summary.written < self.n or (self.fatal is not None and self.pending):
+            while self.fatal is None and len(self.pending) < executor.slots and \
+                    summary.written + len(self.pending) < self.n:
                 task = self.next_task()
                 if task is None:
                     break
                 executor.submit(task)
-                self.in_flight += 1
-                self.pending.add(task.spec.scene_id)
+                self.pending.add(task.spec.scene_id)  # one seed, one scene id: never two in flight
             bar.update(completed=summary.written, info=self.info())
-            if self.in_flight == 0:
+            if not self.pending:
                 break
             outcome = executor.next_outcome()
-            self.in_flight -= 1
             self.pending.discard(outcome.scene_id)
             self.record(outcome)
             if on_outcome is not None:
