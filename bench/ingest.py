@@ -15,10 +15,14 @@ generated. Both figures are honest measurements; they answer different questions
 a lumpy scan of ``--faces`` triangles, default 1.2 M, with a ``--texture-px`` JPEG, default 4096;
 bench/big_meshes.py) through ingest, canonical render and filter, each step in a fresh process so its peak
 memory is its own: seconds per object, peak RSS of one worker (the largest ingest worker / bpy worker /
-the filter process), and the three extrapolated to 2,000 objects at ``--workers``. One JSON line:
+filter process or the filter's parent), and the three extrapolated to 2,000 objects at ``--workers``. One JSON line:
 {"bench": "ingest_captures", "objects": K, "faces": F, "texture_px": P, "steps": {"ingest": {"s_per_object": ...,
 "peak_rss_mb_per_worker": ...}, "render": {...}, "filter": {...}}, "extrapolated_2000": {"hours": ...}}.
 ``--smoke`` with it: 2 objects of 20,000 faces, 256 px textures, 64 px renders (the suite runs it).
+``--marginal`` with it: a second run of 2K objects, and per step what one more object costs (the slope, in
+worker-s and CPU-s) and what every run costs (process and bpy starts, imports): a small run's per-object
+average carries that fixed part and, with K not a multiple of the workers, an idle worker's tail, so the
+2,000-object figure is fixed + 2,000 x slope (``"marginal"`` in the JSON line).
 
 ``--stages``: where one such object's seconds go (issue 69), in this process, one stage after another, CPU and
 wall seconds each: ingest's hashing, its load (parse, whole-mesh facts, the reduced copy), geometry hash,
@@ -220,6 +224,7 @@ def run_captures_step(args: argparse.Namespace) -> int:
 
     values = json.loads(args.captures_set)
     config = load_config(values={"ingest.workers": args.workers, "canonical_render.workers": args.workers,
+                                 "filter.workers": args.workers,
                                  **{k: v for k, v in values.items() if not k.startswith("_")}})
     catalog = open_catalog(args.captures_db, data_dir="")
     try:
@@ -240,7 +245,8 @@ def run_captures_step(args: argparse.Namespace) -> int:
     kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     cpu = sum(u.ru_utime + u.ru_stime for u in (resource.getrusage(resource.RUSAGE_SELF),
                                                  resource.getrusage(resource.RUSAGE_CHILDREN)))
-    worker = kids if kids > 0 and args.captures_step != "filter" else own
+    # the filter's parent holds the catalog and every gathered figure: its own peak counts as a worker's
+    worker = max(kids, own) if args.captures_step == "filter" else (kids if kids > 0 else own)
     print(json.dumps({"peak_rss_mb_per_worker": round(worker, 1), "parent_rss_mb": round(own, 1), "cpu_s": round(cpu, 2),
                       "detail": {k: v for k, v in detail.items() if k in ("new", "broken", "broken_objects", "warnings",
                                                                        "rendered", "failed", "failures", "objects",
@@ -333,20 +339,22 @@ def run_render_stages(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_captures(args: argparse.Namespace) -> int:
+def captures_once(args: argparse.Namespace, k: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``k`` capture-like objects through ingest, render and filter, each step in a fresh process: the steps'
+    figures (with per-object worker-s and CPU-s), and what was measured (faces, texture, render settings)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import big_meshes as B
 
-    faces, px, k = args.faces, args.texture_px, args.captures
+    faces, px = args.faces, args.texture_px
     render = {"canonical_render.resolution": 512, "canonical_render.samples": 16}
     if args.smoke:
-        faces, px, k = 20_000, 256, 2
+        faces, px = 20_000, 256
         render = {"canonical_render.resolution": 64, "canonical_render.samples": 2}
     with tempfile.TemporaryDirectory(prefix="mixcount-captures-") as tmp:
         lib = Path(tmp) / "lib"
         t0 = time.perf_counter()
         for i in range(k):
-            verts, tris, uv = B.lumpy_grid(faces, seed=i, radius=0.04 + 0.01 * i)
+            verts, tris, uv = B.lumpy_grid(faces, seed=i, radius=0.04 + 0.01 * (i % 3))
             (lib / f"Capture_{i:04d}").mkdir(parents=True)
             B.write_textured_glb(lib / f"Capture_{i:04d}" / "3d-asset.glb", verts, tris, uv, px, seed=i)
         n_faces = int(len(tris))
@@ -357,17 +365,41 @@ def run_captures(args: argparse.Namespace) -> int:
         steps = {name: _step(name, db, args.workers, values) for name in ("ingest", "render", "filter")}
     for name, st in steps.items():
         # worker-seconds per object: a step's wall time x the processes it kept busy, over the objects
-        busy = 1 if name == "filter" else min(args.workers, k)
-        st["s_per_object"] = round(st["wall_s"] * busy / k, 2)
+        # (the filter's descriptors and pair figures run in filter.workers processes too)
+        st["busy_workers"] = min(args.workers, k)
+        st["s_per_object"] = round(st["wall_s"] * st["busy_workers"] / k, 2)
         st["cpu_s_per_object"] = round(st["cpu_s"] / k, 2)  # steadier than wall on a loaded machine
         print(f"{name}: {st['wall_s']} s for {k} objects ({st['s_per_object']} worker-s, {st['cpu_s_per_object']} "
               f"CPU-s per object), peak "
               f"{st['peak_rss_mb_per_worker']} MB per worker", file=sys.stderr)
+    return steps, {"faces": n_faces, "texture_px": px, "render": {k2.split(".")[1]: v for k2, v in render.items()}}
+
+
+def marginal(small: dict[str, Any], big: dict[str, Any], k_small: int, k_big: int) -> dict[str, Any]:
+    """Per step, what one more object costs (the slope between a run of ``k_small`` and one of ``k_big``
+    objects) and what a run costs whatever its size (the intercept: process starts, imports, bpy starts,
+    the catalog's own queries), in worker-s (wall x busy workers) and CPU-s. A run of K objects then costs
+    fixed + K x per_object: the figure that scales to 2,000, where the per-object averages of a small run
+    also carry its fixed part and, with K not a multiple of the workers, an idle worker's tail."""
+    out: dict[str, Any] = {}
+    for name in small:
+        a, b = small[name], big[name]
+        ws_a, ws_b = a["wall_s"] * a["busy_workers"], b["wall_s"] * b["busy_workers"]
+        per_ws = (ws_b - ws_a) / (k_big - k_small)
+        per_cpu = (b["cpu_s"] - a["cpu_s"]) / (k_big - k_small)
+        out[name] = {"worker_s_per_object": round(per_ws, 2), "cpu_s_per_object": round(per_cpu, 2),
+                     "fixed_worker_s": round(ws_a - k_small * per_ws, 1), "fixed_cpu_s": round(a["cpu_s"] - k_small * per_cpu, 1),
+                     "peak_rss_mb_per_worker": max(a["peak_rss_mb_per_worker"], b["peak_rss_mb_per_worker"])}
+    return out
+
+
+def run_captures(args: argparse.Namespace) -> int:
+    k = 2 if args.smoke else args.captures
+    steps, what = captures_once(args, k)
     per_obj = sum(st["s_per_object"] for st in steps.values())
     hours = 2000 * per_obj / 3600.0
     result = {
-        "bench": "ingest_captures", "objects": k, "faces": n_faces, "texture_px": px, "workers": args.workers,
-        "render": {k2.split(".")[1]: v for k2, v in render.items()},
+        "bench": "ingest_captures", "objects": k, **what, "workers": args.workers,
         "steps": steps,
         "extrapolated_2000": {"worker_hours": round(hours, 2),
                               "cpu_hours_at_workers": round(2000 * sum(st["cpu_s_per_object"] for st in steps.values())
@@ -376,9 +408,31 @@ def run_captures(args: argparse.Namespace) -> int:
                               "by_step_hours": {n: round(2000 * st["s_per_object"] / 3600.0 / args.workers, 2)
                                                 for n, st in steps.items()}},
     }
+    failed = broken_or_failed(steps)
+    if args.marginal and not args.smoke:
+        big, _ = captures_once(args, 2 * k)
+        slope = marginal(steps, big, k, 2 * k)
+        ws = sum(v["worker_s_per_object"] for v in slope.values())
+        cpu = sum(v["cpu_s_per_object"] for v in slope.values())
+        fixed_ws = sum(v["fixed_worker_s"] for v in slope.values())
+        result["objects_second_run"] = 2 * k
+        result["steps_second_run"] = big
+        result["marginal"] = {"steps": slope, "worker_s_per_object": round(ws, 2), "cpu_s_per_object": round(cpu, 2),
+                              "fixed_worker_s": round(fixed_ws, 1),
+                              "hours_2000_at_workers": round((fixed_ws + 2000 * ws) / 3600.0 / args.workers, 2),
+                              "cpu_hours_2000_at_workers": round((sum(v["fixed_cpu_s"] for v in slope.values())
+                                                                  + 2000 * cpu) / 3600.0 / args.workers, 2)}
+        print(f"marginal, {k} -> {2 * k} objects: {ws:.2f} worker-s and {cpu:.2f} CPU-s per object "
+              f"(fixed {fixed_ws:.0f} worker-s a run); 2,000 objects at {args.workers} workers: "
+              f"{result['marginal']['hours_2000_at_workers']} h", file=sys.stderr)
+        failed = failed or broken_or_failed(big)
     print(json.dumps(result))
-    broken = steps["ingest"]["detail"].get("broken", 0)
-    return 0 if broken == 0 and steps["render"]["detail"].get("failed", 0) == 0 else 1
+    return 1 if failed else 0
+
+
+def broken_or_failed(steps: dict[str, Any]) -> bool:
+    """A run whose ingest recorded a broken object or whose render failed one: its figures are not the cost."""
+    return bool(steps["ingest"]["detail"].get("broken", 0) or steps["render"]["detail"].get("failed", 0))
 
 
 def main() -> int:
@@ -393,6 +447,9 @@ def main() -> int:
     parser.add_argument("--captures", type=int, default=0, help="K capture-like DTC objects through ingest, render, filter")
     parser.add_argument("--faces", type=int, default=1_200_000, help="--captures: faces per object")
     parser.add_argument("--texture-px", type=int, default=4096, help="--captures: texture side in pixels")
+    parser.add_argument("--marginal", action="store_true",
+                        help="--captures K: also run 2K objects and report what one more object costs (the slope) "
+                             "and the run's fixed part: the 2,000-object extrapolation")
     parser.add_argument("--stages", action="store_true", help="one capture-like object, seconds per stage")
     parser.add_argument("--stages-render", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--captures-step", default=None, help=argparse.SUPPRESS)

@@ -20,6 +20,8 @@
   place); answers each load's cache events and whether every load's id
   passes and small RGB render equal the uncached one's, and whether a lit id pass equals the unlit one.
 
+* ``{"op": "leave_cycle"}`` - leaves one object in a reference cycle that only a full collection frees (as
+  the glTF importer's do) and answers how many left by earlier requests are still alive.
 Tests select it with ``monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")``.
 """
 
@@ -251,8 +253,28 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
             "files": sorted(p.name for d in {Path(a).parent / CACHE_DIR for a in assets} for p in d.glob("*.blend"))}
 
 
+class _Left:
+    def __init__(self) -> None:
+        self.me = self
+
+
+_LEFT: list[Any] = []
+
+
+def leave_cycle(req: dict[str, Any]) -> dict[str, Any]:
+    import gc
+    import weakref
+
+    alive = sum(1 for r in _LEFT if r() is not None)
+    left = _Left()
+    _LEFT.append(weakref.ref(left))
+    gc.collect(1)  # still referred to here: moved to the oldest generation, as a long request's objects are
+    return {"ok": True, "alive": alive}
+
+
 if __name__ == "__main__":
     sys.exit(worker_main.main({**worker_main.HANDLERS, "sleep": sleep, "canonical": canonical,
+                               "leave_cycle": leave_cycle,
                                       "border_check": border_check, "rest_stop": rest_stop,
                                       "release_wave": release_wave, "mesh_cache": mesh_cache,
                                       "scaled_drop": scaled_drop}))

@@ -4,15 +4,17 @@ process whatever ``[filter] workers`` is."""
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import signal
 import subprocess
+import weakref
 from pathlib import Path
 
 import pytest
 
-from mixcount.catalog.step_executor import LocalProcesses, TaskFailed
+from mixcount.catalog.step_executor import InThisProcess, LocalProcesses, TaskFailed
 
 ROOT = Path(__file__).resolve().parent.parent
 MIX = ROOT / ".venv" / "bin" / "mixcount"
@@ -23,6 +25,39 @@ def square_or_die(x: int) -> int:
     if x == 13:
         os.kill(os.getpid(), signal.SIGSEGV)
     return x * x
+
+
+class _Capture:
+    """Stands for one object's loaded mesh: it refers to itself, as a trimesh mesh and its caches do."""
+
+    def __init__(self) -> None:
+        self.me = self
+        self.data = bytearray(1 << 20)
+
+
+_LOADED: list[weakref.ref] = []
+
+
+def load_one(_k: int) -> tuple[int, int]:
+    """(the pid, how many captures of earlier tasks in this process are still alive), then one more capture
+    left behind in a cycle that only a full collection frees (``gc.collect(1)`` moves it to the oldest
+    generation while it is still referred to, as a task's many allocations do)."""
+    alive = sum(1 for r in _LOADED if r() is not None)
+    capture = _Capture()
+    _LOADED.append(weakref.ref(capture))
+    gc.collect(1)
+    return os.getpid(), alive
+
+
+@pytest.mark.parametrize("executor", ["local processes", "this process"])
+def test_a_worker_keeps_nothing_of_one_task_when_it_takes_the_next(executor: str) -> None:
+    """What a task left in reference cycles is freed before the worker's next task: a worker's memory is one
+    object's, however many objects it analyses (``run_and_collect``; without it, 5 of 6 stayed alive)."""
+    _LOADED.clear()
+    with (LocalProcesses(1) if executor == "local processes" else InThisProcess()) as pool:
+        got = list(pool.map(load_one, [(k,) for k in range(6)]))
+    assert len({pid for pid, _ in got}) == 1  # one worker took every task
+    assert [alive for _, alive in got] == [0] * 6
 
 
 def test_results_come_back_in_order_and_a_dead_worker_is_one_failure() -> None:

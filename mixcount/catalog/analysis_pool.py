@@ -84,7 +84,7 @@ def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
 
     Under ``--executor ray`` (:func:`mixcount.catalog.step_executor.ray_tasks`) each analysis is a Ray task on the
     cluster, stored here in the same order; a task that died on every try is the object's run failure."""
-    from mixcount.catalog.step_executor import TaskFailed, ray_tasks
+    from mixcount.catalog.step_executor import TaskFailed, ray_tasks, run_and_collect
 
     cluster = ray_tasks()
     if cluster is not None:
@@ -103,8 +103,8 @@ def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
     preload_analysis_modules()
     pool = ProcessPoolExecutor(max_workers=min(n_workers, len(jobs)))
     try:
-        futures: list[tuple[Future, Job, dict[str, Any]]] = [(pool.submit(run_analysis, kw), job, kw)
-                                                             for job, kw in jobs]
+        futures: list[tuple[Future, Job, dict[str, Any]]] = [
+            (pool.submit(run_and_collect, run_analysis, kw), job, kw) for job, kw in jobs]
         for fut, job, kwargs in futures:
             try:
                 facts, error = fut.result()

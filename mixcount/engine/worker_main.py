@@ -14,7 +14,7 @@ answered ``{"ok": true, "result": <result>.to_dict(), "seconds": ...}``:
 * ``rerender``: RerenderRequest -> SceneResult, ``devices``: DevicesRequest -> DevicesResult
   (:mod:`mixcount.engine.rerender_job`)
 
-and two plain ones: ``{"op": "ping"}`` -> ``{"ok": true, "pid": ...}``; ``{"op": "exit"}`` ->
+and two plain ones: ``{"op": "ping"}`` -> ``{"ok": true, "pid": ..., "tbb_concurrency": ...}``; ``{"op": "exit"}`` ->
 ``{"ok": true}`` and the process ends.
 
 A Python error in a handler answers ``{"ok": false, "error", "traceback"}`` and the worker stays up for
@@ -34,6 +34,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import faulthandler
+import gc
 import json
 import os
 import signal
@@ -44,6 +45,7 @@ import traceback
 from typing import Any, Callable, Mapping, Optional
 
 PARENT_ENV = "MIXCOUNT_PARENT_PID"  # set by mixcount.worker.client.BlenderWorker
+THREADS_ENV = "MIXCOUNT_WORKER_THREADS"  # the CPU threads this worker's renders use (0 / unset: all)
 PR_SET_PDEATHSIG = 1
 WATCH_S = 0.5  # how often the watch thread looks at the parent pid
 _IONBF = 2  # glibc's setvbuf mode "unbuffered"
@@ -171,6 +173,50 @@ def crash_reports_to_log() -> None:
         pass
 
 
+def import_bpy(threads: int) -> None:
+    """Import bpy with oneTBB sized to the ``threads`` CPU threads this worker renders with (0: all).
+
+    oneTBB fixes its default concurrency once, from the process's CPU affinity mask, when Blender starts its
+    task scheduler (at ``import bpy``; the bpy module takes no ``--threads``). A worker of 2 on 2 cores
+    renders with 1 Cycles thread (``render.threads``), but Blender's TBB still starts a worker thread per
+    core, and while Cycles runs that thread spins in ``sched_yield`` looking for work: measured on a
+    1.2 M-face render with 1 thread, user 9.5 + system 7.8 CPU-s for 8.8 s of wall time, the whole second
+    core burnt (docs/blender.md). So for the import the process is held to ``threads`` of its CPUs, then
+    given all of them back: TBB keeps the concurrency it read, Cycles the threads it is told, and the other
+    worker its core. Which CPUs hold the import follows the pid, so workers starting together (a Ray node's
+    actors) do not all import on the first one."""
+    allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if not 0 < threads < len(allowed):
+        import bpy  # noqa: F401
+        return
+    first = os.getpid() % len(allowed)
+    os.sched_setaffinity(0, [allowed[(first + k) % len(allowed)] for k in range(threads)])
+    try:
+        import bpy  # noqa: F401,F811
+    finally:
+        os.sched_setaffinity(0, allowed)
+
+
+def tbb_concurrency() -> Optional[int]:
+    """The default concurrency of the oneTBB that bpy loaded (what :func:`import_bpy` sized), read from
+    libtbb's exported ``max_concurrency``; None where the library or the symbol cannot be found."""
+    try:
+        lib = ctypes.CDLL("libtbb.so.12", mode=os.RTLD_NOLOAD | os.RTLD_LAZY)  # bpy's copy, already loaded
+        fn = lib._ZN3tbb6detail2r115max_concurrencyEPKNS0_2d115task_arena_baseE  # r1::max_concurrency(nullptr)
+    except (OSError, AttributeError):
+        return None
+    fn.restype, fn.argtypes = ctypes.c_int, [ctypes.c_void_p]
+    return int(fn(None))
+
+
+def worker_threads() -> int:
+    """The thread count the parent gave this worker (:data:`THREADS_ENV`), 0 when unset or unreadable."""
+    try:
+        return max(0, int(os.environ.get(THREADS_ENV, "0")))
+    except ValueError:
+        return 0
+
+
 def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
     handlers = HANDLERS if handlers is None else handlers
     parent = die_with_parent()
@@ -183,7 +229,7 @@ def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
         proto.write(json.dumps(obj) + "\n")
         proto.flush()
 
-    import bpy  # noqa: F401  (import once: the slow part of a worker's start)
+    import_bpy(worker_threads())  # import once: the slow part of a worker's start
     from pxr import Usd, UsdGeom, UsdLux, UsdPhysics, UsdShade  # noqa: F401
 
     Usd.Stage.CreateInMemory()  # USD's plugin registry loads here, once, not inside the first scene
@@ -206,19 +252,25 @@ def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
             reply({"ok": True})
             break
         if op == "ping":
-            reply({"ok": True, "pid": os.getpid()})
+            reply({"ok": True, "pid": os.getpid(), "tbb_concurrency": tbb_concurrency()})
             continue
         handler = handlers.get(op)
         if handler is None:
             reply({"ok": False, "error": f"unknown op {op!r}"})
             continue
         try:
-            reply(handler(req))
+            answer = handler(req)
         except Exception as exc:  # the request fails, the worker lives on
             from mixcount.errors import MixcountError  # a user's error (a missing file): its line, no traceback
 
-            reply({"ok": False, "error": f"{type(exc).__name__}: {exc}",
-                   "traceback": "" if isinstance(exc, MixcountError) else traceback.format_exc()})
+            answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
+                      "traceback": "" if isinstance(exc, MixcountError) else traceback.format_exc()}
+        # What a request built in reference cycles (the glTF importer's Python objects and arrays) is
+        # freed before the answer goes, so the next request starts from one object's memory: without it a
+        # canonical-render worker's resident size grew ~45 MB with each 1.2 M-face capture (799 -> 1,202 MB
+        # after 6), with it 973 MB from the second on (docs/performance.md).
+        gc.collect()
+        reply(answer)
         sys.stderr.flush()
     return 0
 

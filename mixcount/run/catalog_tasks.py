@@ -23,7 +23,15 @@ from __future__ import annotations
 import contextlib
 from typing import Any, Callable, Iterator, Optional, Sequence
 
-from mixcount.catalog.step_executor import TaskFailed, chunks, error_line, ray_tasks, release, use_cluster
+from mixcount.catalog.step_executor import (
+    TaskFailed,
+    chunks,
+    error_line,
+    ray_tasks,
+    release,
+    run_and_collect,
+    use_cluster,
+)
 from mixcount.errors import ExecutorError
 
 __all__ = ["EXECUTORS", "RayTasks", "TaskFailed", "catalog_executor", "chunks", "ray_tasks", "task_error"]
@@ -87,15 +95,15 @@ class RayTasks:
         object store."""
         ray = self._ray
         remote = self._remote.get(fn)
-        if remote is None:
-            remote = self._remote[fn] = ray.remote(num_cpus=1, max_retries=self.max_retries,
-                                                   retry_exceptions=False)(fn)
+        if remote is None:  # each task through step_executor.run_and_collect: a Ray worker lives for many tasks
+            remote = self._remote[fn] = ray.remote(num_cpus=1, max_retries=self.max_retries, retry_exceptions=False,
+                                                   name=getattr(fn, "__name__", "task"))(run_and_collect)
         window = window or 4 * self.cpus()
         refs: list[Any] = []
         sent = 0
         for k in range(len(args)):
             while sent < len(args) and sent < k + window:
-                refs.append(remote.remote(*args[sent]))
+                refs.append(remote.remote(fn, *args[sent]))
                 sent += 1
             ref, refs[k] = refs[k], None  # the driver keeps no reference to what it has read
             try:

@@ -124,7 +124,8 @@ def compose_scenes(
         from mixcount.run.local import LocalExecutor
 
         executor = LocalExecutor(comp.workers, log_dir=out_dir / "logs", recycle_after=comp.recycle_after,
-                                 settle_ahead=comp.settle_ahead)
+                                 settle_ahead=comp.settle_ahead,
+                                 threads=render_threads(comp.render_threads, comp.workers))
     bar = as_reporter(progress)
     run = _ComposeRun(config=config, pool=pool, out_dir=out_dir, assets_dir=Path(assets_dir), n=n,
                       environments=environments, materials=materials, oracle=oracle, outputs=outputs,

@@ -33,10 +33,12 @@ def make_executor(kind: str = "local", workers: Optional[int] = None, address: O
     if kind == "local":
         if address:
             raise MixcountError("--address is only used with --executor ray")
+        from mixcount.run.compose import render_threads
         from mixcount.run.local import LocalExecutor
 
-        return LocalExecutor(workers or comp.workers, log_dir=log_dir, recycle_after=recycle,
-                             settle_ahead=comp.settle_ahead, **extra)
+        n = workers or comp.workers
+        return LocalExecutor(n, log_dir=log_dir, recycle_after=recycle, settle_ahead=comp.settle_ahead,
+                             **{"threads": render_threads(comp.render_threads, n), **extra})
     if kind == "ray":
         from mixcount.run.ray_executor import RayExecutor
 

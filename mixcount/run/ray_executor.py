@@ -25,6 +25,7 @@ output folder exists on its node and fails the scene with a clear message otherw
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import queue
 import socket
@@ -45,8 +46,9 @@ CALL_GRACE_S = 120.0
 RayExecutorError = ExecutorError  # the name this module has always raised (mixcount.errors.ExecutorError)
 
 
-def default_worker_factory(name: str, log_dir: Optional[str]) -> Any:
-    """A :class:`BlenderWorker` logging under ``log_dir`` when this node can write there, else the temp dir."""
+def default_worker_factory(name: str, log_dir: Optional[str], threads: int = 0) -> Any:
+    """A :class:`BlenderWorker` logging under ``log_dir`` when this node can write there, else the temp dir,
+    started for ``threads`` render threads (0: all of the node's)."""
     from mixcount.worker.client import BlenderWorker
 
     path: Optional[Path] = None
@@ -56,7 +58,7 @@ def default_worker_factory(name: str, log_dir: Optional[str]) -> Any:
             path = Path(log_dir)
         except OSError:
             path = None
-    return BlenderWorker(name=name, log_dir=path or Path(tempfile.gettempdir()))
+    return BlenderWorker(name=name, log_dir=path or Path(tempfile.gettempdir()), threads=threads)
 
 
 def failed_outcome(task: SceneTask, error: str, seconds: float = 0.0) -> SceneOutcome:
@@ -244,13 +246,20 @@ class RayExecutor:
                                 max_task_retries=0)(SceneActor)
         self._actors = [remote_cls.remote(f"ray{k}", recycle_after=recycle_after,
                                           log_dir=str(log_dir) if log_dir else None, runner=runner,
-                                          worker_factory=worker_factory)
+                                          worker_factory=self._sized(worker_factory, threads))
                         for k in range(self.slots)]
         self._idle: deque[int] = deque(range(self.slots))
         self._pending: deque[SceneTask] = deque()
         self._inflight: dict[Any, tuple[SceneTask, int, float]] = {}  # ref -> (task, actor index, start)
         self._ready: deque[SceneOutcome] = deque()
         self.connect_timeout_s = connect_timeout_s
+
+    @staticmethod
+    def _sized(factory: Callable[..., Any], threads: Optional[int]) -> Callable[..., Any]:
+        """The default worker factory bound to the threads every task is given (a caller's own as it is)."""
+        if factory is default_worker_factory and threads:
+            return functools.partial(default_worker_factory, threads=int(threads))
+        return factory
 
     # -------------------------------------------------------------------------------- interface
 

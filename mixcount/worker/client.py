@@ -43,6 +43,7 @@ from mixcount.worker.contract import MeshCacheRequest, MeshCacheResult, SceneReq
 STARTUP_TIMEOUT_S = 180.0
 WORKER_MODULE = "mixcount.engine.worker_main"  # the entry module the worker process runs
 PARENT_ENV = "MIXCOUNT_PARENT_PID"  # the pid the worker watches (it exits when that process is gone)
+THREADS_ENV = "MIXCOUNT_WORKER_THREADS"  # the CPU threads its renders use: bpy's TBB is sized to it at import
 TAIL_LINES = 20  # log lines a crash's error quotes
 TAIL_CHARS = 3000
 
@@ -157,8 +158,12 @@ class BlenderWorker:
     """One bpy worker process (started on first use, restarted after a crash or a timeout)."""
 
     def __init__(self, *, name: str = "worker", log_dir: Optional[Path] = None,
-                 python: str = sys.executable, startup_timeout: float = STARTUP_TIMEOUT_S) -> None:
+                 python: str = sys.executable, startup_timeout: float = STARTUP_TIMEOUT_S, threads: int = 0) -> None:
+        """``threads``: the Cycles threads this worker's requests render with, when the caller knows it
+        (0: all cores). The worker imports bpy with TBB sized to it (``worker_main.import_bpy``): a worker
+        of several on a machine must not keep a spinning TBB thread on every core (docs/blender.md)."""
         self.name = name
+        self.threads = max(0, int(threads))
         self.python = python
         self.startup_timeout = startup_timeout
         self.log_dir = Path(log_dir) if log_dir else Path(tempfile.gettempdir())
@@ -197,6 +202,9 @@ class BlenderWorker:
         env["PYTHONUNBUFFERED"] = "1"
         env["PYTHONFAULTHANDLER"] = "1"  # faulthandler from the interpreter's start (worker_main: all threads)
         env[PARENT_ENV] = str(os.getpid())
+        env.pop(THREADS_ENV, None)  # never inherited from a parent that is itself a worker
+        if self.threads:
+            env[THREADS_ENV] = str(self.threads)
         try:
             self.proc = _SPAWNER.popen(lambda: subprocess.Popen(
                 args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env, start_new_session=True))
