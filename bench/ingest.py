@@ -313,8 +313,10 @@ def run_render_stages(args: argparse.Namespace) -> int:
     """``--stages``' child: the canonical render of one model with 1 Cycles thread (as each of 2 workers on
     2 cores), its import and albedo timed apart (a light model's second render, ``render_albedo``; a heavy
     one's passes of its one render, ``save_colour_passes`` + ``write_albedo``); the rest of the whole is
-    the Cycles render itself."""
+    the Cycles render itself. bpy is imported as a worker of 2 imports it (TBB sized to its 1 thread)."""
+    from mixcount.engine.worker_main import import_bpy
 
+    import_bpy(1)
     from mixcount.engine import canonical_render as C
     from mixcount.worker.canonical_contract import CanonicalRequest, CanonicalSettings
 

@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.smoke:
         args.faces, args.texture_px, args.resolution, args.samples = 20_000, 256, 64, 4
 
+    from mixcount.engine.worker_main import import_bpy
+
+    import_bpy(1)  # as a worker of 2 on 2 cores: TBB sized to its one Cycles thread (docs/blender.md)
     import big_meshes as B
 
     from mixcount.engine import canonical_render as C
