@@ -20,7 +20,7 @@
   place); answers each load's cache events and whether every load's id
   passes and small RGB render equal the uncached one's, and whether a lit id pass equals the unlit one.
 
-* ``{"op": "leave_cycle"}`` - leaves one object in a reference cycle that only a full collection frees (as
+* ``{"op": "leave_cycle"}`` - leaves one 300 MB object in a reference cycle that only a full collection frees (as
   the glTF importer's do) and answers how many left by earlier requests are still alive.
 Tests select it with ``monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")``.
 """
@@ -256,6 +256,7 @@ def mesh_cache(req: dict[str, Any]) -> dict[str, Any]:
 class _Left:
     def __init__(self) -> None:
         self.me = self
+        self.data = b"\x01" * (300 << 20)  # resident: over the growth that makes a worker collect
 
 
 _LEFT: list[Any] = []

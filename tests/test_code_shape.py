@@ -15,7 +15,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "mixcount"
 MAX_FUNCTION_LINES = 120
 
 ROOMS: tuple[tuple[str, ...], ...] = (
-    ("version", "errors", "progress", "resources", "frame", "sizes", "atomic", "json_input", "threads", "scene_config", "config", "library_root", "stop_signals"),  # the foundation
+    ("version", "errors", "progress", "resources", "frame", "sizes", "atomic", "json_input", "threads", "scene_config", "config", "library_root", "stop_signals", "task_memory"),  # the foundation
     ("annotate",),  # pure annotation maths and pass formats
     ("counts",),  # count targets, engine-free: parsed and drawn, read from benchmark files, the worker's decisions
     ("scene_decisions",),  # the worker's engine-free decisions about one scene (uses annotate's camera)

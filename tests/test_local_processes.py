@@ -32,7 +32,7 @@ class _Capture:
 
     def __init__(self) -> None:
         self.me = self
-        self.data = bytearray(1 << 20)
+        self.data = b"\x01" * (300 << 20)  # resident: over the growth that makes a worker collect
 
 
 _LOADED: list[weakref.ref] = []
@@ -52,12 +52,26 @@ def load_one(_k: int) -> tuple[int, int]:
 @pytest.mark.parametrize("executor", ["local processes", "this process"])
 def test_a_worker_keeps_nothing_of_one_task_when_it_takes_the_next(executor: str) -> None:
     """What a task left in reference cycles is freed before the worker's next task: a worker's memory is one
-    object's, however many objects it analyses (``run_and_collect``; without it, 5 of 6 stayed alive)."""
+    object's, however many objects it analyses (``run_and_collect``; without it the sixth task found all five earlier ones alive)."""
     _LOADED.clear()
     with (LocalProcesses(1) if executor == "local processes" else InThisProcess()) as pool:
         got = list(pool.map(load_one, [(k,) for k in range(6)]))
     assert len({pid for pid, _ in got}) == 1  # one worker took every task
     assert [alive for _, alive in got] == [0] * 6
+
+
+def test_a_worker_collects_only_once_it_has_grown() -> None:
+    """A full collection costs ~0.1 s in a worker holding its parent's objects, more than a light object's
+    task: it runs when the process grew by the margin since the last one, not after every task."""
+    from mixcount.task_memory import collected_when_grown
+
+    collections = gc.get_stats()[2]["collections"]
+    with collected_when_grown(growth_mb=1e9):
+        pass
+    assert gc.get_stats()[2]["collections"] == collections
+    with collected_when_grown(growth_mb=0):
+        _block = b"\x01" * (8 << 20)  # noqa: F841 - grown by 8 MB
+    assert gc.get_stats()[2]["collections"] == collections + 1
 
 
 def test_results_come_back_in_order_and_a_dead_worker_is_one_failure() -> None:

@@ -27,7 +27,7 @@ CPUS = sorted(os.sched_getaffinity(0))
 
 @pytest.mark.skipif(len(CPUS) < 2, reason="one CPU: nothing to size TBB below the machine")
 def test_a_worker_for_one_thread_imports_bpy_with_tbb_at_one_and_keeps_every_cpu(tmp_path: Path) -> None:
-    with BlenderWorker(name="one", log_dir=tmp_path, threads=1) as one, \
+    with BlenderWorker(name="one", log_dir=tmp_path, cpu_threads=1) as one, \
             BlenderWorker(name="all", log_dir=tmp_path) as every:
         one_ping = one.request({"op": "ping"}, timeout=180)
         all_ping = every.request({"op": "ping"}, timeout=180)
@@ -50,7 +50,7 @@ def test_a_worker_frees_what_one_request_left_in_cycles_before_the_next(
     """A worker lives for many objects: what a request built in reference cycles is collected before its
     answer goes (``worker_main.main``), so the next request starts from one object's memory."""
     monkeypatch.setattr("mixcount.worker.client.WORKER_MODULE", "tests.fault_worker")
-    with BlenderWorker(name="cycles", log_dir=tmp_path, threads=1) as worker:
+    with BlenderWorker(name="cycles", log_dir=tmp_path, cpu_threads=1) as worker:
         alive = [worker.request({"op": "leave_cycle"}, timeout=180)["alive"] for _ in range(4)]
     assert alive == [0, 0, 0, 0]
 
@@ -68,7 +68,7 @@ def _task(seed: int, threads: int) -> SceneTask:
 
 def _recording_runner(seen: list[tuple[int, int]]) -> Any:
     def runner(task: SceneTask, worker: Any) -> SceneOutcome:  # the worker is never started
-        seen.append((task.threads, worker.threads))
+        seen.append((task.threads, worker.cpu_threads))
         return SceneOutcome(task.spec.scene_id, task.spec.seed, WRITTEN, 0.0)
     return runner
 
@@ -77,7 +77,7 @@ def test_the_local_executor_starts_its_workers_for_the_threads_its_scenes_render
     from mixcount.run.local import LocalExecutor
 
     seen: list[tuple[int, int]] = []
-    with LocalExecutor(2, runner=_recording_runner(seen), recycle_after=0, settle_ahead=False, threads=1) as ex:
+    with LocalExecutor(2, runner=_recording_runner(seen), recycle_after=0, settle_ahead=False, cpu_threads=1) as ex:
         for seed in range(4):
             ex.submit(_task(seed, threads=7))  # the executor's count replaces the task's
         outcomes = [ex.next_outcome(timeout=30) for _ in range(4)]
@@ -86,9 +86,9 @@ def test_the_local_executor_starts_its_workers_for_the_threads_its_scenes_render
 
     from mixcount.worker.settle_ahead import SettleAheadWorker
 
-    pair = SettleAheadWorker(name="pair", threads=1)
-    assert (pair.render.threads, pair.settler.threads) == (1, 1)
-    assert SettleAheadWorker(name="pair", threads=0).settler.threads == 1  # Bullet: one thread, always
+    pair = SettleAheadWorker(name="pair", cpu_threads=1)
+    assert (pair.render.cpu_threads, pair.settler.cpu_threads) == (1, 1)
+    assert SettleAheadWorker(name="pair", cpu_threads=0).settler.cpu_threads == 1  # Bullet: one thread, always
 
 
 def test_make_executor_sizes_local_workers_as_compose_sizes_its_scenes() -> None:
@@ -97,17 +97,17 @@ def test_make_executor_sizes_local_workers_as_compose_sizes_its_scenes() -> None
 
     comp = load_config(values={"compose.workers": 2, "compose.render_threads": 0}).compose
     with make_executor("local", None, None, config=comp, runner=_recording_runner([])) as ex:
-        assert ex.threads == render_threads(0, 2) == max(1, (os.cpu_count() or 1) // 2)
+        assert ex.cpu_threads == render_threads(0, 2) == max(1, (os.cpu_count() or 1) // 2)
     with make_executor("local", 1, None, config=comp, runner=_recording_runner([])) as ex:
-        assert ex.threads == render_threads(0, 1) == (os.cpu_count() or 1)
+        assert ex.cpu_threads == render_threads(0, 1) == (os.cpu_count() or 1)
 
 
 def test_the_ray_executor_binds_its_thread_count_to_the_default_worker_factory_only() -> None:
     from mixcount.run.ray_executor import RayExecutor, default_worker_factory
 
     bound = RayExecutor._sized(default_worker_factory, 2)
-    assert isinstance(bound, functools.partial) and bound.keywords == {"threads": 2}
-    assert bound("w", None).threads == 2  # a BlenderWorker object; nothing is started
+    assert isinstance(bound, functools.partial) and bound.keywords == {"cpu_threads": 2}
+    assert bound("w", None).cpu_threads == 2  # a BlenderWorker object; nothing is started
     own = lambda name, log_dir: None  # noqa: E731
     assert RayExecutor._sized(own, 2) is own
     assert RayExecutor._sized(default_worker_factory, None) is default_worker_factory

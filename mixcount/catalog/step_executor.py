@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import gc
 from dataclasses import dataclass
 from typing import Any, Iterator, Optional, Sequence
 
@@ -28,19 +27,14 @@ class TaskFailed:
 
 
 def run_and_collect(fn: Any, *args: Any) -> Any:
-    """``fn(*args)``, then a full garbage collection before the worker process takes its next task.
+    """``fn(*args)`` in a worker that lives for many tasks, then a full garbage collection when the worker
+    has grown enough (:func:`mixcount.task_memory.collected_when_grown`): what one object's task left in
+    reference cycles (trimesh meshes) is freed before it piles up. Every executor of the catalog steps
+    runs its tasks through this (local processes, this process, Ray tasks, ingest's analysis pool)."""
+    from mixcount.task_memory import collected_when_grown
 
-    A worker process (a local pool's, a Ray worker) lives for many tasks, and what one object's task built
-    is held in reference cycles (trimesh meshes and their caches and visuals): Python frees them at its next
-    full collection, which counts container objects, not bytes. Measured on ``catalog filter``'s descriptors
-    of 1.2 M-face captures in one process: 683, 771, 1,164, 1,643, 2,175 MB resident after 1-5 objects
-    (peak 2,489 MB), against 257-326 MB (peak 1,145 MB) with a collection after each; ingest's analysis
-    workers grew the same way (docs/performance.md). Every executor of the catalog steps runs its tasks
-    through this, so a worker's memory is one object's, whatever the number of objects."""
-    try:
+    with collected_when_grown():
         return fn(*args)
-    finally:
-        gc.collect()
 
 
 def ray_tasks() -> Optional[Any]:

@@ -55,7 +55,7 @@ def render_cmd(
         "rerender.device": device,
         "compose.passes": None if passes is None else [p.strip() for p in passes.split(",") if p.strip()]})
     worker = BlenderWorker(name="rerender", log_dir=Path(tempfile.gettempdir()),
-                           threads=cfg.compose.render_threads)  # the threads its scenes render with
+                           cpu_threads=cfg.compose.render_threads)  # the threads its scenes render with
     try:
         summary = rerender_dataset(dataset, out_dir, cfg, worker, oracle=oracle, merge=not no_merge,
                                    progress=lambda k, n: console.print(f"scene {k}/{n}", highlight=False),

@@ -34,7 +34,6 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import faulthandler
-import gc
 import json
 import os
 import signal
@@ -43,6 +42,8 @@ import threading
 import time
 import traceback
 from typing import Any, Callable, Mapping, Optional
+
+from mixcount.task_memory import collected_when_grown
 
 PARENT_ENV = "MIXCOUNT_PARENT_PID"  # set by mixcount.worker.client.BlenderWorker
 THREADS_ENV = "MIXCOUNT_WORKER_THREADS"  # the CPU threads this worker's renders use (0 / unset: all)
@@ -258,18 +259,17 @@ def main(handlers: Optional[Mapping[str, Handler]] = None) -> int:
         if handler is None:
             reply({"ok": False, "error": f"unknown op {op!r}"})
             continue
-        try:
-            answer = handler(req)
-        except Exception as exc:  # the request fails, the worker lives on
-            from mixcount.errors import MixcountError  # a user's error (a missing file): its line, no traceback
+        # What a request built in reference cycles (the glTF importer's objects and arrays) is freed once the
+        # worker has grown enough, before the answer goes: without it a canonical-render worker grew ~45 MB
+        # with each 1.2 M-face capture (799 -> 1,202 MB after 6), docs/performance.md.
+        with collected_when_grown():
+            try:
+                answer = handler(req)
+            except Exception as exc:  # the request fails, the worker lives on
+                from mixcount.errors import MixcountError  # a user's error (a missing file): its line, no traceback
 
-            answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
-                      "traceback": "" if isinstance(exc, MixcountError) else traceback.format_exc()}
-        # What a request built in reference cycles (the glTF importer's Python objects and arrays) is
-        # freed before the answer goes, so the next request starts from one object's memory: without it a
-        # canonical-render worker's resident size grew ~45 MB with each 1.2 M-face capture (799 -> 1,202 MB
-        # after 6), with it 973 MB from the second on (docs/performance.md).
-        gc.collect()
+                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
+                          "traceback": "" if isinstance(exc, MixcountError) else traceback.format_exc()}
         reply(answer)
         sys.stderr.flush()
     return 0

@@ -125,7 +125,7 @@ def compose_scenes(
 
         executor = LocalExecutor(comp.workers, log_dir=out_dir / "logs", recycle_after=comp.recycle_after,
                                  settle_ahead=comp.settle_ahead,
-                                 threads=render_threads(comp.render_threads, comp.workers))
+                                 cpu_threads=render_threads(comp.render_threads, comp.workers))
     bar = as_reporter(progress)
     run = _ComposeRun(config=config, pool=pool, out_dir=out_dir, assets_dir=Path(assets_dir), n=n,
                       environments=environments, materials=materials, oracle=oracle, outputs=outputs,

@@ -38,7 +38,7 @@ def make_executor(kind: str = "local", workers: Optional[int] = None, address: O
 
         n = workers or comp.workers
         return LocalExecutor(n, log_dir=log_dir, recycle_after=recycle, settle_ahead=comp.settle_ahead,
-                             **{"threads": render_threads(comp.render_threads, n), **extra})
+                             **{"cpu_threads": render_threads(comp.render_threads, n), **extra})
     if kind == "ray":
         from mixcount.run.ray_executor import RayExecutor
 

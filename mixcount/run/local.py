@@ -42,8 +42,8 @@ class LocalExecutor:
     """A pool of ``workers`` bpy worker processes on this machine (:class:`~mixcount.worker.pool.WorkerPool`)."""
 
     def __init__(self, workers: int, *, log_dir: Optional[Path] = None, runner: SceneRunner = run_scene_task,
-                 recycle_after: int, settle_ahead: bool, threads: int = 0) -> None:
-        """``threads`` > 0: every scene renders with that many Cycles threads (it replaces each task's), and
+                 recycle_after: int, settle_ahead: bool, cpu_threads: int = 0) -> None:
+        """``cpu_threads`` > 0: every scene renders with that many Cycles threads (it replaces each task's), and
         each worker's bpy is started for that many (:class:`~mixcount.worker.client.BlenderWorker`)."""
         from mixcount.run.staging_ahead import StagingAhead
         from mixcount.worker.client import BlenderWorker
@@ -51,7 +51,7 @@ class LocalExecutor:
         from mixcount.worker.settle_ahead import SettleAheadWorker
 
         n_workers = max(1, int(workers))
-        self.threads = max(0, int(threads))
+        self.cpu_threads = max(0, int(cpu_threads))
         self.slots = 2 * n_workers if settle_ahead else n_workers
         self._ahead = StagingAhead() if settle_ahead else None
 
@@ -72,7 +72,7 @@ class LocalExecutor:
 
         def make(k: int) -> Worker:
             cls = SettleAheadWorker if settle_ahead else BlenderWorker
-            return cls(name=f"worker{k}", log_dir=log_dir, threads=self.threads)
+            return cls(name=f"worker{k}", log_dir=log_dir, cpu_threads=self.cpu_threads)
 
         # recycle_after: restart a worker after this many scenes (flat memory), the pool's one rule
         self._pool: WorkerPool[SceneTask, SceneOutcome] = WorkerPool(
@@ -85,8 +85,8 @@ class LocalExecutor:
         return self._pool.workers
 
     def submit(self, task: SceneTask) -> None:
-        if self.threads:  # the threads its workers were started for
-            task = dataclasses.replace(task, threads=self.threads)
+        if self.cpu_threads:  # the threads its workers were started for
+            task = dataclasses.replace(task, threads=self.cpu_threads)
         self._pool.submit(task)
 
     def next_outcome(self, timeout: Optional[float] = None) -> SceneOutcome:

@@ -46,9 +46,9 @@ CALL_GRACE_S = 120.0
 RayExecutorError = ExecutorError  # the name this module has always raised (mixcount.errors.ExecutorError)
 
 
-def default_worker_factory(name: str, log_dir: Optional[str], threads: int = 0) -> Any:
+def default_worker_factory(name: str, log_dir: Optional[str], cpu_threads: int = 0) -> Any:
     """A :class:`BlenderWorker` logging under ``log_dir`` when this node can write there, else the temp dir,
-    started for ``threads`` render threads (0: all of the node's)."""
+    started for ``cpu_threads`` render threads (0: all of the node's)."""
     from mixcount.worker.client import BlenderWorker
 
     path: Optional[Path] = None
@@ -58,7 +58,7 @@ def default_worker_factory(name: str, log_dir: Optional[str], threads: int = 0) 
             path = Path(log_dir)
         except OSError:
             path = None
-    return BlenderWorker(name=name, log_dir=path or Path(tempfile.gettempdir()), threads=threads)
+    return BlenderWorker(name=name, log_dir=path or Path(tempfile.gettempdir()), cpu_threads=cpu_threads)
 
 
 def failed_outcome(task: SceneTask, error: str, seconds: float = 0.0) -> SceneOutcome:
@@ -258,7 +258,7 @@ class RayExecutor:
     def _sized(factory: Callable[..., Any], threads: Optional[int]) -> Callable[..., Any]:
         """The default worker factory bound to the threads every task is given (a caller's own as it is)."""
         if factory is default_worker_factory and threads:
-            return functools.partial(default_worker_factory, threads=int(threads))
+            return functools.partial(default_worker_factory, cpu_threads=int(threads))
         return factory
 
     # -------------------------------------------------------------------------------- interface

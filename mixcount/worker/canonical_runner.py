@@ -54,7 +54,8 @@ def run_jobs(jobs: Sequence[Job], *, on_result: Callable[[RenderOutcome], None],
 
     with tempfile.TemporaryDirectory(prefix="mixcount-canonical-") as tmp:
         pool: WorkerPool[Job, RenderOutcome] = WorkerPool(
-            workers, lambda k: BlenderWorker(name=f"render{k}", log_dir=Path(tmp), threads=threads_per_worker),
+            workers, lambda k: BlenderWorker(name=f"render{k}", log_dir=Path(tmp),
+                                    cpu_threads=threads_per_worker),
             recycle_after=0,
             handle=render, on_error=failed)
         for key, req in jobs:

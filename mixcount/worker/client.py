@@ -158,12 +158,12 @@ class BlenderWorker:
     """One bpy worker process (started on first use, restarted after a crash or a timeout)."""
 
     def __init__(self, *, name: str = "worker", log_dir: Optional[Path] = None,
-                 python: str = sys.executable, startup_timeout: float = STARTUP_TIMEOUT_S, threads: int = 0) -> None:
-        """``threads``: the Cycles threads this worker's requests render with, when the caller knows it
+                 python: str = sys.executable, startup_timeout: float = STARTUP_TIMEOUT_S, cpu_threads: int = 0) -> None:
+        """``cpu_threads``: the Cycles threads this worker's requests render with, when the caller knows it
         (0: all cores). The worker imports bpy with TBB sized to it (``worker_main.import_bpy``): a worker
         of several on a machine must not keep a spinning TBB thread on every core (docs/blender.md)."""
         self.name = name
-        self.threads = max(0, int(threads))
+        self.cpu_threads = max(0, int(cpu_threads))
         self.python = python
         self.startup_timeout = startup_timeout
         self.log_dir = Path(log_dir) if log_dir else Path(tempfile.gettempdir())
@@ -203,8 +203,8 @@ class BlenderWorker:
         env["PYTHONFAULTHANDLER"] = "1"  # faulthandler from the interpreter's start (worker_main: all threads)
         env[PARENT_ENV] = str(os.getpid())
         env.pop(THREADS_ENV, None)  # never inherited from a parent that is itself a worker
-        if self.threads:
-            env[THREADS_ENV] = str(self.threads)
+        if self.cpu_threads:
+            env[THREADS_ENV] = str(self.cpu_threads)
         try:
             self.proc = _SPAWNER.popen(lambda: subprocess.Popen(
                 args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env, start_new_session=True))

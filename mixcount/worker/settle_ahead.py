@@ -33,12 +33,12 @@ class SettleAheadWorker:
     """
 
     def __init__(self, *, name: str = "worker", log_dir: Optional[Path] = None, python: str = sys.executable,
-                 startup_timeout: float = STARTUP_TIMEOUT_S, threads: int = 0) -> None:
+                 startup_timeout: float = STARTUP_TIMEOUT_S, cpu_threads: int = 0) -> None:
         self.render = BlenderWorker(name=name, log_dir=log_dir, python=python, startup_timeout=startup_timeout,
-                                    threads=threads)
+                                    cpu_threads=cpu_threads)
         # Bullet steps on one thread: the companion's TBB needs no more, whatever the render uses
         self.settler = BlenderWorker(name=f"{name}-settle", log_dir=log_dir, python=python,
-                                     startup_timeout=startup_timeout, threads=1)
+                                     startup_timeout=startup_timeout, cpu_threads=1)
         self.name = name
         self._pending: Optional[str] = None  # the stage whose settle is in flight in the companion
         # begin_settle (the pool's look-ahead thread) waits here until the settle in flight is collected
