@@ -24,6 +24,24 @@ _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 _floor: Optional[int] = None  # resident bytes after this process's last collection (or before its first task)
 
 
+def _forget_floor() -> None:
+    global _floor
+    _floor = None  # a forked child measures its own growth, not its parent's
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_floor)
+
+
+def forked_worker_start() -> None:
+    """``initializer`` of a forked pool process: what it inherited from its parent is frozen
+    (``gc.freeze``), so its collections examine only its own objects. A collection in a child of a process
+    with threads must not finalize the parent's garbage: a finalizer may take a lock that another thread of
+    the parent held at the fork, and the child would wait for it for ever; freezing also spares the
+    copy-on-write of every inherited object a collection would touch."""
+    gc.freeze()
+
+
 def resident_bytes() -> Optional[int]:
     """This process's resident size from /proc (Linux); None where it cannot be read."""
     try:

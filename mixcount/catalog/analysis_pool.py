@@ -15,6 +15,7 @@ from typing import Any, Callable, TypeVar
 from mixcount.catalog.layouts import Candidate
 from mixcount.errors import IngestError
 from mixcount.frame import GLTF_EXTENSIONS, GLTF_UP_AXIS
+from mixcount.task_memory import forked_worker_start
 
 Job = TypeVar("Job")
 Facts = tuple[dict[str, Any] | None, str | None]  # (facts, None) or (None, why the model is broken)
@@ -101,7 +102,7 @@ def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
         return
 
     preload_analysis_modules()
-    pool = ProcessPoolExecutor(max_workers=min(n_workers, len(jobs)))
+    pool = ProcessPoolExecutor(max_workers=min(n_workers, len(jobs)), initializer=forked_worker_start)
     try:
         futures: list[tuple[Future, Job, dict[str, Any]]] = [
             (pool.submit(run_and_collect, run_analysis, kw), job, kw) for job, kw in jobs]
@@ -118,7 +119,7 @@ def analyse_all(jobs: list[tuple[Job, dict[str, Any]]], n_workers: int,
 def _solo(kwargs: dict[str, Any]) -> Facts:
     """A worker died (segfault, OOM kill) and took the pool with it: analyse this model alone in a fresh
     process, so the one that crashes is identified and recorded as broken and the others still get ingested."""
-    with ProcessPoolExecutor(max_workers=1) as solo:
+    with ProcessPoolExecutor(max_workers=1, initializer=forked_worker_start) as solo:
         try:
             return solo.submit(run_analysis, kwargs).result()
         except BrokenProcessPool:

@@ -16,6 +16,8 @@ import contextvars
 from dataclasses import dataclass
 from typing import Any, Iterator, Optional, Sequence
 
+from mixcount.task_memory import collected_when_grown, forked_worker_start
+
 _current: contextvars.ContextVar[Optional[Any]] = contextvars.ContextVar("catalog_step_cluster", default=None)
 
 
@@ -31,8 +33,6 @@ def run_and_collect(fn: Any, *args: Any) -> Any:
     has grown enough (:func:`mixcount.task_memory.collected_when_grown`): what one object's task left in
     reference cycles (trimesh meshes) is freed before it piles up. Every executor of the catalog steps
     runs its tasks through this (local processes, this process, Ray tasks, ingest's analysis pool)."""
-    from mixcount.task_memory import collected_when_grown
-
     with collected_when_grown():
         return fn(*args)
 
@@ -99,7 +99,7 @@ class LocalProcesses:
         if not args:
             return
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(args)))
+            self._pool = ProcessPoolExecutor(max_workers=min(self.workers, len(args)), initializer=forked_worker_start)
         futures = [self._pool.submit(run_and_collect, fn, *a) for a in args]
         failed = False
         try:
@@ -154,7 +154,7 @@ def _alone(fn: Any, a: Sequence[Any]) -> Any:
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
-    with ProcessPoolExecutor(max_workers=1) as solo:
+    with ProcessPoolExecutor(max_workers=1, initializer=forked_worker_start) as solo:
         try:
             return solo.submit(fn, *a).result()
         except BrokenProcessPool as exc:
