@@ -60,10 +60,13 @@ def test_a_worker_keeps_nothing_of_one_task_when_it_takes_the_next(executor: str
     assert [alive for _, alive in got] == [0] * 6
 
 
-def test_a_worker_collects_only_once_it_has_grown() -> None:
+def test_a_worker_collects_only_once_it_has_grown(monkeypatch: pytest.MonkeyPatch) -> None:
     """A full collection costs ~0.1 s in a worker holding its parent's objects, more than a light object's
     task: it runs when the process grew by the margin since the last one, not after every task."""
+    from mixcount import task_memory
     from mixcount.task_memory import collected_when_grown
+
+    monkeypatch.setattr(task_memory, "_floor", None)  # as a fresh worker: growth counted from this task on
 
     collections = gc.get_stats()[2]["collections"]
     with collected_when_grown(growth_mb=1e9):
