@@ -124,6 +124,29 @@ def test_shape_descriptor_known_answers():
     assert D.d2_distance(box, ico) > 2 * th.geometry_d2
 
 
+def test_a_one_part_mesh_counts_the_same_crossings_as_a_part_of_an_assembly():
+    """The one-part shortcut of ``self_intersection_fraction`` (the mesh as it is) and the per-part path
+    (each connected part renumbered) count the same crossing faces; other parts never cross it."""
+    poked = trimesh.creation.icosphere(2)
+    v = np.asarray(poked.vertices).copy()
+    v[0] *= -1.6  # one vertex pushed through the far side: its faces cross the sphere's
+    f = np.asarray(poked.faces)
+    alone = D.self_intersection_fraction(v, f)
+    assert 0 < alone < 0.2
+    far = trimesh.creation.box((0.5, 0.5, 0.5)).subdivide()  # 48 faces, away from the sphere
+    v2 = np.vstack([v, np.asarray(far.vertices) + [10.0, 0.0, 0.0]])
+    f2 = np.vstack([f, np.asarray(far.faces) + len(v)])
+    assembled = D.self_intersection_fraction(v2, f2)
+    assert round(alone * len(f)) == round(assembled * len(f2))
+    overlapping = np.vstack([v, np.asarray(far.vertices)])  # the box inside the sphere: another part, not a defect
+    assert D.self_intersection_fraction(overlapping, f2) == assembled
+    # the shape descriptor's shared edge counts and areas: the same fractions as alone
+    desc = D.shape_descriptor(v, f, watertight=False, volume=None)
+    assert desc.nonmanifold_fraction == round(D.nonmanifold_fraction(f), 6)
+    assert desc.boundary_fraction == round(D.boundary_fraction(f), 6) == 0.0
+    assert desc.area_m2 == pytest.approx(float(D.face_areas(v[f]).sum()))
+
+
 def test_nonmanifold_fraction_and_phash():
     faces = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]])  # edge (0, 1) shared by three faces
     assert D.nonmanifold_fraction(faces) == pytest.approx(1 / 7)
