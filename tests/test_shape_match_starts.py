@@ -10,6 +10,7 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from mixcount.curation.finding import portable_linalg as L
 from mixcount.curation.finding import shape_match as S
 
 
@@ -29,7 +30,7 @@ def _every_start(ca: np.ndarray, cb: np.ndarray, rotations: list[np.ndarray], sp
     tree = cKDTree(ca)
     scores = []
     for rot in rotations:
-        moved = cb @ rot.T
+        moved = L.turn(cb, rot)
         s = np.clip(spread / np.maximum(np.sqrt((moved ** 2).mean(axis=0)), 1e-9), 1.0 / max_squash, max_squash)
         scores.append(S.chamfer(ca, moved * s, tree))
     return sorted(range(len(rotations)), key=lambda k: scores[k])[:keep]
@@ -39,13 +40,13 @@ def _all_steps(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray,
     """ICP for every one of the ICP_STEPS steps, no early stop."""
     m = rot.copy()
     for _ in range(S.ICP_STEPS):
-        _, idx = tree_a.query(pb @ m.T)
-        fit, *_ = np.linalg.lstsq(pb, pa[idx], rcond=None)
-        u, s, vt = np.linalg.svd(fit.T)
-        if np.linalg.det(u @ vt) < 0:
+        _, idx = tree_a.query(L.turn(pb, m))
+        fit = L.lstsq3(pb, pa[idx])
+        u, s, vt = L.svd3(fit.T)
+        if L.det3(L.mat(u, vt)) < 0:
             u[:, 2] *= -1
-        s = s / np.exp(np.log(np.clip(s, 1e-6, None)).mean())
-        m = u @ np.diag(np.clip(s, 1.0 / max_squash, max_squash)) @ vt
+        s = s / float(L.root(np.prod(np.clip(s, 1e-6, None)), 3))
+        m = L.mat(L.mat(u, np.diag(np.clip(s, 1.0 / max_squash, max_squash))), vt)
     return m
 
 

@@ -38,9 +38,10 @@ import numpy as np
 
 from mixcount.atomic import atomic_path
 from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
+from mixcount.curation.finding import portable_linalg as L
 from mixcount.frame import load_model
 
-APPEARANCE_VERSION = "look3d-v2"  # the surface samples (v2: textures outside the model's folder read)
+APPEARANCE_VERSION = "look3d-v3"  # the surface samples (v3: node transforms without BLAS; v2: textures outside the model's folder read)
 SEED = 20240611
 N_SAMPLES = 6000
 HIST_BINS = 6
@@ -171,7 +172,9 @@ def surface_samples(model_path: str | Path, *, n: int = N_SAMPLES, seed: int = S
         raise ValueError("model has no faces")
     areas, tris = [], []
     for geom, transform in geoms:
-        v = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform)
+        v = np.asarray(geom.vertices, dtype=np.float64)
+        if not np.array_equal(transform, np.eye(4)):  # placed without BLAS: the same bits on every machine
+            v = L.turn(v, transform[:3, :3]) + transform[:3, 3]
         t = v[np.asarray(geom.faces)]
         tris.append(t)
         areas.append(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1))

@@ -25,6 +25,10 @@ points of :func:`mixcount.curation.finding.appearance3d.load_samples`, colours i
    map once more the other way round and keeps the lower distance: ``match(a, b)`` and ``match(b, a)`` give
    one distance, and the same library in another order gets the same figures. (The digest's direction alone
    lost a public copy at 0.076 against 0.070 the other way: docs/curation.md, "The search's direction".)
+6. **The same bits on every machine**: every product, solve, eigen- and singular-vector here comes from
+   :mod:`mixcount.curation.finding.portable_linalg` (no BLAS, LAPACK or transcendental functions), because
+   ICP and the ranking of starts follow near-ties: with numpy's BLAS the figures followed the CPU's OpenBLAS
+   kernels (docs/curation.md, "Figures that follow the machine").
 
 A *shape-free* figure comes with it: the distance of each object to its nearest primitive (a box, three
 rounded boxes (superellipsoids), an ellipsoid, a cylinder along each axis, under the same alignment with free per-axis scale). A box
@@ -42,7 +46,9 @@ from itertools import permutations, product
 import numpy as np
 from scipy.spatial import cKDTree
 
-MATCH_VERSION = "match-v4"  # cached distances are keyed by it (v4: the better of both directions; v3: one direction, at most WHOLE_STARTS)
+from mixcount.curation.finding import portable_linalg as L
+
+MATCH_VERSION = "match-v5"  # cached distances are keyed by it (v5: no BLAS / LAPACK, the same bits on every machine; v4: the search polished the other way round; v3: one direction, at most WHOLE_STARTS)
 COARSE = 250
 FINE = 1500
 REFINE_TOP = 3
@@ -78,7 +84,7 @@ class Match:
     @property
     def stretch(self) -> float:
         """Largest over smallest stretch of the map (1.0: no squash; at most ``max_squash`` squared)."""
-        s = np.linalg.svd(self.rotation * np.asarray(self.scale)[None, :], compute_uv=False)
+        s = L.svd3(self.rotation * np.asarray(self.scale)[None, :])[1]
         return float(s[0] / max(s[-1], 1e-12))
 
 
@@ -86,13 +92,13 @@ def normalise(points: np.ndarray) -> Normalised:
     """Centre, principal frame (descending moments), unit RMS radius; a fixed subsample order."""
     p = np.asarray(points, dtype=np.float64)
     p = p - p.mean(axis=0)
-    cov = p.T @ p / max(len(p), 1)
-    eig, vec = np.linalg.eigh(cov)
+    cov = L.gram(p, p) / max(len(p), 1)
+    eig, vec = L.sym_eig3(cov)
     order = np.argsort(eig)[::-1]
     eig, vec = eig[order], vec[:, order]
-    if np.linalg.det(vec) < 0:
+    if L.det3(vec) < 0:
         vec[:, 2] *= -1
-    q = p @ vec
+    q = L.turn(p, vec.T)
     rms = float(np.sqrt(max(eig.sum(), 1e-30)))
     q = q / rms
     spread = np.sqrt(np.maximum(eig, 0.0)) / rms
@@ -109,7 +115,7 @@ def local_normals(points: np.ndarray, cloud: np.ndarray, k: int = NORMAL_NEIGHBO
     k = min(k, len(cloud))
     _, idx = cKDTree(cloud).query(points, k=k)
     nb = cloud[idx] - cloud[idx].mean(axis=1, keepdims=True)
-    _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    _, vec = L.sym_eig3_many(np.einsum("nki,nkj->nij", nb, nb))
     return vec[:, :, 0]
 
 
@@ -128,8 +134,7 @@ def signed_permutations() -> tuple[np.ndarray, ...]:
 
 
 def _about(axis: int, deg: float) -> np.ndarray:
-    a = np.radians(deg)
-    c, s = np.cos(a), np.sin(a)
+    c, s = L.cos_sin_deg(deg)
     i, j = [k for k in range(3) if k != axis]
     m = np.eye(3)
     m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
@@ -147,7 +152,7 @@ def starts(a: Normalised, b: Normalised) -> list[np.ndarray]:
     for axis in turns:
         for deg in np.arange(TIE_STEP_DEG, 180.0, TIE_STEP_DEG):
             t = _about(axis, float(deg))
-            extra.extend(t @ r for r in base)
+            extra.extend(L.mat(t, r) for r in base)
     return base + extra
 
 
@@ -167,8 +172,8 @@ def surface_distance(a: Normalised, b: Normalised, rot: np.ndarray, scale: np.nd
     averaged. Unlike a point-to-point chamfer it has
     (almost) no floor from two independent samplings of one surface."""
     pa, na = a.points[:FINE], a.normals
-    pb = (b.points[:FINE] @ rot.T) * scale
-    nb = (b.normals @ np.linalg.inv(rot)) / scale  # normals map by the inverse transpose
+    pb = L.turn(b.points[:FINE], rot) * scale
+    nb = L.turn(b.normals, L.inv3(rot).T) / scale  # normals map by the inverse transpose
     nb /= np.linalg.norm(nb, axis=1, keepdims=True)
     d_ab, j = cKDTree(pb).query(pa)
     d_ba, i = cKDTree(pa).query(pb)
@@ -190,18 +195,18 @@ def refine(pa: np.ndarray, tree_a: cKDTree, pb: np.ndarray, rot: np.ndarray, max
     m = rot.copy()
     previous: np.ndarray | None = None
     for _ in range(ICP_STEPS):
-        moved = pb @ m.T
+        moved = L.turn(pb, m)
         _, idx = tree_a.query(moved)
         if previous is not None and np.array_equal(idx, previous):
             break
         previous = idx
         target = pa[idx]
-        fit, *_ = np.linalg.lstsq(pb, target, rcond=None)  # pb @ fit ~ target
-        u, s, vt = np.linalg.svd(fit.T)
-        if np.linalg.det(u @ vt) < 0:
+        fit = L.lstsq3(pb, target)  # pb @ fit ~ target
+        u, s, vt = L.svd3(fit.T)
+        if L.det3(L.mat(u, vt)) < 0:
             u[:, 2] *= -1
-        s = s / np.exp(np.log(np.clip(s, 1e-6, None)).mean())
-        m = u @ np.diag(np.clip(s, lo, hi)) @ vt
+        s = s / float(L.root(np.prod(np.clip(s, 1e-6, None)), 3))  # over their geometric mean
+        m = L.mat(L.mat(u, np.diag(np.clip(s, lo, hi))), vt)
     return m
 
 
@@ -220,7 +225,7 @@ def best_starts(ca: np.ndarray, cb: np.ndarray, rotations: list[np.ndarray], spr
     moments tie there are up to 384 starts and ~70 of them were scored whole; a bound of
     :data:`WHOLE_STARTS` moved 4 of 1,951 cached figures of five catalogs by less than 0.001 (docs/curation.md)."""
     tree_ca = cKDTree(ca)
-    turned = np.matmul(cb[None], np.stack(rotations).transpose(0, 2, 1))  # cb @ rot.T for every rotation at once
+    turned = L.turn_each(cb, np.stack(rotations))  # cb @ rot.T for every rotation at once
     scale = np.clip(spread / np.maximum(np.sqrt((turned ** 2).mean(axis=1)), 1e-9), 1.0 / max_squash, max_squash)
     moved = turned * scale[:, None, :]  # (rotations, points, 3): the same values as one rotation at a time
     to_a = tree_ca.query(moved.reshape(-1, 3))[0].reshape(len(rotations), len(cb)).mean(axis=1)
@@ -241,7 +246,7 @@ def match(a: Normalised, b: Normalised, *, max_squash: float, quantile: float = 
     distances is kept. The map is returned as ``b``'s frame -> ``a``'s either way."""
     first, second = (a, b) if a.digest <= b.digest else (b, a)
     found = _match(first, second, max_squash=max_squash, quantile=quantile, whole=whole)  # second -> first
-    back = np.linalg.inv(found.rotation * np.asarray(found.scale)[None, :])  # first -> second
+    back = L.inv3(found.rotation * np.asarray(found.scale)[None, :])  # first -> second
     fs, ff = second.points[:FINE], first.points[:FINE]
     polished = refine(fs, cKDTree(fs), ff, back, max_squash)
     other = round(surface_distance(second, first, polished, NO_SCALE, quantile=quantile), 6)
@@ -251,7 +256,7 @@ def match(a: Normalised, b: Normalised, *, max_squash: float, quantile: float = 
         aligned, aligned_is_b = found, second is b
     if aligned_is_b:
         return aligned
-    inverse = np.linalg.inv(aligned.rotation * np.asarray(aligned.scale)[None, :])
+    inverse = L.inv3(aligned.rotation * np.asarray(aligned.scale)[None, :])
     return Match(aligned.distance, (1.0, 1.0, 1.0), inverse)
 
 
@@ -281,7 +286,10 @@ def _primitive_samples(kind: str, spread: np.ndarray, n: int, rng: np.random.Gen
         e = float(kind[len("rounded"):])
         v = rng.normal(size=(n, 3))
         v /= np.linalg.norm(v, axis=1, keepdims=True)
-        return np.sign(v) * np.abs(v) ** e
+        fifths = int(round(e * 5))  # |v| ** e as a power of the fifth root: e is 0.2, 0.4 or 0.6
+        if abs(fifths - e * 5) > 1e-9:
+            raise ValueError(f"rounded box exponent {e} is not a multiple of 0.2")
+        return np.sign(v) * L.power(L.root(np.abs(v), 5), fifths)
     if kind == "box":
         face = rng.integers(0, 6, n)
         p = rng.uniform(-1, 1, (n, 3))
@@ -290,14 +298,15 @@ def _primitive_samples(kind: str, spread: np.ndarray, n: int, rng: np.random.Gen
     axis = int(kind[-1])
     # a cylinder of radius 1, half-height 1: side 4 pi, caps 2 pi
     side = rng.random(n) < 2.0 / 3.0
-    theta = rng.uniform(0, 2 * np.pi, n)
+    around = rng.normal(size=(n, 2))  # a uniform direction about the axis, without cos and sin
+    around /= np.sqrt((around * around).sum(axis=1, keepdims=True))
     r = np.where(side, 1.0, np.sqrt(rng.random(n)))
     h = np.where(side, rng.uniform(-1, 1, n), np.where(rng.random(n) < 0.5, 1.0, -1.0))
     others = [k for k in range(3) if k != axis]
     p = np.empty((n, 3))
     p[:, axis] = h
-    p[:, others[0]] = r * np.cos(theta)
-    p[:, others[1]] = r * np.sin(theta)
+    p[:, others[0]] = r * around[:, 0]
+    p[:, others[1]] = r * around[:, 1]
     return p
 
 
@@ -320,7 +329,7 @@ def primitive_distance(a: Normalised, *, quantile: float = QUANTILE) -> float:
         p = p - p.mean(axis=0)
         p = p * (a.spread / np.maximum(np.sqrt((p ** 2).mean(axis=0)), 1e-9))
         prim = normalise(p)
-        start = min(turns, key=lambda t: chamfer(a.points[:COARSE], prim.points[:COARSE] @ t.T, coarse_tree))
+        start = min(turns, key=lambda t: chamfer(a.points[:COARSE], L.turn(prim.points[:COARSE], t), coarse_tree))
         r = refine(fa, tree, prim.points[:FINE], start, 2.0)
         best = min(best, surface_distance(a, prim, r, NO_SCALE, quantile=quantile))
     return round(float(best), 6)
