@@ -66,3 +66,21 @@ def test_alignment_figures_are_the_same_bits_under_other_blas_kernels_and_simd(t
     assert min(p[0] for p in here["pairs"]) < 0.05 < max(p[0] for p in here["pairs"])  # copies and other shapes
     for name, env in VARIANTS.items():
         assert _figures(path, env) == here, name
+
+
+def test_a_flat_object_aligns_and_fits_like_any_other():
+    """A sheet's samples span a plane: the Gram matrix of ICP's least squares is singular there, and the
+    portable solve gives the minimum-norm solution as ``np.linalg.lstsq`` does (not an error)."""
+    from mixcount.curation.finding import portable_linalg as L
+    from mixcount.curation.finding import shape_match as S
+
+    rng = np.random.default_rng(2)
+    a = np.c_[rng.normal(size=(200, 2)), np.zeros(200)]
+    b = rng.normal(size=(200, 3))
+    assert np.allclose(L.lstsq3(a, b), np.linalg.lstsq(a, b, rcond=None)[0], atol=1e-12)
+    sheet = np.c_[rng.uniform(-1.0, 1.0, (3000, 2)) * [1.0, 0.7], np.zeros(3000)]
+    slab = rng.uniform(-1.0, 1.0, (3000, 3)) * [1.0, 0.7, 0.3]
+    flat = S.normalise(sheet)
+    assert 0.0 < S.primitive_distance(flat) < 0.2
+    again = S.normalise(sheet[::-1].copy())  # the same sheet, other sample order
+    assert S.match(flat, again, max_squash=1.34).distance < 0.03 < S.match(flat, S.normalise(slab), max_squash=1.34).distance

@@ -63,9 +63,21 @@ def inv3(m: np.ndarray) -> np.ndarray:
     return adj / d
 
 
+RANK_TOLERANCE = 1e-12  # det(a.T a) under this x (its mean eigenvalue) ** 3: rank deficient (flat samples)
+
+
 def lstsq3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The least-squares ``x`` of ``a @ x ~ b`` for (n, 3) arrays of full rank (the normal equations)."""
-    return mat(inv3(gram(a, a)), gram(a, b))
+    """The least-squares ``x`` of ``a @ x ~ b`` for (n, 3) arrays: the normal equations where ``a`` has full
+    rank; the minimum-norm solution (as ``np.linalg.lstsq`` gives) where it has not: the samples of a flat
+    object (a sheet, a decal) span a plane, and their Gram matrix is singular."""
+    g = gram(a, a)
+    mean = float(g[0, 0] + g[1, 1] + g[2, 2]) / 3.0
+    if det3(g) > RANK_TOLERANCE * mean ** 3:
+        return mat(inv3(g), gram(a, b))
+    w, v = sym_eig3(g)  # pseudo-inverse: only the directions the points span
+    keep = w > max(float(w[-1]), 0.0) * (np.finfo(np.float64).eps * max(a.shape)) ** 2
+    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+    return mat(mat(v * inv_w[None, :], v.T), gram(a, b))
 
 
 def sym_eig3_many(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
