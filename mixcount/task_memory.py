@@ -54,10 +54,13 @@ def resident_bytes() -> Optional[int]:
 @contextmanager
 def collected_when_grown(growth_mb: float = GROWTH_MB) -> Iterator[None]:
     """Run one task; after it, a full collection when the process has grown by ``growth_mb`` since the last
-    one (always where the resident size cannot be read)."""
+    one, or since it was smallest after it (always where the resident size cannot be read). Without the
+    second part a process that had returned memory (a freed 300 MB buffer) grew back unseen: its floor stayed
+    where the last collection left it, above what it now held (the suite's long-lived process; test below)."""
     global _floor
-    if _floor is None:
-        _floor = resident_bytes()
+    start = resident_bytes()
+    if _floor is None or (start is not None and start < _floor):
+        _floor = start  # a process that returned memory since (freed mmaps) grows from where it is now
     try:
         yield
     finally:

@@ -68,7 +68,8 @@ def test_a_worker_collects_only_once_it_has_grown(monkeypatch: pytest.MonkeyPatc
     from mixcount import task_memory
     from mixcount.task_memory import collected_when_grown
 
-    sizes = iter([500 << 20, 550 << 20, 560 << 20, 500 << 20])  # MB: start, after task 1, after task 2, after gc
+    # MB: before task 1, after it, before task 2, after it, after the collection
+    sizes = iter([500 << 20, 550 << 20, 555 << 20, 560 << 20, 500 << 20])
     monkeypatch.setattr(task_memory, "resident_bytes", lambda: next(sizes))
     monkeypatch.setattr(task_memory, "_floor", None)  # as a fresh worker
     collections = gc.get_stats()[2]["collections"]
@@ -79,6 +80,12 @@ def test_a_worker_collects_only_once_it_has_grown(monkeypatch: pytest.MonkeyPatc
         pass
     assert gc.get_stats()[2]["collections"] == collections + 1
     assert task_memory._floor == 500 << 20  # measured again after it
+    # the process returned memory since (a freed buffer): growth counts from where it is now, not the old floor
+    sizes = iter([200 << 20, 350 << 20, 210 << 20])  # before task 3, after it, after the collection
+    with collected_when_grown(growth_mb=100):  # 350 is under 500 + 100, but 150 MB over 200: one collection
+        pass
+    assert gc.get_stats()[2]["collections"] == collections + 2
+    assert task_memory._floor == 210 << 20
 
 
 def test_results_come_back_in_order_and_a_dead_worker_is_one_failure() -> None:
