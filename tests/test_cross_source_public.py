@@ -7,11 +7,14 @@ Among the distinct objects of the capture-like pool (tests/copy_pool.py, whose t
 a third copy of the bunny), each in a plain colour of its own, the pair rules pair both public pairs (a
 possible copy, a duplicate or a variant) and raise no pair of different objects for a decision.
 
-The bunnies agree only loosely (the pybullet one is a 902-face approximation: aligned distance 0.086
-against 0.094 from the nearest primitive); they are paired as each one's nearest shape in the same
-colours. With every pool object in the *same* grey (``GREY = 0.7``) that loose rule also raises three
-pairs of different objects of six (block / mug, cup / mug, the two lumpy scan stand-ins): the colours are
-what a loose shape needs beside it (docs/curation.md)."""
+Each public model has the appearance ingest reads in it (:func:`mixcount.catalog.mesh.load_normalised`): the
+ducks are textured, both bunnies untextured. The bunnies agree only loosely (the pybullet one is a
+902-face approximation: aligned distance 0.086 against 0.094 from the nearest primitive), and a loose
+agreement needs agreeing colours beside it, which two untextured surfaces do not have (both are read in
+one grey): the two public bunnies are a look-alike for a person, and the genesis bunny is paired with
+the pool's textured bunny by its shape evidence. Counting two untextured surfaces' grey as agreement
+raised, with every pool object in that grey, three pairs of different objects of six (cup / mug, the two
+lumpy scan stand-ins) and a drawer / mug pair of metaworld's untextured parts (docs/curation.md)."""
 
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ import pytest
 import trimesh
 from copy_pool import PUBLIC_PAIRS, originals, public_models
 
+from mixcount.catalog.mesh import load_normalised
 from mixcount.catalog.models import CatalogObject
 from mixcount.config import load_config
 from mixcount.curation.finding import appearance3d as A
@@ -27,7 +31,7 @@ from mixcount.curation.finding import descriptors as D
 from mixcount.curation.finding.catalog_filter import candidate_items
 from mixcount.curation.finding.copy_rules import pair_flags
 from mixcount.curation.finding.filter_items import Item, LayoutCache
-from mixcount.curation.flag_kinds import DUPLICATE_KINDS, RELATION_KINDS, severity
+from mixcount.curation.flag_kinds import DUPLICATE_KINDS, LOOK_ALIKE, RELATION_KINDS, severity
 from mixcount.sizes import metres_per_unit, plausible_unit
 
 pytestmark = pytest.mark.slow
@@ -47,7 +51,8 @@ def test_public_pairs_paired_and_nothing_else(tmp_path):
         unit = plausible_unit(float(np.ptp(v, axis=0).max()), "m")  # real sizes as ingest reads them (issue 57)
         shape = D.shape_descriptor(v * (metres_per_unit(unit) if unit else 1.0), np.asarray(mesh.faces),
                                    watertight=False, volume=None, quality=False)
-        items.append(Item(obj, shape=shape, surface=A.surface_look(points, colours), appearance="image"))
+        items.append(Item(obj, shape=shape, surface=A.surface_look(points, colours),
+                          appearance=load_normalised(path).appearance))
         name[oid] = label
     palette = np.random.default_rng(7)
     for oid, (label, (v, f)) in enumerate(sorted(originals().items()), start=100):
@@ -62,10 +67,17 @@ def test_public_pairs_paired_and_nothing_else(tmp_path):
     found = pair_flags(items, th, LayoutCache(None), candidate_items(items, th.candidates))
     decide = {frozenset((name[f.a], name[f.b])): f for f in found
               if f.b is not None and severity(f.kind, f.reason) == "decide"}
-    for pair in PUBLIC_PAIRS:
+    assert {name[it.obj.id]: it.appearance for it in items if it.obj.id < 100} == {
+        "bunny_genesis": "none", "bunny_pybullet": "none", "duck_genesis": "image", "duck_pybullet": "image"}
+    decided = [("duck_pybullet", "duck_genesis"), ("bunny_genesis", "bunny")]
+    for pair in decided:
         f = decide.get(frozenset(pair))
         assert f is not None and f.kind in DUPLICATE_KINDS + RELATION_KINDS, (pair, sorted(map(sorted, decide)))
         print(f"\n{pair}: {f.kind} {f.score:.2f}: {f.reason}")
+    untextured = [f for f in found if {name[f.a], name.get(f.b)} == {"bunny_pybullet", "bunny_genesis"}]
+    assert [f.kind for f in untextured] == [LOOK_ALIKE] and "untextured" in untextured[0].reason, untextured
+    flagged = {frozenset((name[f.a], name[f.b])) for f in found if f.b is not None}
+    assert all(frozenset(pair) in flagged for pair in PUBLIC_PAIRS), sorted(map(sorted, flagged))
     same = {"bunny": "bunny", "bunny_pybullet": "bunny", "bunny_genesis": "bunny", "duck_pybullet": "duck",
             "duck_genesis": "duck"}
     false = sorted(sorted(p) for p in decide if len({same.get(n, n) for n in p}) > 1)

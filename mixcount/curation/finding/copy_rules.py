@@ -17,7 +17,8 @@ shape numbers already agree loosely (``copy_gate_d2``, ``cross_source_proportion
   rule's possible copy (which brings its own: a repeated pattern, the axis-normalised shape of an
   asymmetric object in another plain colour); the same shape in clearly other colours found by the shape
   alone (a navy and a mint mug of one mould) is ranked a look-alike, for a person; or a loose agreement (``d`` at most
-  ``copy_loose``, the objects not primitives) with the same surface colours. A possible copy from an
+  ``copy_loose``, the objects not primitives) with the same surface colours, where both objects have colours
+  (:func:`coloured`: the grey that untextured parts are read in agrees for any two). A possible copy from an
   appearance rule without either is not one: it becomes a look-alike.
 * ``look_alike`` (*info*): different objects, as far as the evidence goes, whose shapes agree within
   ``copy_loose``: the paper's "too similar to tell apart", the hard pairs a counter must learn; ranked
@@ -60,6 +61,14 @@ def shape_facts(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tup
     return d, prim, col
 
 
+def coloured(x: Item, y: Item) -> bool:
+    """Both objects carry colour information (a texture, vertex colours or a material colour): only then is
+    their colour agreement evidence. Untextured parts (an STL, an OBJ without its .mtl) are all read in
+    one neutral grey, so two of them agree in colour whatever they are (a drawer and a mug of metaworld's
+    untextured parts, aligned 0.064 against 0.067 from a primitive)."""
+    return x.appearance != "none" and y.appearance != "none"
+
+
 def shape_pair(x: Item, y: Item, th: FilterConfig, facts: tuple[float, float, float] | None,
                found: list[Found], *, nearest: bool) -> list[Found]:
     """The flags of one pair: the appearance rules' ``found``, checked for shape evidence where they say
@@ -82,7 +91,7 @@ def shape_pair(x: Item, y: Item, th: FilterConfig, facts: tuple[float, float, fl
                f"nearest primitive {prim:.3f}, surface colours {col:.3f}")
     a, b = x.obj.id, y.obj.id
     score = round(max(0.0, 1.0 - d / th.copy_loose), 4)
-    if evidence or (loose and detailed and same_colour and nearest and d <= prim):
+    if evidence or (loose and detailed and same_colour and coloured(x, y) and nearest and d <= prim):
         if found:  # an appearance rule's possible copy, now with shape evidence
             return [Found(f.a, f.b, f.kind, f.score, f"{f.reason}; {figures}") for f in found]
         why = ("the shape carries evidence" if evidence else
@@ -91,7 +100,8 @@ def shape_pair(x: Item, y: Item, th: FilterConfig, facts: tuple[float, float, fl
     if loose:
         why = ("a plain solid's shape" if not detailed else
                "the same shape in clearly other colours: variants, or a hard pair" if shape_evidence and col > th.copy_colour
-               else "other colours" if not same_colour else "loose agreement")
+               else "other colours" if not same_colour
+               else "loose agreement" if coloured(x, y) else "loose agreement; an untextured surface: colours are no evidence")
         return [Found(a, b, LOOK_ALIKE, score, f"look-alike, not a copy as far as the evidence goes ({why}): {figures}")]
     return []
 
