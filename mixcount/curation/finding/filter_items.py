@@ -86,6 +86,13 @@ def appearance_kind(obj: CatalogObject) -> str:
 
 
 
+def settings_key(**settings: float) -> str:
+    """The part of a cache key that names the configured values a figure was computed with, e.g.
+    ``/copy_max_squash=1.34/match_quantile=0.5`` (9 significant digits: a value read from TOML twice
+    gives the same key)."""
+    return "".join(f"/{name}={value:.9g}" for name, value in sorted(settings.items()))
+
+
 class LayoutCache:
     """Principal-frame layout distances of pairs already compared (the rotation search of a cube or a
     ball costs ~0.1-1 s a pair), kept as JSON beside the descriptors, keyed by both content hashes,
@@ -108,8 +115,11 @@ class LayoutCache:
         return f"{a}:{b}:{gain:.4f}" if a and b else None
 
     def layout(self, x: Item, y: Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float, search_above: float) -> float:
-        return self._remember(self.key(x, y, gain),
-                              lambda: CL.layout_distance(first, other, search_above=search_above))
+        """:func:`~mixcount.curation.finding.colour_layout.layout_distance`, cached under the threshold above
+        which it searches rotations too (``[filter] look_layout``): another threshold is another figure."""
+        key = self.key(x, y, gain)
+        key = f"{key}:above{search_above:.9g}" if key is not None else None
+        return self._remember(key, lambda: CL.layout_distance(first, other, search_above=search_above))
 
     def refined(self, x: Item, y: Item, first: A.SurfaceLook, other: A.SurfaceLook, gain: float) -> float:
         """Layout distance after a local rotation refinement, both ways (cross-source copies), cached."""
@@ -124,11 +134,12 @@ class LayoutCache:
         key = f"occupancy:{key}" if key is not None else None
         return self._remember(key, lambda: CL.occupancy_distance(x.shape_look(), y.shape_look()))
 
-    def cached(self, x: Item, y: Item, tag: str, compute: Callable[[], float]) -> float:
-        """``compute()`` for the pair (or one object when ``x is y``), cached under ``tag`` and the
-        shape-match version."""
+    def cached(self, x: Item, y: Item, tag: str, compute: Callable[[], float], settings: str) -> float:
+        """``compute()`` for the pair (or one object when ``x is y``), cached under ``tag``, the shape-match
+        version and ``settings``: every configured value the figure depends on (:func:`settings_key`), so
+        a filter re-run with other settings computes its figures anew instead of reading the old ones."""
         key = self.key(x, y, 1.0)
-        key = f"{tag}-{S.MATCH_VERSION}:{key}" if key is not None else None
+        key = f"{tag}-{S.MATCH_VERSION}{settings}:{key}" if key is not None else None
         return self._remember(key, compute)
 
     def _remember(self, key: str | None, compute: Callable[[], float]) -> float:

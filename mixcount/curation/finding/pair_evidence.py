@@ -33,7 +33,7 @@ import math
 from mixcount.config import FilterConfig
 from mixcount.curation.finding import descriptors as D
 from mixcount.curation.finding import shape_match as S
-from mixcount.curation.finding.filter_items import Found, Item, LayoutCache
+from mixcount.curation.finding.filter_items import Found, Item, LayoutCache, settings_key
 from mixcount.curation.finding.look_rules import pattern_strength
 from mixcount.curation.flag_kinds import (
     COLOUR_VARIANT,
@@ -101,13 +101,15 @@ def alignment(x: Item, y: Item, th: FilterConfig, layouts: LayoutCache) -> tuple
                                 quantile=th.match_quantile))
         return done[0]
 
-    return (layouts.cached(x, y, "shape", lambda: run().distance),
-            layouts.cached(x, y, "stretch", lambda: run().stretch))
+    settings = settings_key(copy_max_squash=th.copy_max_squash, match_quantile=th.match_quantile)
+    return (layouts.cached(x, y, "shape", lambda: run().distance, settings),
+            layouts.cached(x, y, "stretch", lambda: run().stretch, settings))
 
 
 def primitive(x: Item, th: FilterConfig, layouts: LayoutCache) -> float:
     """An object's distance to its nearest primitive (cached under the shape rule's key)."""
-    return layouts.cached(x, x, "primitive", lambda: S.primitive_distance(x.normalised(), quantile=th.match_quantile))
+    return layouts.cached(x, x, "primitive", lambda: S.primitive_distance(x.normalised(), quantile=th.match_quantile),
+                          settings_key(match_quantile=th.match_quantile))
 
 
 def weigh(x: Item, y: Item, found: list[Found], th: FilterConfig,
