@@ -5,7 +5,7 @@ depends on ``[filter] copy_max_squash`` and ``match_quantile``, the primitive di
 ``match_quantile``, the colour layout on ``look_layout`` (above it, rotations are searched); a re-run
 after changing one read the figures of the old value and reported flags that the new settings do not give.
 
-A small demo library (real SQLite catalog through the CLI, no renders) is filtered with the defaults, then
+A 3-object demo library (with its planted copies) (real SQLite catalog through the CLI, no renders) is filtered with the defaults, then
 again with another squash bound and quantile: the second run's flags are those of a cold run with those
 settings (a copy of the catalog without the cache), and its alignment and primitive figures sit beside
 the first's under their own settings (the colour layouts, which these settings do not change, are shared)."""
@@ -44,7 +44,7 @@ def _figures(folder: Path) -> dict[str, float]:
 
 
 def test_a_rerun_with_other_settings_computes_its_figures_anew(tmp_path, capsys):
-    generate_demo_library(tmp_path / "lib", seed=3, n_objects=5)
+    generate_demo_library(tmp_path / "lib", seed=3, n_objects=3)
     warm, cold = tmp_path / "warm", tmp_path / "cold"
     warm.mkdir()
     base = ["--config", "configs/quick.toml"]
