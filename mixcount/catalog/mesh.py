@@ -87,6 +87,10 @@ def _appearance_of(geom: Any) -> str:
     if kind == "texture":
         material = getattr(visual, "material", None)
         image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+        if image is not None and _is_placeholder(image):
+            # trimesh's stand-in for a material nobody wrote (an OBJ with UVs and no .mtl, or its .mtl
+            # missing): no colour of the model's own
+            return "none"
         if image is not None:
             return "image"
         # glTF COLOR_0 next to a material: trimesh keeps it in visual.vertex_attributes["color"]
@@ -99,6 +103,19 @@ def _appearance_of(geom: Any) -> str:
         colours = visual.vertex_colors if kind == "vertex" else visual.face_colors
         return "vertex_color" if _varies(colours) else "material"
     return "none"
+
+
+def _is_placeholder(image: Any) -> bool:
+    """True for the image trimesh gives a textured-looking model whose material is missing
+    (``trimesh.visual.material.empty_material``: a few pixels of one grey), not a texture anyone made."""
+    import trimesh
+
+    try:
+        pixels = np.asarray(image.convert("RGBA"))
+        stand_in = np.asarray(trimesh.visual.material.empty_material().image.convert("RGBA"))
+    except (AttributeError, OSError, ValueError):
+        return False
+    return pixels.shape == stand_in.shape and bool((pixels == stand_in).all())
 
 
 def _varies(colours: Any) -> bool:

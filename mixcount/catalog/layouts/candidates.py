@@ -67,6 +67,9 @@ class Candidate:
     # 4x4 placement from a description), and the rule that made them one (:mod:`.parts`)
     parts: list[tuple[Path, Any]] = field(default_factory=list)
     parts_rule: str | None = None
+    # the colour a description (URDF/SDF/MJCF) gives each visual mesh, by file name (RGBA 0..1): applied
+    # to a mesh that carries no colour of its own (:mod:`mixcount.catalog.derived`)
+    colours: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
     # the folders its files may come from (the library named, the extra roots allowed): set by the walk
     roots: LibraryRoots | None = None
     # metadata entries of another meaning, ignored: (entry, why), said once per library in the summary

@@ -63,6 +63,9 @@ class RobotDescription:
     parts: list[tuple[str, np.ndarray]] = field(default_factory=list)
     collision_files: tuple[str, ...] = ()
     kind: str = ""  # URDF, SDF or MJCF
+    # the colour the description gives each visual mesh (file name -> RGBA 0..1): applied where the mesh
+    # carries none of its own (:mod:`mixcount.catalog.derived`)
+    colours: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
 
     def units(self) -> str | None:
         """The units the scale amounts to (metres per mesh unit, as :func:`mixcount.frame.unit_scale`
@@ -121,6 +124,35 @@ def _mesh_of(elem: ET.Element | None, sdf: bool) -> tuple[str | None, str | None
     return uri, scale, rpy
 
 
+def _rgba(text: str | None) -> tuple[float, float, float, float] | None:
+    """RGBA 0..1 from ``r g b a`` (or ``r g b``: opaque), None when it is not four or three numbers in 0..1."""
+    values = _floats(text, 4) or _floats(text, 3)
+    if values is None or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values):
+        return None
+    return (values[0], values[1], values[2], values[3] if len(values) == 4 else 1.0)
+
+
+def visual_colour(root: ET.Element, visual: ET.Element | None, sdf: bool) -> tuple[float, float, float, float] | None:
+    """The colour a URDF or SDF visual gives its mesh, or None where it gives none.
+
+    URDF (ROS ``urdf`` / pybullet): the visual's ``<material>``, its own ``<color rgba>`` or, by name, a
+    ``<material>`` of the robot that has one. SDF: the visual's ``<material><diffuse>`` (else ``<ambient>``);
+    a Gazebo script material (``<script>``) names no colour here."""
+    material = visual.find("material") if visual is not None else None
+    if material is None:
+        return None
+    if sdf:
+        return _rgba(material.findtext("diffuse")) or _rgba(material.findtext("ambient"))
+    colour = material.find("color")
+    if colour is not None:
+        return _rgba(colour.get("rgba"))
+    name = material.get("name")
+    for named in root.findall("material"):
+        if name and named.get("name") == name and named.find("color") is not None:
+            return _rgba(named.find("color").get("rgba"))  # type: ignore[union-attr]
+    return None
+
+
 def read_description(path: Path, notes: list[str] | None = None) -> RobotDescription | None:
     """The first link's visual mesh, collision mesh, scale, up axis and name of a URDF or SDF file, or
     None when the file does not parse (why appended to ``notes``: an entity bomb, an external entity, a
@@ -135,7 +167,8 @@ def read_description(path: Path, notes: list[str] | None = None) -> RobotDescrip
     body = root.find(".//model") if sdf else root
     if body is None:
         return None
-    visual_uri, scale_text, rpy_text = _mesh_of(body.find(".//visual"), sdf)
+    visual = body.find(".//visual")
+    visual_uri, scale_text, rpy_text = _mesh_of(visual, sdf)
     collision_uri, _s, _r = _mesh_of(body.find(".//collision"), sdf)
     if visual_uri is None and collision_uri is None:
         return None
@@ -155,6 +188,9 @@ def read_description(path: Path, notes: list[str] | None = None) -> RobotDescrip
                     f"({why.split(' (')[0]}): not read, and the description not applied to {_file_name(uri)} here")
             if notes is not None:
                 notes.append(note)
+    colour = visual_colour(root, visual, sdf)
+    if colour is not None and desc.visual:
+        desc.colours[desc.visual] = colour
     scale = _floats(scale_text, 3)
     if scale is not None:
         desc.mesh_scale = (scale[0], scale[1], scale[2])
@@ -198,6 +234,7 @@ def descriptions_in(folder_files: list[Path], notes: list[str] | None = None) ->
         first = model.parts[0][0] if model.parts else None
         desc = RobotDescription(model.files[0], model.name, first, model.collision[0] if model.collision else None,
                                 mesh_scale=model.mesh_scale, up_axis="Z", warnings=list(model.warnings),
-                                parts=model.parts, collision_files=tuple(model.collision), kind="MJCF")
+                                parts=model.parts, collision_files=tuple(model.collision), kind="MJCF",
+                                colours=dict(model.colours))
         found.append(desc)
     return found

@@ -174,6 +174,9 @@ def _attach(cand: Candidate, companions: dict[str, Path], desc: RobotDescription
         return
     cand.sidecars[f"description:{desc.path.name}"] = desc.path
     cand.metadata["description"] = {"file": desc.path.name, "name": desc.name, "scale": list(desc.mesh_scale)}
+    if desc.colours:
+        cand.colours.update(desc.colours)
+        cand.metadata["description"]["colours"] = {name: list(rgba) for name, rgba in sorted(desc.colours.items())}
     cand.warnings.extend(desc.warnings)
     units = desc.units()
     if units is not None and not cand.units:

@@ -15,7 +15,12 @@ MuJoCo reads a model with its includes:
 * a geom naming a mesh no ``<asset>`` declares (the body file copied without its dependencies) uses the
   mesh file of that name in the folder, and a warning says so (:func:`_meshes_by_name`);
 * the first body holding visual mesh geoms is the object; its visual meshes are its parts, each placed
-  by its body chain and geom transform (MuJoCo's world is Z-up, lengths in metres).
+  by its body chain and geom transform (MuJoCo's world is Z-up, lengths in metres);
+* each visual part's colour, as MuJoCo shows it: the geom's ``rgba`` where it differs from MuJoCo's
+  default (0.5 0.5 0.5 1), which then takes precedence over its material; else its ``material``'s
+  ``rgba`` (``<asset><material>``, default 1 1 1 1); else none said (MuJoCo's default grey is nobody's
+  choice). The colour is applied to parts whose mesh carries no colour of its own
+  (:mod:`mixcount.catalog.derived`).
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ class MjcfModel:
     name: str | None
     parts: list[tuple[str, np.ndarray]] = field(default_factory=list)  # visual meshes, placed
     collision: list[str] = field(default_factory=list)  # mesh files used only by collision geoms
+    colours: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)  # visual mesh file -> RGBA
     mesh_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)  # the meshes' <mesh scale>, metres per unit
     warnings: list[str] = field(default_factory=list)
 
@@ -121,7 +127,12 @@ def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | 
     radians = any((c.get("angle") or "").lower() == "radian" for _p, r in roots for c in r.iter("compiler"))
     meshes: dict[str, tuple[str, list[float] | None]] = {}
     classes: dict[str, dict[str, str]] = {}
+    materials: dict[str, tuple[float, float, float, float]] = {}
     for _p, root in roots:
+        for material in root.iter("material"):
+            rgba = _floats(material.get("rgba")) or [1.0, 1.0, 1.0, 1.0]  # MuJoCo's material default
+            if material.get("name") and len(rgba) == 4:
+                materials[material.get("name", "")] = (rgba[0], rgba[1], rgba[2], rgba[3])
         for mesh in root.iter("mesh"):
             file = mesh.get("file")
             if file:
@@ -139,10 +150,11 @@ def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | 
     used_collision: set[str] = set()
     for _p, root in roots:
         for body in root.iter("body"):
+            colours: dict[str, tuple[float, float, float, float]] = {}
             found = _body_parts(body, None, body.get("childclass"), classes, meshes, radians,
-                                used_visual, used_collision)
+                                used_visual, used_collision, materials, colours)
             if found and not model.parts:
-                model.parts, model.name = found, body.get("name")
+                model.parts, model.name, model.colours = found, body.get("name"), colours
     model.collision = sorted(used_collision - used_visual)
     scales = {tuple(meshes[n][1] or (1.0, 1.0, 1.0)) for n in meshes if meshes[n][0] in used_visual}
     if len(scales) == 1:
@@ -182,12 +194,26 @@ def _meshes_by_name(roots: list[tuple[Path, ET.Element]], meshes: dict[str, tupl
     return said
 
 
+MUJOCO_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)  # a geom's rgba when nothing sets it
+
+
+def geom_colour(attrs: dict[str, str],
+                materials: dict[str, tuple[float, float, float, float]]) -> tuple[float, float, float, float] | None:
+    """The colour MuJoCo shows a geom in (see the module doc), or None where nothing chose one."""
+    rgba = _floats(attrs.get("rgba"))
+    if rgba and len(rgba) == 4 and tuple(rgba) != MUJOCO_DEFAULT_RGBA:
+        return (rgba[0], rgba[1], rgba[2], rgba[3])
+    return materials.get(attrs.get("material") or "")
+
+
 def _body_parts(body: ET.Element, parent: np.ndarray | None, childclass: str | None,
                 classes: dict[str, dict[str, str]], meshes: dict[str, tuple[str, list[float] | None]], radians: bool,
-                used_visual: set[str], used_collision: set[str]) -> list[tuple[str, np.ndarray]]:
+                used_visual: set[str], used_collision: set[str],
+                materials: dict[str, tuple[float, float, float, float]] | None = None,
+                colours: dict[str, tuple[float, float, float, float]] | None = None) -> list[tuple[str, np.ndarray]]:
     """Visual mesh geoms of ``body`` and the bodies in it, placed in ``body``'s own frame (``parent``
     None: the object's body, whose own placement in its world does not matter); collision meshes are added
-    to ``used_collision``."""
+    to ``used_collision``, each visual mesh's colour (:func:`geom_colour`, the first geom's) to ``colours``."""
     here = np.eye(4) if parent is None else parent @ _placement(body.attrib, radians)
     out: list[tuple[str, np.ndarray]] = []
     for geom in body.findall("geom"):
@@ -204,7 +230,10 @@ def _body_parts(body: ET.Element, parent: np.ndarray | None, childclass: str | N
             continue
         used_visual.add(file)
         out.append((file, here @ _placement(geom.attrib, radians)))
+        colour = geom_colour(attrs, materials or {})
+        if colours is not None and colour is not None:
+            colours.setdefault(file, colour)
     for child in body.findall("body"):
         out.extend(_body_parts(child, here, child.get("childclass") or childclass, classes, meshes, radians,
-                               used_visual, used_collision))
+                               used_visual, used_collision, materials, colours))
     return out
