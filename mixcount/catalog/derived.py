@@ -53,13 +53,13 @@ def _colour_of(colours: dict[str, RGBA], path: Path) -> RGBA | None:
 def uncoloured(path: Path) -> bool:
     """True when some geometry of the model has no colour of its own (no texture, vertex or material
     colour: an STL, an OBJ without its .mtl), so a description's colour would be the only one it has."""
-    from mixcount.catalog.mesh import _appearance_of
+    from mixcount.catalog.mesh import appearance_of
 
     try:
         scene = _load_source(path)
     except Exception:  # noqa: BLE001 - a model that does not load is reported by build_glb / the analysis
         return False
-    return any(_appearance_of(g) == "none" for g in scene.geometry.values())
+    return any(appearance_of(g) == "none" for g in scene.geometry.values())
 
 
 def _key(sources: list[tuple[Path, Any]], colours: dict[str, RGBA] | None = None) -> str:
@@ -97,9 +97,9 @@ def _load_source(path: Path) -> Any:
 def _described_colour(geom: Any, rgba: RGBA | None) -> Any:
     """``geom`` in the description's colour where it has none of its own (a PBR material whose base
     colour is ``rgba``); a textured or coloured geometry keeps its own, as robot viewers show it."""
-    from mixcount.catalog.mesh import _appearance_of
+    from mixcount.catalog.mesh import appearance_of
 
-    if rgba is None or _appearance_of(geom) != "none":
+    if rgba is None or appearance_of(geom) != "none":
         return geom
     import trimesh
 

@@ -79,7 +79,10 @@ class _Parts:
     appearance: set[str]
 
 
-def _appearance_of(geom: Any) -> str:
+def appearance_of(geom: Any) -> str:
+    """How a loaded geometry is coloured: ``image`` (a texture), ``vertex_color`` (colours that vary),
+    ``material`` (one colour of its own) or ``none`` (no colour of its own: an STL, an OBJ whose material
+    is missing, :func:`_is_placeholder`)."""
     visual = getattr(geom, "visual", None)
     if visual is None:
         return "none"
@@ -139,7 +142,7 @@ def _load_trimesh(path: Path) -> _Parts:
     for _node, transform, geom in walk_geometry(scene):
         parts.vertices.append(trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform))
         parts.faces.append(np.asarray(geom.faces, dtype=np.int64))
-        parts.appearance.add(_appearance_of(geom))
+        parts.appearance.add(appearance_of(geom))
     return parts
 
 
