@@ -18,8 +18,8 @@ MuJoCo reads a model with its includes:
   by its body chain and geom transform (MuJoCo's world is Z-up, lengths in metres);
 * each visual part's colour, as MuJoCo shows it: the geom's ``rgba`` where it differs from MuJoCo's
   default (0.5 0.5 0.5 1), which then takes precedence over its material; else its ``material``'s
-  ``rgba`` (``<asset><material>``, default 1 1 1 1); else none said (MuJoCo's default grey is nobody's
-  choice). The colour is applied to parts whose mesh carries no colour of its own
+  ``rgba`` (``<asset><material>``, default 1 1 1 1) unless the material names a ``texture`` (its colour is
+  the texture's); else none said (MuJoCo's default grey is nobody's choice). The colour is applied to parts whose mesh carries no colour of its own
   (:mod:`mixcount.catalog.derived`).
 """
 
@@ -131,7 +131,8 @@ def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | 
     for _p, root in roots:
         for material in root.iter("material"):
             rgba = _floats(material.get("rgba")) or [1.0, 1.0, 1.0, 1.0]  # MuJoCo's material default
-            if material.get("name") and len(rgba) == 4:
+            # a textured material's colour is its texture's (rgba only tints it): no colour said here
+            if material.get("name") and len(rgba) == 4 and not material.get("texture"):
                 materials[material.get("name", "")] = (rgba[0], rgba[1], rgba[2], rgba[3])
         for mesh in root.iter("mesh"):
             file = mesh.get("file")
