@@ -13,8 +13,9 @@ ducks are textured, both bunnies untextured. The bunnies agree only loosely (the
 agreement needs agreeing colours beside it, which two untextured surfaces do not have (both are read in
 one grey): the two public bunnies are a look-alike for a person, and the genesis bunny is paired with
 the pool's textured bunny by its shape evidence. Counting two untextured surfaces' grey as agreement
-raised, with every pool object in that grey, three pairs of different objects of six (cup / mug, the two
-lumpy scan stand-ins) and a drawer / mug pair of metaworld's untextured parts (docs/curation.md)."""
+raised, with every pool object in that grey, two pairs of different objects among five to decide (cup /
+mug, the two lumpy scan stand-ins) and a drawer / mug pair of metaworld's untextured parts
+(docs/curation.md)."""
 
 from __future__ import annotations
 
