@@ -360,3 +360,23 @@ def test_name_phrase_keeps_what_the_name_says(name, words, colours):
 
     phrase = name_phrase(name, "misc")
     assert (phrase.words, phrase.colours) == (words, colours)
+
+
+@pytest.mark.parametrize("name,dims,rgb", [
+    ("Plain sphere", (0.1, 0.1, 0.1), (200, 30, 30)),  # plain and red: "plain" was said twice in the concise tier
+    ("Long bench", (1.2, 0.3, 0.45), (120, 80, 40)),  # long box: "long" was said twice
+    ("Flat washer", (0.03, 0.03, 0.003), (180, 180, 180)),  # flat: "flat" was said twice
+])
+def test_a_word_the_name_says_is_not_said_again(tmp_path: Path, name, dims, rgb):
+    """A name written by a person may carry the finish or shape word the captioner adds ("Plain sphere",
+    "Long bench", "Flat washer"): said twice, the caption check rejected it as a repeated word and the
+    object got no caption (found with pybullet's sphere_smooth.obj in a folder "Plain sphere")."""
+    from mixcount.captions.check import check_tiers_text
+
+    model = _coloured_glb(tmp_path / "m.glb", trimesh.creation.box(dims), rgb)
+    got = StubCaptioner("stub-v1").caption(_item(name=name, category="object", dims=dims,
+                                                 model_path=str(model)).with_measured_colours("model"))
+    tiers = {"short": got.short, "concise": got.concise, "detailed": got.detailed}
+    warnings = check_tiers_text(tiers, name=name, category="object", captioner="stub")
+    assert [w for w in warnings if w["kind"] == "repeated_word"] == [], (tiers, warnings)
+    assert name.split()[0].lower() in got.concise.lower().split(), tiers

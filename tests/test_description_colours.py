@@ -30,6 +30,7 @@ from mixcount.catalog.db import open_catalog
 from mixcount.catalog.layouts.mjcf import geom_colour
 from mixcount.catalog.models import CaptionSet, CatalogObject, Flag
 from mixcount.cli import main
+from mixcount.config import load_config
 from mixcount.curation.renders import canonical_render_path
 
 pytestmark = [pytest.mark.blender]
@@ -41,6 +42,7 @@ FOLDERS = {  # folder named by a person -> (package, files inside it)
                         f"{MW}/meshes/coffeemachine/mug.stl", f"{MW}/meshes/coffeemachine/handle.stl")),
     "Ball": (PYBULLET, (f"{PYBULLET_DATA}/sphere2red.urdf", f"{PYBULLET_DATA}/sphere_smooth.obj")),
     "Domino": (PYBULLET, tuple(f"{PYBULLET_DATA}/domino/{n}" for n in ("domino.urdf", "domino.obj", "domino.mtl", "domino.jpg"))),
+    "Sphere": (PYBULLET, (f"{PYBULLET_DATA}/sphere_smooth.obj",)),  # no description, its .mtl missing
 }
 SAID = {  # the description's colour of each visual mesh (RGB)
     "Basketball": {"basketballouter.stl": (0.7, 0.35, 0.0), "basketballinner.stl": (0.15, 0.15, 0.15)},
@@ -59,8 +61,10 @@ def test_mujoco_colour_rules():
 
 
 @pytest.fixture(scope="module")
-def library(tmp_path_factory) -> Path:
-    lib = tmp_path_factory.mktemp("described") / "lib"
+def catalog_db(tmp_path_factory) -> str:
+    """The folders above ingested, rendered (48 px) and captioned (stub) through the CLI."""
+    root_dir = tmp_path_factory.mktemp("described")
+    lib = root_dir / "lib"
     for folder, (package, files) in FOLDERS.items():
         root, why = package_root(package)
         if root is None:
@@ -68,16 +72,23 @@ def library(tmp_path_factory) -> Path:
         (lib / folder).mkdir(parents=True)
         for rel in files:
             shutil.copy(root / rel, lib / folder / Path(rel).name)
-    return lib
-
-
-def test_description_colours_reach_the_model_the_render_and_the_caption(library: Path, tmp_path: Path, capsys):
-    db = str(tmp_path / "catalog.db")
+    db = str(root_dir / "catalog.db")
     base = ["--db", db, "--config", "configs/quick.toml", "--set", "canonical_render.resolution=48",
             "--set", "canonical_render.samples=2"]
-    for step in (["catalog", "ingest", str(library)], ["catalog", "render"], ["catalog", "caption", "--captioner", "stub"]):
+    for step in (["catalog", "ingest", str(lib)], ["catalog", "render"], ["catalog", "caption", "--captioner", "stub"]):
         assert main(base + step) == 0, step
-    capsys.readouterr()
+    return db
+
+
+def _object_rgb(path: Path | None) -> np.ndarray:
+    """Mean colour of a canonical render's object pixels (alpha > 0.5)."""
+    assert path is not None
+    rgba = np.asarray(Image.open(io.BytesIO(Path(path).read_bytes())).convert("RGBA"), float) / 255
+    return rgba[rgba[..., 3] > 0.5][:, :3].mean(axis=0)
+
+
+def test_description_colours_reach_the_model_the_render_and_the_caption(catalog_db: str):
+    db = catalog_db
     catalog = open_catalog(db, data_dir="")
     try:
         with catalog.session() as s:
@@ -103,14 +114,45 @@ def test_description_colours_reach_the_model_the_render_and_the_caption(library:
     assert objects["Domino"].model_path.endswith("domino.obj")
     assert ("Ball", "missing_material") in flags  # the .mtl sphere_smooth.obj names is still said missing
 
-    def object_rgb(path: Path | None) -> np.ndarray:
-        assert path is not None
-        rgba = np.asarray(Image.open(io.BytesIO(Path(path).read_bytes())).convert("RGBA"), float) / 255
-        return rgba[rgba[..., 3] > 0.5][:, :3].mean(axis=0)
-
-    red, orange, white = object_rgb(renders["Ball"]), object_rgb(renders["Basketball"]), object_rgb(renders["Mug"])
+    red, orange, white = _object_rgb(renders["Ball"]), _object_rgb(renders["Basketball"]), _object_rgb(renders["Mug"])
     print(f"\nrender means: ball {red.round(2)}, basketball {orange.round(2)}, mug {white.round(2)}; captions {short}")
     assert red[0] > 1.5 * red[1] and red[0] > 1.5 * red[2]
     assert orange[0] > orange[1] > 1.5 * orange[2]
     assert white.min() > 0.5 and white.max() - white.min() < 0.1
     assert "red" in short["Ball"] and "white" in short["Mug"], short
+
+
+def test_an_obj_without_its_mtl_looks_the_same_in_the_render_the_scene_asset_and_the_caption(catalog_db: str):
+    """pybullet's ``sphere_smooth.obj`` names a ``.mtl`` that is not shipped and has texture coordinates:
+    trimesh gives it a stand-in 2x2 grey image and Blender's OBJ importer a default material named after
+    its ``usemtl``. Ingest read the stand-in as a texture (appearance ``image``), the canonical render kept
+    Blender's near-white default and the caption said the stand-in's grey. Now it has no colour of its own
+    (appearance ``none``): the palette look is its colour in the canonical render, in the USD asset scenes
+    are built from and in the caption alike, and the missing .mtl is still said."""
+    from mixcount.captions.colours import family, name_rgb
+    from mixcount.catalog.materials import object_look
+    from mixcount.usd.model_parts import load_parts
+
+    catalog = open_catalog(catalog_db, data_dir="")
+    try:
+        with catalog.session() as s:
+            obj = s.scalars(select(CatalogObject).where(CatalogObject.name == "Sphere")).one()
+            render = canonical_render_path(s, obj.id)
+            caption = s.scalars(select(CaptionSet).where(CaptionSet.object_id == obj.id, CaptionSet.active.is_(True))).one()
+            kinds = {f.kind for f in s.scalars(select(Flag).where(Flag.object_id == obj.id))}
+            meta = json.loads(obj.metadata_json or "{}")
+            look = object_look(load_config().palette, name=obj.name, category=obj.category or "",
+                               metadata_json=obj.metadata_json, content_hash=obj.content_hash or "")
+            model_path = obj.model_path
+    finally:
+        catalog.close()
+    assert meta["ingest"]["appearance"] == "none" and "missing_material" in kinds
+    assert look is not None
+    rendered = _object_rgb(render)
+    colour = family(name_rgb(look.rgb8())) or name_rgb(look.rgb8())
+    seen = family(name_rgb(tuple(int(round(255 * v)) for v in rendered))) or name_rgb(tuple(int(round(255 * v)) for v in rendered))
+    print(f"\nlook {look.rgb8()} ({colour}), render mean {rendered.round(2)} ({seen}); caption {caption.short!r}")
+    assert seen == colour, (seen, colour)
+    assert colour in caption.short or name_rgb(look.rgb8()) in caption.short, caption.short
+    parts = load_parts(Path(model_path), 1.0, "Y", look.as_tuple())
+    assert parts and all(p.material is not None and p.material.get("base_color_tex") is None for p in parts)

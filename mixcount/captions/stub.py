@@ -101,6 +101,9 @@ class StubCaptioner:
                                   or (bool(named) and bool(extra) and item.colours.variation >= 0.12))
         plain = len(measured) == 1 and item.colours.variation < 0.08
         shape = proportion_word(item.dims)
+        # a word the name says already is not said again ("Plain sphere" is no "plain plain sphere")
+        shape = None if shape in lower else shape
+        said_patterned = patterned and "patterned" not in lower
         tone = [item.tone] if item.tone else []
         plural = singular(phrase.head) != phrase.head  # "sneakers", "headphones": no article
         detail = list(phrase.detail)
@@ -108,13 +111,13 @@ class StubCaptioner:
         # --- short: colours + noun phrase, 2-5 words; the name's words are never dropped before its colours
         if named:
             colour_words = lead + ([f"and {extra[0]}"] if item.tell >= 1 and extra else [])
-            options = [tone + colour_words + (["patterned"] if item.tell >= 1 and patterned else []) + words,
+            options = [tone + colour_words + (["patterned"] if item.tell >= 1 and said_patterned else []) + words,
                        tone + colour_words + words, tone + lead + words, lead + words]
         else:
             two = measured[:2]
-            options = [tone + _listing(two).split() + ["patterned"] + words if patterned else [],
+            options = [tone + _listing(two).split() + ["patterned"] + words if said_patterned else [],
                        tone + _listing(two).split() + words,
-                       tone + measured[:1] + (["patterned"] if patterned else []) + words,
+                       tone + measured[:1] + (["patterned"] if said_patterned else []) + words,
                        tone + measured[:1] + words]
             if item.tell >= 1 and len(measured) >= 3:
                 options.insert(0, tone + _listing(measured[:3]).split() + words)
@@ -127,7 +130,7 @@ class StubCaptioner:
         short = " ".join(" ".join(short_words).split())
 
         # --- concise: finish + colours + noun phrase + the name's detail + what the name's colours leave out
-        finish = ["patterned"] if patterned else ["plain"] if plain else []
+        finish = [w for w in (["patterned"] if patterned else ["plain"] if plain else []) if w not in lower]
         shape_words = [shape] if shape else []
         said_finish = finish if (patterned or not shape) else []
         extra_text = (f"a {_listing(extra[:2])} pattern" if patterned else f"{_listing(extra[:2])} details") \

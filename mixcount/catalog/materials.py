@@ -199,11 +199,34 @@ def object_look(palette: Any, *, name: str, category: str, metadata_json: Option
     return replace(looks[pick.lower()], source="default")
 
 
+def is_placeholder_image(image: Any) -> bool:
+    """True for the image trimesh gives a model whose material is missing (an OBJ with texture coordinates
+    and no ``.mtl``, or one naming a ``.mtl`` that is not there: ``trimesh.visual.material.empty_material``,
+    a few pixels of one grey), not a texture anyone made."""
+    import trimesh
+
+    try:
+        pixels = np.asarray(image.convert("RGBA"))
+        stand_in = np.asarray(trimesh.visual.material.empty_material().image.convert("RGBA"))
+    except (AttributeError, OSError, ValueError):
+        return False
+    return pixels.shape == stand_in.shape and bool((pixels == stand_in).all())
+
+
+def is_placeholder_material(material: Any) -> bool:
+    """True for trimesh's stand-in material (:func:`is_placeholder_image`): no colour of the model's own."""
+    image = getattr(material, "image", None)
+    return (type(material).__name__ == "SimpleMaterial" and image is not None
+            and getattr(material, "baseColorTexture", None) is None and is_placeholder_image(image))
+
+
 def uncoloured(visual: Any) -> bool:
     """Whether a trimesh geometry's visual carries no colour at all: no material (so no texture and no
-    material colour) and no vertex or face colours. Such a part gets the object's :class:`Look`."""
+    material colour; trimesh's stand-in for a missing one is none, :func:`is_placeholder_material`) and no
+    vertex or face colours. Such a part gets the object's :class:`Look`."""
     if visual is None:
         return True
-    if getattr(visual, "material", None) is not None:
-        return False
+    material = getattr(visual, "material", None)
+    if material is not None:
+        return is_placeholder_material(material)
     return getattr(visual, "kind", None) is None

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from mixcount.atomic import atomic_path
+from mixcount.catalog.materials import is_placeholder_image
 from mixcount.catalog.mesh_bounds import FullFacts, check_coordinates, cluster_copy, full_facts
 from mixcount.catalog.model_files import GLB_MAGIC, Relinked, model_resources, relink_textures  # noqa: F401  (re-exported)
 from mixcount.catalog.units import size_prior
@@ -82,7 +83,7 @@ class _Parts:
 def appearance_of(geom: Any) -> str:
     """How a loaded geometry is coloured: ``image`` (a texture), ``vertex_color`` (colours that vary),
     ``material`` (one colour of its own) or ``none`` (no colour of its own: an STL, an OBJ whose material
-    is missing, :func:`_is_placeholder`)."""
+    is missing: :func:`mixcount.catalog.materials.is_placeholder_image`)."""
     visual = getattr(geom, "visual", None)
     if visual is None:
         return "none"
@@ -90,7 +91,7 @@ def appearance_of(geom: Any) -> str:
     if kind == "texture":
         material = getattr(visual, "material", None)
         image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
-        if image is not None and _is_placeholder(image):
+        if image is not None and is_placeholder_image(image):
             # trimesh's stand-in for a material nobody wrote (an OBJ with UVs and no .mtl, or its .mtl
             # missing): no colour of the model's own
             return "none"
@@ -106,19 +107,6 @@ def appearance_of(geom: Any) -> str:
         colours = visual.vertex_colors if kind == "vertex" else visual.face_colors
         return "vertex_color" if _varies(colours) else "material"
     return "none"
-
-
-def _is_placeholder(image: Any) -> bool:
-    """True for the image trimesh gives a textured-looking model whose material is missing
-    (``trimesh.visual.material.empty_material``: a few pixels of one grey), not a texture anyone made."""
-    import trimesh
-
-    try:
-        pixels = np.asarray(image.convert("RGBA"))
-        stand_in = np.asarray(trimesh.visual.material.empty_material().image.convert("RGBA"))
-    except (AttributeError, OSError, ValueError):
-        return False
-    return pixels.shape == stand_in.shape and bool((pixels == stand_in).all())
 
 
 def _varies(colours: Any) -> bool:

@@ -19,6 +19,7 @@ the next run; the batch always goes on.
 from __future__ import annotations
 
 import hashlib
+import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Optional
@@ -108,7 +109,20 @@ def canonical_request(config: CanonicalRenderConfig, obj: CatalogObject, out_dir
     runner's: it shares the cores among its workers); ``look`` for its parts without a colour."""
     return CanonicalRequest(model_path=obj.model_path, out_dir=str(out_dir), stem=f"obj_{obj.id:06d}",
                             threads=config.threads, settings=CanonicalSettings.from_config(config),
-                            up_axis=obj.source_up_axis or "", look=look, heavy=is_heavy(config, obj))
+                            up_axis=obj.source_up_axis or "", look=look, heavy=is_heavy(config, obj),
+                            stand_in_materials=look is not None and colourless(obj))
+
+
+def colourless(obj: CatalogObject) -> bool:
+    """True for an OBJ in which ingest read no colour (appearance ``none``: its .mtl missing or never
+    written): the material Blender's importer makes for its ``usemtl`` anyway is a stand-in. (Other formats
+    get no material from their importer where they have no colour.)"""
+    if not str(obj.model_path or "").lower().endswith(".obj"):
+        return False
+    try:
+        return (json.loads(obj.metadata_json or "{}").get("ingest") or {}).get("appearance") == "none"
+    except (ValueError, AttributeError):
+        return False
 
 
 def render_look(palette: Any, obj: CatalogObject) -> Optional[tuple[float, ...]]:
@@ -125,7 +139,7 @@ def model_key(obj: CatalogObject, look: Optional[tuple[float, ...]] = None) -> s
     """What a render depends on besides the settings: the model's content, the up axis the catalog
     reads it with (a corrected up axis renders the object again) and the palette look of its parts without a
     colour. Stored as ``renders.model_hash``."""
-    tail = "" if look is None else "|" + ",".join(f"{v:.4f}" for v in look)
+    tail = "" if look is None else "|" + ",".join(f"{v:.4f}" for v in look) + ("|stand-ins" if colourless(obj) else "")
     return hashlib.sha256(f"{obj.content_hash}|{obj.source_up_axis or ''}{tail}".encode()).hexdigest()
 
 

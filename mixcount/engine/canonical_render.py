@@ -135,11 +135,22 @@ def use_vertex_colours(objects: list[Any]) -> int:
     return done
 
 
-def apply_look(objects: list[Any], look: Any) -> int:
+def _has_image_texture(obj: Any) -> bool:
+    """True when a material of ``obj`` samples an image (a texture of its own, never a stand-in)."""
+    for slot in obj.material_slots:
+        tree = getattr(slot.material, "node_tree", None) if slot.material is not None else None
+        if tree is not None and any(n.type == "TEX_IMAGE" and n.image is not None for n in tree.nodes):
+            return True
+    return False
+
+
+def apply_look(objects: list[Any], look: Any, *, over_stand_ins: bool = False) -> int:
     """Give every mesh with no material, no colour attribute and no texture a Principled material of
     ``look`` = (sRGB r, g, b, metallic, roughness): an STL, PLY or OBJ-without-.mtl part would otherwise
     render in Cycles' default near-white, as the USD asset's part does not (:mod:`mixcount.usd.assets`).
-    Returns how many meshes got it."""
+    ``over_stand_ins``: the catalog read no colour in the model, so a material the importer made (an OBJ's
+    ``usemtl`` whose .mtl is missing) is replaced too, unless it samples an image. Returns how many meshes
+    got it."""
     import bpy
 
     from mixcount.catalog.materials import srgb_to_linear
@@ -148,7 +159,10 @@ def apply_look(objects: list[Any], look: Any) -> int:
         return 0
     done, mat = 0, None
     for obj in objects:
-        if obj.type != "MESH" or any(slot.material is not None for slot in obj.material_slots):
+        if obj.type != "MESH":
+            continue
+        has_material = any(slot.material is not None for slot in obj.material_slots)
+        if has_material and (not over_stand_ins or _has_image_texture(obj)):
             continue
         if getattr(obj.data, "color_attributes", None):
             continue  # its own colours (use_vertex_colours gives them a material)
@@ -428,7 +442,7 @@ def render_object(req: CanonicalRequest) -> CanonicalResult:
     objects = import_model(Path(req.model_path))
     orient_to_catalog(Path(req.model_path), req.up_axis)
     use_vertex_colours(objects)
-    apply_look(objects, req.look)
+    apply_look(objects, req.look, over_stand_ins=req.stand_in_materials)
     require_images(scene)  # a texture its importer could not open: an error naming it, not magenta
     pts = centre_objects(objects)
     look = req.settings

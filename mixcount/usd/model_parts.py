@@ -13,7 +13,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from mixcount.catalog.materials import material_vertex_colours, srgb_to_linear
+from mixcount.catalog.materials import is_placeholder_material, material_vertex_colours, srgb_to_linear
 from mixcount.errors import CompositionError
 from mixcount.frame import load_model, to_metres_z_up, up_axis_rotation, walk_geometry
 
@@ -43,6 +43,9 @@ def _image(obj: Any) -> Any:
 def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarray], str]:
     visual = getattr(geom, "visual", None)
     kind = getattr(visual, "kind", None)
+    if (kind == "texture" or (visual is not None and hasattr(visual, "material") and kind is None)) \
+            and is_placeholder_material(getattr(visual, "material", None)):
+        return None, None, "vertex"  # trimesh's stand-in for a missing material: no colour of its own (the look)
     if kind == "texture" or (visual is not None and hasattr(visual, "material") and kind is None):
         mat = visual.material
         info: dict[str, Any] = {"base_color_factor": [0.8, 0.8, 0.8, 1.0], "metallic": 0.0, "roughness": 0.5}

@@ -68,6 +68,10 @@ class CanonicalRequest:
     # (sRGB r, g, b, metallic, roughness) for the model's parts without texture, vertex colours or material
     # ([palette], mixcount.catalog.materials.object_look); None: they keep the importer's default
     look: Optional[tuple[float, ...]] = None
+    # True where the catalog read no colour in any part of the model (appearance "none"): a material its
+    # importer makes anyway (Blender's OBJ importer names one after a ``usemtl`` whose .mtl is missing) is a
+    # stand-in, and ``look`` replaces it as it would a part without any material
+    stand_in_materials: bool = False
     # which render path: True heavy, False light, None the worker's own triangle count against
     # settings.heavy_faces. The catalog always says (curation.renders.is_heavy, from the face count its
     # render rows are hashed with), so one rule picks both the path and the hash that records it.
