@@ -58,6 +58,42 @@ def test_mujoco_colour_rules():
     assert geom_colour({"material": "white", "rgba": "1 0 0 1"}, materials) == (1.0, 0.0, 0.0, 1.0)  # rgba wins
     assert geom_colour({"rgba": "0.5 0.5 0.5 1"}, materials) is None  # MuJoCo's default: nobody's choice
     assert geom_colour({}, materials) is None
+    # what a library may write instead of a colour is none: not a crash, not a broken object
+    assert geom_colour({"rgba": "nan 0 0 1"}, {}) is None and geom_colour({"rgba": "2 0 0 1"}, {}) is None
+    assert geom_colour({"rgba": "1 0 0"}, {}) is None and geom_colour({"rgba": "red"}, {}) is None
+
+
+def test_a_description_colour_that_is_no_colour_is_ignored(tmp_path: Path, capsys):
+    """A URDF and an MJCF whose colours are ``nan`` or out of range: the object ingests as if no colour
+    were given (not broken, its own look), through the CLI."""
+    from mixcount.catalog.layouts.companions import read_description
+
+    lib = tmp_path / "lib"
+    for folder, rgba in (("Bad urdf", "nan 0 0 1"), ("Far urdf", "3 0 0 1")):
+        (lib / folder).mkdir(parents=True)
+        trimesh.creation.box((0.05, 0.05, 0.05)).export(lib / folder / "box.stl")
+        (lib / folder / "box.urdf").write_text(
+            f'<robot name="b"><link name="l"><visual><geometry><mesh filename="box.stl"/></geometry>'
+            f'<material name="m"><color rgba="{rgba}"/></material></visual></link></robot>')
+        desc = read_description(lib / folder / "box.urdf")
+        assert desc is not None and desc.colours == {}, desc
+    (lib / "Bad mjcf").mkdir()
+    trimesh.creation.box((0.05, 0.05, 0.05)).export(lib / "Bad mjcf" / "box.stl")
+    (lib / "Bad mjcf" / "box.xml").write_text(
+        '<mujoco><asset><mesh file="box.stl"/><material name="m" rgba="nan 1 1 1"/></asset>'
+        '<worldbody><body name="box"><geom mesh="box" material="m" rgba="5 5 5 1"/></body></worldbody></mujoco>')
+    db = str(tmp_path / "catalog.db")
+    assert main(["--db", db, "--config", "configs/quick.toml", "catalog", "ingest", str(lib)]) == 0
+    capsys.readouterr()
+    catalog = open_catalog(db, data_dir="")
+    try:
+        with catalog.session() as s:
+            objects = list(s.scalars(select(CatalogObject)))
+            assert len(objects) == 3 and all(o.status == "active" for o in objects), [(o.name, o.status) for o in objects]
+            assert all(json.loads(o.metadata_json)["ingest"]["appearance"] == "none" for o in objects)
+            assert all(o.model_path.endswith(".stl") for o in objects)  # nothing derived for no colour
+    finally:
+        catalog.close()
 
 
 @pytest.fixture(scope="module")
