@@ -17,6 +17,14 @@ from mixcount.catalog.models import CaptionSet, CatalogObject, Flag, Render, Rev
 RECORD_VERSION = 1
 
 
+def ingest_appearance(obj: CatalogObject) -> str:
+    """How ingest read the model's colours (``image``, ``vertex_color``, ``material`` or ``none``, the
+    object's ``metadata.ingest.appearance``); ``none`` where it is not recorded or the metadata is unreadable."""
+    try:
+        return str((json.loads(obj.metadata_json or "{}").get("ingest") or {}).get("appearance") or "none")
+    except (ValueError, AttributeError):
+        return "none"
+
 def _iso(value: Any) -> str | None:
     return value.isoformat() + "Z" if value is not None else None
 

@@ -19,7 +19,6 @@ the next run; the batch always goes on.
 from __future__ import annotations
 
 import hashlib
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Optional
@@ -31,6 +30,7 @@ from mixcount.catalog.db import Catalog
 from mixcount.catalog.hashing import json_hash
 from mixcount.catalog.materials import object_look
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Render, utcnow
+from mixcount.catalog.records import ingest_appearance
 from mixcount.config import CanonicalRenderConfig
 from mixcount.progress import ProgressReporter, as_reporter
 from mixcount.worker.canonical_contract import CANONICAL, CanonicalRequest, CanonicalSettings, canonical_views
@@ -117,12 +117,7 @@ def colourless(obj: CatalogObject) -> bool:
     """True for an OBJ in which ingest read no colour (appearance ``none``: its .mtl missing or never
     written): the material Blender's importer makes for its ``usemtl`` anyway is a stand-in. (Other formats
     get no material from their importer where they have no colour.)"""
-    if not str(obj.model_path or "").lower().endswith(".obj"):
-        return False
-    try:
-        return (json.loads(obj.metadata_json or "{}").get("ingest") or {}).get("appearance") == "none"
-    except (ValueError, AttributeError):
-        return False
+    return str(obj.model_path or "").lower().endswith(".obj") and ingest_appearance(obj) == "none"
 
 
 def render_look(palette: Any, obj: CatalogObject) -> Optional[tuple[float, ...]]:

@@ -43,11 +43,10 @@ def _image(obj: Any) -> Any:
 def _material_of(geom: Any) -> tuple[Optional[dict[str, Any]], Optional[np.ndarray], str]:
     visual = getattr(geom, "visual", None)
     kind = getattr(visual, "kind", None)
-    if (kind == "texture" or (visual is not None and hasattr(visual, "material") and kind is None)) \
-            and is_placeholder_material(getattr(visual, "material", None)):
-        return None, None, "vertex"  # trimesh's stand-in for a missing material: no colour of its own (the look)
     if kind == "texture" or (visual is not None and hasattr(visual, "material") and kind is None):
         mat = visual.material
+        if is_placeholder_material(mat):
+            return None, None, "vertex"  # trimesh's stand-in for a missing material: no colour of its own (the look)
         info: dict[str, Any] = {"base_color_factor": [0.8, 0.8, 0.8, 1.0], "metallic": 0.0, "roughness": 0.5}
         factor = getattr(mat, "baseColorFactor", None)
         if factor is not None or type(mat).__name__ == "PBRMaterial":  # unset: glTF's default, 1

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mixcount.catalog.layouts.mjcf import is_mjcf, read_mjcf
+from mixcount.catalog.layouts.mjcf import is_mjcf, read_mjcf, rgba_colour
 from mixcount.catalog.naming import safe_text
 from mixcount.library_root import reference_refusal
 
@@ -125,11 +125,9 @@ def _mesh_of(elem: ET.Element | None, sdf: bool) -> tuple[str | None, str | None
 
 
 def _rgba(text: str | None) -> tuple[float, float, float, float] | None:
-    """RGBA 0..1 from ``r g b a`` (or ``r g b``: opaque), None when it is not four or three numbers in 0..1."""
-    values = _floats(text, 4) or _floats(text, 3)
-    if values is None or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values):
-        return None
-    return (values[0], values[1], values[2], values[3] if len(values) == 4 else 1.0)
+    """RGBA 0..1 from ``r g b a`` (or ``r g b``: opaque) text (:func:`~.mjcf.rgba_colour`)."""
+    three = _floats(text, 3)
+    return rgba_colour(_floats(text, 4) or ((*three, 1.0) if three else None))
 
 
 def visual_colour(root: ET.Element, visual: ET.Element | None, sdf: bool) -> tuple[float, float, float, float] | None:

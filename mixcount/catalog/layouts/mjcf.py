@@ -130,7 +130,7 @@ def read_mjcf(paths: list[Path], notes: list[str] | None = None) -> MjcfModel | 
     materials: dict[str, tuple[float, float, float, float]] = {}
     for _p, root in roots:
         for material in root.iter("material"):
-            colour = _colour(_floats(material.get("rgba")) or [1.0, 1.0, 1.0, 1.0])  # MuJoCo's default: white
+            colour = rgba_colour(_floats(material.get("rgba")) or [1.0, 1.0, 1.0, 1.0])  # MuJoCo's default: white
             # a textured material's colour is its texture's (rgba only tints it): no colour said here
             if material.get("name") and colour is not None and not material.get("texture"):
                 materials[material.get("name", "")] = colour
@@ -198,9 +198,10 @@ def _meshes_by_name(roots: list[tuple[Path, ET.Element]], meshes: dict[str, tupl
 MUJOCO_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)  # a geom's rgba when nothing sets it
 
 
-def _colour(values: list[float] | None) -> tuple[float, float, float, float] | None:
+def rgba_colour(values: list[float] | tuple[float, ...] | None) -> tuple[float, float, float, float] | None:
     """Four finite numbers in 0..1 as an RGBA tuple; None for anything else (a library's ``nan`` or ``2``
-    is no colour, and no reason to lose the object)."""
+    is no colour, and no reason to lose the object). Every description format's colours pass here (MJCF,
+    URDF, SDF)."""
     if not values or len(values) != 4 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values):
         return None
     return (values[0], values[1], values[2], values[3])
@@ -209,7 +210,7 @@ def _colour(values: list[float] | None) -> tuple[float, float, float, float] | N
 def geom_colour(attrs: dict[str, str],
                 materials: dict[str, tuple[float, float, float, float]]) -> tuple[float, float, float, float] | None:
     """The colour MuJoCo shows a geom in (see the module doc), or None where nothing chose one."""
-    rgba = _colour(_floats(attrs.get("rgba")))
+    rgba = rgba_colour(_floats(attrs.get("rgba")))
     if rgba is not None and rgba != MUJOCO_DEFAULT_RGBA:
         return rgba
     return materials.get(attrs.get("material") or "")

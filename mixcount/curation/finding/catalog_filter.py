@@ -69,6 +69,7 @@ from mixcount.catalog.models import (
     CatalogObject,
     Flag,
 )
+from mixcount.catalog.records import ingest_appearance
 from mixcount.config import Config
 from mixcount.curation.finding import appearance3d as A
 from mixcount.curation.finding import colour_layout as CL
@@ -76,7 +77,7 @@ from mixcount.curation.finding import descriptors as D
 from mixcount.curation.finding import pair_evidence as E
 from mixcount.curation.finding.candidates import candidate_pairs, queries
 from mixcount.curation.finding.copy_rules import pair_flags, shape_gate
-from mixcount.curation.finding.filter_items import Found, Item, LayoutCache, appearance_kind, object_label
+from mixcount.curation.finding.filter_items import Found, Item, LayoutCache, object_label
 from mixcount.curation.finding.ground_truth import evaluate_against_ground_truth
 from mixcount.curation.finding.quality_flags import quality_flags
 from mixcount.curation.flag_kinds import (
@@ -129,7 +130,7 @@ def _describe(catalog: Catalog, session: Session, items: list[Item], summary: Fi
     work = []
     for it in items:
         obj = it.obj
-        it.appearance = appearance_kind(obj)
+        it.appearance = ingest_appearance(obj)
         path = canonical_render_path(session, obj.id)
         work.append((obj.model_path, obj.source_units, obj.source_up_axis, cache, (obj.geometry_hash or "")[:32] or None,
                      (obj.content_hash or "")[:32] or None, str(path) if path is not None else None))

@@ -77,12 +77,6 @@ def object_label(obj: CatalogObject) -> str:
     return f"#{obj.id} {obj.name!r}"
 
 
-def appearance_kind(obj: CatalogObject) -> str:
-    try:
-        data = json.loads(obj.metadata_json or "{}")
-        return str((data.get("ingest") or {}).get("appearance") or "none")
-    except (ValueError, AttributeError):
-        return "none"
 
 
 

@@ -7,7 +7,6 @@ marked as decided (severity *info*)."""
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from sqlalchemy import or_, select
@@ -15,6 +14,7 @@ from sqlalchemy.orm import Session
 
 from mixcount.catalog.decisions import latest_decisions, latest_pair_decisions
 from mixcount.catalog.models import STATUS_ACTIVE, STATUS_EXCLUDED, CatalogObject, Flag
+from mixcount.catalog.records import ingest_appearance
 from mixcount.curation.flag_kinds import (
     APPEARANCE_RANK,
     CAPTION_COLLISION,
@@ -26,17 +26,10 @@ from mixcount.curation.flag_kinds import (
 )
 
 
-def _appearance(obj: CatalogObject) -> str:
-    try:
-        return str((json.loads(obj.metadata_json or "{}").get("ingest") or {}).get("appearance") or "none")
-    except (ValueError, AttributeError):
-        return "none"
-
-
 def _rank(session: Session, obj: CatalogObject, accepted: set[int]) -> tuple:
     """The filter's quality order (smaller is better), from the flags in the catalog."""
     quality = len(session.scalars(select(Flag.id).where(Flag.object_id == obj.id, Flag.kind.in_(QUALITY_KINDS))).all())
-    return (0 if obj.id in accepted else 1, quality, APPEARANCE_RANK.get(_appearance(obj), 3), -(obj.face_count or 0), obj.id)
+    return (0 if obj.id in accepted else 1, quality, APPEARANCE_RANK.get(ingest_appearance(obj), 3), -(obj.face_count or 0), obj.id)
 
 
 def apply_pair_decisions(session: Session) -> list[dict[str, Any]]:
