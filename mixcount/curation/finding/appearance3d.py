@@ -39,6 +39,7 @@ import numpy as np
 from mixcount.atomic import atomic_path
 from mixcount.catalog.materials import base_colour_factor, base_colour_texture, material_vertex_colours
 from mixcount.curation.finding import portable_linalg as L
+from mixcount.curation.finding.descriptors import face_areas
 from mixcount.frame import load_model
 
 APPEARANCE_VERSION = "look3d-v3"  # the surface samples (v3: node transforms without BLAS; v2: textures outside the model's folder read)
@@ -177,7 +178,7 @@ def surface_samples(model_path: str | Path, *, n: int = N_SAMPLES, seed: int = S
             v = L.turn(v, transform[:3, :3]) + transform[:3, 3]
         t = v[np.asarray(geom.faces)]
         tris.append(t)
-        areas.append(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1))
+        areas.append(face_areas(t))
     flat = np.concatenate(areas)
     if not flat.sum() > 0:
         raise ValueError("model has zero surface area")
